@@ -1,0 +1,178 @@
+"""Estimator interface, the ``Estimate`` snapshot, and the name → class registry (DESIGN.md §5)."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.models.rotations import FloatArray
+
+POSE_DIM = 9
+"""Pose error state used for NEES: (ρ [m, N], v [m/s, B], Λ [rad])."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Frozen snapshot of an estimator's belief.
+
+    Attributes:
+        position: (3,) ρ̂ in N, m.
+        vel_body: (3,) v̂ in B, m/s.
+        vel_inertial: (3,) ``C_NB(Λ̂) v̂`` in N, m/s.
+        euler: (3,) Λ̂ = (φ̂, θ̂, ψ̂) in rad.
+        rates: (3,) ω̂ in B, rad/s (for EKF-SLAM: the bias-corrected gyro).
+        pose_cov: (9, 9) covariance of (ρ, v, Λ), or ``None`` when the estimator has none
+            (the oracle).
+        landmark_ids: (n,) int ids of mapped landmarks.
+        landmark_means: (n, 3) estimated landmark positions in N, m.
+        landmark_covs: (n, 3, 3) landmark covariances in m².
+        accel_bias: (3,) estimated total accelerometer bias in m/s², or ``None``.
+        gyro_bias: (3,) estimated total gyro bias in rad/s, or ``None``.
+        diagnostics: Scalars such as ``nis``, ``nis_dof``, ``n_rejected``, ``ess``.
+    """
+
+    position: FloatArray
+    vel_body: FloatArray
+    vel_inertial: FloatArray
+    euler: FloatArray
+    rates: FloatArray
+    pose_cov: FloatArray | None
+    landmark_ids: np.ndarray
+    landmark_means: FloatArray
+    landmark_covs: FloatArray
+    accel_bias: FloatArray | None = None
+    gyro_bias: FloatArray | None = None
+    diagnostics: dict[str, float] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """What the env needs from an estimator. Estimators never receive the true state."""
+
+    def reset(
+        self,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rng: np.random.Generator,
+        known_landmarks: tuple[np.ndarray, FloatArray] | None = None,
+    ) -> None:
+        """Start from a 12-state mean ``(ρ, v_B, Λ, ω)`` and its (12, 12) covariance.
+
+        ``known_landmarks`` is ``(ids (L,), positions (L, 3))`` for known-map modes; ``rng`` is
+        the only source of randomness the estimator may use.
+        """
+
+    def predict(self, imu: ImuSample, control: Control, dt: float) -> None:
+        """Propagate over ``dt`` seconds with one IMU sample and the applied control."""
+
+    def update(self, scan: LidarScan) -> None:
+        """Correct with one LiDAR scan (an empty scan is allowed)."""
+
+    def estimate(self) -> Estimate:
+        """Return a frozen snapshot of the current belief."""
+
+
+_REGISTRY: dict[str, Callable[..., Estimator]] = {}
+# Modules imported on first use, so `import estimators` stays cheap and a broken optional
+# estimator cannot break the others.
+_MODULES: dict[str, str] = {
+    "oracle": "estimators.oracle",
+    "ekf_slam": "estimators.ekf_slam",
+    "fastslam": "estimators.fastslam",
+    "fastslam_kinematic": "estimators.fastslam",
+}
+
+
+def register(name: str) -> Callable[[Callable[..., Estimator]], Callable[..., Estimator]]:
+    """Class decorator that makes an estimator constructible by ``make(name, **cfg)``."""
+
+    def deco(cls: Callable[..., Estimator]) -> Callable[..., Estimator]:
+        _REGISTRY[name] = cls
+        return cls
+
+    return deco
+
+
+def available() -> list[str]:
+    """Names accepted by :func:`make`."""
+    return sorted(set(_REGISTRY) | set(_MODULES))
+
+
+def make(name: str, **cfg: Any) -> Estimator:
+    """Build an estimator by name.
+
+    Args:
+        name: Registered name (see :func:`available`).
+        **cfg: Keyword settings for that estimator; unknown keys raise ``ValueError``.
+
+    Raises:
+        ValueError: Unknown name or invalid settings.
+    """
+    if name not in _REGISTRY and name in _MODULES:
+        importlib.import_module(_MODULES[name])
+    if name not in _REGISTRY:
+        raise ValueError(f"estimator.name: unknown estimator {name!r}; allowed: {available()}")
+    return _REGISTRY[name](**cfg)
+
+
+def check_kwargs(
+    owner: str, given: dict[str, Any], allowed: dict[str, type | tuple[type, ...]]
+) -> None:
+    """Reject unknown or wrongly typed estimator settings with a message naming the key.
+
+    Args:
+        owner: Prefix for the message, e.g. ``"estimator.params"``.
+        given: The settings passed in.
+        allowed: Map from key to accepted type(s).
+
+    Raises:
+        ValueError: On an unknown key or a value of the wrong type.
+    """
+    for key, value in given.items():
+        if key not in allowed:
+            raise ValueError(f"{owner}.{key}: unknown key; allowed: {sorted(allowed)}")
+        want = allowed[key] if isinstance(allowed[key], tuple) else (allowed[key],)
+        # bool is an int subclass: accept it only where bool is asked for.
+        wrong_bool = isinstance(value, bool) and bool not in want
+        if wrong_bool or not isinstance(value, want):
+            names = " or ".join(t.__name__ for t in want)
+            raise ValueError(f"{owner}.{key}: expected {names}, got {value!r}")
+
+
+def pose_from_state(mean: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Split a 12-state into (ρ, v_B, Λ, ω) copies."""
+    m = np.asarray(mean, dtype=float)
+    return m[0:3].copy(), m[3:6].copy(), m[6:9].copy(), m[9:12].copy()
+
+
+def health_problem(est: Estimate) -> str | None:
+    """Describe what is wrong with an estimate, or ``None`` if it is healthy.
+
+    Checks (DESIGN.md §7): finite mean and covariance, a symmetric positive semi-definite pose
+    covariance (Cholesky of the slightly regularised matrix), and the estimator's own
+    ``diverged`` flag.
+    """
+    if est.diagnostics.get("diverged", 0.0):
+        return "estimator reported divergence"
+    for name in ("position", "vel_body", "euler", "rates"):
+        if not np.all(np.isfinite(getattr(est, name))):
+            return f"non-finite {name}"
+    if est.landmark_means.size and not np.all(np.isfinite(est.landmark_means)):
+        return "non-finite landmark means"
+    cov = est.pose_cov
+    if cov is not None:
+        if not np.all(np.isfinite(cov)):
+            return "non-finite pose covariance"
+        scale = max(float(np.max(np.abs(np.diag(cov)))), 1e-12)
+        if np.max(np.abs(cov - cov.T)) > 1e-6 * scale:
+            return "asymmetric pose covariance"
+        try:
+            np.linalg.cholesky(cov + 1e-9 * scale * np.eye(cov.shape[0]))
+        except np.linalg.LinAlgError:
+            return "pose covariance not positive semi-definite"
+    return None

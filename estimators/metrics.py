@@ -1,0 +1,158 @@
+"""Accuracy and consistency metrics: the only module that sees truth and estimate together.
+
+Per step (DESIGN.md §5): position, inertial-velocity and attitude errors, NEES of the 9-DOF pose
+(ρ, v_B, Λ) and of the position, map RMSE over mapped landmarks, bias errors. Per episode:
+RMSEs, the average NEES (ANEES) and the share of steps whose NEES lies inside the two-sided 95%
+χ² interval. NEES is NaN when the estimator reports no covariance (the oracle).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from estimators.base import POSE_DIM, Estimate
+from quadslam_env.models.rotations import (
+    FloatArray,
+    dcm_from_euler,
+    rotation_angle_between,
+    wrap_angle,
+)
+
+NEES_POSE_BOUNDS_95 = (float(chi2.ppf(0.025, POSE_DIM)), float(chi2.ppf(0.975, POSE_DIM)))
+"""Two-sided 95% interval of a single 9-DOF NEES sample."""
+
+
+def anees_bounds(dof: int, n_runs: int, prob: float = 0.95) -> tuple[float, float]:
+    """Two-sided χ² interval of the average NEES over ``n_runs`` independent runs.
+
+    ``n_runs · ANEES ~ χ²(n_runs · dof)``, so the bounds are ``χ²⁻¹(q; n·dof) / n``.
+    """
+    lo = chi2.ppf((1.0 - prob) / 2.0, dof * n_runs) / n_runs
+    hi = chi2.ppf(1.0 - (1.0 - prob) / 2.0, dof * n_runs) / n_runs
+    return float(lo), float(hi)
+
+
+def pose_error(true_state: FloatArray, est: Estimate) -> FloatArray:
+    """(9,) pose error ``x̂ - x`` over (ρ, v_B, Λ) with wrapped Euler differences."""
+    err = np.empty(POSE_DIM)
+    err[0:3] = est.position - true_state[0:3]
+    err[3:6] = est.vel_body - true_state[3:6]
+    err[6:9] = wrap_angle(est.euler - true_state[6:9])
+    return err
+
+
+def nees(err: FloatArray, cov: FloatArray | None) -> float:
+    """Normalised estimation error squared ``eᵀ P⁻¹ e``; NaN without a usable covariance."""
+    if cov is None:
+        return math.nan
+    try:
+        return float(err @ np.linalg.solve(cov, err))
+    except np.linalg.LinAlgError:
+        return math.inf
+
+
+def map_rmse(est: Estimate, true_ids: np.ndarray, true_points: FloatArray) -> float:
+    """RMS of the 3D error over the mapped landmarks (m); NaN when nothing is mapped."""
+    if est.landmark_ids.size == 0:
+        return math.nan
+    idx = np.searchsorted(true_ids, est.landmark_ids)
+    diff = est.landmark_means - true_points[idx]
+    return float(np.sqrt(np.mean(np.sum(diff * diff, axis=1))))
+
+
+def step_metrics(
+    true_state: FloatArray,
+    true_vel_inertial: FloatArray,
+    est: Estimate,
+    true_ids: np.ndarray,
+    true_points: FloatArray,
+    true_bias: FloatArray | None,
+) -> dict[str, float]:
+    """The ``est_*`` terms of one step (DESIGN.md §4 ``info``).
+
+    Args:
+        true_state: (12,) true state.
+        true_vel_inertial: (3,) true velocity in N, m/s.
+        est: The estimator's snapshot.
+        true_ids: (L,) sorted true landmark ids.
+        true_points: (L, 3) true landmark positions.
+        true_bias: (6,) true total IMU bias (accel, gyro) or ``None``.
+    """
+    err = pose_error(true_state, est)
+    att = rotation_angle_between(dcm_from_euler(true_state[6:9]), dcm_from_euler(est.euler))
+    cov = est.pose_cov
+    out = {
+        "est_pos_err_m": float(np.linalg.norm(err[0:3])),
+        "est_vel_err_mps": float(np.linalg.norm(est.vel_inertial - true_vel_inertial)),
+        "est_att_err_deg": math.degrees(att),
+        "est_nees_pose": nees(err, cov),
+        "est_nees_pos": nees(err[0:3], None if cov is None else cov[0:3, 0:3]),
+        "est_n_mapped": float(est.landmark_ids.size),
+        "est_map_rmse_m": map_rmse(est, true_ids, true_points),
+        "est_accel_bias_err": math.nan,
+        "est_gyro_bias_err": math.nan,
+    }
+    if true_bias is not None and est.accel_bias is not None:
+        out["est_accel_bias_err"] = float(np.linalg.norm(est.accel_bias - true_bias[:3]))
+    if true_bias is not None and est.gyro_bias is not None:
+        out["est_gyro_bias_err"] = float(np.linalg.norm(est.gyro_bias - true_bias[3:]))
+    return out
+
+
+@dataclass
+class EpisodeMetrics:
+    """Accumulates per-step terms into the ``episode_*`` summary of the last ``info``."""
+
+    pos_sq: list[float] = field(default_factory=list)
+    vel_sq: list[float] = field(default_factory=list)
+    att_sq: list[float] = field(default_factory=list)
+    track_sq: list[float] = field(default_factory=list)
+    nees_pose: list[float] = field(default_factory=list)
+    nees_pos: list[float] = field(default_factory=list)
+    last_map_rmse: float = math.nan
+    last_n_mapped: float = 0.0
+
+    def add(self, info: dict[str, float]) -> None:
+        """Record one step's ``info`` terms."""
+        self.pos_sq.append(info["est_pos_err_m"] ** 2)
+        self.vel_sq.append(info["est_vel_err_mps"] ** 2)
+        self.att_sq.append(info["est_att_err_deg"] ** 2)
+        self.track_sq.append(info["track_pos_err_m"] ** 2)
+        self.nees_pose.append(info["est_nees_pose"])
+        self.nees_pos.append(info["est_nees_pos"])
+        self.last_map_rmse = info["est_map_rmse_m"]
+        self.last_n_mapped = info["est_n_mapped"]
+
+    def summary(self) -> dict[str, float]:
+        """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds."""
+        nees_pose = np.array(self.nees_pose)
+        lo, hi = NEES_POSE_BOUNDS_95
+        finite = nees_pose[np.isfinite(nees_pose)]
+        return {
+            "episode_steps": float(len(self.pos_sq)),
+            "episode_est_pos_rmse_m": _rms(self.pos_sq),
+            "episode_est_vel_rmse_mps": _rms(self.vel_sq),
+            "episode_est_att_rmse_deg": _rms(self.att_sq),
+            "episode_track_pos_rmse_m": _rms(self.track_sq),
+            "episode_map_rmse_m": self.last_map_rmse,
+            "episode_n_mapped": self.last_n_mapped,
+            "episode_anees_pose": float(np.mean(finite)) if finite.size else math.nan,
+            "episode_anees_pos": _mean_finite(self.nees_pos),
+            "episode_nees_pose_in_bounds": (
+                float(np.mean((finite >= lo) & (finite <= hi))) if finite.size else math.nan
+            ),
+        }
+
+
+def _rms(squares: list[float]) -> float:
+    return float(math.sqrt(np.mean(squares))) if squares else math.nan
+
+
+def _mean_finite(values: list[float]) -> float:
+    arr = np.array(values)
+    arr = arr[np.isfinite(arr)]
+    return float(np.mean(arr)) if arr.size else math.nan

@@ -1,0 +1,51 @@
+"""Landmark layouts (DESIGN.md §3)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from quadslam_env.config import LandmarksConfig
+from quadslam_env.models.rotations import FloatArray
+
+_DEG = math.pi / 180.0
+
+
+def make_landmarks(
+    cfg: LandmarksConfig, center: FloatArray, rng: np.random.Generator
+) -> tuple[np.ndarray, FloatArray]:
+    """Build the episode's landmark map.
+
+    Layouts:
+        ``rauniyar2023``: ``count`` points in spherical coordinates around ``center`` with
+            azimuth, elevation and range uniform in the configured intervals (seed 001 Table 3:
+            [-180°, 180°], [-50°, 50°], [8, 20] m); elevation is positive above the centre.
+        ``poles4``: seed 000's four poles, one point landmark per pole centre at
+            (±spacing, ±spacing, -pole_altitude_m) (seed 000 §IV.B: spacing 2 m, altitude 1 m).
+        ``explicit``: the given ``positions``.
+
+    Args:
+        cfg: Landmark settings.
+        center: (3,) NED centre used when ``cfg.center`` is null (the trajectory centre), m.
+        rng: Generator for the random layout.
+
+    Returns:
+        ``(ids (L,) int, positions (L, 3) NED m)``.
+    """
+    if cfg.layout == "rauniyar2023":
+        c = np.asarray(cfg.center if cfg.center is not None else center, dtype=float)
+        az = rng.uniform(cfg.azimuth_deg[0], cfg.azimuth_deg[1], cfg.count) * _DEG
+        el = rng.uniform(cfg.elevation_deg[0], cfg.elevation_deg[1], cfg.count) * _DEG
+        rng_m = rng.uniform(cfg.range_m[0], cfg.range_m[1], cfg.count)
+        offsets = np.stack(
+            [rng_m * np.cos(el) * np.cos(az), rng_m * np.cos(el) * np.sin(az), -rng_m * np.sin(el)],
+            axis=1,
+        )  # NED: positive elevation is up, i.e. -z
+        points = c + offsets
+    elif cfg.layout == "poles4":
+        s, h = cfg.pole_spacing_m, cfg.pole_altitude_m
+        points = np.array([[s, s, -h], [-s, s, -h], [-s, -s, -h], [s, -s, -h]])
+    else:
+        points = np.array(cfg.positions, dtype=float)
+    return np.arange(points.shape[0]), points
