@@ -1,0 +1,188 @@
+"""One code path to fly any policy on the env and summarise the episodes (``run``/``evaluate``).
+
+A policy is anything with SB3's ``predict(obs, state, episode_start, deterministic)``: the
+DF-LQR baseline and trained SB3 models alike.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+EPISODE_KEYS = (
+    "seed",
+    "duration_s",
+    "terminated",
+    "termination_reason",
+    "est_pos_rmse_m",
+    "est_vel_rmse_mps",
+    "est_att_rmse_deg",
+    "map_rmse_m",
+    "track_pos_rmse_m",
+    "anees_pose",
+    "nees_pose_in_bounds",
+    "n_mapped",
+    "steps_per_s",
+)
+SUMMARY_KEYS = tuple(
+    k for k in EPISODE_KEYS if k not in ("seed", "terminated", "termination_reason")
+)
+# Mapping from the env's episode summary (last info) to the JSON episode record.
+_FROM_INFO = {
+    "est_pos_rmse_m": "episode_est_pos_rmse_m",
+    "est_vel_rmse_mps": "episode_est_vel_rmse_mps",
+    "est_att_rmse_deg": "episode_est_att_rmse_deg",
+    "map_rmse_m": "episode_map_rmse_m",
+    "track_pos_rmse_m": "episode_track_pos_rmse_m",
+    "anees_pose": "episode_anees_pose",
+    "nees_pose_in_bounds": "episode_nees_pose_in_bounds",
+    "n_mapped": "episode_n_mapped",
+}
+
+
+@dataclass
+class Trace:
+    """Per-step time series of one episode, for the paper-style figures."""
+
+    t: list[float] = field(default_factory=list)
+    true_state: list[np.ndarray] = field(default_factory=list)
+    est_pos: list[np.ndarray] = field(default_factory=list)
+    est_vel_body: list[np.ndarray] = field(default_factory=list)
+    est_euler: list[np.ndarray] = field(default_factory=list)
+    pose_std: list[np.ndarray] = field(default_factory=list)
+    ref_pos: list[np.ndarray] = field(default_factory=list)
+    landmarks: np.ndarray | None = None
+    est_landmark_ids: np.ndarray | None = None
+    est_landmarks: np.ndarray | None = None
+    est_landmark_std: np.ndarray | None = None
+
+    def record(self, env: Any) -> None:
+        """Append the current truth, estimate and reference of ``env.unwrapped``."""
+        base = env.unwrapped
+        est = base.last_estimate
+        self.t.append(base.t)
+        self.true_state.append(base.true_state)
+        self.est_pos.append(est.position)
+        self.est_vel_body.append(est.vel_body)
+        self.est_euler.append(est.euler)
+        std = (
+            np.full(9, np.nan)
+            if est.pose_cov is None
+            else np.sqrt(np.clip(np.diag(est.pose_cov), 0.0, None))
+        )
+        self.pose_std.append(std)
+        self.ref_pos.append(base.reference().pos)
+
+    def finish(self, env: Any) -> None:
+        """Store the final map (true and estimated, with 1σ per axis)."""
+        base = env.unwrapped
+        est = base.last_estimate
+        self.landmarks = base.landmarks.copy()
+        self.est_landmark_ids = est.landmark_ids.copy()
+        self.est_landmarks = est.landmark_means.copy()
+        self.est_landmark_std = np.sqrt(
+            np.clip(np.diagonal(est.landmark_covs, axis1=1, axis2=2), 0.0, None)
+        )
+
+
+def run_episode(
+    env: gym.Env,
+    policy: Any,
+    seed: int,
+    trace: Trace | None = None,
+    on_step: Callable[[], None] | None = None,
+) -> dict[str, Any]:
+    """Fly one episode and return its JSON record (keys :data:`EPISODE_KEYS`)."""
+    obs, _ = env.reset(seed=seed)
+    if trace is not None:
+        trace.record(env)
+    state, start = None, np.array([True])
+    steps, info = 0, {}
+    tic = time.perf_counter()
+    while True:
+        action, state = policy.predict(obs, state=state, episode_start=start, deterministic=True)
+        start = np.array([False])
+        obs, _, terminated, truncated, info = env.step(action)
+        steps += 1
+        if trace is not None:
+            trace.record(env)
+        if on_step is not None:
+            on_step()
+        if terminated or truncated:
+            break
+    wall = time.perf_counter() - tic
+    if trace is not None:
+        trace.finish(env)
+    record: dict[str, Any] = {
+        "seed": int(seed),
+        "duration_s": float(info["t"]),
+        "terminated": bool(terminated),
+        "termination_reason": str(info.get("termination_reason", "")),
+    }
+    for key, src in _FROM_INFO.items():
+        record[key] = _json_float(info[src])
+    record["steps_per_s"] = steps / wall if wall > 0 else math.nan
+    return record
+
+
+def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
+    """Median, min and max over episodes of each numeric key (NaNs ignored; None if all NaN)."""
+    out: dict[str, dict[str, float | None]] = {}
+    for key in SUMMARY_KEYS:
+        vals = np.array([np.nan if e[key] is None else e[key] for e in episodes], dtype=float)
+        vals = vals[np.isfinite(vals)]
+        out[key] = (
+            {"median": float(np.median(vals)), "min": float(vals.min()), "max": float(vals.max())}
+            if vals.size
+            else {"median": None, "min": None, "max": None}
+        )
+    return out
+
+
+def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) -> str:
+    """Plain-text table: one row per episode and a median row."""
+    cols = [
+        ("seed", "seed", "{:d}"),
+        ("pos m", "est_pos_rmse_m", "{:.4f}"),
+        ("vel m/s", "est_vel_rmse_mps", "{:.4f}"),
+        ("att deg", "est_att_rmse_deg", "{:.3f}"),
+        ("map m", "map_rmse_m", "{:.4f}"),
+        ("track m", "track_pos_rmse_m", "{:.4f}"),
+        ("ANEES", "anees_pose", "{:.2f}"),
+        ("in95%", "nees_pose_in_bounds", "{:.2f}"),
+        ("mapped", "n_mapped", "{:.0f}"),
+        ("steps/s", "steps_per_s", "{:.0f}"),
+        ("end", "termination_reason", "{}"),
+    ]
+
+    def cell(fmt: str, value: Any) -> str:
+        if value is None or (isinstance(value, float) and not math.isfinite(value)):
+            return "-"
+        return fmt.format(value)
+
+    rows = [[name for name, _, _ in cols]]
+    for ep in episodes:
+        end = ep["termination_reason"] or "time limit"
+        rows.append(
+            [cell(fmt, end if key == "termination_reason" else ep[key]) for _, key, fmt in cols]
+        )
+    med = ["median"] + [
+        cell(fmt, summary[key]["median"]) if key in summary else "" for _, key, fmt in cols[1:]
+    ]
+    rows.append(med)
+    widths = [max(len(r[i]) for r in rows) for i in range(len(cols))]
+    lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    lines.insert(1, "-" * len(lines[0]))
+    lines.insert(len(lines) - 1, "-" * len(lines[0]))
+    return "\n".join(lines)
+
+
+def _json_float(value: Any) -> float | None:
+    value = float(value)
+    return value if math.isfinite(value) else None
