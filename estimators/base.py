@@ -159,14 +159,15 @@ def health_problem(est: Estimate) -> str | None:
     """
     if est.diagnostics.get("diverged", 0.0):
         return "estimator reported divergence"
-    for name in ("position", "vel_body", "euler", "rates"):
-        if not np.all(np.isfinite(getattr(est, name))):
-            return f"non-finite {name}"
-    if est.landmark_means.size and not np.all(np.isfinite(est.landmark_means)):
-        return "non-finite landmark means"
+    # One reduction over everything first; name the culprit only in the rare failure case.
+    parts = (est.position, est.vel_body, est.euler, est.rates, est.landmark_means.ravel())
+    if not np.isfinite(np.concatenate(parts)).all():
+        names = ("position", "vel_body", "euler", "rates", "landmark means")
+        bad = next(n for n, p in zip(names, parts, strict=True) if not np.isfinite(p).all())
+        return f"non-finite {bad}"
     cov = est.pose_cov
     if cov is not None:
-        if not np.all(np.isfinite(cov)):
+        if not np.isfinite(cov).all():
             return "non-finite pose covariance"
         scale = max(float(np.max(np.abs(np.diag(cov)))), 1e-12)
         if np.max(np.abs(cov - cov.T)) > 1e-6 * scale:

@@ -218,7 +218,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self._history = {"true": [], "est": [], "ref": []}
         est = self._snapshot()
         ref = self.trajectory(0.0)
-        info = self._metrics(est, ref)
+        info = self._metrics(est, ref, dcm_from_euler(state0[6:9]))
         self._record(est, ref)
         return self._obs_builder.build(est, ref, 0.0, 0), info
 
@@ -258,6 +258,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self.steps += 1
         self.t = self.steps * self.dt
         state = self.vehicle.state
+        dcm = dcm_from_euler(state[6:9])
         control = Control(
             thrust=self.vehicle.applied_thrust,
             torque=np.array(self.vehicle.applied_torque, dtype=float),
@@ -265,9 +266,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         imu = self.imu.sample(self.t, state[3:6], mean_rates, control.thrust)
         scan: LidarScan | None = None
         if self.steps % self.scenario.lidar_every == 0:
-            scan = self.lidar.scan(
-                self.t, state[0:3], dcm_from_euler(state[6:9]), self.landmark_ids, self.landmarks
-            )
+            scan = self.lidar.scan(self.t, state[0:3], dcm, self.landmark_ids, self.landmarks)
             self._n_visible = scan.count
         tic = time.perf_counter()
         self.estimator.predict(imu, control, self.dt)
@@ -276,7 +275,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         est = self._snapshot()
         step_ms = 1e3 * (time.perf_counter() - tic)
         ref = self.trajectory(self.t)
-        info = self._metrics(est, ref)
+        info = self._metrics(est, ref, dcm)
         info["est_step_time_ms"] = step_ms
         reason = self._termination_reason(est, info)
         terminated = reason is not None
@@ -284,7 +283,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         terms = reward_terms(
             self.scenario.reward,
             state[0:3],
-            _vel_inertial(state),
+            dcm @ state[3:6],
             state[8],
             ref,
             act,
@@ -308,15 +307,16 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self.last_estimate = self.estimator.estimate()
         return self.last_estimate
 
-    def _metrics(self, est: Estimate, ref: Any) -> dict[str, Any]:
+    def _metrics(self, est: Estimate, ref: Any, dcm: FloatArray) -> dict[str, Any]:
         state = self.vehicle.state
         info: dict[str, Any] = step_metrics(
-            state, _vel_inertial(state), est, self.landmark_ids, self.landmarks, self.imu.total_bias
+            state, dcm, est, self.landmark_ids, self.landmarks, self.imu.total_bias
         )
         info["est_nis"] = float(est.diagnostics.get("nis", math.nan))
         info["est_ess"] = float(est.diagnostics.get("ess", math.nan))
         info["est_n_visible"] = float(self._n_visible)
-        info["track_pos_err_m"] = float(np.linalg.norm(state[0:3] - ref.pos))
+        dp = state[0:3] - ref.pos
+        info["track_pos_err_m"] = math.sqrt(float(dp @ dp))
         info["t"] = self.t
         return info
 
@@ -366,10 +366,6 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
             self.scenario.lidar.azimuth_fov_deg,
             min(5.0, self.scenario.lidar.range_max_m),
         )
-
-
-def _vel_inertial(state: FloatArray) -> FloatArray:
-    return dcm_from_euler(state[6:9]) @ state[3:6]
 
 
 def _is_numeric(value: Any) -> bool:

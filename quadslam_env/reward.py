@@ -41,8 +41,8 @@ def reward_terms(
     effort = float(np.sum((action - hover_action) ** 2)) / 4.0
     return {
         "reward_alive": cfg.alive,
-        "reward_pos": -cfg.pos_weight * float(np.linalg.norm(true_pos - ref.pos)),
-        "reward_vel": -cfg.vel_weight * float(np.linalg.norm(true_vel_inertial - ref.vel)),
+        "reward_pos": -cfg.pos_weight * math.dist(true_pos, ref.pos),
+        "reward_vel": -cfg.vel_weight * math.dist(true_vel_inertial, ref.vel),
         "reward_yaw": -cfg.yaw_weight * abs(float(wrap_angle(true_yaw - ref.yaw))),
         "reward_effort": -cfg.effort_weight * effort,
         "reward_termination": -cfg.termination_penalty if terminated else 0.0,
