@@ -137,6 +137,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_bench(args: argparse.Namespace) -> int:
+    """Speed and scaling benchmark (figures for the README's Performance section)."""
+    from agents.bench import main_bench
+
+    main_bench(args.quick, args.json, args.plots, args.only)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for tests and docs)."""
     parser = argparse.ArgumentParser(
@@ -175,6 +183,17 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=_positive_int, default=10, help="number of episodes")
     ev.add_argument("--plots", type=Path, help="write figures of the first episode here")
     ev.set_defaults(func=cmd_evaluate)
+    bench = sub.add_parser("bench", help="measure env and estimator speed and scaling")
+    bench.add_argument("--quick", action="store_true", help="small sizes, under a minute")
+    bench.add_argument("--json", type=Path, help="write the measurements as JSON")
+    bench.add_argument("--plots", type=Path, help="write scaling plots (PNG) here")
+    bench.add_argument(
+        "--only",
+        nargs="+",
+        choices=["ekf", "fastslam", "env", "vector"],
+        help="run only these sections",
+    )
+    bench.set_defaults(func=cmd_bench)
     return parser
 
 
