@@ -446,6 +446,9 @@ class EpisodeConfig(_Section):
     ground_z_m: float | None = _spec(None, optional=True, doc="NED z of the ground; null = none")
     nees_threshold: float = _spec(1000.0, lo=0.0, lo_open=True)
     nees_window_s: float = _spec(2.0, lo=0.0)
+    report_step_time: bool = _spec(
+        False, kind="bool", doc="put the estimator's wall-clock time in info['est_step_time_ms']"
+    )
 
     def validate(self) -> None:
         if abs(self.initial_euler_deg[1]) >= 89.0:

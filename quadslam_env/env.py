@@ -122,6 +122,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self.t = 0.0
         self.steps = 0
         self.last_estimate: Estimate | None = None
+        self.last_step_time_ms = math.nan
         self._history: dict[str, list[FloatArray]] = {"true": [], "est": [], "ref": []}
 
     # ------------------------------------------------------------------ properties
@@ -220,7 +221,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         ref = self.trajectory(0.0)
         info = self._metrics(est, ref, dcm_from_euler(state0[6:9]))
         self._record(est, ref)
-        return self._obs_builder.build(est, ref, 0.0, 0), info
+        return self._obs_builder.build(est, ref, 0.0, 0), _defined(info)
 
     # ------------------------------------------------------------------ step
     def _validate_action(self, action: Any) -> FloatArray:
@@ -276,7 +277,9 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         step_ms = 1e3 * (time.perf_counter() - tic)
         ref = self.trajectory(self.t)
         info = self._metrics(est, ref, dcm)
-        info["est_step_time_ms"] = step_ms
+        self.last_step_time_ms = step_ms
+        if self.scenario.episode.report_step_time:
+            info["est_step_time_ms"] = step_ms
         reason = self._termination_reason(est, info)
         terminated = reason is not None
         truncated = not terminated and self.steps >= self.max_steps
@@ -294,6 +297,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         info["termination_reason"] = reason or ""
         reward = float(sum(terms.values()))
         self._episode.add(info)
+        info = _defined(info)
         if terminated or truncated:
             info.update(self._episode.summary())
         self._record(est, ref)
@@ -366,6 +370,15 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
             self.scenario.lidar.azimuth_fov_deg,
             min(5.0, self.scenario.lidar.range_max_m),
         )
+
+
+def _defined(info: dict[str, Any]) -> dict[str, Any]:
+    """Drop terms that do not apply (NaN), e.g. NEES of the oracle or ESS of the EKF.
+
+    A term is present exactly when it is defined, so two runs with the same seed produce equal
+    ``info`` dicts (Gymnasium's determinism check compares them with ``==``, and NaN != NaN).
+    """
+    return {k: v for k, v in info.items() if not (isinstance(v, float) and math.isnan(v))}
 
 
 def _is_numeric(value: Any) -> bool:
