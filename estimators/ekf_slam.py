@@ -186,9 +186,10 @@ class EkfSlam:
             continuous-time process-noise spectral density Q over (ρ, v_B, Λ), in m²/s,
             m²/s³, rad²/s. Table 6 (known landmarks) uses ``[0.01]*6 + [0.02]*3``.
 
-            ``known_map`` (bool, default False): localisation only. The landmarks passed to
-            :meth:`reset` as ``known_landmarks=(ids, positions)`` are used as exact positions
-            and are not states (the paper's known-landmarks case).
+            Known-map mode (localisation only, the paper's known-landmarks case) is selected
+            by passing ``known_landmarks=(ids, positions)`` to :meth:`reset` (the env does so
+            when the scenario sets ``estimator.known_map: true``); those positions are exact
+            and are not states.
 
             ``estimate_imu_bias`` (bool, default False): augment the state with the gyro bias
             b_ω (3) and the accelerometer z bias b_az (1); these are the only IMU axes the
@@ -220,7 +221,6 @@ class EkfSlam:
             params,
             {
                 "process_noise": (list, tuple, np.ndarray),
-                "known_map": bool,
                 "estimate_imu_bias": bool,
                 "gyro_bias_sigma0": (float, int),
                 "accel_bias_sigma0": (float, int),
@@ -239,7 +239,7 @@ class EkfSlam:
                 f"estimator.params.process_noise: got {q!r}; allowed: a list of 9 numbers >= 0"
             )
         q_diag = [_check_nonneg("process_noise", e) for e in q]
-        self.known_map = bool(params.get("known_map", False))
+        self.known_map = False  # set by reset(known_landmarks=...)
         self.estimate_imu_bias = bool(params.get("estimate_imu_bias", False))
         self.imu_noise_in_q = bool(params.get("imu_noise_in_q", True))
         self.gyro_bias_sigma0 = _check_nonneg(
@@ -324,8 +324,8 @@ class EkfSlam:
                 9 entries become ŝ, ω is reported until the first IMU sample arrives.
             cov0: (12, 12) initial covariance; its (9, 9) top-left block becomes ``P_ss``.
             rng: Unused (the EKF is deterministic); accepted for the protocol.
-            known_landmarks: ``(ids (L,), positions (L, 3) [m, N])``. Required with
-                ``known_map``; ignored otherwise.
+            known_landmarks: ``(ids (L,), positions (L, 3) [m, N])`` to localise against a
+                known map (no landmark states); ``None`` for full SLAM.
 
         Raises:
             ValueError: Wrong shapes, non-finite values, or a missing known map.
@@ -349,12 +349,8 @@ class EkfSlam:
             self._P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(b_var)
         self._rates = mean0[9:12].copy()
         self._reset_diagnostics()
-        if self.known_map:
-            if known_landmarks is None:
-                raise ValueError(
-                    "reset: known_landmarks=(ids, positions) is required when "
-                    "estimator.params.known_map is true"
-                )
+        self.known_map = known_landmarks is not None
+        if known_landmarks is not None:
             ids = np.asarray(known_landmarks[0]).astype(int).reshape(-1)
             pos = np.asarray(known_landmarks[1], dtype=float).reshape(-1, 3)
             if ids.shape[0] != pos.shape[0] or not np.isfinite(pos).all():

@@ -105,7 +105,7 @@ def test_registry_and_defaults():
     ("params", "needle"),
     [
         ({"bogus": 1}, "bogus"),
-        ({"known_map": 1}, "known_map"),
+        ({"known_map": True}, "known_map"),
         ({"process_noise": [0.1] * 8}, "process_noise"),
         ({"process_noise": [0.1] * 8 + [-1.0]}, "process_noise"),
         ({"gyro_bias_walk": -1e-3}, ">= 0"),
@@ -118,10 +118,13 @@ def test_bad_params_raise(params, needle):
         EkfSlam(**params)
 
 
-def test_known_map_requires_landmarks():
-    f = EkfSlam(known_map=True)
-    with pytest.raises(ValueError, match="known_landmarks"):
-        f.reset(np.zeros(12), np.eye(12), np.random.default_rng(0))
+def test_known_map_mode_follows_reset_landmarks():
+    f = EkfSlam()
+    lms = np.array([[10.0, 0.0, 0.0]])
+    f.reset(np.zeros(12), np.eye(12), np.random.default_rng(0), known_landmarks=(np.arange(1), lms))
+    assert f.known_map
+    f.reset(np.zeros(12), np.eye(12), np.random.default_rng(0))
+    assert not f.known_map
 
 
 # ----------------------------------------------------------------------------- 1. process model
@@ -268,7 +271,7 @@ def test_stacked_h_matches_finite_differences_of_full_state(bias):
 def test_known_map_h_is_over_pose_only():
     rng = np.random.default_rng(5)
     lms = _landmarks(rng, 5)
-    f = EkfSlam(known_map=True)
+    f = EkfSlam()
     mean0 = np.r_[0.1, -0.2, -1.0, 0, 0, 0, 0.1, 0.2, -0.3, 0, 0, 0]
     f.reset(mean0, np.eye(12) * 0.01, rng, known_landmarks=(np.arange(10, 15), lms))
     cols, h, H = f.stacked_measurement(np.array([12, 10]))
@@ -317,7 +320,7 @@ def test_azimuth_innovation_is_wrapped():
     """A landmark right behind the vehicle (α ≈ ±π) must not produce a 2π innovation."""
     rng = np.random.default_rng(7)
     lms = np.array([[-10.0, 1e-9, 0.0], [5.0, 5.0, -1.0]])
-    f = EkfSlam(known_map=True, process_noise=[0.0] * 9)
+    f = EkfSlam(process_noise=[0.0] * 9)
     f.reset(np.zeros(12), np.eye(12) * 1e-4, rng, known_landmarks=(np.array([0, 1]), lms))
     meas = lidar_measure(np.zeros(3), np.eye(3), lms)
     meas[0, 0] = -np.pi + 1e-4  # predicted is ≈ +π
@@ -472,7 +475,7 @@ def test_known_map_hover_nees_is_chi2_consistent():
     for k in range(runs):
         rng = np.random.default_rng(k)
         lms = _landmarks(rng, 8)
-        f = EkfSlam(known_map=True, process_noise=[0.0] * 9)
+        f = EkfSlam(process_noise=[0.0] * 9)
         mean0 = truth.copy()
         mean0[:9] += rng.multivariate_normal(np.zeros(9), P0[:9, :9])
         f.reset(mean0, P0, rng, known_landmarks=(np.arange(8), lms))
@@ -512,7 +515,7 @@ def test_gyro_and_accel_bias_converge():
     truth[2] = -2.0
     lms = _landmarks(rng, 10)
     b_g, b_az = np.array([0.02, -0.015, 0.01]), 0.1
-    f = EkfSlam(known_map=True, estimate_imu_bias=True, process_noise=[1e-6] * 9)
+    f = EkfSlam(estimate_imu_bias=True, process_noise=[1e-6] * 9)
     f.reset(truth, np.diag([1e-3] * 6 + [1e-4] * 3 + [0.0] * 3), rng, (np.arange(10), lms))
     est = _hover_run(f, rng, lms, truth, 3000, b_g, b_az)
     assert est.diagnostics["diverged"] == 0.0
