@@ -46,13 +46,34 @@ def pose_error(true_state: FloatArray, est: Estimate) -> FloatArray:
 
 
 def nees(err: FloatArray, cov: FloatArray | None) -> float:
-    """Normalised estimation error squared ``eᵀ P⁻¹ e``; NaN without a usable covariance."""
+    """Normalised estimation error squared ``eᵀ P⁻¹ e``.
+
+    NaN without a covariance (the oracle); ``inf`` if ``cov`` is not positive semi-definite
+    (its Cholesky factorisation fails even with a jitter of 1e-9 of its largest variance), which
+    the env treats as estimator divergence.
+    """
+    return pose_nees(err, cov)[0]
+
+
+def pose_nees(err: FloatArray, cov: FloatArray | None) -> tuple[float, float]:
+    """NEES of the whole error and of its first three components from one Cholesky factor.
+
+    With ``P = L Lᵀ`` and ``y = L⁻¹ e``, ``NEES = ‖y‖²``; the leading 3×3 block of ``L`` is the
+    Cholesky factor of the leading block of ``P``, so the position NEES is ``‖y[:3]‖²``.
+    A zero variance (e.g. seed 001 Table 7's attitude P0) is handled by the jitter.
+
+    Returns:
+        ``(nees, nees_first3)``: NaN for ``cov=None``; ``inf`` when ``cov`` is not PSD.
+    """
     if cov is None:
-        return math.nan
+        return math.nan, math.nan
+    scale = max(float(np.max(np.diag(cov))), 1e-12)
     try:
-        return float(err @ np.linalg.solve(cov, err))
+        L = np.linalg.cholesky(cov + (1e-9 * scale) * np.eye(cov.shape[0]))
     except np.linalg.LinAlgError:
-        return math.inf
+        return math.inf, math.inf
+    y = np.linalg.solve(L, err)
+    return float(y @ y), float(y[0:3] @ y[0:3])
 
 
 def map_rmse(est: Estimate, true_ids: np.ndarray, true_points: FloatArray) -> float:
@@ -86,12 +107,13 @@ def step_metrics(
     att = rotation_angle_between(true_dcm, dcm_from_euler(est.euler))
     cov = est.pose_cov
     vel_err = est.vel_inertial - true_dcm @ true_state[3:6]
+    nees_pose, nees_pos = pose_nees(err, cov)
     out = {
         "est_pos_err_m": _norm3(err[0:3]),
         "est_vel_err_mps": _norm3(vel_err),
         "est_att_err_deg": math.degrees(att),
-        "est_nees_pose": nees(err, cov),
-        "est_nees_pos": nees(err[0:3], None if cov is None else cov[0:3, 0:3]),
+        "est_nees_pose": nees_pose,
+        "est_nees_pos": nees_pos,
         "est_n_mapped": float(est.landmark_ids.size),
         "est_map_rmse_m": map_rmse(est, true_ids, true_points),
         "est_accel_bias_err": math.nan,

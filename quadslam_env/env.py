@@ -339,6 +339,8 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         if problem is not None:
             return f"estimator_diverged: {problem}"
         nees_pose = info["est_nees_pose"]
+        if nees_pose == math.inf:
+            return "estimator_diverged: pose covariance not positive semi-definite"
         self._nees_run = self._nees_run + 1 if nees_pose > ep.nees_threshold else 0
         if self._nees_run >= self._nees_window:
             return "estimator_diverged: NEES above threshold"

@@ -475,3 +475,55 @@ def test_ekf_terms_present_once_defined_and_step_time_opt_in():
     oracle.reset(seed=0)
     _, _, _, _, info = oracle.step(oracle.unwrapped.hover_action.astype(np.float32))
     assert "est_nees_pose" not in info and "est_step_time_ms" not in info
+
+
+class _BrokenEstimator:
+    """Wraps the env's estimator and corrupts its snapshot after a few steps."""
+
+    def __init__(self, inner, corrupt):
+        self.inner, self.corrupt, self.calls = inner, corrupt, 0
+
+    def reset(self, *args, **kwargs):
+        self.calls = 0
+        return self.inner.reset(*args, **kwargs)
+
+    def predict(self, *args):
+        return self.inner.predict(*args)
+
+    def update(self, scan):
+        return self.inner.update(scan)
+
+    def estimate(self):
+        import dataclasses
+
+        self.calls += 1
+        est = self.inner.estimate()
+        return self.corrupt(est, dataclasses) if self.calls > 5 else est
+
+
+def _non_psd(est, dc):
+    cov = est.pose_cov.copy()
+    cov[0, 0] = -1.0
+    return dc.replace(est, pose_cov=cov)
+
+
+@pytest.mark.parametrize(
+    ("corrupt", "reason"),
+    [
+        (lambda est, dc: dc.replace(est, position=est.position * np.nan), "non-finite position"),
+        (_non_psd, "not positive semi-definite"),
+        (lambda est, dc: dc.replace(est, diagnostics={"diverged": 1.0}), "reported divergence"),
+    ],
+)
+def test_estimator_divergence_terminates_with_reason_and_finite_outputs(corrupt, reason):
+    env = make_env("QuadSLAM-EKF-v0")
+    env.unwrapped.estimator = _BrokenEstimator(env.unwrapped.estimator, corrupt)
+    env.reset(seed=0)
+    hover = env.unwrapped.hover_action.astype(np.float32)
+    for _ in range(10):
+        obs, reward, term, trunc, info = env.step(hover)
+        assert np.isfinite(obs).all() and np.isfinite(reward)
+        if term:
+            break
+    assert term and info["termination_reason"].startswith("estimator_diverged")
+    assert reason in info["termination_reason"]
