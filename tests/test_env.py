@@ -521,7 +521,7 @@ def test_estimator_divergence_terminates_with_reason_and_finite_outputs(corrupt,
     env.reset(seed=0)
     hover = env.unwrapped.hover_action.astype(np.float32)
     for _ in range(10):
-        obs, reward, term, trunc, info = env.step(hover)
+        obs, reward, term, _, info = env.step(hover)
         assert np.isfinite(obs).all() and np.isfinite(reward)
         if term:
             break
