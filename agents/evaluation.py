@@ -29,6 +29,8 @@ EPISODE_KEYS = (
     "nees_pose_in_bounds",
     "n_mapped",
     "steps_per_s",
+    "accel_bias_rel_err",
+    "gyro_bias_rel_err",
 )
 SUMMARY_KEYS = tuple(
     k for k in EPISODE_KEYS if k not in ("seed", "terminated", "termination_reason")
@@ -43,6 +45,8 @@ _FROM_INFO = {
     "anees_pose": "episode_anees_pose",
     "nees_pose_in_bounds": "episode_nees_pose_in_bounds",
     "n_mapped": "episode_n_mapped",
+    "accel_bias_rel_err": "episode_accel_bias_rel_err",
+    "gyro_bias_rel_err": "episode_gyro_bias_rel_err",
 }
 
 

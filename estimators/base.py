@@ -137,6 +137,11 @@ def check_kwargs(
         if key not in allowed:
             raise ValueError(f"{owner}.{key}: unknown key; allowed: {sorted(allowed)}")
         want = allowed[key] if isinstance(allowed[key], tuple) else (allowed[key],)
+        # NumPy scalars are as good as Python numbers (e.g. a particle count from np.arange).
+        if isinstance(value, np.integer) and int in want:
+            value = int(value)
+        elif isinstance(value, np.floating) and float in want:
+            value = float(value)
         # bool is an int subclass: accept it only where bool is asked for.
         wrong_bool = isinstance(value, bool) and bool not in want
         if wrong_bool or not isinstance(value, want):

@@ -118,11 +118,20 @@ def step_metrics(
         "est_map_rmse_m": map_rmse(est, true_ids, true_points),
         "est_accel_bias_err": math.nan,
         "est_gyro_bias_err": math.nan,
+        "est_accel_bias_rel_err": math.nan,
+        "est_gyro_bias_rel_err": math.nan,
     }
-    if true_bias is not None and est.accel_bias is not None:
-        out["est_accel_bias_err"] = _norm3(est.accel_bias - true_bias[:3])
-    if true_bias is not None and est.gyro_bias is not None:
-        out["est_gyro_bias_err"] = _norm3(est.gyro_bias - true_bias[3:])
+    for name, est_bias, sl in (
+        ("accel", est.accel_bias, slice(0, 3)),
+        ("gyro", est.gyro_bias, slice(3, 6)),
+    ):
+        if true_bias is not None and est_bias is not None:
+            err_norm = _norm3(est_bias - true_bias[sl])
+            out[f"est_{name}_bias_err"] = err_norm
+            true_norm = _norm3(true_bias[sl])
+            if true_norm > 0.0:
+                # ‖b̂ - b‖ / ‖b‖: the "within 20% of the true value" criterion of seed 000.
+                out[f"est_{name}_bias_rel_err"] = err_norm / true_norm
     return out
 
 
@@ -143,6 +152,7 @@ class EpisodeMetrics:
     nees_pos: list[float] = field(default_factory=list)
     last_map_rmse: float = math.nan
     last_n_mapped: float = 0.0
+    last_bias_rel_err: tuple[float, float] = (math.nan, math.nan)
 
     def add(self, info: dict[str, float]) -> None:
         """Record one step's ``info`` terms."""
@@ -154,6 +164,7 @@ class EpisodeMetrics:
         self.nees_pos.append(info["est_nees_pos"])
         self.last_map_rmse = info["est_map_rmse_m"]
         self.last_n_mapped = info["est_n_mapped"]
+        self.last_bias_rel_err = (info["est_accel_bias_rel_err"], info["est_gyro_bias_rel_err"])
 
     def summary(self) -> dict[str, float]:
         """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds."""
@@ -168,6 +179,8 @@ class EpisodeMetrics:
             "episode_track_pos_rmse_m": _rms(self.track_sq),
             "episode_map_rmse_m": self.last_map_rmse,
             "episode_n_mapped": self.last_n_mapped,
+            "episode_accel_bias_rel_err": self.last_bias_rel_err[0],
+            "episode_gyro_bias_rel_err": self.last_bias_rel_err[1],
             "episode_anees_pose": float(np.mean(finite)) if finite.size else math.nan,
             "episode_anees_pos": _mean_finite(self.nees_pos),
             "episode_nees_pose_in_bounds": (

@@ -444,7 +444,9 @@ class EpisodeConfig(_Section):
     max_tilt_deg: float = _spec(80.0, lo=0.0, hi=89.0, lo_open=True)
     max_pos_err_m: float = _spec(10.0, lo=0.0, lo_open=True)
     ground_z_m: float | None = _spec(None, optional=True, doc="NED z of the ground; null = none")
-    nees_threshold: float = _spec(1000.0, lo=0.0, lo_open=True)
+    nees_threshold: float | None = _spec(
+        1000.0, lo=0.0, lo_open=True, optional=True, doc="null disables the NEES divergence check"
+    )
     nees_window_s: float = _spec(2.0, lo=0.0)
     report_step_time: bool = _spec(
         False, kind="bool", doc="put the estimator's wall-clock time in info['est_step_time_ms']"

@@ -66,7 +66,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
 
     **Episode end**: ``terminated`` on tilt beyond ``max_tilt_deg``, position error beyond
     ``max_pos_err_m``, ground contact (``ground_z_m``), or estimator divergence (non-finite or
-    non-PSD covariance, the estimator's flag, or pose NEES above ``nees_threshold`` for
+    non-PSD covariance, the estimator's flag, or pose NEES above ``nees_threshold`` (if set) for
     ``nees_window_s``); ``info["termination_reason"]`` names it. ``truncated`` when the
     scenario's ``duration_s`` is reached (the env enforces it itself, so overriding the duration
     needs no ``max_episode_steps``).
@@ -341,7 +341,8 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         nees_pose = info["est_nees_pose"]
         if nees_pose == math.inf:
             return "estimator_diverged: pose covariance not positive semi-definite"
-        self._nees_run = self._nees_run + 1 if nees_pose > ep.nees_threshold else 0
+        limit = ep.nees_threshold
+        self._nees_run = self._nees_run + 1 if limit is not None and nees_pose > limit else 0
         if self._nees_run >= self._nees_window:
             return "estimator_diverged: NEES above threshold"
         return None

@@ -85,7 +85,8 @@ def lidar_inverse(pos: FloatArray, dcm: FloatArray, meas: FloatArray) -> FloatAr
 def measure_jacobian_body(c: FloatArray) -> FloatArray:
     """Jacobian ``∂(α, β, δ)/∂c`` at body vectors ``c`` (..., 3) → (..., 3, 3)."""
     c1, c2, c3 = c[..., 0], c[..., 1], c[..., 2]
-    h2 = c1 * c1 + c2 * c2
+    # Floor: the azimuth is undefined straight above/below (c1 = c2 = 0); a 360° LiDAR can see it.
+    h2 = np.maximum(c1 * c1 + c2 * c2, 1e-12)
     h = np.sqrt(h2)
     d2 = h2 + c3 * c3
     jac = np.zeros((*c.shape, 3))
