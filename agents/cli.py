@@ -8,13 +8,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
+# The filters multiply matrices of a few hundred rows: multithreaded BLAS only adds hand-off
+# latency there (an EKF update took 7-24 ms with 2 threads vs 1 ms with 1 on 2 cores), and
+# vectorised envs already use the cores. Set before numpy is imported; users may override.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from tqdm import tqdm  # noqa: E402
 
 
 def _positive_int(text: str) -> int:
@@ -37,27 +44,54 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
+    """Turn ``["episode.duration_s=20", "imu.preset=ideal"]`` into nested override mappings.
+
+    Values are parsed as YAML (numbers, booleans, lists); keys are ``section.key[.key...]``.
+    """
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        parts = key.split(".")
+        if not sep or len(parts) < 2 or not all(parts):
+            raise ValueError(
+                f"--set: got {item!r}; allowed: section.key=value, e.g. episode.duration_s=20"
+            )
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"--set {key}: value {text!r} is not valid YAML ({exc})") from exc
+        node = out
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ValueError(f"--set: {key!r} conflicts with another --set")
+        node[parts[-1]] = value
+    return out
+
+
 def make_env(
     env_id: str,
     scenario: str | None,
     estimator: str | None,
     duration: float | None,
-    render_mode: str | None = None,
+    overrides: Sequence[str] = (),
 ) -> Any:
-    """``gymnasium.make`` with the CLI's scenario / estimator / duration choices."""
+    """``gymnasium.make`` with the CLI's scenario / estimator / duration / ``--set`` choices."""
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
+    from quadslam_env.config import deep_merge
 
-    kwargs: dict[str, Any] = {}
+    kwargs: dict[str, Any] = parse_overrides(overrides)
     if scenario is not None:
         kwargs["scenario"] = scenario
     if estimator is not None:
         kwargs["estimator_name"] = estimator
     if duration is not None:
-        kwargs["episode"] = {"duration_s": duration}
-    if render_mode is not None:
-        kwargs["render_mode"] = render_mode
+        kwargs = deep_merge(kwargs, {"episode": {"duration_s": duration}})
     return gym.make(env_id, **kwargs)
 
 
@@ -116,7 +150,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     """DF-LQR episodes on a scenario: the package's main job."""
     from agents.dflqr import DFLQRPolicy
 
-    env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration)
+    env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
     plots = args.plots
     if plots is None and not args.no_plots:
         stamp = time.strftime("%Y%m%d-%H%M%S")
@@ -129,8 +163,15 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any policy (``dflqr`` or a trained model) through the same code path as ``run``."""
     from agents.policies import load_policy
+    from agents.training import run_config
 
-    env = make_env(args.env, args.scenario, args.estimator, args.duration)
+    # A trained model is evaluated on its training env id and scenario unless told otherwise.
+    cfg = run_config(args.policy) if args.policy != "dflqr" and Path(args.policy).exists() else None
+    env_id = args.env or (cfg["env_id"] if cfg else "QuadSLAM-v0")
+    scenario = args.scenario or (
+        cfg["hyperparams"].get("env_kwargs", {}).get("scenario") if cfg else None
+    )
+    env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
     policy, name = load_policy(args.policy, env)
     seeds = list(range(args.seed, args.seed + args.episodes))
     fly(env, policy, name, seeds, args.plots, args.json)
@@ -142,6 +183,30 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from agents.bench import main_bench
 
     main_bench(args.quick, args.json, args.plots, args.only)
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train an SB3 agent with ``configs/agents/<algo>.yaml`` and print the run folder."""
+    from agents.training import parse_hyperparam_overrides, run_config, train
+
+    run_dir = train(
+        args.algo,
+        args.env,
+        config_path=args.config,
+        timesteps=args.timesteps,
+        n_envs=args.n_envs,
+        seed=args.seed,
+        out_dir=args.out,
+        progress=not args.no_progress,
+        hyperparams=parse_hyperparam_overrides(args.hyperparams),
+        verbose=args.verbose,
+        torch_threads=args.torch_threads,
+    )
+    scenario = ((run_config(run_dir) or {}).get("scenario") or {}).get("name")
+    hint = f" --scenario {scenario}" if scenario else ""
+    print(f"run folder: {run_dir}")
+    print(f"evaluate:   quadslam evaluate --policy {run_dir} --env {args.env}{hint}")
     return 0
 
 
@@ -164,6 +229,14 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--duration", type=_positive_float, help="episode length in s")
         p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
         p.add_argument("--json", type=Path, help="write results as JSON to this file")
+        p.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="SECTION.KEY=VALUE",
+            help="override a scenario setting (repeatable), e.g. "
+            "--set estimator.sample_initial_error=false",
+        )
 
     run = sub.add_parser(
         "run",
@@ -179,10 +252,45 @@ def build_parser() -> argparse.ArgumentParser:
     ev = sub.add_parser("evaluate", help="evaluate dflqr or a trained model on an env id")
     common(ev)
     ev.add_argument("--policy", required=True, help="'dflqr', or a run folder / model .zip")
-    ev.add_argument("--env", default="QuadSLAM-v0", help="env id (default QuadSLAM-v0)")
+    ev.add_argument(
+        "--env", help="env id (default: the model's training env, or QuadSLAM-v0 for dflqr)"
+    )
     ev.add_argument("--episodes", type=_positive_int, default=10, help="number of episodes")
     ev.add_argument("--plots", type=Path, help="write figures of the first episode here")
     ev.set_defaults(func=cmd_evaluate)
+
+    tr = sub.add_parser(
+        "train",
+        help="train a stable-baselines3 agent (hyperparameters from configs/agents/<algo>.yaml)",
+    )
+    tr.add_argument("--algo", required=True, choices=["ppo", "sac", "td3", "a2c"])
+    tr.add_argument(
+        "--env", default="QuadSLAM-EKF-v0", help="env id and config key (default QuadSLAM-EKF-v0)"
+    )
+    tr.add_argument(
+        "--config",
+        type=Path,
+        help="hyperparameter YAML (default configs/agents/<algo>.yaml) or a run's config.yaml",
+    )
+    tr.add_argument("--timesteps", type=_positive_int, help="override n_timesteps")
+    tr.add_argument("--n-envs", type=_positive_int, help="override n_envs")
+    tr.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    tr.add_argument("--out", type=Path, help="parent folder of the run folder (default runs/)")
+    tr.add_argument(
+        "--hyperparams",
+        nargs="+",
+        metavar="KEY=VALUE",
+        help="override config entries, e.g. learning_rate=1e-4 env_kwargs.episode.duration_s=10",
+    )
+    tr.add_argument(
+        "--torch-threads",
+        type=_positive_int,
+        help="torch threads while training (default: cores minus n_envs when n_envs > 1, "
+        "else torch's default)",
+    )
+    tr.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    tr.add_argument("--verbose", type=int, default=0, choices=[0, 1, 2], help="SB3 verbosity")
+    tr.set_defaults(func=cmd_train)
     bench = sub.add_parser("bench", help="measure env and estimator speed and scaling")
     bench.add_argument("--quick", action="store_true", help="small sizes, under a minute")
     bench.add_argument("--json", type=Path, help="write the measurements as JSON")

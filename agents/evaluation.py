@@ -28,9 +28,9 @@ EPISODE_KEYS = (
     "anees_pose",
     "nees_pose_in_bounds",
     "n_mapped",
-    "steps_per_s",
     "accel_bias_rel_err",
     "gyro_bias_rel_err",
+    "steps_per_s",
 )
 SUMMARY_KEYS = tuple(
     k for k in EPISODE_KEYS if k not in ("seed", "terminated", "termination_reason")

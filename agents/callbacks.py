@@ -1,0 +1,165 @@
+"""stable-baselines3 callbacks used by :mod:`agents.training`.
+
+- :class:`EstimationMetricsCallback`: averages the env's per-step ``info`` metrics
+  (``est_*``, ``track_*``, ``reward_*``) and the end-of-episode summaries (``episode_*``) into
+  the SB3 logger (TensorBoard/CSV), ignoring NaN, plus failure rates by termination reason.
+- :class:`TqdmProgressCallback`: a plain ``tqdm`` progress bar (SB3's own
+  ``ProgressBarCallback`` needs ``rich``, which is not a dependency).
+- :class:`SaveVecNormalizeCallback`: saves the ``VecNormalize`` statistics next to
+  ``EvalCallback``'s ``best_model.zip`` so the best model can be evaluated like the final one.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import sys
+import time
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+from tqdm import tqdm
+
+STEP_PREFIXES = ("est_", "track_", "reward_")
+EPISODE_PREFIX = "episode_"
+
+
+def _finite_float(value: object) -> float | None:
+    """``float(value)`` for finite real scalars, else ``None`` (bools, arrays, strings, NaN)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.number)):
+        return None
+    out = float(value)
+    return out if math.isfinite(out) else None
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9]+", "_", text).strip("_").lower() or "unknown"
+
+
+class EstimationMetricsCallback(BaseCallback):
+    """Log the env's estimation/tracking metrics from ``self.locals["infos"]``.
+
+    Every step, each finite numeric ``info`` entry whose key starts with one of ``prefixes``
+    is averaged (``logger.record_mean``) under ``quadslam/<key>``; the episode summaries the
+    env adds on the last step (``episode_*``) under ``quadslam_episode/<key>``. At each episode
+    end ``quadslam_episode/failure_rate`` averages ``terminated`` (any termination reason) and
+    ``quadslam_episode/n_<reason>`` counts episodes per reason since the start of training.
+    Means are over all steps (and envs) since the last log dump.
+
+    Args:
+        prefixes: Key prefixes of the per-step metrics.
+        keys: Explicit per-step keys instead of prefix matching (e.g. ``["est_pos_err_m"]``).
+        verbose: SB3 verbosity.
+    """
+
+    def __init__(
+        self,
+        prefixes: Sequence[str] = STEP_PREFIXES,
+        keys: Sequence[str] | None = None,
+        verbose: int = 0,
+    ) -> None:
+        super().__init__(verbose)
+        self.prefixes = tuple(prefixes)
+        self.keys = None if keys is None else tuple(keys)
+        self.reasons: Counter[str] = Counter()
+        self._route: dict[str, str | None] = {}
+
+    def _log_name(self, key: str) -> str | None:
+        """Logger key for an ``info`` key, or ``None`` if it is not logged."""
+        if key.startswith(EPISODE_PREFIX):
+            return f"quadslam_episode/{key[len(EPISODE_PREFIX) :]}"
+        wanted = key in self.keys if self.keys is not None else key.startswith(self.prefixes)
+        return f"quadslam/{key}" if wanted else None
+
+    def _on_step(self) -> bool:
+        infos = self.locals.get("infos") or ()
+        dones = self.locals.get("dones")
+        record_mean = self.logger.record_mean
+        route = self._route
+        for i, info in enumerate(infos):
+            for key, value in info.items():
+                name = route.get(key, "")
+                if name == "":
+                    name = route[key] = self._log_name(key)
+                if name is not None:
+                    v = _finite_float(value)
+                    if v is not None:
+                        record_mean(name, v)
+            if dones is not None and bool(dones[i]):
+                reason = str(info.get("termination_reason", "") or "")
+                record_mean("quadslam_episode/failure_rate", 1.0 if reason else 0.0)
+                self.reasons[_slug(reason) if reason else "time_limit"] += 1
+                for name, count in self.reasons.items():
+                    self.logger.record(f"quadslam_episode/n_{name}", count)
+        return True
+
+
+class TqdmProgressCallback(BaseCallback):
+    """``tqdm`` progress bar over the training timesteps, with the recent mean episode return.
+
+    Args:
+        desc: Bar label.
+        mininterval: Minimum seconds between bar redraws.
+    """
+
+    def __init__(self, desc: str = "training", mininterval: float = 0.5) -> None:
+        super().__init__(0)
+        self.desc = desc
+        self.mininterval = mininterval
+        self.pbar: tqdm | None = None
+        self._last_postfix = 0.0
+
+    def _on_training_start(self) -> None:
+        total = int(self.locals["total_timesteps"]) - int(self.model.num_timesteps)
+        self.pbar = tqdm(
+            total=total,
+            unit="step",
+            unit_scale=True,
+            desc=self.desc,
+            file=sys.stderr,
+            mininterval=self.mininterval,
+            dynamic_ncols=True,
+        )
+
+    def _on_step(self) -> bool:
+        assert self.pbar is not None
+        self.pbar.update(self.training_env.num_envs)
+        now = time.monotonic()
+        if now - self._last_postfix > 2.0:
+            self._last_postfix = now
+            buf = self.model.ep_info_buffer
+            if buf:
+                self.pbar.set_postfix(
+                    ep_return=f"{np.mean([e['r'] for e in buf]):.1f}",
+                    ep_len=f"{np.mean([e['l'] for e in buf]):.0f}",
+                    refresh=False,
+                )
+        return True
+
+    def _on_training_end(self) -> None:
+        if self.pbar is not None:
+            self.pbar.refresh()
+            self.pbar.close()
+            self.pbar = None
+
+
+class SaveVecNormalizeCallback(BaseCallback):
+    """Save the training ``VecNormalize`` statistics (use as ``callback_on_new_best``).
+
+    Args:
+        path: File to write (e.g. ``run/eval/best_vecnormalize.pkl``).
+    """
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(0)
+        self.path = Path(path)
+
+    def _on_step(self) -> bool:
+        vec_normalize = self.model.get_vec_normalize_env()
+        if vec_normalize is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            vec_normalize.save(str(self.path))
+        return True

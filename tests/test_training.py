@@ -1,0 +1,460 @@
+"""SB3 training/evaluation pipeline: configs, smoke runs, loading, CLI, determinism, wrapper."""
+
+from __future__ import annotations
+
+import csv
+import functools
+import json
+import math
+import zipfile
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.vec_env import VecNormalize
+
+import quadslam_env  # noqa: F401  (registers the ids)
+from agents import cli
+from agents.callbacks import EstimationMetricsCallback
+from agents.dflqr import DFLQRPolicy
+from agents.evaluation import EPISODE_KEYS, SUMMARY_KEYS, run_episode
+from agents.policies import load_policy
+from agents.training import (
+    RESERVED_KEYS,
+    TrainedPolicy,
+    _make_vec_env,
+    default_config_path,
+    load_hyperparams,
+    load_model,
+    resolve_settings,
+    run_config,
+    train,
+)
+from agents.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
+
+ALGOS = ("ppo", "sac")
+SHORT = {"episode": {"duration_s": 1.0}}
+# Tiny networks, short episodes, frequent eval/checkpoints: exercises every part in ~1 s.
+TINY: dict[str, dict[str, Any]] = {
+    "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 2},
+    "sac": {"learning_starts": 32, "batch_size": 32, "buffer_size": 2000},
+}
+TINY_COMMON = {
+    "policy_kwargs": {"net_arch": [8]},
+    "env_kwargs": SHORT,
+    "eval_freq": 128,
+    "n_eval_episodes": 1,
+    "checkpoint_freq": 128,
+}
+REQUIRED_KEYS = ("n_envs", "n_timesteps", "policy", "policy_kwargs", "env_kwargs", "wrapper")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread() -> Any:
+    """Tiny networks gain nothing from threads, and on a busy machine torch's spinning OpenMP
+    threads can make SAC updates 5x slower; one thread keeps the test time predictable."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@functools.cache
+def env_problem(env_id: str, scenario: str | None = None) -> str | None:
+    """``None`` if the env builds and steps, else why not (e.g. an estimator still missing)."""
+    kwargs: dict[str, Any] = {"episode": {"duration_s": 0.2}}
+    if scenario is not None:
+        kwargs["scenario"] = scenario
+    try:
+        env = gym.make(env_id, **kwargs)
+        env.reset(seed=0)
+        env.step(env.unwrapped.hover_action)
+        env.close()
+    except Exception as exc:  # any failure means "not available yet"
+        return f"{env_id} unavailable: {type(exc).__name__}: {exc}"
+    return None
+
+
+def main_env() -> str:
+    """The EKF env if EKF-SLAM works, else the oracle env."""
+    return "QuadSLAM-EKF-v0" if env_problem("QuadSLAM-EKF-v0") is None else "QuadSLAM-Oracle-v0"
+
+
+def tiny(algo: str, **extra: Any) -> dict[str, Any]:
+    return {**TINY_COMMON, **TINY[algo], **extra}
+
+
+def config_entries() -> list[Any]:
+    params = []
+    for algo in ALGOS:
+        data = yaml.safe_load(default_config_path(algo).read_text())
+        for env_id in data:
+            params.append(pytest.param(algo, env_id, id=f"{algo}-{env_id}"))
+    return params
+
+
+def skip_unless_available(env_id: str, env_kwargs: dict[str, Any]) -> None:
+    problem = env_problem(env_id, env_kwargs.get("scenario"))
+    if problem is not None:
+        pytest.skip(problem)
+
+
+def read_monitor(run_dir: Path) -> list[list[str]]:
+    lines = (run_dir / "monitor" / "0.monitor.csv").read_text().splitlines()[2:]
+    return [line.split(",")[:2] for line in lines]  # return, length (not wall time)
+
+
+# ---------------------------------------------------------------------------- configs
+@pytest.mark.parametrize(("algo", "env_id"), config_entries())
+def test_shipped_config_entries_are_complete_and_valid(algo: str, env_id: str) -> None:
+    entry = load_hyperparams(algo, env_id)
+    for key in (*REQUIRED_KEYS, "normalize"):
+        assert key in entry, f"{algo}.yaml[{env_id}] lacks {key}"
+    assert env_id in gym.registry
+    settings = resolve_settings(algo, entry)
+    assert settings["n_timesteps"] >= 100_000
+    assert settings["policy_kwargs"]  # parsed from a string or a mapping
+    if env_id == "QuadSLAM-EKF-v0":
+        assert entry["env_kwargs"]["scenario"] == "ekf_figure8_biased_imu"
+        assert settings["wrapper"] is not None and settings["wrapper"][0] == "residual_dflqr"
+    assert set(settings["algo_kwargs"]).isdisjoint(RESERVED_KEYS)
+
+
+def test_bad_configs_raise_value_errors_naming_the_problem(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="no entry for env 'QuadSLAM-Nope-v0'"):
+        load_hyperparams("ppo", "QuadSLAM-Nope-v0")
+    entry = load_hyperparams("ppo", "QuadSLAM-EKF-v0")
+    with pytest.raises(ValueError, match="learning_rat: unknown hyperparameter for PPO"):
+        resolve_settings("ppo", {**entry, "learning_rat": 1e-3})
+    with pytest.raises(ValueError, match="wrapper: got 'residual'"):
+        resolve_settings("ppo", {**entry, "wrapper": "residual"})
+    with pytest.raises(ValueError, match="scale"):
+        resolve_settings("ppo", {**entry, "wrapper": {"name": "residual_dflqr", "scale": -1}})
+    with pytest.raises(ValueError, match=r"normalize\.norm_obz"):
+        resolve_settings("ppo", {**entry, "normalize": {"norm_obz": True}})
+    bad_yaml = tmp_path / "bad.yaml"
+    bad_yaml.write_text("QuadSLAM-EKF-v0: [unclosed\n")
+    with pytest.raises(ValueError, match="malformed YAML"):
+        load_hyperparams("ppo", "QuadSLAM-EKF-v0", bad_yaml)
+    with pytest.raises(ValueError, match="env: got 'NoSuchEnv-v0'"):
+        train("ppo", "NoSuchEnv-v0", out_dir=tmp_path)
+    assert not list(tmp_path.glob("ppo_*")), "no run folder for a rejected config"
+
+
+def test_numeric_strings_and_linear_schedules_are_converted() -> None:
+    entry = {"n_timesteps": "1e4", "learning_rate": "lin_1e-3", "n_steps": "2e2", "gamma": "0.98"}
+    settings = resolve_settings("ppo", entry)
+    kw = settings["algo_kwargs"]
+    assert settings["n_timesteps"] == 10_000
+    assert kw["n_steps"] == 200 and isinstance(kw["n_steps"], int)
+    assert kw["gamma"] == pytest.approx(0.98)
+    assert kw["learning_rate"](1.0) == pytest.approx(1e-3)
+    assert kw["learning_rate"](0.5) == pytest.approx(5e-4)
+    sac = resolve_settings("sac", {"n_timesteps": 10, "ent_coef": "auto", "buffer_size": 1e4})
+    assert sac["algo_kwargs"] == {"ent_coef": "auto", "buffer_size": 10_000}
+
+
+# ---------------------------------------------------------------------------- wrapper
+def test_residual_wrapper_with_zero_residual_flies_dflqr_exactly() -> None:
+    env_id = main_env()
+    plain = gym.make(env_id, **SHORT)
+    wrapped = make_wrapped_env(env_id, SHORT, {"name": "residual_dflqr", "scale": 0.3})
+    assert isinstance(wrapped, ResidualDFLQRWrapper)
+    dflqr = DFLQRPolicy.from_env(plain)
+    obs_p, _ = plain.reset(seed=3)
+    obs_w, _ = wrapped.reset(seed=3)
+    zero = np.zeros(4, dtype=np.float32)
+    for _ in range(60):
+        np.testing.assert_array_equal(obs_w, obs_p)
+        action, _ = dflqr.predict(obs_p)
+        obs_w, rew_w, term_w, trunc_w, info_w = wrapped.step(zero)
+        np.testing.assert_array_equal(wrapped.last_action, action)
+        np.testing.assert_array_equal(info_w["dflqr_action"], action)
+        obs_p, rew_p, term_p, trunc_p, _ = plain.step(action)
+        assert rew_w == rew_p and term_w == term_p and trunc_w == trunc_p
+    np.testing.assert_array_equal(obs_w, obs_p)
+
+
+def test_residual_is_scaled_per_component_and_clipped() -> None:
+    base = np.array([0.5, -0.95, 0.0, 0.2], dtype=np.float32)
+    scale = np.array([0.1, 0.2, 0.3, 0.4], dtype=np.float32)
+    out = residual_action(base, np.array([1.0, -1.0, 5.0, -0.5]), scale)
+    np.testing.assert_allclose(out, [0.6, -1.0, 0.3, 0.0], atol=1e-7)
+    assert out.dtype == np.float32
+    env = gym.make(main_env(), **SHORT)
+    with pytest.raises(ValueError, match=r"residual_dflqr\.scale"):
+        ResidualDFLQRWrapper(env, scale=[0.1, 0.2])
+    with pytest.raises(gym.error.ResetNeeded):
+        ResidualDFLQRWrapper(env).step(np.zeros(4))
+    rates = gym.make(main_env(), action={"mode": "thrust_rates"}, **SHORT)
+    with pytest.raises(ValueError, match="thrust_torque"):
+        ResidualDFLQRWrapper(rates)
+
+
+# ---------------------------------------------------------------------------- callbacks
+def test_metrics_callback_averages_finite_info_values_and_counts_failures() -> None:
+    logger = Logger(folder=None, output_formats=[])
+    callback = EstimationMetricsCallback()
+    callback.model = SimpleNamespace(logger=logger)  # type: ignore[assignment]
+    infos = [
+        {"est_pos_err_m": 1.0, "est_nees_pose": math.nan, "t": 0.1, "termination_reason": ""},
+        {"est_pos_err_m": 3.0, "est_nees_pose": 2.0, "track_pos_err_m": 0.5, "residual": [0]},
+    ]
+    callback.locals = {"infos": infos, "dones": np.array([False, False])}
+    callback._on_step()
+    last = {
+        "est_pos_err_m": 5.0,
+        "episode_est_pos_rmse_m": 2.5,
+        "termination_reason": "estimator_diverged: NEES above threshold",
+    }
+    callback.locals = {"infos": [last], "dones": np.array([True])}
+    callback._on_step()
+    values = logger.name_to_value
+    assert values["quadslam/est_pos_err_m"] == pytest.approx(3.0)
+    assert values["quadslam/est_nees_pose"] == pytest.approx(2.0)  # NaN ignored
+    assert values["quadslam/track_pos_err_m"] == pytest.approx(0.5)
+    assert values["quadslam_episode/est_pos_rmse_m"] == pytest.approx(2.5)
+    assert values["quadslam_episode/failure_rate"] == pytest.approx(1.0)
+    assert values["quadslam_episode/n_estimator_diverged_nees_above_threshold"] == 1
+    assert "quadslam/t" not in values and "quadslam/residual" not in values
+
+
+# ---------------------------------------------------------------------------- training
+@pytest.mark.parametrize(("algo", "env_id"), config_entries())
+def test_smoke_training_with_shipped_config_loads_and_evaluates(
+    algo: str, env_id: str, tmp_path: Path
+) -> None:
+    entry = load_hyperparams(algo, env_id)
+    skip_unless_available(env_id, entry["env_kwargs"])
+    run_dir = train(
+        algo,
+        env_id,
+        timesteps=256,
+        n_envs=1,
+        seed=1,
+        out_dir=tmp_path,
+        progress=False,
+        hyperparams=tiny(algo),
+    )
+    for name in ("config.yaml", "seed.txt", "versions.json", "model.zip", "learning_curve.png"):
+        assert (run_dir / name).is_file(), name
+    normalized = entry["normalize"] not in (False, None)
+    assert (run_dir / "vecnormalize.pkl").is_file() == normalized
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert run_config(run_dir) == config == run_config(run_dir / "eval" / "best_model.zip")
+    assert config["algo"] == algo and config["env_id"] == env_id and config["seed"] == 1
+    assert config["hyperparams"]["n_timesteps"] == 256
+    assert config["scenario"]["episode"]["duration_s"] == 1.0
+    versions = json.loads((run_dir / "versions.json").read_text())
+    assert {"python", "numpy", "torch", "sb3", "gymnasium", "quadslam"} <= set(versions)
+    assert (run_dir / "eval" / "evaluations.npz").is_file()
+    assert list((run_dir / "checkpoints").glob("model_*_steps.zip"))
+    with (run_dir / "logs" / "progress.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    logged = [float(r["quadslam/track_pos_err_m"]) for r in rows if r["quadslam/track_pos_err_m"]]
+    assert logged and all(math.isfinite(v) for v in logged)
+    assert list((run_dir / "logs").glob("events.out.tfevents.*"))
+
+    env = gym.make(env_id, **{**entry["env_kwargs"], **SHORT})
+    policy, name = load_policy(str(run_dir), env)
+    assert isinstance(policy, TrainedPolicy) and policy.algo == algo and name == str(run_dir)
+    assert (policy.vec_normalize is not None) == normalized
+    wrapped = entry["wrapper"] not in (None, "none")
+    assert (policy.controller is not None) == wrapped
+    record = run_episode(env, policy, seed=5)
+    assert set(record) == set(EPISODE_KEYS)
+    assert record["duration_s"] > 0.0
+    # Checkpoints and the best model load with their own VecNormalize statistics.
+    for other in [run_dir / "eval" / "best_model.zip", *(run_dir / "checkpoints").glob("*.zip")]:
+        loaded = load_model(other, env)
+        assert loaded.algo == algo and (loaded.vec_normalize is not None) == normalized
+
+
+@pytest.fixture(scope="module")
+def cli_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny PPO run made through ``quadslam train`` on the main env."""
+    out = tmp_path_factory.mktemp("cli_runs")
+    args = ["train", "--algo", "ppo", "--env", main_env(), "--timesteps", "128"]
+    args += ["--n-envs", "1", "--seed", "2", "--out", str(out), "--no-progress", "--hyperparams"]
+    args += ["n_steps=64", "batch_size=32", "n_epochs=1", "policy_kwargs={net_arch: [8]}"]
+    args += ["env_kwargs.episode.duration_s=1.0", "eval_freq=0", "checkpoint_freq=0"]
+    assert cli.main(args) == 0
+    (run_dir,) = out.glob("ppo_*")
+    return run_dir
+
+
+def test_cli_train_prints_run_folder_and_evaluate_json_matches_schema(
+    cli_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    env_id = main_env()
+    scenario = load_hyperparams("ppo", env_id)["env_kwargs"]["scenario"]
+    out_json = tmp_path / "eval.json"
+    args = ["evaluate", "--policy", str(cli_run), "--env", env_id, "--scenario", scenario]
+    args += ["--duration", "1", "--episodes", "2", "--seed", "7", "--json", str(out_json)]
+    assert cli.main(args) == 0
+    result = json.loads(out_json.read_text())
+    assert set(result) == {"scenario", "estimator", "policy", "episodes", "summary"}
+    assert result["scenario"] == scenario
+    assert result["policy"] == str(cli_run)
+    assert [ep["seed"] for ep in result["episodes"]] == [7, 8]
+    for ep in result["episodes"]:
+        assert set(ep) == set(EPISODE_KEYS)
+        for key in SUMMARY_KEYS:
+            assert ep[key] is None or isinstance(ep[key], (int, float))
+    assert set(result["summary"]) == set(SUMMARY_KEYS)
+    for stats in result["summary"].values():
+        assert set(stats) == {"median", "min", "max"}
+        if stats["median"] is not None:
+            assert stats["min"] <= stats["median"] <= stats["max"]
+
+
+def test_cli_train_reports_bad_input_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    capsys.readouterr()
+    args = ["train", "--algo", "ppo", "--env", main_env(), "--out", str(tmp_path)]
+    code = cli.main([*args, "--hyperparams", "n_stepz=3"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "n_stepz: unknown hyperparameter for PPO" in err and len(err.strip().splitlines()) == 1
+
+
+def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
+    # The actions the env received inside the training pipeline (VecNormalize + residual
+    # wrapper + model) must equal TrainedPolicy.predict on the raw env.
+    from agents.training import resolve_settings as _resolve
+
+    config = yaml.safe_load((cli_run / "config.yaml").read_text())
+    settings = _resolve("ppo", config["hyperparams"])
+    venv = _make_vec_env(config["env_id"], settings, 1, 11, None)
+    venv = VecNormalize.load(str(cli_run / "vecnormalize.pkl"), venv)
+    venv.training, venv.norm_reward = False, False
+    model = PPO.load(cli_run / "model.zip", device="cpu")
+    wrapper = venv.venv.envs[0]  # Monitor(ResidualDFLQRWrapper(env))
+    while not isinstance(wrapper, ResidualDFLQRWrapper):
+        wrapper = wrapper.env
+    obs = venv.reset()
+    sent = []
+    for _ in range(40):
+        act, _ = model.predict(obs, deterministic=True)
+        obs, _, _, _ = venv.step(act)
+        sent.append(wrapper.last_action.copy())
+
+    env = gym.make(config["env_id"], **settings["env_kwargs"])
+    policy = load_model(cli_run, env)
+    raw, _ = env.reset(seed=11)
+    for expected in sent:
+        action, _ = policy.predict(raw)
+        np.testing.assert_array_equal(action, expected)
+        raw, *_ = env.step(action)
+
+
+def _first_actions(run_dir: Path, env_id: str, n: int = 30) -> np.ndarray:
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    env = gym.make(env_id, **config["hyperparams"]["env_kwargs"])
+    policy = load_model(run_dir, env)
+    obs, _ = env.reset(seed=0)
+    actions = []
+    for _ in range(n):
+        action, _ = policy.predict(obs)
+        actions.append(action)
+        obs, *_ = env.step(action)
+    return np.array(actions)
+
+
+def test_same_seed_gives_identical_training(tmp_path: Path) -> None:
+    env_id = main_env()
+    hp = {**tiny("ppo"), "eval_freq": 0, "checkpoint_freq": 0}
+    runs = [
+        train(
+            "ppo",
+            env_id,
+            timesteps=192,
+            n_envs=1,
+            seed=s,
+            out_dir=tmp_path / f"{i}",
+            progress=False,
+            hyperparams=hp,
+        )
+        for i, s in enumerate((4, 4, 5))
+    ]
+    same = [_first_actions(r, env_id) for r in runs]
+    np.testing.assert_array_equal(same[0], same[1])
+    assert read_monitor(runs[0]) == read_monitor(runs[1])
+    assert not np.array_equal(same[0], same[2])
+
+
+# ---------------------------------------------------------------------------- loading errors
+def test_model_for_another_observation_space_raises_naming_both_shapes(tmp_path: Path) -> None:
+    env_id = main_env()
+    other = gym.make(env_id, observation={"lookahead_s": [0.5]}, **SHORT)
+    assert other.observation_space.shape == (19,)
+    PPO("MlpPolicy", other, policy_kwargs={"net_arch": [4]}, device="cpu").save(tmp_path / "m")
+    env = gym.make(env_id, **SHORT)
+    with pytest.raises(ValueError, match=r"\(19,\).*\(16,\)"):
+        load_policy(str(tmp_path / "m.zip"), env)
+    code = cli.main(["evaluate", "--policy", str(tmp_path / "m.zip"), "--env", env_id])
+    assert code == 2
+
+
+def test_bare_zips_are_detected_as_ppo_or_sac(tmp_path: Path) -> None:
+    env = gym.make(main_env(), **SHORT)
+    SAC("MlpPolicy", env, policy_kwargs={"net_arch": [4]}, device="cpu").save(tmp_path / "s")
+    PPO("MlpPolicy", env, policy_kwargs={"net_arch": [4]}, device="cpu").save(tmp_path / "p")
+    sac = load_model(tmp_path / "s.zip", env)
+    ppo = load_model(tmp_path / "p.zip", env)
+    assert (sac.algo, ppo.algo) == ("sac", "ppo")
+    assert sac.vec_normalize is None and sac.controller is None
+    obs, _ = env.reset(seed=0)
+    assert sac.predict(obs)[0].shape == (4,)
+
+
+def test_unreadable_files_give_clear_errors(tmp_path: Path) -> None:
+    env = gym.make(main_env(), **SHORT)
+    junk = tmp_path / "junk.zip"
+    junk.write_bytes(b"not a zip at all")
+    with pytest.raises(ValueError, match="not a stable-baselines3 model"):
+        load_model(junk, env)
+    empty = tmp_path / "empty.zip"
+    with zipfile.ZipFile(empty, "w") as archive:
+        archive.writestr("hello.txt", "hi")
+    with pytest.raises(ValueError, match="cannot load as a stable-baselines3 model"):
+        load_model(empty, env)
+    with pytest.raises(FileNotFoundError, match=r"run folder without model\.zip"):
+        load_model(tmp_path, env)
+    with pytest.raises(FileNotFoundError):
+        load_policy(str(tmp_path / "missing"), env)
+    assert run_config(tmp_path) is None and run_config(junk) is None
+
+
+def test_parallel_envs_run_in_subprocesses_and_restore_torch_threads(tmp_path: Path) -> None:
+    import torch
+
+    threads = torch.get_num_threads()
+    hp = {**tiny("ppo"), "eval_freq": 128, "checkpoint_freq": 0}
+    run_dir = train(
+        "ppo",
+        main_env(),
+        timesteps=256,
+        n_envs=2,
+        seed=0,
+        out_dir=tmp_path,
+        progress=False,
+        hyperparams=hp,
+    )
+    assert torch.get_num_threads() == threads
+    assert sorted(p.name for p in (run_dir / "monitor").iterdir()) == [
+        "0.monitor.csv",
+        "1.monitor.csv",
+    ]
+    config = yaml.safe_load((run_dir / "config.yaml").read_text())
+    assert config["hyperparams"]["n_envs"] == 2 and config["torch_threads"] >= 1
+    assert (run_dir / "model.zip").is_file()
