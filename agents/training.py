@@ -70,6 +70,7 @@ from agents.wrappers import (
     parse_wrapper_spec,
     residual_action,
 )
+from quadslam_env.config import deep_merge
 
 RESERVED_KEYS = (
     "n_envs",
@@ -176,16 +177,6 @@ def load_hyperparams(algo: str, env_id: str, config_path: str | Path | None = No
             f"got {type(entry).__name__}"
         )
     return copy.deepcopy(entry)
-
-
-def _deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(base)
-    for key, value in override.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _deep_merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
 
 
 def parse_policy_kwargs(value: Any) -> dict[str, Any]:
@@ -520,7 +511,7 @@ def train(
     source = Path(config_path) if config_path is not None else default_config_path(algo)
     entry = load_hyperparams(algo, env_id, source)
     if hyperparams:
-        entry = _deep_merge(entry, hyperparams)
+        entry = deep_merge(entry, hyperparams)
     if timesteps is not None:
         entry["n_timesteps"] = int(timesteps)
     if n_envs is not None:
