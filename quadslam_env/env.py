@@ -360,9 +360,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
             return None
         from quadslam_env.rendering import render_frame
 
-        est = self.last_estimate
-        if not self._history["true"]:
-            self._record(est, self.trajectory(self.t)) if est is not None else None
+        est = self.last_estimate  # None before the first reset: an empty frame is drawn
         return render_frame(
             np.array(self._history["true"]).reshape(-1, 3),
             np.array(self._history["est"]).reshape(-1, 3),
