@@ -9,7 +9,7 @@ RMSEs, the average NEES (ANEES) and the share of steps whose NEES lies inside th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
@@ -142,58 +142,66 @@ def _norm3(vec: FloatArray) -> float:
 
 @dataclass
 class EpisodeMetrics:
-    """Accumulates per-step terms into the ``episode_*`` summary of the last ``info``."""
+    """Accumulates per-step terms into the ``episode_*`` summary of the last ``info``.
 
-    pos_sq: list[float] = field(default_factory=list)
-    vel_sq: list[float] = field(default_factory=list)
-    att_sq: list[float] = field(default_factory=list)
-    track_sq: list[float] = field(default_factory=list)
-    nees_pose: list[float] = field(default_factory=list)
-    nees_pos: list[float] = field(default_factory=list)
+    Running sums only (O(1) memory), so hour-long episodes do not grow with the step count.
+    """
+
+    steps: int = 0
+    pos_sq: float = 0.0
+    vel_sq: float = 0.0
+    att_sq: float = 0.0
+    track_sq: float = 0.0
+    nees_pose_sum: float = 0.0
+    nees_pose_n: int = 0
+    nees_pose_inside: int = 0
+    nees_pos_sum: float = 0.0
+    nees_pos_n: int = 0
     last_map_rmse: float = math.nan
     last_n_mapped: float = 0.0
     last_bias_rel_err: tuple[float, float] = (math.nan, math.nan)
 
     def add(self, info: dict[str, float]) -> None:
-        """Record one step's ``info`` terms."""
-        self.pos_sq.append(info["est_pos_err_m"] ** 2)
-        self.vel_sq.append(info["est_vel_err_mps"] ** 2)
-        self.att_sq.append(info["est_att_err_deg"] ** 2)
-        self.track_sq.append(info["track_pos_err_m"] ** 2)
-        self.nees_pose.append(info["est_nees_pose"])
-        self.nees_pos.append(info["est_nees_pos"])
+        """Record one step's ``info`` terms (NaN/inf NEES values are left out of the ANEES)."""
+        self.steps += 1
+        self.pos_sq += info["est_pos_err_m"] ** 2
+        self.vel_sq += info["est_vel_err_mps"] ** 2
+        self.att_sq += info["est_att_err_deg"] ** 2
+        self.track_sq += info["track_pos_err_m"] ** 2
+        nees_pose, nees_pos = info["est_nees_pose"], info["est_nees_pos"]
+        if math.isfinite(nees_pose):
+            lo, hi = NEES_POSE_BOUNDS_95
+            self.nees_pose_sum += nees_pose
+            self.nees_pose_n += 1
+            self.nees_pose_inside += int(lo <= nees_pose <= hi)
+        if math.isfinite(nees_pos):
+            self.nees_pos_sum += nees_pos
+            self.nees_pos_n += 1
         self.last_map_rmse = info["est_map_rmse_m"]
         self.last_n_mapped = info["est_n_mapped"]
         self.last_bias_rel_err = (info["est_accel_bias_rel_err"], info["est_gyro_bias_rel_err"])
 
     def summary(self) -> dict[str, float]:
         """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds."""
-        nees_pose = np.array(self.nees_pose)
-        lo, hi = NEES_POSE_BOUNDS_95
-        finite = nees_pose[np.isfinite(nees_pose)]
+        n = self.steps
+
+        def rms(total: float) -> float:
+            return math.sqrt(total / n) if n else math.nan
+
+        def ratio(num: float, den: int) -> float:
+            return num / den if den else math.nan
+
         return {
-            "episode_steps": float(len(self.pos_sq)),
-            "episode_est_pos_rmse_m": _rms(self.pos_sq),
-            "episode_est_vel_rmse_mps": _rms(self.vel_sq),
-            "episode_est_att_rmse_deg": _rms(self.att_sq),
-            "episode_track_pos_rmse_m": _rms(self.track_sq),
+            "episode_steps": float(n),
+            "episode_est_pos_rmse_m": rms(self.pos_sq),
+            "episode_est_vel_rmse_mps": rms(self.vel_sq),
+            "episode_est_att_rmse_deg": rms(self.att_sq),
+            "episode_track_pos_rmse_m": rms(self.track_sq),
             "episode_map_rmse_m": self.last_map_rmse,
             "episode_n_mapped": self.last_n_mapped,
             "episode_accel_bias_rel_err": self.last_bias_rel_err[0],
             "episode_gyro_bias_rel_err": self.last_bias_rel_err[1],
-            "episode_anees_pose": float(np.mean(finite)) if finite.size else math.nan,
-            "episode_anees_pos": _mean_finite(self.nees_pos),
-            "episode_nees_pose_in_bounds": (
-                float(np.mean((finite >= lo) & (finite <= hi))) if finite.size else math.nan
-            ),
+            "episode_anees_pose": ratio(self.nees_pose_sum, self.nees_pose_n),
+            "episode_anees_pos": ratio(self.nees_pos_sum, self.nees_pos_n),
+            "episode_nees_pose_in_bounds": ratio(self.nees_pose_inside, self.nees_pose_n),
         }
-
-
-def _rms(squares: list[float]) -> float:
-    return float(math.sqrt(np.mean(squares))) if squares else math.nan
-
-
-def _mean_finite(values: list[float]) -> float:
-    arr = np.array(values)
-    arr = arr[np.isfinite(arr)]
-    return float(np.mean(arr)) if arr.size else math.nan
