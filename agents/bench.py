@@ -411,10 +411,19 @@ def write_plots(entries: list[dict[str, Any]], out_dir: Path) -> list[Path]:
             np.array([e["max"] for e in rows]),
         )
 
-    def plot(ax: Any, data: tuple[np.ndarray, ...], label: str) -> None:
+    def plot(ax: Any, data: tuple[np.ndarray, ...], label: str, color: str | None = None) -> None:
         x, med, lo, hi = data
         if x.size:
-            ax.errorbar(x, med, yerr=[med - lo, hi - med], fmt="o-", ms=3, capsize=2, label=label)
+            ax.errorbar(
+                x,
+                med,
+                yerr=[med - lo, hi - med],
+                fmt="o-",
+                ms=3,
+                capsize=2,
+                label=label,
+                color=color,
+            )
 
     paths = []
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
@@ -438,6 +447,7 @@ def write_plots(entries: list[dict[str, Any]], out_dir: Path) -> list[Path]:
         ax_obs,
         series("ekf_slam", "update", "n_observed", n_mapped=n_big),
         f"{n_big} mapped (top axis: observed)",
+        color="C1",
     )
     axes[1].legend(fontsize=7, loc="upper left")
     ax_obs.legend(fontsize=7, loc="lower right")
