@@ -82,7 +82,7 @@ def make_env(
     """``gymnasium.make`` with the CLI's scenario / estimator / duration / ``--set`` choices."""
     import gymnasium as gym
 
-    import quadslam_env  # noqa: F401  (registers the ids)
+    import quadslam_env  # registers the ids
     from quadslam_env.config import deep_merge
 
     kwargs: dict[str, Any] = parse_overrides(overrides)
@@ -92,6 +92,11 @@ def make_env(
         kwargs["estimator_name"] = estimator
     if duration is not None:
         kwargs = deep_merge(kwargs, {"episode": {"duration_s": duration}})
+    if env_id not in gym.registry:
+        raise ValueError(
+            f"--env: got {env_id!r}; allowed: one of {list(quadslam_env.ENV_IDS)} "
+            "or another registered Gymnasium id"
+        )
     return gym.make(env_id, **kwargs)
 
 
@@ -312,7 +317,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except (ValueError, TypeError, FileNotFoundError, KeyError) as exc:
-        print(f"quadslam {args.command}: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split())  # one line, even for multi-line YAML errors
+        print(f"quadslam {args.command}: error: {message}", file=sys.stderr)
         return 2
 
 

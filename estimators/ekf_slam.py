@@ -52,6 +52,8 @@ BIAS_DIM = 4
 _PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)  # seed 001 Table 7
 _INITIAL_LANDMARK_CAPACITY = 32
 _TWO_PI = 2.0 * math.pi
+_MAX_PITCH = math.radians(89.0)
+"""|θ̂| beyond which D(Λ) (1/cos θ) is treated as singular and the filter flagged diverged."""
 _I3 = np.eye(3)
 _AR3 = np.arange(3)
 
@@ -430,7 +432,11 @@ class EkfSlam:
         Pvv *= 0.5
         Pvv += Gam @ Gam.T
         Pvv += self._qd_diag
-        if not (all(map(math.isfinite, s_new)) and math.isfinite(float(T.sum() + Pvv.sum()))):
+        if not (
+            all(map(math.isfinite, s_new))
+            and abs(s_new[7]) < _MAX_PITCH
+            and math.isfinite(float(T.sum() + Pvv.sum()))
+        ):
             self._diverged = True
             return
         P[:nv, :nv] = Pvv

@@ -151,7 +151,7 @@ class _Section:
         merged = dict(data)
         preset = data.get("preset")
         if cls.PRESETS and preset is not None:
-            if preset not in cls.PRESETS:
+            if not isinstance(preset, str) or preset not in cls.PRESETS:
                 raise ConfigError(
                     f"{cls.SECTION}.preset: got {preset!r}; allowed: one of {sorted(cls.PRESETS)}"
                 )
@@ -193,7 +193,7 @@ class VehicleConfig(_Section):
     )
     drag_per_s: float = _spec(0.0, lo=0.0, hi=10.0)
     actuator_tau_s: float = _spec(0.0, lo=0.0, hi=1.0)
-    physics_dt_s: float = _spec(0.002, lo=0.0, hi=0.02, lo_open=True)
+    physics_dt_s: float = _spec(0.002, lo=1e-5, hi=0.02)
 
     def params(self) -> VehicleParams:
         """The :class:`VehicleParams` of the preset with this section's overrides applied."""
@@ -358,11 +358,11 @@ class TrajectoryConfig(_Section):
 
     SECTION: ClassVar[str] = "trajectory"
     kind: str = _spec("figure8", kind="str", choices=("figure8", "helix", "circle", "hover"))
-    center: tuple[float, ...] = _spec([0.0, 0.0, -2.0], kind="vec", length=3)
-    amplitude_x_m: float = _spec(4.0, lo=0.0)
-    amplitude_y_m: float = _spec(2.0, lo=0.0)
-    radius_m: float = _spec(1.0, lo=0.0)
-    period_s: float = _spec(25.0, lo=0.0, lo_open=True)
+    center: tuple[float, ...] = _spec([0.0, 0.0, -2.0], kind="vec", length=3, lo=-1e6, hi=1e6)
+    amplitude_x_m: float = _spec(4.0, lo=0.0, hi=1e4)
+    amplitude_y_m: float = _spec(2.0, lo=0.0, hi=1e4)
+    radius_m: float = _spec(1.0, lo=0.0, hi=1e4)
+    period_s: float = _spec(25.0, lo=0.1)
     climb_rate_mps: float = _spec(0.0, lo=-10.0, hi=10.0)
     yaw_mode: str = _spec("tangent", kind="str", choices=("tangent", "fixed"))
     yaw_deg: float = _spec(0.0, lo=-180.0, hi=180.0)
@@ -412,7 +412,7 @@ class ObservationConfig(_Section):
     pos_uncertainty: bool = _spec(False, kind="bool")
     landmark_counts: bool = _spec(False, kind="bool")
     lookahead_s: tuple[float, ...] = _spec([], kind="vec", lo=0.0, hi=10.0)
-    clip: float = _spec(100.0, lo=0.0, lo_open=True)
+    clip: float = _spec(100.0, lo=1e-6, hi=1e30)
 
 
 @dataclass(frozen=True)
@@ -436,8 +436,12 @@ class EpisodeConfig(_Section):
     SECTION: ClassVar[str] = "episode"
     duration_s: float = _spec(50.0, lo=0.0, lo_open=True, hi=1e6)
     control_hz: float = _spec(100.0, lo=0.0, lo_open=True, hi=10000.0)
-    initial_position: tuple[float, ...] = _spec([0.0, 0.0, 0.0], kind="vec", length=3)
-    initial_velocity: tuple[float, ...] = _spec([0.0, 0.0, 0.0], kind="vec", length=3)
+    initial_position: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0], kind="vec", length=3, lo=-1e6, hi=1e6
+    )
+    initial_velocity: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0], kind="vec", length=3, lo=-1e3, hi=1e3
+    )
     initial_euler_deg: tuple[float, ...] = _spec(
         [0.0, 0.0, 0.0], kind="vec", length=3, lo=-180.0, hi=180.0
     )

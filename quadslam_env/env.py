@@ -226,8 +226,11 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
     # ------------------------------------------------------------------ step
     def _validate_action(self, action: Any) -> FloatArray:
         try:
-            arr = np.asarray(action, dtype=float)
-        except (TypeError, ValueError) as exc:
+            arr = np.asarray(action)
+            if arr.dtype.kind in "cmM":  # complex, timedelta, datetime: not real numbers
+                raise TypeError(f"dtype {arr.dtype}")
+            arr = arr.astype(float, copy=False)
+        except (TypeError, ValueError, OverflowError) as exc:
             raise ActionError(
                 f"action: got {action!r}; allowed: 4 finite numbers in [-1, 1]"
             ) from exc

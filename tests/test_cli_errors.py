@@ -1,0 +1,211 @@
+"""Bad input to the ``quadslam`` CLI (DESIGN.md §7): every class of bad argument or file ends
+with a non-zero exit status and one line on stderr, starting with ``quadslam``, that names the
+offending key or value. Argument-type errors are argparse's (``SystemExit(2)``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from agents.cli import main
+
+RUN = ["run", "--duration", "0.5", "--no-plots"]
+EVALUATE = ["evaluate", "--duration", "0.5", "--episodes", "1"]
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> str:
+    """Run the CLI, check the exit status and the stderr shape, return the stderr line."""
+    code = main(argv)
+    err = capsys.readouterr().err
+    assert code != 0
+    lines = err.strip("\n").splitlines()
+    assert len(lines) == 1, f"expected one stderr line, got {len(lines)}:\n{err}"
+    assert lines[0].startswith("quadslam")
+    return lines[0]
+
+
+def _argparse_error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> str:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    return capsys.readouterr().err.strip().splitlines()[-1]
+
+
+# ----------------------------------------------------------------------------- scenarios / files
+
+
+def test_unknown_scenario_name(capsys):
+    line = _one_line_error(capsys, [*RUN, "--scenario", "no_such_scenario"])
+    assert "scenario" in line
+    assert "'no_such_scenario'" in line
+    assert "paper_ekf_figure8" in line  # lists what is allowed
+
+
+def test_missing_yaml_path(capsys, tmp_path):
+    missing = tmp_path / "missing.yaml"
+    line = _one_line_error(capsys, [*RUN, "--scenario", str(missing)])
+    assert str(missing) in line
+    assert "cannot be read" in line
+
+
+def test_malformed_yaml_file(capsys, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("episode: [1, 2\n  duration_s: : 3\n")
+    line = _one_line_error(capsys, [*RUN, "--scenario", str(bad)])
+    assert str(bad) in line
+    assert "malformed YAML" in line
+
+
+def test_yaml_with_unknown_key(capsys, tmp_path):
+    path = tmp_path / "unknown_key.yaml"
+    path.write_text("episode:\n  duration_s: 1.0\n  bogus_key: 3\n")
+    line = _one_line_error(capsys, [*RUN, "--scenario", str(path)])
+    assert "episode.bogus_key" in line
+    assert "duration_s" in line  # the allowed keys are listed
+
+
+def test_yaml_with_unknown_section(capsys, tmp_path):
+    path = tmp_path / "unknown_section.yaml"
+    path.write_text("engine:\n  power: 3\n")
+    line = _one_line_error(capsys, [*RUN, "--scenario", str(path)])
+    assert "engine" in line
+    assert "unknown section" in line
+
+
+def test_yaml_that_is_not_a_mapping(capsys, tmp_path):
+    path = tmp_path / "list.yaml"
+    path.write_text("- 1\n- 2\n")
+    line = _one_line_error(capsys, [*RUN, "--scenario", str(path)])
+    assert str(path) in line
+    assert "mapping" in line
+
+
+def test_yaml_with_wrong_type(capsys, tmp_path):
+    path = tmp_path / "wrong_type.yaml"
+    path.write_text("lidar:\n  rate_hz: fast\n")
+    line = _one_line_error(capsys, [*RUN, "--scenario", str(path)])
+    assert "lidar.rate_hz" in line
+    assert "'fast'" in line
+
+
+# ----------------------------------------------------------------------------- --set
+
+
+def test_set_without_value(capsys):
+    line = _one_line_error(capsys, [*RUN, "--set", "foo"])
+    assert "--set" in line
+    assert "'foo'" in line
+
+
+def test_set_out_of_range(capsys):
+    line = _one_line_error(capsys, ["run", "--no-plots", "--set", "episode.duration_s=-1"])
+    assert "episode.duration_s" in line
+    assert "-1" in line
+
+
+def test_set_unknown_key(capsys):
+    line = _one_line_error(capsys, [*RUN, "--set", "episode.bogus=1"])
+    assert "episode.bogus" in line
+
+
+def test_set_unknown_estimator_param(capsys):
+    line = _one_line_error(capsys, [*RUN, "--set", "estimator.params.foo=1"])
+    assert "estimator.params.foo" in line
+
+
+def test_set_wrong_type_estimator_param(capsys):
+    argv = [*RUN, "--estimator", "fastslam", "--set", "estimator.params.n_particles=abc"]
+    line = _one_line_error(capsys, argv)
+    assert "estimator.params.n_particles" in line
+    assert "'abc'" in line
+
+
+def test_set_malformed_yaml_value(capsys):
+    line = _one_line_error(capsys, [*RUN, "--set", "episode.duration_s=[1"])
+    assert "episode.duration_s" in line
+    assert "[1" in line
+
+
+# ----------------------------------------------------------------------------- argparse
+
+
+def test_zero_seeds_is_an_argparse_error(capsys):
+    line = _argparse_error(capsys, ["run", "--seeds", "0"])
+    assert line.startswith("quadslam run: error:")
+    assert "--seeds" in line
+    assert "'0'" in line
+
+
+def test_non_numeric_duration_is_an_argparse_error(capsys):
+    line = _argparse_error(capsys, ["run", "--duration", "abc"])
+    assert "--duration" in line
+    assert "'abc'" in line
+
+
+def test_negative_duration_is_an_argparse_error(capsys):
+    line = _argparse_error(capsys, ["run", "--duration", "-3"])
+    assert "--duration" in line
+    assert "'-3'" in line
+
+
+def test_unknown_estimator_is_an_argparse_error(capsys):
+    line = _argparse_error(capsys, ["run", "--estimator", "kalman"])
+    assert "--estimator" in line
+    assert "'kalman'" in line
+
+
+# ----------------------------------------------------------------------------- evaluate --policy
+
+
+def test_evaluate_missing_policy_path(capsys):
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", "/nonexistent/model.zip"])
+    assert "--policy" in line
+    assert "/nonexistent/model.zip" in line
+
+
+def test_evaluate_garbage_zip(capsys, tmp_path):
+    garbage = tmp_path / "some_file.zip"
+    garbage.write_bytes(bytes(range(256)) * 4)
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(garbage)])
+    assert str(garbage) in line
+    assert "model" in line
+
+
+def test_evaluate_zip_header_without_archive(capsys, tmp_path):
+    fake = tmp_path / "truncated.zip"
+    fake.write_bytes(b"PK\x03\x04" + b"\x00" * 40)
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(fake)])
+    assert str(fake) in line
+
+
+def test_evaluate_folder_without_model(capsys, tmp_path):
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(tmp_path)])
+    assert str(tmp_path) in line
+    assert "model.zip" in line
+
+
+def test_evaluate_model_of_another_env(capsys, tmp_path):
+    """A real SB3 model whose observation space (16 + 3 uncertainty features) differs from the
+    evaluation env's (16)."""
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    import quadslam_env  # noqa: F401  (registers the ids)
+
+    train_env = gym.make(
+        "QuadSLAM-Oracle-v0",
+        observation={"pos_uncertainty": True},
+        episode={"duration_s": 0.5},
+    )
+    path = Path(tmp_path) / "other_env_model.zip"
+    PPO("MlpPolicy", train_env, n_steps=16, batch_size=16, device="cpu").save(path)
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(path)])
+    assert str(path) in line
+    assert "(19,)" in line  # the model's observation shape
+    assert "(16,)" in line  # the env's
+
+
+def test_evaluate_unknown_env_id(capsys):
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", "dflqr", "--env", "QuadSLAM-Nope-v0"])
+    assert "QuadSLAM-Nope-v0" in line
