@@ -513,8 +513,14 @@ class _FastSLAMBase:
         "process_noise": _VECTOR,
         "integrator": str,
         "known_map_sigma": _FLOAT,
+        "likelihood_inflation": _FLOAT,
+        "roughening": _FLOAT,
+        "nis_divergence": _FLOAT,
+        "nis_divergence_s": _FLOAT,
     }
     _DEFAULT_NOISE: ClassVar[tuple[float, float, float, float]] = (0.0, 0.0, 0.0, 0.0)
+    _DEFAULT_INFLATION: ClassVar[float] = 1.0
+    _DEFAULT_ROUGHENING: ClassVar[float] = 0.0
 
     def __init__(self, params: dict[str, Any], extra: dict[str, type | tuple[type, ...]]) -> None:
         allowed = {**self._COMMON, **extra}
@@ -532,6 +538,22 @@ class _FastSLAMBase:
         if self.integrator not in ("rk4", "euler"):
             raise _fail("integrator", self.integrator, "'rk4' or 'euler'")
         self.known_map_sigma = _positive("known_map_sigma", params.get("known_map_sigma", 1e-3))
+        self.likelihood_inflation = _positive(
+            "likelihood_inflation", params.get("likelihood_inflation", self._DEFAULT_INFLATION)
+        )
+        if self.likelihood_inflation < 1.0:
+            raise _fail(
+                "likelihood_inflation", params["likelihood_inflation"], "a finite number >= 1"
+            )
+        self.roughening = _positive(
+            "roughening", params.get("roughening", self._DEFAULT_ROUGHENING), strict=False
+        )
+        self.nis_divergence = _positive(
+            "nis_divergence", params.get("nis_divergence", 1000.0), strict=False
+        )
+        self.nis_divergence_s = _positive(
+            "nis_divergence_s", params.get("nis_divergence_s", 2.0), strict=False
+        )
         self._rng = np.random.default_rng(0)
         self._alloc()
 
@@ -549,6 +571,10 @@ class _FastSLAMBase:
         self._diverged = False
         self._nis = math.nan
         self._nis_dof = 0
+        self._time = 0.0
+        self._nis_high_since: float | None = None
+        self._lost = False
+        self._best_nis = math.nan
 
     def reset(
         self,
@@ -625,8 +651,26 @@ class _FastSLAMBase:
             self._resample(systematic_resample(w, self._rng))
 
     def _resample(self, idx: np.ndarray) -> None:
-        """Copy the selected particles (fancy indexing: fresh arrays, no shared views)."""
+        """Copy the selected particles (fancy indexing: fresh arrays, no shared views).
+
+        With ``roughening = K > 0`` every copied vehicle state is then jittered (Gordon et al.
+        1993 "roughening", the standard remedy for sample impoverishment after SIR resampling,
+        cf. seed 004 §3 on degeneracy/impoverishment): state j gets ``N(0, σ_j²)`` with
+        ``σ_j = K E_j N^{−1/d}``, ``E_j`` the weighted standard deviation of state j *before*
+        resampling and d = 12. The jitter scales with the current spread, so it re-diversifies
+        the duplicates without adding a fixed noise floor; landmark EKFs are not jittered.
+        """
+        if self.roughening > 0.0:
+            w = self.weights
+            mean = w @ self.x
+            dev = self.x - mean
+            dev[:, 6:9] = wrap_angle(dev[:, 6:9])
+            spread = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
+            scale = self.roughening * spread * self.n_particles ** (-1.0 / STATE_DIM)
         self.x = self.x[idx]
+        if self.roughening > 0.0:
+            self.x = self.x + self._rng.standard_normal(self.x.shape) * scale
+            _wrap_euler(self.x)
         self.mu = self.mu[idx]
         self.sigma = self.sigma[idx]
         self._resample_extra(idx)
@@ -647,7 +691,8 @@ class _FastSLAMBase:
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"predict: dt must be a finite number > 0, got {dt!r}")
-        self._diverged = False
+        self._diverged = self._lost
+        self._time += dt
         self._nis = math.nan
         self._nis_dof = 0
         x_old = self.x
@@ -721,7 +766,11 @@ class _FastSLAMBase:
             self.sigma[:, idx] = sig_new
             self._nis = float(self.weights @ nis.sum(axis=1))
             self._nis_dof = MEAS_DIM * int(idx.size)
-            self._apply_loglik(loglik.sum(axis=1))
+            self._check_lock(nis.sum(axis=1) / self._nis_dof)
+            # Tempering (likelihood inflation λ): the weights use p(z | x)^{1/λ}, i.e. the
+            # Gaussian with covariance λ·S up to a particle-independent constant; the EKFs
+            # above use the true R.
+            self._apply_loglik(loglik.sum(axis=1) / self.likelihood_inflation)
         if not np.all(old):
             new_ids = scan_ids[~old]
             mu0, sig0 = landmark_init(pos, dcm, meas[~old], R)
@@ -734,6 +783,32 @@ class _FastSLAMBase:
 
     def _post_update(self, idx: np.ndarray, meas: FloatArray, R: FloatArray) -> None:
         """Hook run after resampling in :meth:`update` with the mapped observations."""
+
+    def _check_lock(self, nis_per_dof: FloatArray) -> None:
+        """NIS-based loss-of-lock flag (sticky until :meth:`reset`).
+
+        ``nis_per_dof`` (N,) is each particle's LiDAR NIS per degree of freedom. The mean over
+        the best 10 % of particles (lowest NIS) is ≈ 1 while the filter is locked; if it stays
+        above ``nis_divergence`` for ``nis_divergence_s`` seconds of filter time no particle
+        explains the scans any more (the weights are then only relative and the estimate is
+        silently wrong), so ``diagnostics["diverged"]`` is set. ``nis_divergence = 0`` disables
+        the check.
+        """
+        k = max(1, self.n_particles // 10)
+        best = float(np.mean(np.partition(nis_per_dof, k - 1)[:k]))
+        self._best_nis = best
+        if self.nis_divergence <= 0.0:
+            return
+        if not best > self.nis_divergence:  # also catches NaN as "not high"
+            self._nis_high_since = None
+            return
+        if self._nis_high_since is None:
+            self._nis_high_since = self._time
+        if self._time - self._nis_high_since >= self.nis_divergence_s:
+            if not self._lost:
+                self.n_divergences += 1
+            self._lost = True
+            self._diverged = True
 
     # ---------------------------------------------------------------- estimate
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
@@ -774,7 +849,8 @@ class _FastSLAMBase:
             "n_resamples": float(self.n_resamples),
             "nis": self._nis,
             "nis_dof": float(self._nis_dof),
-            "diverged": 1.0 if self._diverged else 0.0,
+            "diverged": 1.0 if (self._diverged or self._lost) else 0.0,
+            "best_nis_per_dof": self._best_nis,
             "n_divergences": float(self.n_divergences),
         }
         return Estimate(

@@ -93,7 +93,7 @@ def step_metrics(
     true_points: FloatArray,
     true_bias: FloatArray | None,
 ) -> dict[str, float]:
-    """The ``est_*`` terms of one step (DESIGN.md §4 ``info``).
+    """The ``est_*`` terms of one step (DESIGN.md §4 ``info``); undefined terms are absent.
 
     Args:
         true_state: (12,) true state.
@@ -112,15 +112,17 @@ def step_metrics(
         "est_pos_err_m": _norm3(err[0:3]),
         "est_vel_err_mps": _norm3(vel_err),
         "est_att_err_deg": math.degrees(att),
-        "est_nees_pose": nees_pose,
-        "est_nees_pos": nees_pos,
         "est_n_mapped": float(est.landmark_ids.size),
-        "est_map_rmse_m": map_rmse(est, true_ids, true_points),
-        "est_accel_bias_err": math.nan,
-        "est_gyro_bias_err": math.nan,
-        "est_accel_bias_rel_err": math.nan,
-        "est_gyro_bias_rel_err": math.nan,
     }
+    # Terms that do not apply (no covariance, nothing mapped, no bias estimate) are left out,
+    # so the same seed gives equal info dicts (NaN != NaN).
+    for key, value in (
+        ("est_nees_pose", nees_pose),
+        ("est_nees_pos", nees_pos),
+        ("est_map_rmse_m", map_rmse(est, true_ids, true_points)),
+    ):
+        if not math.isnan(value):
+            out[key] = value
     for name, est_bias, sl in (
         ("accel", est.accel_bias, slice(0, 3)),
         ("gyro", est.gyro_bias, slice(3, 6)),
@@ -168,7 +170,8 @@ class EpisodeMetrics:
         self.vel_sq += info["est_vel_err_mps"] ** 2
         self.att_sq += info["est_att_err_deg"] ** 2
         self.track_sq += info["track_pos_err_m"] ** 2
-        nees_pose, nees_pos = info["est_nees_pose"], info["est_nees_pos"]
+        nees_pose = info.get("est_nees_pose", math.nan)
+        nees_pos = info.get("est_nees_pos", math.nan)
         if math.isfinite(nees_pose):
             lo, hi = NEES_POSE_BOUNDS_95
             self.nees_pose_sum += nees_pose
@@ -177,9 +180,12 @@ class EpisodeMetrics:
         if math.isfinite(nees_pos):
             self.nees_pos_sum += nees_pos
             self.nees_pos_n += 1
-        self.last_map_rmse = info["est_map_rmse_m"]
+        self.last_map_rmse = info.get("est_map_rmse_m", math.nan)
         self.last_n_mapped = info["est_n_mapped"]
-        self.last_bias_rel_err = (info["est_accel_bias_rel_err"], info["est_gyro_bias_rel_err"])
+        self.last_bias_rel_err = (
+            info.get("est_accel_bias_rel_err", math.nan),
+            info.get("est_gyro_bias_rel_err", math.nan),
+        )
 
     def summary(self) -> dict[str, float]:
         """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds."""

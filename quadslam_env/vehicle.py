@@ -52,24 +52,26 @@ class Vehicle:
         n_sub = max(1, math.ceil(duration / self.physics_dt - 1e-9))
         h = duration / n_sub
         x = self.state.tolist()
-        rate_sum = [0.5 * r for r in x[9:12]]
+        # Trapezoid over the substep end points: half weight on the first and the last.
+        p_sum, q_sum, r_sum = 0.5 * x[9], 0.5 * x[10], 0.5 * x[11]
         tau_lag = self.params.actuator_tau
         if tau_lag > 0.0:
             keep = math.exp(-h / tau_lag)
-        for i in range(n_sub):
+        else:
+            f, t3 = thrust, (float(torque[0]), float(torque[1]), float(torque[2]))
+        for _ in range(n_sub):
             if tau_lag > 0.0:
                 self.applied_thrust = thrust + (self.applied_thrust - thrust) * keep
                 self.applied_torque = torque + (self.applied_torque - torque) * keep
                 f, t3 = self.applied_thrust, tuple(self.applied_torque.tolist())
-            else:
-                f, t3 = thrust, (float(torque[0]), float(torque[1]), float(torque[2]))
             x = rk4_steps(x, f, t3, self._coeffs, h, 1)
-            w = 0.5 if i == n_sub - 1 else 1.0
-            rate_sum = [s + w * r for s, r in zip(rate_sum, x[9:12], strict=True)]
+            p_sum += x[9]
+            q_sum += x[10]
+            r_sum += x[11]
         if tau_lag <= 0.0:
             self.applied_thrust, self.applied_torque = thrust, torque
         # Keep roll and yaw in (-π, π] so long flights don't accumulate unbounded angles.
         x[6] = wrap_angle(x[6])
         x[8] = wrap_angle(x[8])
         self.state = np.array(x)
-        return np.array(rate_sum) / n_sub
+        return np.array([p_sum - 0.5 * x[9], q_sum - 0.5 * x[10], r_sum - 0.5 * x[11]]) / n_sub
