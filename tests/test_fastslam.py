@@ -414,6 +414,9 @@ def test_dynamic_filter_requires_vehicle() -> None:
         ("mass_scale", 0),
         ("stage2", "yes"),
         ("known_map_sigma", 0.0),
+        ("likelihood_inflation", 0.5),
+        ("roughening", -0.1),
+        ("nis_divergence", float("inf")),
         ("no_such_key", 1),
     ],
 )
@@ -427,3 +430,49 @@ def test_kinematic_rejects_dynamic_only_keys() -> None:
         KinematicFastSLAM(inertia_scale=2.5)
     with pytest.raises(ValueError, match="imu_noise_scale"):
         KinematicFastSLAM(imu_noise_scale=-1.0)
+
+
+def test_roughening_jitters_resampled_duplicates_in_proportion_to_the_spread() -> None:
+    est = _mapped_filter()
+    est.roughening = 0.5
+    idx = np.full(est.n_particles, 7)  # every particle a copy of particle 7
+    spread = np.std(est.x, axis=0)
+    est._resample(idx)
+    assert np.all(np.std(est.x[:, 0:3], axis=0) > 0.0)
+    expected = 0.5 * spread * est.n_particles ** (-1.0 / 12)
+    np.testing.assert_allclose(np.std(est.x, axis=0), expected, rtol=0.5)
+
+
+def test_likelihood_inflation_tempers_the_weights_only() -> None:
+    z = lidar_measure(np.array([0.05, 0.0, 0.0]), np.eye(3), POLES)
+    scan = LidarScan(0.1, np.arange(4), z, LIDAR_SIGMA)
+    plain, tempered = _mapped_filter(), _mapped_filter()
+    tempered.likelihood_inflation = 10.0
+    plain.resample_threshold = tempered.resample_threshold = 0.0
+    plain.update(scan)
+    tempered.update(scan)
+    np.testing.assert_allclose(tempered.mu, plain.mu)  # the EKFs use the true R
+    lw_p, lw_t = plain.logw - plain.logw.max(), tempered.logw - tempered.logw.max()
+    np.testing.assert_allclose(lw_t, lw_p / 10.0, atol=1e-9)
+
+
+def test_sustained_huge_nis_flags_lost_lock_and_stays_flagged() -> None:
+    est = _mapped_filter()
+    est.nis_divergence, est.nis_divergence_s = 100.0, 0.5
+    n = est.n_particles
+    imu = ImuSample(0.01, np.array([0.0, 0.0, -9.81]), np.zeros(3), 0.03, 0.002)
+    hover = Control(est.model.mass * 9.81, np.zeros(3))
+    flags = []
+    for k in range(100):
+        est.predict(imu, hover, 0.01)
+        nis = np.full(n, 1.0 if k < 20 else 1e4)  # lock lost after 0.2 s
+        nis[0] = 1.0  # one lucky particle does not hide it (mean of the best 10 %)
+        est._check_lock(nis)
+        flags.append(est.estimate().diagnostics["diverged"])
+    assert flags[60] == 0.0 and flags[-1] == 1.0  # 0.5 s of sustained NIS needed
+    assert est.estimate().diagnostics["best_nis_per_dof"] > 100.0
+    assert est.n_divergences == 1
+    est.predict(imu, hover, 0.01)  # sticky
+    assert est.estimate().diagnostics["diverged"] == 1.0
+    est.reset(np.zeros(12), np.eye(12) * 1e-4, np.random.default_rng(0))
+    assert est.estimate().diagnostics["diverged"] == 0.0
