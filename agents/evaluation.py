@@ -130,7 +130,7 @@ def run_episode(
         "termination_reason": str(info.get("termination_reason", "")),
     }
     for key, src in _FROM_INFO.items():
-        record[key] = _json_float(info[src])
+        record[key] = json_float(info[src])
     record["steps_per_s"] = steps / wall if wall > 0 else math.nan
     return record
 
@@ -187,6 +187,7 @@ def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) ->
     return "\n".join(lines)
 
 
-def _json_float(value: Any) -> float | None:
+def json_float(value: Any) -> float | None:
+    """``float(value)``, or ``None`` (JSON null) when it is NaN or infinite."""
     value = float(value)
     return value if math.isfinite(value) else None

@@ -42,6 +42,8 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from agents.evaluation import json_float  # noqa: E402
+
 SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
     "ekf_slam": ("paper_ekf_figure8", {}),
     "fastslam": ("paper_fastslam_helix", {"trajectory": {"climb_rate_mps": 0.0}}),
@@ -110,17 +112,12 @@ class _Extremes:
     def as_dict(self) -> dict[str, Any]:
         return {
             "samples": self.samples,
-            "max_asymmetry": _json_float(self.max_asym),
-            "max_rel_asymmetry": _json_float(self.max_rel_asym),
-            "min_eigenvalue": _json_float(self.min_eig),
-            "min_rel_eigenvalue": _json_float(self.min_rel_eig),
-            "max_diag": _json_float(self.max_scale),
+            "max_asymmetry": json_float(self.max_asym),
+            "max_rel_asymmetry": json_float(self.max_rel_asym),
+            "min_eigenvalue": json_float(self.min_eig),
+            "min_rel_eigenvalue": json_float(self.min_rel_eig),
+            "max_diag": json_float(self.max_scale),
         }
-
-
-def _json_float(value: float) -> float | None:
-    value = float(value)
-    return value if math.isfinite(value) else None
 
 
 def make_soak_env(
@@ -284,19 +281,19 @@ def run_soak(
         "any_non_finite": non_finite_steps > 0,
         "health_problem": first_problem,
         "rss_start_mb": rss_start,
-        "rss_after_warmup_mb": _json_float(rss_warm),
+        "rss_after_warmup_mb": json_float(rss_warm),
         "rss_end_mb": rss_end,
         # ru_maxrss is updated lazily by the kernel: never report a peak below a sample.
         "rss_peak_mb": max(peak_rss_mb(), rss_end, *rss_values),
-        "rss_growth_kb_per_1000_steps": _json_float(growth_kb),
+        "rss_growth_kb_per_1000_steps": json_float(growth_kb),
         "pose_cov": pose.as_dict(),
         "landmark_covs": landmarks.as_dict(),
         "full_cov": full.as_dict() if full.samples else None,
-        "final_est_pos_err_m": _json_float(info["est_pos_err_m"]),
-        "final_est_att_err_deg": _json_float(info["est_att_err_deg"]),
-        "final_track_pos_err_m": _json_float(info["track_pos_err_m"]),
-        "final_map_rmse_m": _json_float(info.get("est_map_rmse_m", math.nan)),
-        "final_n_mapped": _json_float(info["est_n_mapped"]),
+        "final_est_pos_err_m": json_float(info["est_pos_err_m"]),
+        "final_est_att_err_deg": json_float(info["est_att_err_deg"]),
+        "final_track_pos_err_m": json_float(info["track_pos_err_m"]),
+        "final_map_rmse_m": json_float(info.get("est_map_rmse_m", math.nan)),
+        "final_n_mapped": json_float(info["est_n_mapped"]),
         "max_est_pos_err_m": max_pos_err,
         "max_est_att_err_deg": max_att_err,
         "rms_est_pos_err_m": math.sqrt(sq_pos / max(steps, 1)),

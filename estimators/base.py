@@ -149,12 +149,6 @@ def check_kwargs(
             raise ValueError(f"{owner}.{key}: expected {names}, got {value!r}")
 
 
-def pose_from_state(mean: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Split a 12-state into (ρ, v_B, Λ, ω) copies."""
-    m = np.asarray(mean, dtype=float)
-    return m[0:3].copy(), m[3:6].copy(), m[6:9].copy(), m[9:12].copy()
-
-
 def health_problem(est: Estimate) -> str | None:
     """Describe what is wrong with an estimate, or ``None`` if it is healthy.
 

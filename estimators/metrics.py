@@ -45,25 +45,18 @@ def pose_error(true_state: FloatArray, est: Estimate) -> FloatArray:
     return err
 
 
-def nees(err: FloatArray, cov: FloatArray | None) -> float:
-    """Normalised estimation error squared ``eᵀ P⁻¹ e``.
-
-    NaN without a covariance (the oracle); ``inf`` if ``cov`` is not positive semi-definite
-    (its Cholesky factorisation fails even with a jitter of 1e-9 of its largest variance), which
-    the env treats as estimator divergence.
-    """
-    return pose_nees(err, cov)[0]
-
-
 def pose_nees(err: FloatArray, cov: FloatArray | None) -> tuple[float, float]:
     """NEES of the whole error and of its first three components from one Cholesky factor.
 
     With ``P = L Lᵀ`` and ``y = L⁻¹ e``, ``NEES = ‖y‖²``; the leading 3×3 block of ``L`` is the
     Cholesky factor of the leading block of ``P``, so the position NEES is ``‖y[:3]‖²``.
-    A zero variance (e.g. seed 001 Table 7's attitude P0) is handled by the jitter.
+    A zero variance (e.g. seed 001 Table 7's attitude P0) is handled by a jitter of 1e-9 of the
+    largest variance.
 
     Returns:
-        ``(nees, nees_first3)``: NaN for ``cov=None``; ``inf`` when ``cov`` is not PSD.
+        ``(nees, nees_first3)``: NaN without a covariance (the oracle); ``inf`` when ``cov`` is
+        not positive semi-definite (the factorisation fails), which the env treats as estimator
+        divergence.
     """
     if cov is None:
         return math.nan, math.nan
