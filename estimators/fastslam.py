@@ -947,7 +947,7 @@ class DynamicFastSLAM(_FastSLAMBase):
         ValueError: If ``vehicle`` is missing or a setting is invalid.
     """
 
-    _DEFAULT_NOISE = (0.02, 0.1, 0.003, 0.0002)
+    _DEFAULT_NOISE = (0.02, 0.1, 0.003, 2e-5)
     _DEFAULT_INFLATION = 30.0
     _EXTRA: ClassVar[dict[str, type | tuple[type, ...]]] = {
         "bias_tau_s": _FLOAT,
