@@ -51,6 +51,8 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     """
     import yaml
 
+    from quadslam_env.config import parse_yaml
+
     out: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
@@ -60,7 +62,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
                 f"--set: got {item!r}; allowed: section.key=value, e.g. episode.duration_s=20"
             )
         try:
-            value = yaml.safe_load(text)
+            value = parse_yaml(text)
         except yaml.YAMLError as exc:
             raise ValueError(f"--set {key}: value {text!r} is not valid YAML ({exc})") from exc
         node = out

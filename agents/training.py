@@ -70,7 +70,7 @@ from agents.wrappers import (
     parse_wrapper_spec,
     residual_action,
 )
-from quadslam_env.config import deep_merge
+from quadslam_env.config import deep_merge, parse_yaml
 
 RESERVED_KEYS = (
     "n_envs",
@@ -132,7 +132,7 @@ def _read_yaml(path: Path) -> Any:
     except OSError as exc:
         raise FileNotFoundError(f"config file {str(path)!r}: cannot be read ({exc})") from exc
     try:
-        return yaml.safe_load(text)
+        return parse_yaml(text)
     except yaml.YAMLError as exc:
         raise ValueError(f"config file {str(path)!r}: malformed YAML ({exc})") from exc
 
@@ -347,7 +347,7 @@ def parse_hyperparam_overrides(items: Sequence[str] | None) -> dict[str, Any]:
         if not sep or not key:
             raise ValueError(f"--hyperparams: got {item!r}; allowed: KEY=VALUE (e.g. n_steps=512)")
         try:
-            value = yaml.safe_load(text)
+            value = parse_yaml(text)
         except yaml.YAMLError as exc:
             raise ValueError(f"--hyperparams {key}: cannot parse {text!r} ({exc})") from None
         node = out
@@ -777,7 +777,7 @@ def _read_run_config(folder: Path) -> dict[str, Any] | None:
     if not cfg.is_file():
         return None
     try:
-        data = yaml.safe_load(cfg.read_text())
+        data = parse_yaml(cfg.read_text())
     except (OSError, yaml.YAMLError):
         return None
     if isinstance(data, dict) and "algo" in data and "hyperparams" in data:

@@ -17,6 +17,7 @@ from quadslam_env.config import (
     VehicleConfig,
     available_scenarios,
     load_scenario,
+    load_yaml,
 )
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent / "configs" / "scenarios"
@@ -234,3 +235,15 @@ def test_vehicle_presets_and_overrides():
     o = VehicleConfig.from_dict({"preset": "sadeghzadeh2021", "mass_kg": 2.0}).params()
     assert o.mass == 2.0
     assert [o.inertia[i, i] for i in range(3)] == [0.01152, 0.01152, 0.0218]
+
+
+def test_exponent_floats_without_a_dot_are_numbers(tmp_path: Path) -> None:
+    """PyYAML (YAML 1.1) reads ``1e-4`` as a string; configs and overrides must not."""
+    from agents.cli import parse_overrides
+    from agents.training import parse_hyperparam_overrides
+
+    assert parse_overrides(["estimator.params.x=1e-4"]) == {"estimator": {"params": {"x": 1e-4}}}
+    assert parse_hyperparam_overrides(["learning_rate=3E-4"]) == {"learning_rate": 3e-4}
+    path = tmp_path / "s.yaml"
+    path.write_text("estimator:\n  initial_cov_diag: [1e-3, -2e+1, 5, 0.5, 1.0e-2, 1_0e0]\n")
+    assert load_yaml(path)["estimator"]["initial_cov_diag"] == [1e-3, -20.0, 5, 0.5, 1e-2, 10.0]
