@@ -882,7 +882,7 @@ class DynamicFastSLAM(_FastSLAMBase):
     ``n_particles``            500             N (seed 000 §IV-B)
     ``resample_threshold``     0.5             resample when ESS < threshold·N, in [0, 1]
     ``process_noise``          (0.02, 0.1,     white-noise density per state added to each
-                               0.003, 2e-4)    particle: scalar, 4 groups (ρ m/√s, v m/s/√s,
+                               0.003, 2e-5)    particle: scalar, 4 groups (ρ m/√s, v m/s/√s,
                                                Λ rad/√s, ω rad/s/√s) or 12 values
     ``integrator``             ``"rk4"``       ``"rk4"`` or ``"euler"`` (one step per period)
     ``bias_tau_s``             100.0           drift time constant τ in s (eq. 8, 10)
@@ -913,23 +913,26 @@ class DynamicFastSLAM(_FastSLAMBase):
     λ = 30 (the per-particle NIS ~ 3 then costs ~0.05 in log-weight, so ESS stays high and
     resampling is rare) keeps lock on 10/10 seeds (position RMSE median 0.05 m vs 0.09 m and
     3/10 lost at λ = 30 with the old noise; λ = 10, 100 worse). A larger attitude noise
-    (0.003 rad/√s) lets particles absorb attitude errors the LiDAR reveals; a tighter ω noise
-    (2e-4) keeps the gyro-bias/ω split from wandering. Roughening (K = 0.2) together with
-    λ = 10 was worse and is off by default; larger velocity noise (0.3) was worse.
+    (0.003 rad/√s) lets particles absorb attitude errors the LiDAR reveals. Roughening
+    (K = 0.2) together with λ = 10 was worse and is off by default; larger velocity noise (0.3)
+    was worse.
 
-    Behaviour found in closed-loop tests (figure-8, 40 landmarks, seed-001 IMU noise, biases
-    0.005, N = 500); the defaults above come from them:
+    Gyro-bias identification (same runs): the gyro pins each particle's ``ω^i + b̂_ω^i`` to
+    ``ω_m``; what separates ω from the bias is the dynamics, which predict ω from the applied
+    torque *given the initial ω*. An ω offset is not damped by the dynamics and is otherwise
+    seen only through its integral, the attitude, by the LiDAR. So the bias is identified
+    only if (a) the initial ω is known — the helix scenarios start at rest with a 1e-4 rad/s
+    ω prior — and (b) the ω process noise is small enough that ω does not random-walk away
+    from the dynamics: a density q_ω wanders by q_ω √T, i.e. 1e-3 rad/s in 30 s at the old
+    2e-4. Measured gyro-bias error (median of 10 seeds, biases 0.005): 35 % with a 1e-3 rad/s
+    ω prior and q_ω = 2e-4; 17 % with the 1e-4 prior and q_ω = 2e-4; 4–6 % with the 1e-4 prior
+    and q_ω ∈ [1e-5, 5e-5] (default 2e-5), at unchanged position accuracy.
 
-    * The gyro pins each particle's ``ω^i + b̂_ω^i`` to ``ω_m`` (σ_g ≈ 0.002 rad/s per sample),
-      but only the LiDAR, through attitude drift, separates ω from the bias. If ω gets a large
-      random-walk noise the (ω, b̂_ω) split wanders and the per-particle KF soon becomes
-      confident in a wrong split (the static-parameter degeneracy of particle filters). Hence
-      the default ω noise density is tiny (5e-4 rad/s/√s): particles follow the dynamics, which
-      are exact when the model matches. The bias is then found quickly only if the initial
-      ω prior (``cov0``) is tight — a vehicle starting at rest; with a 0.01 rad/s ω prior (as
-      large as the bias) it often locks onto a wrong split.
-    * Model mismatch (``inertia_scale=2.5``, Fig. 14) breaks the dynamics-only proposal;
-      ``stage2`` (ω from the gyro) is what keeps the filter on track there.
+    Behaviour under model mismatch (``inertia_scale=2.5``, seed 000 Fig. 14; measured, see
+    the README): the dynamics then predict ω wrongly during the controller's initial transient,
+    the gyro-bias KF absorbs that model error as "bias" while its prior is still wide, and the
+    resulting ω/bias split is never undone (2/10 seeds lose lock, the rest drift to ~0.26 m).
+
     * Stage 2's ω regeneration makes the next KF innovation independent of the bias
       (``ω_m,k+1 − ω^i_{k+1} − b̂`` is pure noise once ``ω^i_k = ω_m,k − b̂``), so the bias is
       then learnt only through resampling. Stage 2's ρ regeneration replaces the dynamic

@@ -476,3 +476,25 @@ def test_sustained_huge_nis_flags_lost_lock_and_stays_flagged() -> None:
     assert est.estimate().diagnostics["diverged"] == 1.0
     est.reset(np.zeros(12), np.eye(12) * 1e-4, np.random.default_rng(0))
     assert est.estimate().diagnostics["diverged"] == 0.0
+
+
+def test_helix_closed_loop_identifies_both_biases_within_20_percent() -> None:
+    """Issue criterion on ``paper_fastslam_helix`` (biases 0.005, DF-LQR on the estimate).
+
+    The truth is the simulator's total IMU bias; 4 seeds × 20 s (the README table uses
+    10 × 30 s). The gyro bias is identified as ω_m − ω_dynamics, which needs the at-rest ω
+    prior and a small ω process noise; with a 1e-3 rad/s ω prior it stays at ~35 %.
+    """
+    import gymnasium as gym
+
+    import quadslam_env  # noqa: F401  (registers the ids)
+    from agents.dflqr import DFLQRPolicy
+    from agents.evaluation import run_episode
+
+    env = gym.make("QuadSLAM-v0", scenario="paper_fastslam_helix", episode={"duration_s": 20.0})
+    policy = DFLQRPolicy.from_env(env)
+    records = [run_episode(env, policy, seed) for seed in range(4)]
+    assert not any(r["terminated"] for r in records)
+    assert np.median([r["gyro_bias_rel_err"] for r in records]) < 0.2
+    assert np.median([r["accel_bias_rel_err"] for r in records]) < 0.2
+    assert np.median([r["est_pos_rmse_m"] for r in records]) < 0.1
