@@ -48,7 +48,7 @@ def truth_observation(env: Any, oracle: OracleEstimator) -> np.ndarray:
     """The observation the env would emit if its estimator returned the true state."""
     base = env.unwrapped
     oracle.set_truth(base.true_state, base.landmark_ids, base.landmarks)
-    return base._obs_builder.build(oracle.estimate(), base.reference(), base.t, 0)
+    return base.observation_from(oracle.estimate())
 
 
 def run_consistency(

@@ -135,6 +135,15 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         """Flat outputs of the reference at ``t`` (default: now)."""
         return self.trajectory(self.t if t is None else t)
 
+    def observation_from(self, estimate: Estimate) -> np.ndarray:
+        """The observation the env would emit now if its estimator had returned ``estimate``.
+
+        For baselines that fly on another estimate than the env's, e.g. the truth through
+        :class:`estimators.oracle.OracleEstimator` in the consistency runs. The visible-landmark
+        count in the observation is 0 (it belongs to the env's own scans).
+        """
+        return self._obs_builder.build(estimate, self.reference(), self.t, 0)
+
     # ------------------------------------------------------------------ reset
     def _parse_options(self, options: dict[str, Any] | None) -> dict[str, Any]:
         if options is None:

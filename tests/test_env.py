@@ -527,3 +527,11 @@ def test_estimator_divergence_terminates_with_reason_and_finite_outputs(corrupt,
             break
     assert term and info["termination_reason"].startswith("estimator_diverged")
     assert reason in info["termination_reason"]
+
+
+def test_observation_from_the_env_estimate_equals_the_reset_observation() -> None:
+    env = gym.make("QuadSLAM-Oracle-v0")
+    obs, _ = env.reset(seed=3)
+    base = env.unwrapped
+    np.testing.assert_array_equal(base.observation_from(base.last_estimate), obs)
+    env.close()
