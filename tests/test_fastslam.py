@@ -483,7 +483,8 @@ def test_helix_closed_loop_identifies_both_biases_within_20_percent() -> None:
 
     The truth is the simulator's total IMU bias; 4 seeds × 20 s (the README table uses
     10 × 30 s). The gyro bias is identified as ω_m − ω_dynamics, which needs the at-rest ω
-    prior and a small ω process noise; with a 1e-3 rad/s ω prior it stays at ~35 %.
+    prior and a small ω process noise (with the earlier 1e-3 rad/s prior and 2e-4 rad/s/√s
+    noise it was ~35 %).
     """
     import gymnasium as gym
 
