@@ -54,6 +54,10 @@ Choices not fixed by the papers (documented here and in the parameter table):
   to every particle and are ignored. Angle residuals are wrapped.
 * The IMU sample passed to :meth:`predict` is taken to describe the vehicle at the *end* of
   the period (after the physics step), so it is compared with the propagated particles.
+* Not in seed 000's filter, but named there (§IV) as the remedy for model mismatch: the
+  principal moments of inertia are identified online from the gyro and the applied torque
+  (:mod:`estimators.inertia`, ``estimate_inertia``), and the model and the particles' ω follow
+  the estimate. Set ``estimate_inertia=False`` for the paper's fixed-model filter.
 """
 
 from __future__ import annotations
