@@ -1094,11 +1094,14 @@ class DynamicFastSLAM(_FastSLAMBase):
         history gives ``ω + (θ̂_new − θ̂_old) ⊙ Φ`` (the ω part of the dynamics is linear in θ),
         so that shift is applied to every particle before the IMU step compares ω with the
         gyro. Without it, the model error made while θ̂ was still wrong would stay in the
-        particles' ω and be absorbed by the gyro-bias KF.
+        particles' ω and be absorbed by the gyro-bias KF. The model only follows an estimate
+        that is converged and explains the data (:attr:`GyroTorqueRegression.usable`).
         """
         reg = self.inertia_id
-        theta_old = reg.theta
         reg.update(imu.gyro, float(imu.gyro_sigma), control.torque, dt)
+        if not reg.usable:  # not converged, or the data contradict the model: keep the model
+            return
+        theta_old = 1.0 / np.diag(self.model.inertia)
         self.x[:, 9:12] += (reg.theta - theta_old) * reg.phi
         self.model.set_inertia(reg.inertia)
 

@@ -30,13 +30,23 @@ middle of the period.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from quadslam_env.models.rotations import FloatArray
 
-_MIN_THETA_FRACTION = 0.01
-"""θ̂ is kept ≥ this fraction of θ₀ (a positive inertia) whatever the data say."""
-_SIGMA_FLOOR = 1e-9
+THETA_RANGE = 10.0
+"""θ̂ is kept within [θ₀/10, 10 θ₀]: the identified inertia is at most 10× off the nominal."""
+MODEL_SIGMA = 1e-4
+"""Std in rad/s added (in quadrature) to the gyro noise for the regression's own modelling error
+(mid-period Φ, the approximate ω × Jω term); it also keeps a noise-free gyro usable."""
+NIS_WINDOW_S = 1.0
+"""Time constant in s of the running mean of the normalised innovation squared (NIS)."""
+MAX_REL_STD = 0.2
+"""The estimate is :attr:`GyroTorqueRegression.usable` once θ's relative std is below this ..."""
+MAX_NIS = 9.0
+"""... and the running NIS of every axis below this (data explained by the model)."""
 
 
 class GyroTorqueRegression:
@@ -73,12 +83,20 @@ class GyroTorqueRegression:
         self.cov[:, 0, 0] = self.bias_sigma**2
         self.cov[:, 1, 1] = (self.inertia_rel_sigma * self.theta0) ** 2
         self.phi = np.zeros(3)  # Φ at the end of the last period, N·m·s
+        self.nis = np.ones(3)  # running mean of ν²/S per axis
         self.n_updates = 0
 
     @property
     def theta(self) -> FloatArray:
-        """(3,) posterior mean of ``1/J`` in 1/(kg·m²), kept positive."""
-        return np.maximum(self.mean[:, 1], _MIN_THETA_FRACTION * self.theta0)
+        """(3,) posterior mean of ``1/J`` in 1/(kg·m²), kept within :data:`THETA_RANGE`."""
+        return np.clip(self.mean[:, 1], self.theta0 / THETA_RANGE, self.theta0 * THETA_RANGE)
+
+    @property
+    def usable(self) -> bool:
+        """Converged (θ's relative std < :data:`MAX_REL_STD`) and consistent with the data
+        (running NIS < :data:`MAX_NIS` on every axis). Random or corrupted gyro/torque streams
+        fail the second test, so they do not reach the filter's model."""
+        return bool(np.all(self.relative_std() < MAX_REL_STD) and np.all(self.nis < MAX_NIS))
 
     @property
     def inertia(self) -> FloatArray:
@@ -110,25 +128,30 @@ class GyroTorqueRegression:
         phi_mid = self.phi + 0.5 * dt * rate
         self.phi = self.phi + dt * rate
         self.cov[:, 0, 0] += self.bias_rate_sigma**2 * dt  # c is a random walk, θ a constant
-        self.measure(gyro, gyro_sigma, phi_mid)
+        nis = self.measure(gyro, math.hypot(float(gyro_sigma), MODEL_SIGMA), phi_mid)
+        self.nis += min(1.0, dt / NIS_WINDOW_S) * (nis - self.nis)
 
-    def measure(self, gyro: FloatArray, gyro_sigma: float, phi: FloatArray) -> None:
+    def measure(self, gyro: FloatArray, sigma: float, phi: FloatArray) -> FloatArray:
         """Kalman update with ``z_j = c_j + θ_j Φ_j + v_j`` for a given regressor ``Φ``.
 
         Args:
             gyro: (3,) reading ``z`` in rad/s.
-            gyro_sigma: Noise std of ``v`` in rad/s.
+            sigma: Noise std of ``v`` in rad/s (> 0).
             phi: (3,) ``Φ`` in N·m·s at the reading's time.
+
+        Returns:
+            (3,) normalised innovation squared ``ν²/S`` of each axis.
         """
         H = np.column_stack([np.ones(3), np.asarray(phi, dtype=float)])  # rows [1, Φ_j]
         PH = np.einsum("jab,jb->ja", self.cov, H)  # P Hᵀ per axis, (3, 2)
-        S = np.einsum("ja,ja->j", H, PH) + max(float(gyro_sigma), _SIGMA_FLOOR) ** 2
+        S = np.einsum("ja,ja->j", H, PH) + float(sigma) ** 2
         K = PH / S[:, None]
         nu = np.asarray(gyro, dtype=float) - np.einsum("ja,ja->j", H, self.mean)
         self.mean = self.mean + K * nu[:, None]
         self.cov = self.cov - np.einsum("ja,jb->jab", K, PH)
         self.cov = 0.5 * (self.cov + np.swapaxes(self.cov, 1, 2))
         self.n_updates += 1
+        return nu * nu / S
 
     def __repr__(self) -> str:
         inertia = ", ".join(f"{v:.5g}" for v in self.inertia)

@@ -8,6 +8,7 @@ import pytest
 
 import estimators
 from estimators.inertia import GyroTorqueRegression
+from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models import vehicle_preset
 from quadslam_env.vehicle import Vehicle
 
@@ -57,6 +58,24 @@ def test_identifies_inertia_and_gyro_bias_of_the_simulated_rigid_body() -> None:
     np.testing.assert_allclose(reg.inertia, true_j, rtol=0.01)
     np.testing.assert_allclose(reg.gyro_bias, bias, atol=5e-4)
     assert np.all(reg.relative_std() < 0.01)
+    assert reg.usable  # converged, and the running NIS is that of the gyro noise
+    assert np.all(np.abs(reg.nis - 1.0) < 0.5)
+
+
+def test_data_the_rigid_body_cannot_explain_never_reach_the_model() -> None:
+    """Random gyro readings and torques: θ's posterior narrows, but the NIS gate stays shut."""
+    rng = np.random.default_rng(2)
+    nominal = np.diag(vehicle_preset("sadeghzadeh2021").inertia)
+    reg = GyroTorqueRegression(nominal, inertia_rel_sigma=1.0, bias_sigma=0.01, bias_rate_sigma=0.0)
+    for _ in range(300):
+        reg.update(rng.uniform(-1.0, 1.0, 3), 0.002, rng.uniform(-0.5, 0.5, 3), 0.01)
+    assert np.all(reg.nis > 9.0) and not reg.usable
+    flt = estimators.make("fastslam", vehicle=vehicle_preset("sadeghzadeh2021"), n_particles=20)
+    flt.reset(np.zeros(12), np.eye(12) * 1e-6, np.random.default_rng(0))
+    for k in range(300):
+        imu = ImuSample(0.01 * k, np.array([0.0, 0.0, -9.81]), rng.uniform(-1, 1, 3), 0.03, 0.002)
+        flt.predict(imu, Control(14.5, rng.uniform(-0.5, 0.5, 3)), 0.01)
+    np.testing.assert_array_equal(np.diag(flt.model.inertia), nominal)
 
 
 def test_inertia_identification_rejects_products_of_inertia() -> None:
