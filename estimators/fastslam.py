@@ -1094,16 +1094,18 @@ class DynamicFastSLAM(_FastSLAMBase):
         history gives ``ω + (θ̂_new − θ̂_old) ⊙ Φ`` (the ω part of the dynamics is linear in θ),
         so that shift is applied to every particle before the IMU step compares ω with the
         gyro. Without it, the model error made while θ̂ was still wrong would stay in the
-        particles' ω and be absorbed by the gyro-bias KF. The model only follows an estimate
-        that is converged and explains the data (:attr:`GyroTorqueRegression.usable`).
+        particles' ω and be absorbed by the gyro-bias KF. The model follows the estimate only
+        while it explains the data (:attr:`GyroTorqueRegression.usable`), else the nominal.
         """
         reg = self.inertia_id
         reg.update(imu.gyro, float(imu.gyro_sigma), control.torque, dt)
-        if not reg.usable:  # not converged, or the data contradict the model: keep the model
-            return
+        # While the data contradict the rigid-body model, fall back to the nominal inertia.
+        theta = reg.theta if reg.usable else 1.0 / self._inertia0
         theta_old = 1.0 / np.diag(self.model.inertia)
-        self.x[:, 9:12] += (reg.theta - theta_old) * reg.phi
-        self.model.set_inertia(reg.inertia)
+        if np.array_equal(theta, theta_old):
+            return
+        self.x[:, 9:12] += (theta - theta_old) * reg.phi
+        self.model.set_inertia(1.0 / theta)
 
     def _post_predict(self, imu: ImuSample) -> None:
         """Stage 2 (Table 2 step 8, eq. 32–34): ``ω^i ~ N(ω_m − b̂_ω^i, σ_g² I)``."""
