@@ -959,7 +959,7 @@ class DynamicFastSLAM(_FastSLAMBase):
       then learnt only through resampling. Stage 2's ρ regeneration replaces the dynamic
       position by a LiDAR fix and can leave the velocity uncorrected (large velocity errors
       in some runs); ``stage2_position=False`` keeps only the ω part. Measured on the helix
-      at biases 0.005: both variants end every run early (attitude errors 6–7°), so stage 2
+      at biases 0.005: both variants end every run early (attitude errors 6–8°), so stage 2
       is off by default.
     * Like every FastSLAM 1.0, the filter is over-confident in SLAM mode (NEES ≫ dof):
       resampling slowly collapses the initial pose spread that no relative measurement can
