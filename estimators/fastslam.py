@@ -824,6 +824,10 @@ class _FastSLAMBase:
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
         return None, None
 
+    def _extra_diagnostics(self) -> dict[str, float]:
+        """Hook: subclass diagnostics added to :attr:`Estimate.diagnostics`."""
+        return {}
+
     def estimate(self) -> Estimate:
         """Weighted particle mean and covariance, and the mixture map (frozen snapshot).
 
@@ -862,6 +866,7 @@ class _FastSLAMBase:
             "diverged": 1.0 if (self._diverged or self._lost) else 0.0,
             "best_nis_per_dof": self._best_nis,
             "n_divergences": float(self.n_divergences),
+            **self._extra_diagnostics(),
         }
         return Estimate(
             position=mean[0:3].copy(),
@@ -1143,6 +1148,11 @@ class DynamicFastSLAM(_FastSLAMBase):
         fused = np.einsum("nij,nj->ni", fused_cov, eta)
         draw = _mv(_chol3(fused_cov), self._rng.standard_normal((self.n_particles, 3)))
         self.x[:, 0:3] = fused + draw
+
+    def _extra_diagnostics(self) -> dict[str, float]:
+        """The model's principal moments of inertia in kg·m² (identified or nominal)."""
+        j = np.diag(self.model.inertia)
+        return {"inertia_x": float(j[0]), "inertia_y": float(j[1]), "inertia_z": float(j[2])}
 
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
         total = w @ self.xb
