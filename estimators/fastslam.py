@@ -1044,9 +1044,8 @@ class DynamicFastSLAM(_FastSLAMBase):
         self._reset_extra()
 
     def _reset_extra(self) -> None:
-        if hasattr(self, "inertia_id"):  # not built yet when the base __init__ calls this
-            self.inertia_id.reset()
-            self.model.set_inertia(self._inertia0)
+        self.inertia_id.reset()
+        self.model.set_inertia(self._inertia0)
         self.xb = np.zeros((self.n_particles, BIAS_DIM))
         self.P = np.diag(
             np.r_[
