@@ -1,7 +1,9 @@
 """One code path to fly any policy on the env and summarise the episodes (``run``/``evaluate``).
 
 A policy is anything with SB3's ``predict(obs, state, episode_start, deterministic)``: the
-DF-LQR baseline and trained SB3 models alike.
+DF-LQR baseline and trained SB3 models alike. :func:`run_episodes` flies N seeds as N lanes of
+one native vector env (lane i seeded ``seeds[i]``, stopped after its first episode), which gives
+the per-episode records of :func:`run_episode` on the scalar env, seed for seed.
 """
 
 from __future__ import annotations
@@ -14,6 +16,10 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
+
+from quadslam_env.actions import validate_actions
+from quadslam_env.env import lane_info
 
 EPISODE_KEYS = (
     "seed",
@@ -48,6 +54,7 @@ _FROM_INFO = {
     "accel_bias_rel_err": "episode_accel_bias_rel_err",
     "gyro_bias_rel_err": "episode_gyro_bias_rel_err",
 }
+MAX_LANES = 64  # episodes flown at once by run_episodes
 
 
 @dataclass
@@ -69,9 +76,17 @@ class Trace:
     def record(self, env: Any) -> None:
         """Append the current truth, estimate and reference of ``env.unwrapped``."""
         base = env.unwrapped
-        est = base.last_estimate
-        self.t.append(base.t)
-        self.true_state.append(base.true_state)
+        self._append(base.t, base.true_state, base.last_estimate, base.reference().pos)
+
+    def record_lane(self, core: Any, lane: int) -> None:
+        """Append the current truth, estimate and reference of lane ``lane`` of a ``SimCore``."""
+        t = float(core.t[lane])
+        est = core.estimator.lane_estimate(lane)
+        self._append(t, core.vehicle.state[lane].copy(), est, core.trajectory(t).pos)
+
+    def _append(self, t: float, true_state: np.ndarray, est: Any, ref_pos: np.ndarray) -> None:
+        self.t.append(t)
+        self.true_state.append(true_state)
         self.est_pos.append(est.position)
         self.est_vel_body.append(est.vel_body)
         self.est_euler.append(est.euler)
@@ -81,13 +96,20 @@ class Trace:
             else np.sqrt(np.clip(np.diag(est.pose_cov), 0.0, None))
         )
         self.pose_std.append(std)
-        self.ref_pos.append(base.reference().pos)
+        self.ref_pos.append(ref_pos)
 
     def finish(self, env: Any) -> None:
         """Store the final map (true and estimated, with 1σ per axis)."""
         base = env.unwrapped
-        est = base.last_estimate
-        self.landmarks = base.landmarks.copy()
+        self._finish(base.landmarks, base.last_estimate)
+
+    def finish_lane(self, core: Any, lane: int) -> None:
+        """:meth:`finish` for lane ``lane`` of a ``SimCore``."""
+        landmarks = core.landmarks[lane, : core.n_landmarks[lane]]
+        self._finish(landmarks, core.estimator.lane_estimate(lane))
+
+    def _finish(self, landmarks: np.ndarray, est: Any) -> None:
+        self.landmarks = landmarks.copy()
         self.est_landmark_ids = est.landmark_ids.copy()
         self.est_landmarks = est.landmark_means.copy()
         self.est_landmark_std = np.sqrt(
@@ -123,6 +145,13 @@ def run_episode(
     wall = time.perf_counter() - tic
     if trace is not None:
         trace.finish(env)
+    return episode_record(seed, info, bool(terminated), steps, wall)
+
+
+def episode_record(
+    seed: int, info: dict[str, Any], terminated: bool, steps: int, wall_s: float
+) -> dict[str, Any]:
+    """The JSON record (keys :data:`EPISODE_KEYS`) of an episode from its last ``info``."""
     record: dict[str, Any] = {
         "seed": int(seed),
         "duration_s": float(info["t"]),
@@ -130,9 +159,103 @@ def run_episode(
         "termination_reason": str(info.get("termination_reason", "")),
     }
     for key, src in _FROM_INFO.items():
-        record[key] = json_float(info[src])
-    record["steps_per_s"] = steps / wall if wall > 0 else math.nan
+        record[key] = json_float(info.get(src, math.nan))
+    record["steps_per_s"] = steps / wall_s if wall_s > 0 else math.nan
     return record
+
+
+def run_episodes(
+    env: gym.Env,
+    policy: Any,
+    seeds: Sequence[int],
+    trace: Trace | None = None,
+    on_step: Callable[[int], None] | None = None,
+    max_lanes: int = MAX_LANES,
+) -> list[dict[str, Any]]:
+    """Fly one episode per seed, as lanes of the native vector env of ``env``'s id and kwargs.
+
+    Up to ``max_lanes`` episodes run at once (lane i seeded ``seeds[i]``, stopped after its
+    first episode); the records equal :func:`run_episode`'s on ``env`` for the same seeds,
+    except ``steps_per_s``, which is the episode's steps over the wall time of its batch until
+    it ended (so it sums to the throughput over a batch's episodes). An env whose spec has no
+    vector entry point, or that carries wrappers beyond ``gymnasium.make``'s own, is flown one
+    episode after another with :func:`run_episode`.
+
+    Args:
+        env: The scalar env (from ``gymnasium.make``).
+        policy: Anything with SB3's ``predict``; it gets (k, obs_dim) observations.
+        seeds: Episode seeds (N,).
+        trace: Filled from the first seed's episode if given.
+        on_step: Called after each batch step with the number of episode steps completed,
+            an episode that ended early counting as ``max_steps``, so the calls add up to
+            ``max_steps × N`` (a progress bar's total).
+        max_lanes: Most lanes in one vector env.
+
+    Returns:
+        One record per seed, in the order of ``seeds``.
+    """
+    layer, spec = env, env.spec
+    while isinstance(layer, OrderEnforcing | PassiveEnvChecker):
+        layer = layer.env
+    if spec is None or spec.vector_entry_point is None or layer is not env.unwrapped:
+        max_steps = env.unwrapped.max_steps
+        records = []
+        for i, seed in enumerate(seeds):
+            tick = None if on_step is None else (lambda: on_step(1))
+            rec = run_episode(env, policy, seed, trace if i == 0 else None, tick)
+            if on_step is not None:
+                on_step(max_steps - round(rec["duration_s"] / env.unwrapped.dt))
+            records.append(rec)
+        return records
+    records = []
+    for first in range(0, len(seeds), max_lanes):
+        chunk = [int(s) for s in seeds[first : first + max_lanes]]
+        vec = gym.make_vec(
+            spec.id, num_envs=len(chunk), vectorization_mode="vector_entry_point", **spec.kwargs
+        )
+        try:
+            records += _run_lanes(vec, policy, chunk, trace if first == 0 else None, on_step)
+        finally:
+            vec.close()
+    return records
+
+
+def _run_lanes(
+    vec: Any,
+    policy: Any,
+    seeds: list[int],
+    trace: Trace | None,
+    on_step: Callable[[int], None] | None,
+) -> list[dict[str, Any]]:
+    """Fly lane i of ``vec`` with seed ``seeds[i]`` until its first episode ends."""
+    core = vec.unwrapped.core
+    n = len(seeds)
+    obs, _ = vec.reset(seed=seeds)
+    if trace is not None:
+        trace.record_lane(core, 0)
+    records: list[dict[str, Any]] = [{} for _ in seeds]
+    active = np.ones(n, dtype=bool)
+    state, start = None, np.ones(n, dtype=bool)
+    steps = 0
+    tic = time.perf_counter()
+    while active.any():
+        action, state = policy.predict(obs, state=state, episode_start=start, deterministic=True)
+        start = np.zeros(n, dtype=bool)
+        obs, _, terminated, truncated, info = core.step(validate_actions(action, n), active)
+        steps += 1
+        if trace is not None and active[0]:
+            trace.record_lane(core, 0)
+        ended = np.flatnonzero(active & (terminated | truncated)).tolist()
+        wall = time.perf_counter() - tic
+        for lane in ended:
+            lane_dict = lane_info(info, lane)
+            records[lane] = episode_record(seeds[lane], lane_dict, terminated[lane], steps, wall)
+        if trace is not None and 0 in ended:
+            trace.finish_lane(core, 0)
+        if on_step is not None:
+            on_step(int(active.sum()) + (core.max_steps - steps) * len(ended))
+        active[ended] = False
+    return records
 
 
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float | None]]:

@@ -176,7 +176,7 @@ def run_soak(
     """
     from agents.consistency import truth_observation
     from agents.dflqr import DFLQRPolicy
-    from estimators.base import health_problem
+    from estimators.batch import health_problem
     from estimators.oracle import OracleEstimator
 
     if control not in ("estimate", "truth"):

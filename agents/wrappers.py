@@ -23,6 +23,10 @@ Wrapper specifications (as written in ``configs/agents/*.yaml``) are parsed by
 - ``"residual_dflqr"``: residual wrapper with the default scale;
 - ``{"name": "residual_dflqr", "scale": 0.2}`` (``scale`` a number or 4 numbers, in units of
   the normalised action: thrust, roll/pitch/yaw torque).
+
+The formula is applied in one place, :class:`ResidualDFLQR`, batch-first; it serves the scalar
+wrapper, :class:`ResidualDFLQRVectorWrapper` (Gymnasium vector envs) and the SB3 adapter
+:class:`agents.vec_adapter.QuadSLAMVecEnv` (``wrapper="residual_dflqr"``).
 """
 
 from __future__ import annotations
@@ -73,7 +77,76 @@ def as_residual_scale(scale: float | Sequence[float]) -> np.ndarray:
     return arr.astype(np.float32)
 
 
-class ResidualDFLQRWrapper(gym.Wrapper):
+class ResidualDFLQR:
+    """The residual-on-DF-LQR action for one env or B lanes: the one place the formula is applied.
+
+    Args:
+        env: A (possibly wrapped) ``QuadSLAMEnv`` or ``QuadSLAMVectorEnv`` (``thrust_torque``).
+        scale: Residual scale, a number or (4,) per component, in normalised action units.
+        controller: DF-LQR controller to use; default ``DFLQRPolicy.from_env(env)``.
+
+    Attributes:
+        controller: The DF-LQR policy.
+        scale: (4,) float32 residual scale.
+
+    Raises:
+        ValueError: Bad ``scale`` or an env not in ``thrust_torque`` mode.
+    """
+
+    def __init__(
+        self,
+        env: Any,
+        scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
+        controller: DFLQRPolicy | None = None,
+    ) -> None:
+        self.scale = as_residual_scale(scale)
+        self.controller = controller if controller is not None else DFLQRPolicy.from_env(env)
+
+    def __call__(self, obs: np.ndarray, residual: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Actions for residuals given the observations the agent acted on.
+
+        Args:
+            obs: (obs_dim,) or (B, obs_dim) observations.
+            residual: Residuals of shape (4,) or (B, 4) matching ``obs``.
+
+        Returns:
+            ``(action, dflqr_action)``, both float32 of the residual's shape.
+
+        Raises:
+            ValueError: ``residual`` does not have the shape of one action per observation.
+        """
+        res = np.asarray(residual, dtype=np.float32)
+        want = (*np.shape(obs)[:-1], 4)
+        if res.shape != want:
+            raise ValueError(f"residual action: got shape {res.shape}; allowed: {want}")
+        base, _ = self.controller.predict(obs)
+        return residual_action(base, res, self.scale), base
+
+
+class _ResidualSteps:
+    """``reset``/``step`` shared by the scalar and vector residual wrappers."""
+
+    env: Any
+    residual: ResidualDFLQR
+    _obs: np.ndarray | None = None
+
+    def reset(self, *, seed: Any = None, options: dict[str, Any] | None = None) -> tuple[Any, Any]:
+        """Reset the env and remember the observation(s) for the next DF-LQR command."""
+        obs, info = self.env.reset(seed=seed, options=options)
+        self._obs = obs
+        return obs, info
+
+    def _residual_step(self, action: Any) -> tuple[np.ndarray, np.ndarray, tuple]:
+        """``(action sent, DF-LQR action, env.step result)`` for residual ``action``."""
+        if self._obs is None:
+            raise gym.error.ResetNeeded(f"{type(self).__name__}: call reset() before step()")
+        act, base = self.residual(self._obs, action)
+        out = self.env.step(act)
+        self._obs = out[0]
+        return act, base, out
+
+
+class ResidualDFLQRWrapper(_ResidualSteps, gym.Wrapper):
     """Residual RL on DF-LQR: ``a = clip(a_DFLQR(o) + scale ⊙ δ, -1, 1)``.
 
     The action space stays ``Box(-1, 1, (4,), float32)`` and is interpreted as the residual
@@ -87,8 +160,7 @@ class ResidualDFLQRWrapper(gym.Wrapper):
         controller: DF-LQR controller to use; default ``DFLQRPolicy.from_env(env)``.
 
     Attributes:
-        controller: The DF-LQR policy.
-        scale: (4,) float32 residual scale.
+        residual: The :class:`ResidualDFLQR` composer (``controller``, ``scale``).
         last_action: (4,) float32 action sent to the env on the last ``step``.
 
     Raises:
@@ -102,34 +174,66 @@ class ResidualDFLQRWrapper(gym.Wrapper):
         controller: DFLQRPolicy | None = None,
     ) -> None:
         super().__init__(env)
-        self.scale = as_residual_scale(scale)
-        self.controller = controller if controller is not None else DFLQRPolicy.from_env(env)
+        self.residual = ResidualDFLQR(env, scale, controller)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        self._obs: np.ndarray | None = None
+        self._obs = None
         self.last_action: np.ndarray | None = None
 
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[Any, dict[str, Any]]:
-        """Reset the env and remember the observation for the next DF-LQR command."""
-        obs, info = self.env.reset(seed=seed, options=options)
-        self._obs = obs
-        return obs, info
+    @property
+    def controller(self) -> DFLQRPolicy:
+        """The DF-LQR policy."""
+        return self.residual.controller
+
+    @property
+    def scale(self) -> np.ndarray:
+        """(4,) float32 residual scale."""
+        return self.residual.scale
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
         """Apply DF-LQR(last observation) + ``scale`` × residual ``action``."""
-        if self._obs is None:
-            raise gym.error.ResetNeeded("ResidualDFLQRWrapper: call reset() before step()")
-        residual = np.asarray(action, dtype=np.float32)
-        if residual.shape != (4,):
-            raise ValueError(f"residual action: got shape {residual.shape}; allowed: (4,)")
-        base, _ = self.controller.predict(self._obs)
-        act = residual_action(base, residual, self.scale)
+        act, base, (obs, reward, terminated, truncated, info) = self._residual_step(action)
         self.last_action = act
-        obs, reward, terminated, truncated, info = self.env.step(act)
-        self._obs = obs
         info["dflqr_action"] = base
-        info["residual"] = residual
+        info["residual"] = np.asarray(action, dtype=np.float32)
+        return obs, reward, terminated, truncated, info
+
+
+class ResidualDFLQRVectorWrapper(_ResidualSteps, gym.vector.VectorWrapper):
+    """:class:`ResidualDFLQRWrapper` for a Gymnasium vector env of B lanes.
+
+    Lane i sees ``a_i = clip(a_DFLQR(o_i) + scale ⊙ δ_i, -1, 1)`` with ``o_i`` the lane's latest
+    observation (after an autoreset: its reset observation), so with the native
+    ``QuadSLAMVectorEnv`` lane i equals the scalar wrapper on the scalar env seeded ``s + i``.
+    ``info`` gains ``dflqr_action`` and ``residual`` (B, 4) with their ``_key`` masks.
+
+    Args:
+        env: A ``QuadSLAMVectorEnv`` (possibly wrapped), ``thrust_torque`` mode.
+        scale: Residual scale, a number or (4,) per component, in normalised action units.
+        controller: DF-LQR controller to use; default ``DFLQRPolicy.from_env(env)``.
+
+    Raises:
+        ValueError: Bad ``scale`` or an env not in ``thrust_torque`` mode.
+    """
+
+    def __init__(
+        self,
+        env: gym.vector.VectorEnv,
+        scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
+        controller: DFLQRPolicy | None = None,
+    ) -> None:
+        super().__init__(env)
+        self.residual = ResidualDFLQR(env, scale, controller)
+        self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self._obs = None
+
+    def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict[str, Any]]:
+        """Step with residuals ``actions`` (B, 4) on DF-LQR of the last observations."""
+        _, base, (obs, reward, terminated, truncated, info) = self._residual_step(actions)
+        every = np.ones(self.num_envs, dtype=bool)
+        info = {**info, "dflqr_action": base, "_dflqr_action": every}
+        info["residual"] = np.asarray(actions, dtype=np.float32)
+        info["_residual"] = every
         return obs, reward, terminated, truncated, info
 
 

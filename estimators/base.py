@@ -147,31 +147,3 @@ def check_kwargs(
         if wrong_bool or not isinstance(value, want):
             names = " or ".join(t.__name__ for t in want)
             raise ValueError(f"{owner}.{key}: expected {names}, got {value!r}")
-
-
-def health_problem(est: Estimate) -> str | None:
-    """Describe what is wrong with an estimate, or ``None`` if it is healthy.
-
-    Checks (DESIGN.md §7): finite mean and covariance, a symmetric pose covariance, and the
-    estimator's own ``diverged`` flag. The env adds the PSD test through the NEES (infinite
-    when the Cholesky factorisation fails).
-    """
-    if est.diagnostics.get("diverged", 0.0):
-        return "estimator reported divergence"
-    # One reduction over everything first; name the culprit only in the rare failure case.
-    parts = (est.position, est.vel_body, est.euler, est.rates, est.landmark_means.ravel())
-    if not np.isfinite(np.concatenate(parts)).all():
-        names = ("position", "vel_body", "euler", "rates", "landmark means")
-        bad = next(n for n, p in zip(names, parts, strict=True) if not np.isfinite(p).all())
-        return f"non-finite {bad}"
-    cov = est.pose_cov
-    if cov is not None:
-        if not np.isfinite(cov).all():
-            return "non-finite pose covariance"
-        scale = max(float(np.max(np.abs(np.diag(cov)))), 1e-12)
-        if np.max(np.abs(cov - cov.T)) > 1e-6 * scale:
-            return "asymmetric pose covariance"
-        # Positive semi-definiteness is tested by the Cholesky factorisation that the metrics
-        # need anyway for the NEES (``estimators.metrics.pose_nees`` returns inf on failure),
-        # so it is not repeated here on the hot path.
-    return None

@@ -1,23 +1,115 @@
 """Oracle estimator: reports the true state (DESIGN.md §5), for ablations.
 
-It is the one estimator the env feeds with the truth (through :meth:`OracleEstimator.set_truth`);
-it has no covariance, so NEES is reported as NaN by the metrics.
+It is the one estimator the simulation feeds with the truth (through ``set_truth``); it has no
+covariance, so NEES is reported as NaN by the metrics. :class:`OracleBatch` serves B lanes;
+:class:`OracleEstimator` is its one-lane form with the scalar :class:`Estimator` interface.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from estimators.base import Estimate, check_kwargs, register
+from estimators.batch import BatchEstimate, KnownMaps, register_batch
 from quadslam_env.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models.rotations import FloatArray, dcm_from_euler
+from quadslam_env.models.rotations import FloatArray, dcm_from_euler_batch
+
+
+@register_batch("oracle")
+class OracleBatch:
+    """The true vehicle states and maps of B lanes.
+
+    Args:
+        num_lanes: B.
+        landmark_capacity: Initial width Lmax of the map arrays (grows as needed).
+        vehicle: Nominal vehicle parameters (unused; accepted like every estimator).
+    """
+
+    uses_truth = True
+
+    def __init__(
+        self, num_lanes: int, landmark_capacity: int, vehicle: Any = None, **params: Any
+    ) -> None:
+        check_kwargs("estimator.params", params, {})
+        self.num_lanes = num_lanes
+        b = num_lanes
+        # Separate arrays, not views of one state array: views would not survive pickling.
+        self._out = BatchEstimate(
+            position=np.zeros((b, 3)),
+            vel_body=np.zeros((b, 3)),
+            vel_inertial=np.zeros((b, 3)),
+            euler=np.zeros((b, 3)),
+            rates=np.zeros((b, 3)),
+            pose_cov=None,
+            landmark_means=np.zeros((b, landmark_capacity, 3)),
+            landmark_mapped=np.zeros((b, landmark_capacity), dtype=bool),
+        )
+
+    def reset_lanes(
+        self,
+        lanes: np.ndarray,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rngs: Sequence[np.random.Generator],
+        known_landmarks: KnownMaps = None,
+    ) -> None:
+        """Start; the state is overwritten by :meth:`set_truth` before every use."""
+        self._write_state(np.asarray(lanes), np.asarray(mean0, dtype=float))
+        self._out.landmark_mapped[lanes] = False
+
+    def _write_state(self, lanes: np.ndarray | slice, states: FloatArray) -> None:
+        out = self._out
+        out.position[lanes] = states[:, 0:3]
+        out.vel_body[lanes] = states[:, 3:6]
+        out.euler[lanes] = states[:, 6:9]
+        out.rates[lanes] = states[:, 9:12]
+        dcm = dcm_from_euler_batch(states[:, 6:9])
+        out.vel_inertial[lanes] = np.einsum("bij,bj->bi", dcm, states[:, 3:6])
+
+    def set_truth(self, states: FloatArray, landmarks: FloatArray, counts: np.ndarray) -> None:
+        """Receive the true states (B, 12) and maps (B, L, 3) with ``counts`` (B,) landmarks."""
+        self._write_state(slice(None), states)
+        out = self._out
+        width = landmarks.shape[1]
+        if width > out.landmark_means.shape[1]:
+            out.landmark_means = np.zeros((self.num_lanes, width, 3))
+            out.landmark_mapped = np.zeros((self.num_lanes, width), dtype=bool)
+        out.landmark_means[:, :width] = landmarks
+        out.landmark_mapped[:] = np.arange(out.landmark_mapped.shape[1]) < counts[:, None]
+
+    def predict(self, *args: Any, **kwargs: Any) -> None:
+        """Nothing to do: the truth arrives through :meth:`set_truth`."""
+
+    def update(self, *args: Any, **kwargs: Any) -> None:
+        """Nothing to do: the truth arrives through :meth:`set_truth`."""
+
+    def estimate(self) -> BatchEstimate:
+        """The truth of every lane, with no covariance."""
+        return self._out
+
+    def lane_estimate(self, lane: int) -> Estimate:
+        """The truth of one lane as an :class:`Estimate` (copies)."""
+        out = self._out
+        ids = np.flatnonzero(out.landmark_mapped[lane])
+        return Estimate(
+            position=out.position[lane].copy(),
+            vel_body=out.vel_body[lane].copy(),
+            vel_inertial=out.vel_inertial[lane].copy(),
+            euler=out.euler[lane].copy(),
+            rates=out.rates[lane].copy(),
+            pose_cov=None,
+            landmark_ids=ids,
+            landmark_means=out.landmark_means[lane, ids].copy(),
+            landmark_covs=np.zeros((ids.size, 3, 3)),
+        )
 
 
 @register("oracle")
 class OracleEstimator:
-    """Returns the true vehicle state and, if given, the true map.
+    """One lane of :class:`OracleBatch` behind the scalar :class:`Estimator` interface.
 
     Args:
         vehicle: Nominal vehicle parameters (unused; accepted like every estimator).
@@ -26,9 +118,7 @@ class OracleEstimator:
     uses_truth = True
 
     def __init__(self, vehicle: Any = None, **params: Any) -> None:
-        check_kwargs("estimator.params", params, {})
-        self._state = np.zeros(12)
-        self._landmarks: tuple[np.ndarray, FloatArray] = (np.zeros(0, int), np.zeros((0, 3)))
+        self._batch = OracleBatch(1, 0, vehicle, **params)
 
     def reset(
         self,
@@ -38,14 +128,15 @@ class OracleEstimator:
         known_landmarks: tuple[np.ndarray, FloatArray] | None = None,
     ) -> None:
         """Start; the state is overwritten by :meth:`set_truth` before every use."""
-        self._state = np.array(mean0, dtype=float)
+        self._batch.reset_lanes(np.array([0]), np.asarray(mean0)[None], cov0, [rng])
         if known_landmarks is not None:
-            self._landmarks = (np.asarray(known_landmarks[0]), np.asarray(known_landmarks[1]))
+            pts = np.asarray(known_landmarks[1], dtype=float)
+            self.set_truth(np.asarray(mean0, dtype=float), np.asarray(known_landmarks[0]), pts)
 
     def set_truth(self, state: FloatArray, landmark_ids: np.ndarray, landmarks: FloatArray) -> None:
-        """Receive the true 12-state and map (called by the env only for this estimator)."""
-        self._state = np.array(state, dtype=float)
-        self._landmarks = (landmark_ids, landmarks)
+        """Receive the true 12-state and map (ids must be ``0 … L-1``, as the env makes them)."""
+        pts = np.asarray(landmarks, dtype=float).reshape(1, -1, 3)
+        self._batch.set_truth(np.asarray(state, float)[None], pts, np.array([pts.shape[1]]))
 
     def predict(self, imu: ImuSample, control: Control, dt: float) -> None:
         """Nothing to do: the truth arrives through :meth:`set_truth`."""
@@ -55,16 +146,4 @@ class OracleEstimator:
 
     def estimate(self) -> Estimate:
         """The true state as an :class:`Estimate` with no covariance."""
-        s = self._state
-        ids, pts = self._landmarks
-        return Estimate(
-            position=s[0:3].copy(),
-            vel_body=s[3:6].copy(),
-            vel_inertial=dcm_from_euler(s[6:9]) @ s[3:6],
-            euler=s[6:9].copy(),
-            rates=s[9:12].copy(),
-            pose_cov=None,
-            landmark_ids=np.array(ids, dtype=int),
-            landmark_means=np.array(pts, dtype=float),
-            landmark_covs=np.zeros((len(ids), 3, 3)),
-        )
+        return self._batch.lane_estimate(0)

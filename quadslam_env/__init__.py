@@ -6,6 +6,9 @@ Registered ids (plain-data kwargs only):
 - ``QuadSLAM-EKF-v0``: EKF-SLAM in the loop.
 - ``QuadSLAM-FastSLAM-v0``: dynamics-based FastSLAM, scenario ``paper_fastslam_helix``.
 - ``QuadSLAM-Oracle-v0``: the estimator returns the truth (for ablations).
+
+Each id has a native vector env (``gymnasium.make_vec(id, num_envs=B)``): B lanes of the
+batched simulation core in one process.
 """
 
 from gymnasium.envs.registration import register
@@ -16,14 +19,15 @@ from quadslam_env.models.dynamics import VehicleParams, vehicle_preset
 ENV_IDS = ("QuadSLAM-v0", "QuadSLAM-EKF-v0", "QuadSLAM-FastSLAM-v0", "QuadSLAM-Oracle-v0")
 
 _ENTRY = "quadslam_env.env:QuadSLAMEnv"
-register(id="QuadSLAM-v0", entry_point=_ENTRY)
-register(id="QuadSLAM-EKF-v0", entry_point=_ENTRY, kwargs={"estimator_name": "ekf_slam"})
-register(
-    id="QuadSLAM-FastSLAM-v0",
-    entry_point=_ENTRY,
-    kwargs={"scenario": "paper_fastslam_helix", "estimator_name": "fastslam"},
-)
-register(id="QuadSLAM-Oracle-v0", entry_point=_ENTRY, kwargs={"estimator_name": "oracle"})
+_VECTOR_ENTRY = "quadslam_env.vector_env:QuadSLAMVectorEnv"
+_KWARGS: dict[str, dict[str, str]] = {
+    "QuadSLAM-v0": {},
+    "QuadSLAM-EKF-v0": {"estimator_name": "ekf_slam"},
+    "QuadSLAM-FastSLAM-v0": {"scenario": "paper_fastslam_helix", "estimator_name": "fastslam"},
+    "QuadSLAM-Oracle-v0": {"estimator_name": "oracle"},
+}
+for _id, _kwargs in _KWARGS.items():
+    register(id=_id, entry_point=_ENTRY, vector_entry_point=_VECTOR_ENTRY, kwargs=_kwargs)
 
 __all__ = [
     "ENV_IDS",

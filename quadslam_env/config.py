@@ -22,7 +22,8 @@ from typing import Any, ClassVar
 
 import yaml
 
-from quadslam_env.models.dynamics import GRAVITY, VEHICLE_PRESETS, VehicleParams
+from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams
+from quadslam_env.types import DEG, GRAVITY
 
 
 class ConfigError(ValueError):
@@ -175,7 +176,6 @@ class _Section:
 
 
 _MICRO_G = 1e-6 * GRAVITY
-_DEG = math.pi / 180.0
 
 
 @dataclass(frozen=True)
@@ -235,7 +235,7 @@ class ImuConfig(_Section):
         # Seed 001 Table 5: 300 µg/√Hz and 0.01 °/s/√Hz, no bias.
         "rauniyar2023": {
             "accel_noise_density": 300 * _MICRO_G,
-            "gyro_noise_density": 0.01 * _DEG,
+            "gyro_noise_density": 0.01 * DEG,
             "accel_bias": [0.0] * 3,
             "gyro_bias": [0.0] * 3,
             "accel_drift_sigma": 0.0,
@@ -245,7 +245,7 @@ class ImuConfig(_Section):
         # we use τ = 100 s and a stationary drift std of 20% of the bias.
         "sadeghzadeh2021": {
             "accel_noise_density": 300 * _MICRO_G,
-            "gyro_noise_density": 0.01 * _DEG,
+            "gyro_noise_density": 0.01 * DEG,
             "accel_bias": [0.005] * 3,
             "gyro_bias": [0.005] * 3,
             "drift_tau_s": 100.0,
@@ -265,7 +265,7 @@ class ImuConfig(_Section):
         None, kind="str", choices=("rauniyar2023", "sadeghzadeh2021", "ideal"), optional=True
     )
     accel_noise_density: float = _spec(300 * _MICRO_G, lo=0.0, hi=1.0, doc="m/s²/√Hz")
-    gyro_noise_density: float = _spec(0.01 * _DEG, lo=0.0, hi=1.0, doc="rad/s/√Hz")
+    gyro_noise_density: float = _spec(0.01 * DEG, lo=0.0, hi=1.0, doc="rad/s/√Hz")
     accel_bias: tuple[float, ...] = _spec([0.0, 0.0, 0.0], kind="vec", length=3, lo=-5.0, hi=5.0)
     gyro_bias: tuple[float, ...] = _spec([0.0, 0.0, 0.0], kind="vec", length=3, lo=-1.0, hi=1.0)
     random_bias_sign: bool = _spec(

@@ -62,3 +62,33 @@ def render_frame(
     canvas.draw()
     img = np.asarray(canvas.buffer_rgba())[..., :3].copy()
     return img
+
+
+def render_lane(
+    core: Any, lane: int, paths: dict[str, list[FloatArray]] | None = None
+) -> np.ndarray:
+    """Frame of one lane of a :class:`~quadslam_env.core.SimCore`.
+
+    Args:
+        core: The simulation core.
+        lane: Lane index.
+        paths: Recorded ``true``/``est``/``ref`` positions (lists of (3,)); ``None`` draws the
+            current positions only.
+    """
+    est, n = core.est, int(core.n_landmarks[lane])
+    now = {
+        "true": core.vehicle.state[lane, 0:3],
+        "est": est.position[lane],
+        "ref": core.reference([lane]).pos[0],
+    }
+    path = {key: np.array(paths[key] if paths else [now[key]]).reshape(-1, 3) for key in now}
+    return render_frame(
+        path["true"],
+        path["est"],
+        path["ref"],
+        core.landmarks[lane, :n],
+        est.landmark_means[lane, est.landmark_mapped[lane]],
+        core.vehicle.state[lane],
+        core.scenario.lidar.azimuth_fov_deg,
+        min(5.0, core.scenario.lidar.range_max_m),
+    )

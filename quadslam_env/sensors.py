@@ -1,32 +1,185 @@
-"""Simulated sensors: the biased, drifting IMU and the FOV-limited LiDAR (DESIGN.md §3).
+"""Simulated sensors of B vehicles: the biased, drifting IMU and the FOV-limited LiDAR.
 
-Each sensor owns one ``numpy.random.Generator`` handed to it at reset by the env (a child of the
-env's ``np_random``), so the same seed gives the same measurements.
+DESIGN.md §3, §9. Each lane's sensor owns one ``numpy.random.Generator`` handed to it at reset
+(a child of that lane's env generator), so lane i with seed s is the single env with seed s,
+bit for bit. Generators are called in a Python loop over lanes (draws cannot be shared between
+lanes); the arithmetic is batched. :class:`Imu` and :class:`Lidar` are the one-lane cases.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from quadslam_env.config import ImuConfig, LidarConfig
 from quadslam_env.measurements import ImuSample, LidarScan
-from quadslam_env.models.dynamics import VehicleParams, specific_force
+from quadslam_env.models.frames import wrap_angle
+from quadslam_env.models.imu_noise import gauss_markov_discretisation, white_noise_sigma
 from quadslam_env.models.lidar import lidar_measure
-from quadslam_env.models.rotations import FloatArray, wrap_angle
+from quadslam_env.models.params import VehicleParams
+from quadslam_env.models.rigid_body import specific_force_lanes
+from quadslam_env.types import DEG, IMU_DIM, MEAS_DIM, FloatArray
 
-_DEG = math.pi / 180.0
+_LANE0 = np.zeros(1, dtype=int)
 
 
-class Imu:
-    """Accelerometer + gyro with constant bias, Gauss–Markov drift and white noise.
+def _lanes(lanes: ArrayLike) -> np.ndarray:
+    return np.asarray(lanes, dtype=int).reshape(-1)
+
+
+def _generators(
+    current: list[np.random.Generator | None], lanes: np.ndarray, who: str
+) -> list[np.random.Generator]:
+    gens = [current[i] for i in lanes.tolist()]
+    missing = [i for i, g in zip(lanes.tolist(), gens, strict=True) if g is None]
+    if missing:
+        raise RuntimeError(f"{who}: lanes {missing} were used before reset() gave them a generator")
+    return gens  # type: ignore[return-value]
+
+
+class ImuBatch:
+    """Accelerometer + gyro per lane with constant bias, Gauss–Markov drift and white noise.
 
     Seed 000 eq. 5–11 with a physical accelerometer (DESIGN.md §3):
     ``a_m = f_B + b0_a + b1_a + v_a``, ``ω_m = ω + b0_ω + b1_ω + v_ω``, where ``f_B`` is the
     specific force. The drift is first-order Gauss–Markov, discretised exactly:
     ``b1 ← e^{-T/τ} b1 + N(0, σ_b1² (1 - e^{-2T/τ}))`` (so its stationary std is σ_b1). White
     noise per sample has std ``ND · √f_s`` for noise density ND and sample rate f_s.
+
+    Random stream per lane (the contract with the single env): at reset ``choice([-1, 1], 6)``
+    (only with random bias signs) then ``standard_normal(6)`` for the initial drift; per sample
+    ``standard_normal(6)`` white noise then ``standard_normal(6)`` for the drift step. Samples
+    are drawn ahead in blocks of :attr:`BLOCK` × 12 normals per lane, which is the same sequence
+    (a Generator fills arrays from one stream) at a fraction of the per-call cost.
+
+    Attributes:
+        accel_sigma: White-noise std per axis of the accelerometer in m/s².
+        gyro_sigma: White-noise std per axis of the gyro in rad/s.
+        bias0: (B, 6) constant biases (accel m/s², gyro rad/s).
+        drift: (B, 6) current drift b1.
+
+    Args:
+        cfg: IMU settings.
+        vehicle: Vehicle parameters (mass and drag enter the specific force).
+        rate_hz: Sample rate f_s in Hz (the control rate).
+        num_lanes: B.
+    """
+
+    BLOCK = 16
+    """Samples drawn ahead per lane and generator call."""
+
+    def __init__(
+        self, cfg: ImuConfig, vehicle: VehicleParams, rate_hz: float, num_lanes: int
+    ) -> None:
+        self.cfg = cfg
+        self.vehicle = vehicle
+        self.num_lanes = int(num_lanes)
+        self.period = 1.0 / rate_hz
+        self.accel_sigma = white_noise_sigma(cfg.accel_noise_density, rate_hz)
+        self.gyro_sigma = white_noise_sigma(cfg.gyro_noise_density, rate_hz)
+        self._decay, variance = gauss_markov_discretisation(self.period, cfg.drift_tau_s)
+        self._drift_scale = math.sqrt(variance)
+        self._drift_sigma = np.array([cfg.accel_drift_sigma] * 3 + [cfg.gyro_drift_sigma] * 3)
+        self._bias_nominal = np.array(cfg.accel_bias + cfg.gyro_bias, dtype=float)
+        self.bias0 = np.zeros((self.num_lanes, IMU_DIM))
+        self.drift = np.zeros((self.num_lanes, IMU_DIM))
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+        self._noise = np.zeros((self.num_lanes, self.BLOCK, 2 * IMU_DIM))
+        self._cursor = np.full(self.num_lanes, self.BLOCK)
+        self._lane_ids = np.arange(self.num_lanes)
+
+    def reset(self, lanes: ArrayLike, rngs: Sequence[np.random.Generator]) -> None:
+        """Draw each lane's constant bias signs (if random) and a stationary initial drift.
+
+        Args:
+            lanes: (k,) int lane indices.
+            rngs: k generators, one per lane, used by this IMU only from now on.
+        """
+        idx = _lanes(lanes)
+        for lane, rng in zip(idx.tolist(), rngs, strict=True):
+            bias = self._bias_nominal.copy()
+            if self.cfg.random_bias_sign:
+                bias *= rng.choice([-1.0, 1.0], size=IMU_DIM)
+            self.bias0[lane] = bias
+            self.drift[lane] = self._drift_sigma * rng.standard_normal(IMU_DIM)
+            self._rngs[lane] = rng
+        self._cursor[idx] = self.BLOCK  # the pre-drawn block belonged to the old generator
+
+    @property
+    def total_bias(self) -> FloatArray:
+        """(B, 6) current total bias ``b0 + b1`` (accel m/s², then gyro rad/s): for metrics."""
+        return self.bias0 + self.drift
+
+    def _draw(self, lanes: np.ndarray, sel: np.ndarray | slice) -> FloatArray:
+        """(k, 12) normals for one sample of each lane: white noise, then the drift step.
+
+        ``lanes`` (k,) are the lane indices and ``sel`` selects the same rows (a slice when all
+        lanes sample, which indexes faster).
+        """
+        cursor = self._cursor[sel]
+        empty = lanes[cursor >= self.BLOCK]
+        if empty.size:
+            gens = _generators(self._rngs, empty, "ImuBatch")
+            for lane, rng in zip(empty.tolist(), gens, strict=True):
+                self._noise[lane] = rng.standard_normal((self.BLOCK, 2 * IMU_DIM))
+            self._cursor[empty] = 0
+            cursor = self._cursor[sel]
+        noise = self._noise[lanes, cursor]
+        self._cursor[sel] += 1
+        return noise
+
+    def sample(
+        self,
+        t: ArrayLike,
+        vel_body: FloatArray,
+        rates: FloatArray,
+        thrust: FloatArray,
+        active: np.ndarray | None = None,
+    ) -> tuple[FloatArray, FloatArray]:
+        """Measure the active lanes, then advance their drift by one sample period.
+
+        Args:
+            t: Sample time(s) in s; not used by the model (kept to mirror :meth:`Imu.sample`).
+            vel_body: (B, 3) true body velocity in m/s (enters the drag specific force).
+            rates: (B, 3) true body rates in rad/s.
+            thrust: (B,) applied thrust in N.
+            active: (B,) bool lanes that sample now (default: all).
+
+        Returns:
+            ``(accel (B, 3) m/s², gyro (B, 3) rad/s)`` in B; rows of inactive lanes are zero.
+        """
+        b = self.num_lanes
+        accel, gyro = np.zeros((b, 3)), np.zeros((b, 3))
+        if active is None or np.all(active):
+            lanes, sel = self._lane_ids, slice(None)
+        else:
+            lanes = sel = np.flatnonzero(active)
+            if lanes.size == 0:
+                return accel, gyro
+        noise = self._draw(lanes, sel)
+        drift = self.drift[sel]
+        bias = self.bias0[sel] + drift
+        f_b = specific_force_lanes(
+            np.asarray(vel_body, dtype=float)[sel],
+            np.asarray(thrust, dtype=float)[sel],
+            self.vehicle.mass,
+            self.vehicle.drag,
+        )
+        accel[sel] = f_b + bias[:, :3] + self.accel_sigma * noise[:, 0:3]
+        gyro[sel] = (
+            np.asarray(rates, dtype=float)[sel] + bias[:, 3:] + self.gyro_sigma * noise[:, 3:6]
+        )
+        self.drift[sel] = (
+            self._decay * drift + self._drift_scale * self._drift_sigma * (noise[:, 6:12])
+        )
+        return accel, gyro
+
+
+class Imu:
+    """One IMU: the one-lane case of :class:`ImuBatch` (same model, same random stream).
 
     Args:
         cfg: IMU settings.
@@ -35,31 +188,31 @@ class Imu:
     """
 
     def __init__(self, cfg: ImuConfig, vehicle: VehicleParams, rate_hz: float) -> None:
+        self._batch = ImuBatch(cfg, vehicle, rate_hz, 1)
         self.cfg = cfg
         self.vehicle = vehicle
-        self.period = 1.0 / rate_hz
-        self.accel_sigma = cfg.accel_noise_density * math.sqrt(rate_hz)
-        self.gyro_sigma = cfg.gyro_noise_density * math.sqrt(rate_hz)
-        self._decay = math.exp(-self.period / cfg.drift_tau_s)
-        self._drift_scale = math.sqrt(1.0 - self._decay**2)
-        self._drift_sigma = np.array([cfg.accel_drift_sigma] * 3 + [cfg.gyro_drift_sigma] * 3)
-        self.bias0 = np.zeros(6)
-        self.drift = np.zeros(6)
-        self._rng = np.random.default_rng(0)
+        self.period = self._batch.period
+        self.accel_sigma = self._batch.accel_sigma
+        self.gyro_sigma = self._batch.gyro_sigma
 
     def reset(self, rng: np.random.Generator) -> None:
         """Draw the episode's constant bias signs (if random) and a stationary initial drift."""
-        self._rng = rng
-        bias = np.array(self.cfg.accel_bias + self.cfg.gyro_bias, dtype=float)
-        if self.cfg.random_bias_sign:
-            bias *= rng.choice([-1.0, 1.0], size=6)
-        self.bias0 = bias
-        self.drift = self._drift_sigma * rng.standard_normal(6)
+        self._batch.reset(_LANE0, [rng])
+
+    @property
+    def bias0(self) -> FloatArray:
+        """(6,) constant bias (accel m/s², gyro rad/s)."""
+        return self._batch.bias0[0].copy()
+
+    @property
+    def drift(self) -> FloatArray:
+        """(6,) current drift b1 (accel m/s², gyro rad/s)."""
+        return self._batch.drift[0].copy()
 
     @property
     def total_bias(self) -> FloatArray:
         """(6,) current total bias ``b0 + b1`` (accel m/s², then gyro rad/s): truth for metrics."""
-        return self.bias0 + self.drift
+        return self._batch.total_bias[0]
 
     def sample(self, t: float, vel_body: FloatArray, rates: FloatArray, thrust: float) -> ImuSample:
         """Measure, then advance the drift by one sample period.
@@ -70,49 +223,125 @@ class Imu:
             rates: (3,) true body rates in rad/s.
             thrust: Applied thrust in N.
         """
-        noise = self._rng.standard_normal(6)
-        bias = self.bias0 + self.drift
-        accel = (
-            specific_force(vel_body, thrust, self.vehicle) + bias[:3] + self.accel_sigma * noise[:3]
-        )
-        gyro = np.asarray(rates, dtype=float) + bias[3:] + self.gyro_sigma * noise[3:]
-        self.drift = self._decay * self.drift + self._drift_scale * self._drift_sigma * (
-            self._rng.standard_normal(6)
+        accel, gyro = self._batch.sample(
+            t,
+            np.asarray(vel_body, dtype=float).reshape(1, 3),
+            np.asarray(rates, dtype=float).reshape(1, 3),
+            np.array([float(thrust)]),
         )
         return ImuSample(
-            t=t, accel=accel, gyro=gyro, accel_sigma=self.accel_sigma, gyro_sigma=self.gyro_sigma
+            t=t,
+            accel=accel[0],
+            gyro=gyro[0],
+            accel_sigma=self.accel_sigma,
+            gyro_sigma=self.gyro_sigma,
         )
 
 
-class Lidar:
-    """FOV-limited LiDAR returning (azimuth, elevation, range) of point landmarks.
+class LidarBatch:
+    """FOV-limited LiDAR per lane returning (azimuth, elevation, range) of point landmarks.
 
     A landmark is returned iff its *true* ``|α| ≤ α_max``, ``|β| ≤ β_max`` and
     ``δ_min ≤ δ ≤ δ_max`` (seed 001 Table 4); Gaussian noise is then added per channel and the
     azimuth wrapped. Identities are known (perfect data association, as in both papers).
+    Random stream per lane: one ``standard_normal((k, 3))`` per scan with k visible landmarks
+    (ascending id order).
+
+    Attributes:
+        sigma: (3,) noise std (σ_α rad, σ_β rad, σ_δ m).
+
+    Args:
+        cfg: LiDAR settings.
+        num_lanes: B.
+    """
+
+    def __init__(self, cfg: LidarConfig, num_lanes: int) -> None:
+        self.cfg = cfg
+        self.num_lanes = int(num_lanes)
+        self.sigma = np.array(
+            [cfg.sigma_azimuth_deg * DEG, cfg.sigma_elevation_deg * DEG, cfg.sigma_range_m]
+        )
+        self._az_max = cfg.azimuth_fov_deg * DEG
+        self._el_max = cfg.elevation_fov_deg * DEG
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
+
+    def reset(self, lanes: ArrayLike, rngs: Sequence[np.random.Generator]) -> None:
+        """Take the generators of ``lanes`` (k,) for their episodes (k generators)."""
+        for lane, rng in zip(_lanes(lanes).tolist(), rngs, strict=True):
+            self._rngs[lane] = rng
+
+    def visible(self, meas: FloatArray) -> np.ndarray:
+        """Boolean mask (...) of noise-free measurements (..., 3) inside the FOV and range."""
+        return (
+            (np.abs(meas[..., 0]) <= self._az_max)
+            & (np.abs(meas[..., 1]) <= self._el_max)
+            & (meas[..., 2] >= self.cfg.range_min_m)
+            & (meas[..., 2] <= self.cfg.range_max_m)
+        )
+
+    def scan(
+        self,
+        pos: FloatArray,
+        dcm: FloatArray,
+        landmarks: FloatArray,
+        n_landmarks: np.ndarray,
+        lanes: ArrayLike,
+    ) -> tuple[np.ndarray, FloatArray]:
+        """One scan of each lane in ``lanes`` from its true pose.
+
+        Args:
+            pos: (B, 3) true positions in N, m.
+            dcm: (B, 3, 3) true ``C_NB``.
+            landmarks: (B, Lmax, 3) true landmark positions in N, m; slot j is landmark id j.
+            n_landmarks: (B,) int, landmarks present per lane (slots ≥ this are ignored).
+            lanes: (k,) int lanes that scan now.
+
+        Returns:
+            ``(visible (B, Lmax) bool, meas (B, Lmax, 3))``: measurements (α rad, β rad, δ m) of
+            visible landmarks; other slots and lanes are False / 0.
+        """
+        b, lmax = landmarks.shape[0], landmarks.shape[1]
+        idx = _lanes(lanes)
+        visible = np.zeros((b, lmax), dtype=bool)
+        meas = np.zeros((b, lmax, MEAS_DIM))
+        if idx.size == 0 or lmax == 0:
+            return visible, meas
+        true = lidar_measure(pos[idx, None, :], dcm[idx, None], landmarks[idx])  # (k, Lmax, 3)
+        present = np.arange(lmax) < np.asarray(n_landmarks)[idx, None]
+        mask = self.visible(true) & present
+        counts = mask.sum(axis=1).tolist()
+        gens = _generators(self._rngs, idx, "LidarBatch")
+        noise = np.concatenate(
+            [rng.standard_normal((k, MEAS_DIM)) for rng, k in zip(gens, counts, strict=True)]
+        )
+        noisy = true[mask] + self.sigma * noise  # rows in lane-major, ascending-id order
+        noisy[:, 0] = wrap_angle(noisy[:, 0])
+        out = np.zeros((idx.size, lmax, MEAS_DIM))
+        out[mask] = noisy
+        visible[idx] = mask
+        meas[idx] = out
+        return visible, meas
+
+
+class Lidar:
+    """One LiDAR: the one-lane case of :class:`LidarBatch` (same model, same random stream).
+
+    Args:
+        cfg: LiDAR settings.
     """
 
     def __init__(self, cfg: LidarConfig) -> None:
+        self._batch = LidarBatch(cfg, 1)
         self.cfg = cfg
-        self.sigma = np.array(
-            [cfg.sigma_azimuth_deg * _DEG, cfg.sigma_elevation_deg * _DEG, cfg.sigma_range_m]
-        )
-        self._az_max = cfg.azimuth_fov_deg * _DEG
-        self._el_max = cfg.elevation_fov_deg * _DEG
-        self._rng = np.random.default_rng(0)
+        self.sigma = self._batch.sigma
 
     def reset(self, rng: np.random.Generator) -> None:
         """Take the generator for this episode."""
-        self._rng = rng
+        self._batch.reset(_LANE0, [rng])
 
     def visible(self, meas: FloatArray) -> np.ndarray:
-        """Boolean mask (k,) of noise-free measurements inside the FOV and range limits."""
-        return (
-            (np.abs(meas[:, 0]) <= self._az_max)
-            & (np.abs(meas[:, 1]) <= self._el_max)
-            & (meas[:, 2] >= self.cfg.range_min_m)
-            & (meas[:, 2] <= self.cfg.range_max_m)
-        )
+        """Boolean mask (k,) of noise-free measurements (k, 3) inside the FOV and range limits."""
+        return self._batch.visible(meas)
 
     def scan(
         self,
@@ -131,8 +360,15 @@ class Lidar:
             landmark_ids: (L,) sorted landmark ids.
             landmarks: (L, 3) true landmark positions in N, m.
         """
-        true_meas = lidar_measure(pos, dcm, landmarks)
-        mask = self.visible(true_meas)
-        meas = true_meas[mask] + self.sigma * self._rng.standard_normal((int(mask.sum()), 3))
-        meas[:, 0] = wrap_angle(meas[:, 0])
-        return LidarScan(t=t, ids=landmark_ids[mask], meas=meas, sigma=self.sigma)
+        pts = np.asarray(landmarks, dtype=float).reshape(1, -1, 3)
+        visible, meas = self._batch.scan(
+            np.asarray(pos, dtype=float).reshape(1, 3),
+            np.asarray(dcm, dtype=float).reshape(1, 3, 3),
+            pts,
+            np.array([pts.shape[1]]),
+            _LANE0,
+        )
+        mask = visible[0]
+        return LidarScan(
+            t=t, ids=np.asarray(landmark_ids)[mask], meas=meas[0][mask], sigma=self.sigma
+        )

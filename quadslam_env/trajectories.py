@@ -3,6 +3,9 @@
 Each trajectory returns, at any time t, ``ρ_d, ρ̇_d, ρ̈_d`` (NED, m, m/s, m/s²) and
 ``ψ_d, ψ̇_d`` (rad, rad/s). With ``yaw_mode="tangent"`` the heading follows the horizontal
 velocity, ``ψ_d = atan2(ẏ, ẋ)`` and ``ψ̇_d = (ẋÿ - ẏẍ)/(ẋ² + ẏ²)``.
+
+The formulas live once, in a numba kernel over a batch of times (one per lane of the
+simulation core); the scalar call is the one-lane case.
 """
 
 from __future__ import annotations
@@ -13,18 +16,78 @@ from dataclasses import dataclass
 import numpy as np
 
 from quadslam_env.config import TrajectoryConfig
+from quadslam_env.models.jit import kernel
 from quadslam_env.models.rotations import FloatArray
+
+KINDS = ("figure8", "circle", "helix", "hover")
 
 
 @dataclass(frozen=True)
 class FlatOutputs:
-    """Reference at one instant: position/velocity/acceleration in N and heading."""
+    """Reference of B lanes (or one instant: shapes without the leading B).
+
+    Attributes:
+        pos: (B, 3) ρ_d in N, m.
+        vel: (B, 3) ρ̇_d in N, m/s.
+        acc: (B, 3) ρ̈_d in N, m/s².
+        yaw: (B,) ψ_d in rad.
+        yaw_rate: (B,) ψ̇_d in rad/s.
+    """
 
     pos: FloatArray
     vel: FloatArray
     acc: FloatArray
-    yaw: float
-    yaw_rate: float
+    yaw: FloatArray | float
+    yaw_rate: FloatArray | float
+
+
+@kernel
+def _flat_outputs(
+    t: FloatArray,
+    kind: int,
+    center: FloatArray,
+    amp_x: float,
+    amp_y: float,
+    radius: float,
+    omega: float,
+    climb: float,
+    tangent: bool,
+    fixed_yaw: float,
+    pos: FloatArray,
+    vel: FloatArray,
+    acc: FloatArray,
+    yaw: FloatArray,
+    yaw_rate: FloatArray,
+) -> None:
+    """Fill the (B, 3) and (B,) outputs at the times ``t`` (B,) s (see :class:`Trajectory`)."""
+    w = omega
+    for i in range(t.shape[0]):
+        ti = t[i]
+        px = py = pz = vx = vy = vz = ax = ay = 0.0
+        if kind == 0:  # figure8
+            s1, c1 = math.sin(w * ti), math.cos(w * ti)
+            s2, c2 = math.sin(2 * w * ti), math.cos(2 * w * ti)
+            px, py = amp_x * s1, amp_y * s2
+            vx, vy = amp_x * w * c1, 2 * amp_y * w * c2
+            ax, ay = -amp_x * w * w * s1, -4 * amp_y * w * w * s2
+        elif kind == 1 or kind == 2:  # circle, helix
+            s, c = math.sin(w * ti), math.cos(w * ti)
+            rate = climb if kind == 2 else 0.0
+            px, py, pz = radius * c, radius * s, -rate * ti
+            vx, vy, vz = -radius * w * s, radius * w * c, -rate
+            ax, ay = -radius * w * w * c, -radius * w * w * s
+        pos[i, 0] = center[0] + px
+        pos[i, 1] = center[1] + py
+        pos[i, 2] = center[2] + pz
+        vel[i, 0], vel[i, 1], vel[i, 2] = vx, vy, vz
+        acc[i, 0], acc[i, 1], acc[i, 2] = ax, ay, 0.0
+        speed2 = vx * vx + vy * vy
+        if tangent and speed2 > 1e-12:
+            yaw[i] = math.atan2(vy, vx)
+            yaw_rate[i] = (vx * ay - vy * ax) / speed2
+        else:
+            yaw[i] = fixed_yaw
+            yaw_rate[i] = 0.0
 
 
 class Trajectory:
@@ -41,43 +104,48 @@ class Trajectory:
         self.cfg = cfg
         self.center = np.array(cfg.center, dtype=float)
         self.omega = 2.0 * math.pi / cfg.period_s
+        self._kind = KINDS.index(cfg.kind)
+        self._tangent = cfg.yaw_mode == "tangent"
         self._fixed_yaw = math.radians(cfg.yaw_deg)
 
-    def _translation(self, t: float) -> tuple[list[float], list[float], list[float]]:
-        cfg, w = self.cfg, self.omega
-        if cfg.kind == "figure8":
-            a, b = cfg.amplitude_x_m, cfg.amplitude_y_m
-            s1, c1 = math.sin(w * t), math.cos(w * t)
-            s2, c2 = math.sin(2 * w * t), math.cos(2 * w * t)
-            return (
-                [a * s1, b * s2, 0.0],
-                [a * w * c1, 2 * b * w * c2, 0.0],
-                [-a * w * w * s1, -4 * b * w * w * s2, 0.0],
-            )
-        if cfg.kind in ("circle", "helix"):
-            r = cfg.radius_m
-            s, c = math.sin(w * t), math.cos(w * t)
-            climb = cfg.climb_rate_mps if cfg.kind == "helix" else 0.0
-            return (
-                [r * c, r * s, -climb * t],
-                [-r * w * s, r * w * c, -climb],
-                [-r * w * w * c, -r * w * w * s, 0.0],
-            )
-        return [0.0] * 3, [0.0] * 3, [0.0] * 3
+    def batch(self, t: FloatArray) -> FlatOutputs:
+        """Flat outputs at the times ``t`` (B,) in s, as (B, 3) and (B,) arrays."""
+        t = np.ascontiguousarray(t, dtype=float)
+        b = t.shape[0]
+        out = FlatOutputs(
+            pos=np.empty((b, 3)),
+            vel=np.empty((b, 3)),
+            acc=np.empty((b, 3)),
+            yaw=np.empty(b),
+            yaw_rate=np.empty(b),
+        )
+        cfg = self.cfg
+        _flat_outputs(
+            t,
+            self._kind,
+            self.center,
+            cfg.amplitude_x_m,
+            cfg.amplitude_y_m,
+            cfg.radius_m,
+            self.omega,
+            cfg.climb_rate_mps,
+            self._tangent,
+            self._fixed_yaw,
+            out.pos,
+            out.vel,
+            out.acc,
+            out.yaw,  # type: ignore[arg-type]
+            out.yaw_rate,  # type: ignore[arg-type]
+        )
+        return out
 
     def __call__(self, t: float) -> FlatOutputs:
-        """Flat outputs at time ``t`` (s)."""
-        p, v, a = self._translation(t)
-        speed2 = v[0] * v[0] + v[1] * v[1]
-        if self.cfg.yaw_mode == "tangent" and speed2 > 1e-12:
-            yaw = math.atan2(v[1], v[0])
-            yaw_rate = (v[0] * a[1] - v[1] * a[0]) / speed2
-        else:
-            yaw, yaw_rate = self._fixed_yaw, 0.0
+        """Flat outputs at time ``t`` (s): pos/vel/acc (3,), yaw and yaw rate floats."""
+        ref = self.batch(np.array([float(t)]))
         return FlatOutputs(
-            pos=self.center + np.array(p),
-            vel=np.array(v),
-            acc=np.array(a),
-            yaw=yaw,
-            yaw_rate=yaw_rate,
+            pos=ref.pos[0],
+            vel=ref.vel[0],
+            acc=ref.acc[0],
+            yaw=float(ref.yaw[0]),  # type: ignore[index]
+            yaw_rate=float(ref.yaw_rate[0]),  # type: ignore[index]
         )

@@ -1,40 +1,139 @@
-"""Vehicle simulator: holds the true state and integrates the dynamics over a control period."""
+"""Vehicle simulator: true states of B quadcopters integrated over a control period.
+
+:class:`VehicleBatch` holds (B, …) arrays and steps them with the compiled lane kernel
+:func:`quadslam_env.models.integrators.vehicle_step_lanes`; :class:`Vehicle` is its one-lane
+case with the scalar API of the single env.
+"""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+from numpy.typing import ArrayLike
 
-from quadslam_env.models.dynamics import VehicleParams, _coeffs, rk4_steps, saturate_inputs
-from quadslam_env.models.rotations import FloatArray, wrap_angle
+from quadslam_env.models.integrators import vehicle_step_lanes
+from quadslam_env.models.params import VehicleParams
+from quadslam_env.models.rigid_body import lane_array
+from quadslam_env.types import STATE_DIM, FloatArray
 
 
-class Vehicle:
-    """True quadcopter state integrated with RK4 at a fixed physics substep.
+class VehicleBatch:
+    """True states of B quadcopters, RK4 at a fixed physics substep (seed 001 eq. 2–3).
 
     Inputs are saturated to the vehicle limits and held over the control period (zero-order
     hold); with ``actuator_tau > 0`` the applied inputs follow the command through an exact
     first-order lag per substep.
+
+    Attributes:
+        state: (B, 12) true states ``(ρ [m, N], v [m/s, B], Λ [rad], ω [rad/s, B])``.
+        applied_thrust: (B,) thrust acting on each body in N (after saturation and lag).
+        applied_torque: (B, 3) torque acting on each body in N·m.
+
+    Args:
+        params: Vehicle parameters (shared by all lanes).
+        physics_dt: Maximum RK4 substep in s (default scenario: 2 ms).
+        num_lanes: B.
+    """
+
+    def __init__(self, params: VehicleParams, physics_dt: float, num_lanes: int) -> None:
+        self.params = params
+        self.physics_dt = float(physics_dt)
+        self.num_lanes = int(num_lanes)
+        self.state = np.zeros((self.num_lanes, STATE_DIM))
+        self.applied_thrust = np.full(self.num_lanes, params.hover_thrust)
+        self.applied_torque = np.zeros((self.num_lanes, 3))
+        # Writable contiguous copies: the kernel is compiled for one array type.
+        self._inertia = np.array(params.inertia)
+        self._inertia_inv = np.array(params.inertia_inv)
+        self._max_torque = np.array(params.max_torque)
+        self._all = np.ones(self.num_lanes, dtype=bool)
+
+    def reset(self, lanes: ArrayLike, states: ArrayLike) -> None:
+        """Set the true states of ``lanes``; their actuators start at hover thrust, zero torque.
+
+        Args:
+            lanes: (k,) int lane indices.
+            states: (k, 12) initial states.
+        """
+        idx = np.asarray(lanes, dtype=int).reshape(-1)
+        self.state[idx] = np.asarray(states, dtype=float).reshape(idx.size, STATE_DIM)
+        self.applied_thrust[idx] = self.params.hover_thrust
+        self.applied_torque[idx] = 0.0
+
+    def step(
+        self,
+        thrust_cmd: ArrayLike,
+        torque_cmd: ArrayLike,
+        duration: float,
+        active: np.ndarray | None = None,
+    ) -> FloatArray:
+        """Advance the ``active`` lanes by ``duration`` seconds; other lanes are untouched.
+
+        Args:
+            thrust_cmd: (B,) commanded thrust in N (saturated to [0, max_thrust]).
+            torque_cmd: (B, 3) commanded torque in N·m (saturated per axis).
+            duration: Control period in s.
+            active: (B,) bool lanes to step (default: all).
+
+        Returns:
+            (B, 3) body rates averaged over the period (trapezoid over substeps), rad/s: what
+            an integrating IMU reports for this sample; zero rows for inactive lanes.
+        """
+        b, p = self.num_lanes, self.params
+        mask = self._all if active is None else np.ascontiguousarray(active, dtype=bool)
+        mean_rates = np.zeros((b, 3))
+        vehicle_step_lanes(
+            self.state,
+            self.applied_thrust,
+            self.applied_torque,
+            lane_array(thrust_cmd, b),
+            lane_array(torque_cmd, b, 3),
+            mask,
+            float(p.mass),
+            float(p.drag),
+            self._inertia,
+            self._inertia_inv,
+            float(p.max_thrust),
+            self._max_torque,
+            float(p.actuator_tau),
+            float(duration),
+            self.physics_dt,
+            mean_rates,
+        )
+        return mean_rates
+
+
+class Vehicle:
+    """One quadcopter: the one-lane case of :class:`VehicleBatch` with scalar inputs.
+
+    ``state``, ``applied_thrust`` and ``applied_torque`` are plain attributes replaced by
+    fresh objects on every step (callers may keep references to earlier states) and read
+    back into the batch before stepping (callers may assign them).
 
     Args:
         params: Vehicle parameters.
         physics_dt: Maximum RK4 substep in s (default 2 ms).
     """
 
+    _LANE0 = np.zeros(1, dtype=int)
+
     def __init__(self, params: VehicleParams, physics_dt: float) -> None:
         self.params = params
         self.physics_dt = physics_dt
-        self._coeffs = _coeffs(params)
-        self.state = np.zeros(12)
+        self._batch = VehicleBatch(params, physics_dt, 1)
+        self.state = np.zeros(STATE_DIM)
         self.applied_thrust = params.hover_thrust
         self.applied_torque = np.zeros(3)
 
     def reset(self, state: FloatArray) -> None:
-        """Set the true state; the actuators start at hover thrust and zero torque."""
-        self.state = np.array(state, dtype=float)
-        self.applied_thrust = self.params.hover_thrust
-        self.applied_torque = np.zeros(3)
+        """Set the true state (12,); the actuators start at hover thrust and zero torque."""
+        self._batch.reset(self._LANE0, state)
+        self._read_back()
+
+    def _read_back(self) -> None:
+        batch = self._batch
+        self.state = batch.state[0].copy()
+        self.applied_thrust = float(batch.applied_thrust[0])
+        self.applied_torque = batch.applied_torque[0].copy()
 
     def step(self, thrust_cmd: float, torque_cmd: FloatArray, duration: float) -> FloatArray:
         """Advance the true state by ``duration`` seconds.
@@ -48,30 +147,10 @@ class Vehicle:
             (3,) body rates averaged over the period (trapezoid over substeps), rad/s: what an
             integrating IMU reports for this sample.
         """
-        thrust, torque = saturate_inputs(thrust_cmd, torque_cmd, self.params)
-        n_sub = max(1, math.ceil(duration / self.physics_dt - 1e-9))
-        h = duration / n_sub
-        x = self.state.tolist()
-        # Trapezoid over the substep end points: half weight on the first and the last.
-        p_sum, q_sum, r_sum = 0.5 * x[9], 0.5 * x[10], 0.5 * x[11]
-        tau_lag = self.params.actuator_tau
-        if tau_lag > 0.0:
-            keep = math.exp(-h / tau_lag)
-        else:
-            f, t3 = thrust, (float(torque[0]), float(torque[1]), float(torque[2]))
-        for _ in range(n_sub):
-            if tau_lag > 0.0:
-                self.applied_thrust = thrust + (self.applied_thrust - thrust) * keep
-                self.applied_torque = torque + (self.applied_torque - torque) * keep
-                f, t3 = self.applied_thrust, tuple(self.applied_torque.tolist())
-            x = rk4_steps(x, f, t3, self._coeffs, h, 1)
-            p_sum += x[9]
-            q_sum += x[10]
-            r_sum += x[11]
-        if tau_lag <= 0.0:
-            self.applied_thrust, self.applied_torque = thrust, torque
-        # Keep roll and yaw in (-π, π] so long flights don't accumulate unbounded angles.
-        x[6] = wrap_angle(x[6])
-        x[8] = wrap_angle(x[8])
-        self.state = np.array(x)
-        return np.array([p_sum - 0.5 * x[9], q_sum - 0.5 * x[10], r_sum - 0.5 * x[11]]) / n_sub
+        batch = self._batch
+        batch.state[0] = self.state
+        batch.applied_thrust[0] = self.applied_thrust
+        batch.applied_torque[0] = self.applied_torque
+        mean_rates = batch.step(thrust_cmd, np.asarray(torque_cmd, dtype=float)[None], duration)
+        self._read_back()
+        return mean_rates[0]

@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from quadslam_env.config import LandmarksConfig
-from quadslam_env.models.rotations import FloatArray
-
-_DEG = math.pi / 180.0
+from quadslam_env.types import DEG, FloatArray
 
 
 def make_landmarks(
@@ -35,8 +31,8 @@ def make_landmarks(
     """
     if cfg.layout == "rauniyar2023":
         c = np.asarray(cfg.center if cfg.center is not None else center, dtype=float)
-        az = rng.uniform(cfg.azimuth_deg[0], cfg.azimuth_deg[1], cfg.count) * _DEG
-        el = rng.uniform(cfg.elevation_deg[0], cfg.elevation_deg[1], cfg.count) * _DEG
+        az = rng.uniform(cfg.azimuth_deg[0], cfg.azimuth_deg[1], cfg.count) * DEG
+        el = rng.uniform(cfg.elevation_deg[0], cfg.elevation_deg[1], cfg.count) * DEG
         rng_m = rng.uniform(cfg.range_m[0], cfg.range_m[1], cfg.count)
         offsets = np.stack(
             [rng_m * np.cos(el) * np.cos(az), rng_m * np.cos(el) * np.sin(az), -rng_m * np.sin(el)],

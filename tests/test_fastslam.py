@@ -1,4 +1,4 @@
-"""Tests for the FastSLAM estimators (estimators/fastslam.py) against independent facts."""
+"""Tests for the FastSLAM estimators (the estimators/fastslam package) against independent facts."""
 
 from __future__ import annotations
 

@@ -1,25 +1,18 @@
-"""Pure models (layer 1): rotations, rigid-body dynamics, the LiDAR model. No RNG, no state."""
+"""Pure models (layer 1): frames, rigid-body dynamics, integrators, IMU noise, the LiDAR model.
 
-from quadslam_env.models.dynamics import (
-    GRAVITY,
-    STATE_DIM,
-    VEHICLE_PRESETS,
-    VehicleParams,
-    rk4_integrate,
-    saturate_inputs,
-    specific_force,
-    state_derivative,
-    vehicle_preset,
-)
-from quadslam_env.models.lidar import (
-    body_from_measure,
-    inverse_jacobians,
-    lidar_inverse,
-    lidar_jacobians,
-    lidar_measure,
-    measurement_residual,
-)
-from quadslam_env.models.rotations import (
+No RNG, no state. The per-vehicle math is numba kernels lifted over a leading batch axis
+(DESIGN.md §9); the modules:
+
+- :mod:`~quadslam_env.models.frames`: C_NB, elementary rotations, ∂C/∂Λ, D(Λ), angle wrap.
+- :mod:`~quadslam_env.models.params`: vehicle parameters and presets.
+- :mod:`~quadslam_env.models.rigid_body`: seed 001 eq. 2–3, specific force, saturation, RK4 step.
+- :mod:`~quadslam_env.models.integrators`: RK4/Euler over lanes (simulator and FastSLAM).
+- :mod:`~quadslam_env.models.imu_noise`: noise density → σ, exact Gauss–Markov discretisation.
+- :mod:`~quadslam_env.models.lidar`: measurement, inverse and Jacobians.
+- :mod:`~quadslam_env.models.linalg`: stacked small-matrix helpers.
+"""
+
+from quadslam_env.models.frames import (
     dcm_euler_partials,
     dcm_from_euler,
     dcm_from_euler_batch,
@@ -29,11 +22,31 @@ from quadslam_env.models.rotations import (
     skew,
     wrap_angle,
 )
+from quadslam_env.models.integrators import (
+    RigidBodyLanes,
+    kinematic_derivative,
+    kinematic_propagate,
+    rk4_integrate,
+    state_derivative,
+)
+from quadslam_env.models.lidar import (
+    body_from_measure,
+    inverse_jacobians,
+    lidar_inverse,
+    lidar_jacobians,
+    lidar_measure,
+    measure_inverse_jacobian,
+    measurement_residual,
+)
+from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams, vehicle_preset
+from quadslam_env.models.rigid_body import saturate_inputs, specific_force, specific_force_lanes
+from quadslam_env.types import GRAVITY, STATE_DIM
 
 __all__ = [
     "GRAVITY",
     "STATE_DIM",
     "VEHICLE_PRESETS",
+    "RigidBodyLanes",
     "VehicleParams",
     "body_from_measure",
     "dcm_euler_partials",
@@ -42,15 +55,19 @@ __all__ = [
     "euler_from_dcm",
     "euler_rate_matrix",
     "inverse_jacobians",
+    "kinematic_derivative",
+    "kinematic_propagate",
     "lidar_inverse",
     "lidar_jacobians",
     "lidar_measure",
+    "measure_inverse_jacobian",
     "measurement_residual",
     "rk4_integrate",
     "rotation_angle_between",
     "saturate_inputs",
     "skew",
     "specific_force",
+    "specific_force_lanes",
     "state_derivative",
     "vehicle_preset",
     "wrap_angle",

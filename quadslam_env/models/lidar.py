@@ -7,17 +7,16 @@ A measurement of landmark ``l`` from pose ``(ρ, Λ)`` is ``y = (α, β, δ)``:
 ``δ = ‖c‖`` (range). Seed 001 eq. 31 lists the azimuth as ``atan(c1/c2)``; DESIGN.md §3 fixes it.
 The inverse (eq. 44–45) is ``l = ρ + C_NB ϱ(y)`` with ``ϱ = δ (cβ cα, cβ sα, sβ)``.
 
-All functions broadcast over leading dimensions so FastSLAM can evaluate N particles × k
-landmarks in one call.
+All functions broadcast over leading dimensions, so one call evaluates B vehicles × L
+landmarks (the simulator's LiDAR) or N particles × k landmarks (FastSLAM).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from quadslam_env.models.rotations import FloatArray, dcm_euler_partials, wrap_angle
-
-MEAS_DIM = 3
+from quadslam_env.models.frames import dcm_euler_partials, wrap_angle
+from quadslam_env.types import FloatArray
 
 
 def body_vector(pos: FloatArray, dcm: FloatArray, landmarks: FloatArray) -> FloatArray:
@@ -128,6 +127,30 @@ def lidar_jacobians(
     return -H_lm, H_euler, H_lm
 
 
+def measure_inverse_jacobian(meas: FloatArray) -> FloatArray:
+    """``∂ϱ/∂y`` of ``ϱ(y) = δ (cβ cα, cβ sα, sβ)`` (seed 001 eq. 50, body-frame part).
+
+    Args:
+        meas: (..., 3) measurements (α rad, β rad, δ m).
+
+    Returns:
+        (..., 3, 3) Jacobians, columns ∂/∂α, ∂/∂β, ∂/∂δ, in m/rad and m/m (B frame).
+    """
+    alpha, beta, delta = meas[..., 0], meas[..., 1], meas[..., 2]
+    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
+    out = np.empty((*meas.shape, 3))
+    out[..., 0, 0] = -delta * cb * sa
+    out[..., 1, 0] = delta * cb * ca
+    out[..., 2, 0] = 0.0
+    out[..., 0, 1] = -delta * sb * ca
+    out[..., 1, 1] = -delta * sb * sa
+    out[..., 2, 1] = delta * cb
+    out[..., 0, 2] = cb * ca
+    out[..., 1, 2] = cb * sa
+    out[..., 2, 2] = sb
+    return out
+
+
 def inverse_jacobians(
     euler: FloatArray, dcm: FloatArray, meas: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
@@ -139,24 +162,13 @@ def inverse_jacobians(
         meas: (k, 3) measurements (α, β, δ).
 
     Returns:
-        ``(G_euler, G_meas)``, each (k, 3, 3): ``∂g/∂Λ`` and ``∂g/∂y``. ``∂g/∂ρ = I`` and
-        ``∂g/∂v = 0``.
+        ``(G_euler, G_meas)``, each (k, 3, 3): ``∂g/∂Λ`` and ``∂g/∂y = C_NB ∂ϱ/∂y``.
+        ``∂g/∂ρ = I`` and ``∂g/∂v = 0``.
     """
-    alpha, beta, delta = meas[:, 0], meas[:, 1], meas[:, 2]
-    ca, sa, cb, sb = np.cos(alpha), np.sin(alpha), np.cos(beta), np.sin(beta)
     rho = body_from_measure(meas)  # (k, 3)
     partials = dcm_euler_partials(euler)
     G_euler = np.einsum("iab,kb->kai", partials, rho)
-    drho = np.zeros((meas.shape[0], 3, 3))
-    drho[:, 0, 0] = -delta * cb * sa
-    drho[:, 1, 0] = delta * cb * ca
-    drho[:, 0, 1] = -delta * sb * ca
-    drho[:, 1, 1] = -delta * sb * sa
-    drho[:, 2, 1] = delta * cb
-    drho[:, 0, 2] = cb * ca
-    drho[:, 1, 2] = cb * sa
-    drho[:, 2, 2] = sb
-    return G_euler, dcm @ drho
+    return G_euler, dcm @ measure_inverse_jacobian(meas)
 
 
 def measurement_residual(measured: FloatArray, predicted: FloatArray) -> FloatArray:

@@ -1,0 +1,370 @@
+"""Estimators over a leading batch axis of B lanes (DESIGN.md §9), and the one-lane bridge.
+
+The simulation core (:mod:`quadslam_env.core`) steps B independent episodes ("lanes") in
+lockstep. It talks to its estimator through :class:`BatchEstimator`: arrays in, arrays out, with
+a lane mask wherever lanes differ (a lane that scans this step, a lane that is being reset).
+Landmark identities inside the core are the indices ``0 … L-1`` of the lane's landmark array,
+so landmark outputs are arrays indexed by id, padded to a capacity ``Lmax`` with a mask.
+
+Estimators that have a native batched implementation register it with
+:func:`register_batch`; every other estimator (FastSLAM, a user's own) runs through
+:class:`LaneLoop`, a Python loop over B scalar :class:`~estimators.base.Estimator` objects.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from estimators.base import POSE_DIM, Estimate, Estimator, make
+from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.models.rotations import FloatArray
+
+IntArray = np.ndarray
+KnownMaps = Sequence[tuple[np.ndarray, FloatArray]] | None
+
+
+@dataclass
+class BatchEstimate:
+    """The belief of B lanes (views into the estimator's buffers: read, don't keep).
+
+    Attributes:
+        position: (B, 3) ρ̂ in N, m.
+        vel_body: (B, 3) v̂ in B, m/s.
+        vel_inertial: (B, 3) ``C_NB(Λ̂) v̂`` in N, m/s.
+        euler: (B, 3) Λ̂ = (φ̂, θ̂, ψ̂) in rad.
+        rates: (B, 3) ω̂ in B, rad/s.
+        pose_cov: (B, 9, 9) covariance of (ρ, v_B, Λ), or ``None`` (the oracle).
+        landmark_means: (B, Lmax, 3) estimated landmark positions by id, m (rows of unmapped
+            ids are undefined).
+        landmark_mapped: (B, Lmax) bool, which ids the lane has mapped (or knows).
+        accel_bias: (B, 3) estimated accelerometer bias in m/s², or ``None``.
+        gyro_bias: (B, 3) estimated gyro bias in rad/s, or ``None``.
+        diagnostics: name → (B,) float array (``nis``, ``ess``, ``diverged``, …; NaN where a
+            lane has no value).
+    """
+
+    position: FloatArray
+    vel_body: FloatArray
+    vel_inertial: FloatArray
+    euler: FloatArray
+    rates: FloatArray
+    pose_cov: FloatArray | None
+    landmark_means: FloatArray
+    landmark_mapped: np.ndarray
+    accel_bias: FloatArray | None = None
+    gyro_bias: FloatArray | None = None
+    diagnostics: dict[str, FloatArray] = field(default_factory=dict)
+
+
+class BatchEstimator(Protocol):
+    """What the simulation core needs from an estimator of B lanes.
+
+    Every method acts on the lanes it is told about and leaves the other lanes' state
+    untouched, so lanes of one batch may be at different times of different episodes.
+    """
+
+    num_lanes: int
+    uses_truth: bool
+
+    def reset_lanes(
+        self,
+        lanes: IntArray,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rngs: Sequence[np.random.Generator],
+        known_landmarks: KnownMaps = None,
+    ) -> None:
+        """Start new episodes in ``lanes`` (k,) from means (k, 12) and covariances (k, 12, 12).
+
+        ``rngs[j]`` is lane ``lanes[j]``'s only source of randomness; ``known_landmarks[j]`` is
+        ``(ids (L,), positions (L, 3))`` in known-map mode, else ``None``.
+        """
+
+    def predict(
+        self,
+        t: FloatArray,
+        accel: FloatArray,
+        gyro: FloatArray,
+        accel_sigma: float,
+        gyro_sigma: float,
+        thrust: FloatArray,
+        torque: FloatArray,
+        dt: float,
+        active: np.ndarray,
+    ) -> None:
+        """Propagate the ``active`` (B,) lanes over ``dt`` s with one IMU sample each.
+
+        ``t`` (B,) sample times in s; ``accel``/``gyro`` (B, 3) measured specific force (m/s²)
+        and rates (rad/s) in B; ``thrust`` (B,) N and ``torque`` (B, 3) N·m applied.
+        """
+
+    def update(
+        self,
+        t: FloatArray,
+        lanes: IntArray,
+        visible: np.ndarray,
+        meas: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Correct ``lanes`` (k,) with their scans: ``visible`` (B, Lmax) bool marks the
+        returned landmark ids, ``meas`` (B, Lmax, 3) their (α rad, β rad, δ m); ``sigma`` (3,)."""
+
+    def estimate(self) -> BatchEstimate:
+        """The belief of every lane."""
+
+    def lane_estimate(self, lane: int) -> Estimate:
+        """A frozen :class:`Estimate` (copies) of one lane, with landmark covariances."""
+
+
+_BATCH_REGISTRY: dict[str, Callable[..., BatchEstimator]] = {}
+# Modules that register a native batched estimator, imported on first use.
+_BATCH_MODULES: dict[str, str] = {
+    "oracle": "estimators.oracle",
+    "ekf_slam": "estimators.ekf",
+}
+
+
+def register_batch(
+    name: str,
+) -> Callable[[Callable[..., BatchEstimator]], Callable[..., BatchEstimator]]:
+    """Class decorator: ``make_batch(name, …)`` builds this native batched estimator."""
+
+    def deco(cls: Callable[..., BatchEstimator]) -> Callable[..., BatchEstimator]:
+        _BATCH_REGISTRY[name] = cls
+        return cls
+
+    return deco
+
+
+def make_batch(name: str, num_lanes: int, landmark_capacity: int, **cfg: Any) -> BatchEstimator:
+    """Build the estimator ``name`` for ``num_lanes`` lanes.
+
+    A native batched class is used where one is registered; otherwise :class:`LaneLoop`
+    runs ``num_lanes`` scalar estimators built by :func:`estimators.make`.
+
+    Args:
+        name: Estimator name (see :func:`estimators.available`).
+        num_lanes: Number of lanes B ≥ 1.
+        landmark_capacity: Lmax, an upper bound on the landmark ids the lanes will see (the
+            estimator may grow beyond it when a reset brings a larger map).
+        **cfg: Settings of the estimator (``vehicle=`` and ``estimator.params``).
+
+    Raises:
+        ValueError: Unknown name or invalid settings (from the estimator).
+    """
+    if name not in _BATCH_REGISTRY and name in _BATCH_MODULES:
+        module = _BATCH_MODULES[name]
+        if importlib.util.find_spec(module) is not None:  # else: run the scalar one in a loop
+            importlib.import_module(module)
+    if name in _BATCH_REGISTRY:
+        return _BATCH_REGISTRY[name](
+            num_lanes=num_lanes, landmark_capacity=landmark_capacity, **cfg
+        )
+    return LaneLoop([make(name, **cfg) for _ in range(num_lanes)], landmark_capacity)
+
+
+class LaneLoop:
+    """A :class:`BatchEstimator` over B scalar estimators, one per lane (a Python loop).
+
+    This is how estimators without a batched implementation (FastSLAM, plug-ins) run in the
+    vector env; its cost is the scalar estimator's times B plus ~10 µs per lane and step.
+
+    Args:
+        estimators: The B scalar estimators.
+        landmark_capacity: Initial Lmax of the landmark output arrays (grows as needed).
+    """
+
+    def __init__(self, estimators: Sequence[Estimator], landmark_capacity: int) -> None:
+        self.lanes = list(estimators)
+        self.num_lanes = len(self.lanes)
+        self.uses_truth = bool(getattr(self.lanes[0], "uses_truth", False))
+        b = self.num_lanes
+        self._estimates: list[Estimate | None] = [None] * b
+        self._out = _empty_batch(b, max(landmark_capacity, 0), with_cov=True)
+
+    def reset_lanes(
+        self,
+        lanes: IntArray,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rngs: Sequence[np.random.Generator],
+        known_landmarks: KnownMaps = None,
+    ) -> None:
+        """Reset each listed lane's scalar estimator (see :class:`BatchEstimator`)."""
+        for j, lane in enumerate(np.asarray(lanes).tolist()):
+            known = None if known_landmarks is None else known_landmarks[j]
+            self.lanes[lane].reset(mean0[j], cov0[j], rngs[j], known_landmarks=known)
+            self._estimates[lane] = None
+
+    def predict(
+        self,
+        t: FloatArray,
+        accel: FloatArray,
+        gyro: FloatArray,
+        accel_sigma: float,
+        gyro_sigma: float,
+        thrust: FloatArray,
+        torque: FloatArray,
+        dt: float,
+        active: np.ndarray,
+    ) -> None:
+        """Call each active lane's ``predict`` with its :class:`ImuSample` and :class:`Control`."""
+        for lane in np.flatnonzero(active).tolist():
+            imu = ImuSample(
+                t=float(t[lane]),
+                accel=accel[lane].copy(),
+                gyro=gyro[lane].copy(),
+                accel_sigma=accel_sigma,
+                gyro_sigma=gyro_sigma,
+            )
+            control = Control(thrust=float(thrust[lane]), torque=torque[lane].copy())
+            self.lanes[lane].predict(imu, control, dt)
+            self._estimates[lane] = None
+
+    def update(
+        self,
+        t: FloatArray,
+        lanes: IntArray,
+        visible: np.ndarray,
+        meas: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Call each listed lane's ``update`` with its :class:`LidarScan` (ids ascending)."""
+        for lane in np.asarray(lanes).tolist():
+            ids = np.flatnonzero(visible[lane])
+            scan = LidarScan(t=float(t[lane]), ids=ids, meas=meas[lane, ids], sigma=sigma)
+            self.lanes[lane].update(scan)
+            self._estimates[lane] = None
+
+    def set_truth(self, states: FloatArray, landmarks: FloatArray, counts: np.ndarray) -> None:
+        """Feed the truth to estimators that use it (the oracle run as scalar objects)."""
+        for lane, est in enumerate(self.lanes):
+            n = int(counts[lane])
+            est.set_truth(states[lane], np.arange(n), landmarks[lane, :n])  # type: ignore[attr-defined]
+            self._estimates[lane] = None
+
+    def lane_estimate(self, lane: int) -> Estimate:
+        """The scalar estimator's own snapshot (cached until the lane changes)."""
+        est = self._estimates[lane]
+        if est is None:
+            est = self.lanes[lane].estimate()
+            self._estimates[lane] = est
+        return est
+
+    def estimate(self) -> BatchEstimate:
+        """Stack every lane's :class:`Estimate` into the batch arrays."""
+        snaps = [self.lane_estimate(lane) for lane in range(self.num_lanes)]
+        need = max((int(s.landmark_ids.max()) + 1 for s in snaps if s.landmark_ids.size), default=0)
+        if need > self._out.landmark_means.shape[1]:
+            self._out = _empty_batch(self.num_lanes, need, with_cov=True)
+        fill_batch(self._out, snaps)
+        return self._out
+
+
+def _empty_batch(num_lanes: int, capacity: int, with_cov: bool) -> BatchEstimate:
+    b = num_lanes
+    return BatchEstimate(
+        position=np.zeros((b, 3)),
+        vel_body=np.zeros((b, 3)),
+        vel_inertial=np.zeros((b, 3)),
+        euler=np.zeros((b, 3)),
+        rates=np.zeros((b, 3)),
+        pose_cov=np.zeros((b, POSE_DIM, POSE_DIM)) if with_cov else None,
+        landmark_means=np.zeros((b, capacity, 3)),
+        landmark_mapped=np.zeros((b, capacity), dtype=bool),
+    )
+
+
+def fill_batch(out: BatchEstimate, snaps: Sequence[Estimate]) -> None:
+    """Write the scalar snapshots ``snaps`` (one per lane, in lane order) into ``out``.
+
+    Optional parts (covariance, biases, diagnostics) follow the snapshots: ``pose_cov`` and
+    the biases become ``None`` when the first lane has none; a diagnostic missing in a lane is
+    NaN there.
+    """
+    if snaps[0].pose_cov is None:
+        out.pose_cov = None
+    elif out.pose_cov is None:
+        out.pose_cov = np.zeros((len(snaps), POSE_DIM, POSE_DIM))
+    out.accel_bias = np.zeros((len(snaps), 3)) if snaps[0].accel_bias is not None else None
+    out.gyro_bias = np.zeros((len(snaps), 3)) if snaps[0].gyro_bias is not None else None
+    keys = sorted({k for s in snaps for k in s.diagnostics})
+    out.diagnostics = {k: np.full(len(snaps), np.nan) for k in keys}
+    out.landmark_mapped[:] = False
+    for lane, s in enumerate(snaps):
+        out.position[lane] = s.position
+        out.vel_body[lane] = s.vel_body
+        out.vel_inertial[lane] = s.vel_inertial
+        out.euler[lane] = s.euler
+        out.rates[lane] = s.rates
+        if out.pose_cov is not None and s.pose_cov is not None:
+            out.pose_cov[lane] = s.pose_cov
+        if out.accel_bias is not None and s.accel_bias is not None:
+            out.accel_bias[lane] = s.accel_bias
+        if out.gyro_bias is not None and s.gyro_bias is not None:
+            out.gyro_bias[lane] = s.gyro_bias
+        if s.landmark_ids.size:
+            out.landmark_means[lane, s.landmark_ids] = s.landmark_means
+            out.landmark_mapped[lane, s.landmark_ids] = True
+        for k, v in s.diagnostics.items():
+            out.diagnostics[k][lane] = v
+
+
+def batch_from_estimates(snaps: Sequence[Estimate]) -> BatchEstimate:
+    """A fresh :class:`BatchEstimate` holding the scalar snapshots ``snaps``."""
+    need = max((int(s.landmark_ids.max()) + 1 for s in snaps if s.landmark_ids.size), default=0)
+    out = _empty_batch(len(snaps), need, with_cov=True)
+    fill_batch(out, snaps)
+    return out
+
+
+def health_problems(est: BatchEstimate) -> list[str]:
+    """Describe what is wrong with each lane's belief (``""`` where healthy).
+
+    Checks (DESIGN.md §7): the estimator's own ``diverged`` flag, a finite mean (pose, rates and
+    mapped landmarks), a finite and symmetric pose covariance. Positive semi-definiteness is
+    tested by the Cholesky factorisation that the NEES needs anyway
+    (:func:`estimators.metrics.pose_nees` returns inf on failure), so it is not repeated here.
+    """
+    b = est.position.shape[0]
+    diverged = est.diagnostics.get("diverged")
+    lm = np.where(est.landmark_mapped[:, :, None], est.landmark_means, 0.0)
+    parts = (
+        ("position", est.position),
+        ("vel_body", est.vel_body),
+        ("euler", est.euler),
+        ("rates", est.rates),
+        ("landmark means", lm.reshape(b, -1)),
+    )
+    finite = [np.isfinite(arr).all(axis=1) for _, arr in parts]
+    cov_finite = asym = None
+    if est.pose_cov is not None:
+        cov = est.pose_cov
+        cov_finite = np.isfinite(cov).all(axis=(1, 2))
+        with np.errstate(invalid="ignore"):
+            scale = np.maximum(np.max(np.abs(np.diagonal(cov, axis1=1, axis2=2)), axis=1), 1e-12)
+            asym = np.max(np.abs(cov - cov.transpose(0, 2, 1)), axis=(1, 2)) > 1e-6 * scale
+    out = [""] * b
+    for lane in range(b):
+        if diverged is not None and diverged[lane] > 0:
+            out[lane] = "estimator reported divergence"
+            continue
+        bad = next((name for (name, _), ok in zip(parts, finite, strict=True) if not ok[lane]), "")
+        if bad:
+            out[lane] = f"non-finite {bad}"
+        elif cov_finite is not None and not cov_finite[lane]:
+            out[lane] = "non-finite pose covariance"
+        elif asym is not None and asym[lane]:
+            out[lane] = "asymmetric pose covariance"
+    return out
+
+
+def health_problem(est: Estimate) -> str | None:
+    """:func:`health_problems` of one scalar snapshot; ``None`` if it is healthy."""
+    return health_problems(batch_from_estimates([est]))[0] or None

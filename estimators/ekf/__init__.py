@@ -1,0 +1,17 @@
+"""EKF-SLAM of seed 001 §2.3 (DESIGN.md §5, §9), batched over lanes and compiled with numba.
+
+* :mod:`estimators.ekf.filter` — :class:`EkfSlamBatch` (state, reset, predict, estimate),
+  registered as the native batched ``"ekf_slam"``;
+* :mod:`estimators.ekf.update` — the correction kernel (χ² gate, stacked update,
+  registration);
+* :mod:`estimators.ekf.kernels` — the prediction kernel and the per-landmark LiDAR model;
+* :mod:`estimators.ekf.scalar` — :class:`EkfSlam`, the one-lane estimator registered as
+  ``"ekf_slam"`` in :mod:`estimators.base`.
+
+The process model (seed 001 eq. 24, 28) is :mod:`quadslam_env.models.strapdown`.
+"""
+
+from estimators.ekf.filter import BIAS_DIM, EkfSlamBatch
+from estimators.ekf.scalar import EkfSlam
+
+__all__ = ["BIAS_DIM", "EkfSlam", "EkfSlamBatch"]

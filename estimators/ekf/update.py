@@ -1,0 +1,461 @@
+"""Numba kernel of the batched EKF-SLAM correction: χ² gate, stacked update, registration.
+
+One call of :func:`update_lanes` handles every scanning lane (seed 001 eq. 37–53):
+
+1. the observed mapped (or, in known-map mode, known) landmarks are predicted with the LiDAR
+   model and stacked into ``H`` over the columns ``[s, m_κ]`` (eq. 34, 40);
+2. each landmark is gated on its own 3-DOF NIS ``ν_iᵀ S_ii⁻¹ ν_i`` (rejections counted);
+3. the accepted ones form one update touching only the rows ``[s, m_κ]`` of P:
+   ``U = H P[idx, :]`` (= ``(P Hᵀ)ᵀ``), ``S = U[:, idx] Hᵀ + R`` (eq. 38), ``S = L Lᵀ``,
+   ``Wᵀ = L⁻¹ U``, ``x += W L⁻¹ ν`` (eq. 42) and ``P -= W Wᵀ`` (= ``K S Kᵀ``, eq. 43);
+4. observed unmapped landmarks are registered in ascending id order (eq. 44–53).
+
+A failed step (singular or non-positive-definite S, a non-finite result, a covariance
+diagonal that would turn negative) is skipped and sets the lane's ``diverged`` flag; as in
+the scalar filter, registration still runs after a skipped update.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from estimators.ekf.kernels import (
+    D_DIVERGED,
+    D_N_MAPPED,
+    D_N_REJECTED,
+    D_N_REJECTED_LAST,
+    D_N_UPDATES,
+    D_NIS,
+    D_NIS_DOF,
+    dcm_and_partials,
+    lidar_inverse_model,
+    lidar_model,
+    sync_lane,
+    wrap_residual,
+    wrap_state_angle,
+)
+from quadslam_env.models.rotations import FloatArray
+
+_DIAG_FLOOR = -1e-9
+"""Most negative posterior variance accepted as round-off."""
+
+
+@njit(cache=True)
+def predicted_measurements(xb: FloatArray, lms: FloatArray, h: FloatArray, H: FloatArray) -> None:
+    """``h`` (k, 3) and Jacobian blocks ``H`` (k, 3, 9) = ``[∂h/∂ρ, ∂h/∂Λ, ∂h/∂l]`` of the
+    landmarks ``lms`` (k, 3) seen from the pose in ``xb`` (eq. 34, 40)."""
+    C = np.empty((3, 3))
+    dC = np.empty((3, 3, 3))
+    dcm_and_partials(xb[6], xb[7], xb[8], C, dC)
+    for i in range(lms.shape[0]):
+        lidar_model(xb[0:3], C, dC, lms[i], h[i], H[i])
+
+
+@njit(cache=True)
+def _solve3_nis(S: FloatArray, o: int, nu: FloatArray) -> float:
+    """``νᵀ S_oo⁻¹ ν`` for the 3×3 block at offset ``o`` (LU with partial pivoting, as
+    LAPACK's ``gesv``); NaN if the block is exactly singular."""
+    a = S[o : o + 3, o : o + 3].copy()
+    z = nu[o : o + 3].copy()
+    for c in range(3):
+        piv = c
+        for i in range(c + 1, 3):
+            if abs(a[i, c]) > abs(a[piv, c]):
+                piv = i
+        if a[piv, c] == 0.0:
+            return math.nan
+        if piv != c:
+            for j in range(3):
+                a[c, j], a[piv, j] = a[piv, j], a[c, j]
+            z[c], z[piv] = z[piv], z[c]
+        for i in range(c + 1, 3):
+            f = a[i, c] / a[c, c]
+            for j in range(c + 1, 3):
+                a[i, j] -= f * a[c, j]
+            z[i] -= f * z[c]
+    for c in range(2, -1, -1):
+        acc = z[c]
+        for j in range(c + 1, 3):
+            acc -= a[c, j] * z[j]
+        z[c] = acc / a[c, c]
+    return nu[o] * z[0] + nu[o + 1] * z[1] + nu[o + 2] * z[2]
+
+
+@njit(cache=True)
+def _cholesky_lower(A: FloatArray) -> bool:
+    """In-place Cholesky ``A = L Lᵀ`` reading the lower triangle (as LAPACK ``potrf('L')``);
+    False if A is not positive definite."""
+    m = A.shape[0]
+    for j in range(m):
+        d = A[j, j]
+        for c in range(j):
+            d -= A[j, c] * A[j, c]
+        if not d > 0.0:
+            return False
+        ljj = math.sqrt(d)
+        A[j, j] = ljj
+        for i in range(j + 1, m):
+            acc = A[i, j]
+            for c in range(j):
+                acc -= A[i, c] * A[j, c]
+            A[i, j] = acc / ljj
+    return True
+
+
+@njit(cache=True)
+def _stacked_rows(Pb: FloatArray, nb: int, H: FloatArray, cols: np.ndarray, U: FloatArray) -> None:
+    """``U = H P[idx, :n]`` (3k, n), with H given as blocks (k, 3, 9) over the columns
+    ``ρ, Λ`` and the landmark's own ``cols[i] … cols[i] + 2`` (cols < 0: known landmark)."""
+    P0, P1, P2, P6, P7, P8 = Pb[0], Pb[1], Pb[2], Pb[6], Pb[7], Pb[8]
+    for i in range(H.shape[0]):
+        c = cols[i]
+        for r in range(3):
+            h = H[i, r]
+            h0, h1, h2, h3, h4, h5 = h[0], h[1], h[2], h[3], h[4], h[5]
+            Ur = U[3 * i + r]
+            # One expression per output row: LLVM vectorises it over j (measured 3.5x faster
+            # than updating three rows in one loop, which defeats its alias analysis).
+            for j in range(nb):
+                Ur[j] = h0 * P0[j] + h1 * P1[j] + h2 * P2[j] + h3 * P6[j] + h4 * P7[j] + h5 * P8[j]
+            if c >= 0:
+                h6, h7, h8 = h[6], h[7], h[8]
+                La, Lb, Lc = Pb[c], Pb[c + 1], Pb[c + 2]
+                for j in range(nb):
+                    Ur[j] = Ur[j] + h6 * La[j] + h7 * Lb[j] + h8 * Lc[j]
+
+
+@njit(cache=True)
+def _subtract_outer(Pb: FloatArray, Wt: FloatArray, nb: int) -> None:
+    """``P[:n, :n] -= W Wᵀ`` (eq. 43) for ``Wt = Wᵀ`` (m, n), exactly symmetric.
+
+    The lower triangle is computed (each ``(W Wᵀ)_ij`` summed over a in order, then
+    subtracted) and mirrored. Two rows of P share every load of ``Wᵀ`` and four terms of the
+    sum are added per pass: measured 2x faster than one row and one term at a time, with
+    bitwise the same result.
+    """
+    m = Wt.shape[0]
+    m4 = m - m % 4
+    acc0 = np.empty(nb)
+    acc1 = np.empty(nb)
+    for i in range(0, nb - 1, 2):  # rows i and i + 1, columns 0 … i + 1
+        acc0[: i + 2] = 0.0
+        acc1[: i + 2] = 0.0
+        for a in range(0, m4, 4):
+            W0, W1, W2, W3 = Wt[a], Wt[a + 1], Wt[a + 2], Wt[a + 3]
+            u0, u1, u2, u3 = W0[i], W1[i], W2[i], W3[i]
+            v0, v1, v2, v3 = W0[i + 1], W1[i + 1], W2[i + 1], W3[i + 1]
+            for j in range(i + 2):
+                e0, e1, e2, e3 = W0[j], W1[j], W2[j], W3[j]
+                acc0[j] = acc0[j] + u0 * e0 + u1 * e1 + u2 * e2 + u3 * e3
+                acc1[j] = acc1[j] + v0 * e0 + v1 * e1 + v2 * e2 + v3 * e3
+        for a in range(m4, m):
+            Wa = Wt[a]
+            u, v = Wa[i], Wa[i + 1]
+            for j in range(i + 2):
+                acc0[j] += u * Wa[j]
+                acc1[j] += v * Wa[j]
+        P0, P1 = Pb[i], Pb[i + 1]
+        for j in range(i + 1):
+            P0[j] -= acc0[j]
+        for j in range(i + 2):
+            P1[j] -= acc1[j]
+    if nb % 2:  # the last row when n is odd
+        i = nb - 1
+        for j in range(nb):
+            acc = 0.0
+            for a in range(m):
+                acc += Wt[a, i] * Wt[a, j]
+            Pb[i, j] -= acc
+    for i in range(nb):
+        for j in range(i):
+            Pb[j, i] = Pb[i, j]
+
+
+@njit(cache=True)
+def _update_mapped(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    lms: FloatArray,
+    cols: np.ndarray,
+    y: FloatArray,
+    r_diag: FloatArray,
+    gate: float,
+    diag: FloatArray,
+    b: int,
+) -> None:
+    """Gated stacked update of one lane with landmarks ``lms`` (k, 3) observed as ``y``."""
+    k = lms.shape[0]
+    h = np.empty((k, 3))
+    H = np.empty((k, 3, 9))
+    predicted_measurements(xb, lms, h, H)
+    nu = np.empty(3 * k)
+    for i in range(k):
+        nu[3 * i] = wrap_residual(y[i, 0] - h[i, 0])
+        nu[3 * i + 1] = wrap_residual(y[i, 1] - h[i, 1])
+        nu[3 * i + 2] = y[i, 2] - h[i, 2]
+    U = np.empty((3 * k, nb))
+    _stacked_rows(Pb, nb, H, cols, U)
+    S = np.empty((3 * k, 3 * k))
+    for a in range(3 * k):
+        Ua = U[a]
+        for i in range(k):
+            c = cols[i]
+            for r in range(3):
+                acc = 0.0
+                for t in range(3):
+                    acc += Ua[t] * H[i, r, t] + Ua[6 + t] * H[i, r, 3 + t]
+                    if c >= 0:
+                        acc += Ua[c + t] * H[i, r, 6 + t]
+                S[a, 3 * i + r] = acc
+        S[a, a] += r_diag[a % 3]
+    # Per-landmark χ² gate on the 3×3 diagonal blocks of S.
+    keep = np.empty(k, dtype=np.bool_)
+    n_keep = 0
+    for i in range(k):
+        nis_i = _solve3_nis(S, 3 * i, nu)
+        if not math.isfinite(nis_i):
+            diag[D_DIVERGED, b] = 1.0
+            return
+        keep[i] = nis_i <= gate
+        n_keep += keep[i]
+    diag[D_N_REJECTED_LAST, b] = k - n_keep
+    diag[D_N_REJECTED, b] += k - n_keep
+    if n_keep == 0:
+        return
+    m = 3 * n_keep
+    idx = np.empty(m, dtype=np.int64)
+    a = 0
+    for i in range(k):
+        if keep[i]:
+            idx[a], idx[a + 1], idx[a + 2] = 3 * i, 3 * i + 1, 3 * i + 2
+            a += 3
+    L = np.empty((m, m))
+    for a in range(m):
+        for c in range(a + 1):
+            L[a, c] = S[idx[a], idx[c]]
+    if not _cholesky_lower(L):
+        diag[D_DIVERGED, b] = 1.0
+        return
+    # Wᵀ = L⁻¹ U and z = L⁻¹ ν by forward substitution, so K = W L⁻¹ and K ν = W z.
+    Wt = np.empty((m, nb))
+    z = np.empty(m)
+    for a in range(m):
+        Wa = Wt[a]
+        Wa[:] = U[idx[a]]
+        za = nu[idx[a]]
+        a4 = a - a % 4
+        # Four rows per pass over Wa (same operation order as one at a time): fewer
+        # loads and stores of Wa per multiply-add.
+        for c in range(0, a4, 4):
+            l0, l1, l2, l3 = L[a, c], L[a, c + 1], L[a, c + 2], L[a, c + 3]
+            W0, W1, W2, W3 = Wt[c], Wt[c + 1], Wt[c + 2], Wt[c + 3]
+            for j in range(nb):
+                Wa[j] = Wa[j] - l0 * W0[j] - l1 * W1[j] - l2 * W2[j] - l3 * W3[j]
+        for c in range(a4, a):
+            lac = L[a, c]
+            Wc = Wt[c]
+            for j in range(nb):
+                Wa[j] -= lac * Wc[j]
+        for c in range(a):
+            za -= L[a, c] * z[c]
+        inv = L[a, a]
+        for j in range(nb):
+            Wa[j] /= inv
+        z[a] = za / inv
+    nis = 0.0
+    for a in range(m):
+        nis += z[a] * z[a]
+    dx = np.zeros(nb)
+    wsq = np.zeros(nb)
+    for a in range(m):
+        Wa = Wt[a]
+        za = z[a]
+        for j in range(nb):
+            dx[j] += Wa[j] * za
+            wsq[j] += Wa[j] * Wa[j]
+    total = 0.0
+    negative = False
+    for j in range(nb):
+        total += dx[j]
+        negative = negative or Pb[j, j] - wsq[j] < _DIAG_FLOOR
+    if not math.isfinite(nis) or not math.isfinite(total) or negative:
+        diag[D_DIVERGED, b] = 1.0
+        return
+    for j in range(nb):
+        xb[j] += dx[j]
+    _subtract_outer(Pb, Wt, nb)
+    xb[6] = wrap_state_angle(xb[6])
+    xb[8] = wrap_state_angle(xb[8])
+    diag[D_NIS, b] = nis
+    diag[D_NIS_DOF, b] = m
+    diag[D_N_UPDATES, b] += 1.0
+
+
+@njit(cache=True)
+def _register(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    y: FloatArray,
+    r_diag: FloatArray,
+) -> bool:
+    """Augment one lane's x and P with the landmarks observed as ``y`` (kn, 3) (eq. 44–53).
+
+    ``l = g(ŝ⁺, y) = ρ + C_NB ϱ(y)``, ``P_ll = G_s P_ss G_sᵀ + G_y R G_yᵀ``,
+    ``P_lx = G_s [P_ss P_sm]`` with ``G_s = [I, 0, ∂g/∂Λ]``. All new landmarks of the scan go
+    in as one block; this equals registering them one at a time (eq. 46–53), since
+    registration leaves ŝ unchanged and the cross-covariance of two new landmarks is
+    ``G_si P_ss G_sjᵀ`` either way. Returns False (nothing written) on a non-finite result.
+    """
+    kn = y.shape[0]
+    C = np.empty((3, 3))
+    dC = np.empty((3, 3, 3))
+    dcm_and_partials(xb[6], xb[7], xb[8], C, dC)
+    lms = np.empty((kn, 3))
+    G_eul = np.empty((kn, 3, 3))
+    G_y = np.empty((kn, 3, 3))
+    Plx = np.empty((3 * kn, nb))  # eq. 50
+    P6, P7, P8 = Pb[6], Pb[7], Pb[8]
+    for i in range(kn):
+        lidar_inverse_model(xb[0:3], C, dC, y[i], lms[i], G_eul[i], G_y[i])
+        for r in range(3):
+            g0, g1, g2 = G_eul[i, r, 0], G_eul[i, r, 1], G_eul[i, r, 2]
+            Pr, row = Pb[r], Plx[3 * i + r]
+            for j in range(nb):
+                row[j] = Pr[j] + (g0 * P6[j] + g1 * P7[j] + g2 * P8[j])
+    ml = 3 * kn
+    Pll = np.empty((ml, ml))
+    for a in range(ml):
+        for i in range(kn):
+            for r in range(3):
+                acc = Plx[a, r]
+                for c in range(3):
+                    acc += Plx[a, 6 + c] * G_eul[i, r, c]
+                Pll[a, 3 * i + r] = acc
+    for i in range(kn):  # + G_y R G_yᵀ on the diagonal blocks (eq. 48)
+        for r in range(3):
+            for t in range(3):
+                acc = 0.0
+                for c in range(3):
+                    acc += (G_y[i, r, c] * r_diag[c]) * G_y[i, t, c]
+                Pll[3 * i + r, 3 * i + t] += acc
+    for a in range(ml):
+        for c in range(a):
+            v = 0.5 * (Pll[a, c] + Pll[c, a])
+            Pll[a, c] = v
+            Pll[c, a] = v
+    if not (np.isfinite(lms).all() and np.isfinite(Pll).all() and np.isfinite(Plx).all()):
+        return False
+    if nb + ml > xb.shape[0]:
+        raise ValueError("EKF-SLAM registration beyond the state capacity")
+    for a in range(ml):
+        Pa, Ra = Pb[nb + a], Plx[a]
+        for j in range(nb):
+            Pa[j] = Ra[j]
+            Pb[j, nb + a] = Ra[j]
+        for c in range(ml):
+            Pa[nb + c] = Pll[a, c]
+    for i in range(kn):
+        for r in range(3):
+            xb[nb + 3 * i + r] = lms[i, r]
+    return True
+
+
+@njit(cache=True)
+def update_lanes(
+    x: FloatArray,
+    P: FloatArray,
+    n: np.ndarray,
+    nv: int,
+    stale: np.ndarray,
+    slot_of_id: np.ndarray,
+    id_of_slot: np.ndarray,
+    mapped: np.ndarray,
+    known: np.ndarray,
+    known_pos: FloatArray,
+    diag: FloatArray,
+    lanes: np.ndarray,
+    visible: np.ndarray,
+    meas: FloatArray,
+    r_diag: FloatArray,
+    gate: float,
+) -> None:
+    """Correct each lane in ``lanes`` with its scan, then register its new landmarks.
+
+    Args:
+        x: (B, nmax) means; P: (B, nmax, nmax) covariances; n: (B,) int state sizes.
+        nv: Vehicle-state size (9, or 13 with biases).
+        stale: (B,) bool, lanes whose columns ``P[nv:n, :nv]`` must be rebuilt first.
+        slot_of_id: (B, Lmax) int, map slot of each landmark id (-1: unmapped).
+        id_of_slot: (B, Lmax) int, landmark id of each map slot.
+        mapped: (B, Lmax) bool, ids mapped (SLAM) or known (known-map lanes).
+        known: (B,) bool, lanes in known-map mode (their unknown ids are ignored).
+        known_pos: (B, Lmax, 3) known landmark positions in N, m.
+        diag: (7, B) diagnostics (rows ``D_*``).
+        lanes: (k,) int, the scanning lanes.
+        visible: (B, L) bool with L ≤ Lmax, returned landmark ids.
+        meas: (B, L, 3) their measurements (α rad, β rad, δ m).
+        r_diag: (3,) measurement noise variances.
+        gate: Per-landmark NIS threshold (inf: no gating).
+    """
+    L = visible.shape[1]
+    for b in lanes:
+        xb, Pb, nb = x[b], P[b], n[b]
+        if stale[b]:
+            sync_lane(Pb, nb, nv)
+            stale[b] = False
+        obs = np.empty(L, dtype=np.int64)
+        new = np.empty(L, dtype=np.int64)
+        k_obs = 0
+        k_new = 0
+        for j in range(L):
+            if visible[b, j]:
+                if mapped[b, j]:
+                    obs[k_obs] = j
+                    k_obs += 1
+                elif not known[b]:
+                    new[k_new] = j
+                    k_new += 1
+        if k_obs:
+            lms = np.empty((k_obs, 3))
+            cols = np.full(k_obs, -1, dtype=np.int64)
+            y = np.empty((k_obs, 3))
+            for i in range(k_obs):
+                j = obs[i]
+                y[i] = meas[b, j]
+                if known[b]:
+                    lms[i] = known_pos[b, j]
+                else:
+                    cols[i] = nv + 3 * slot_of_id[b, j]
+                    lms[i] = xb[cols[i] : cols[i] + 3]
+            _update_mapped(xb, Pb, nb, lms, cols, y, r_diag, gate, diag, b)
+        if k_new:
+            y = np.empty((k_new, 3))
+            for i in range(k_new):
+                y[i] = meas[b, new[i]]
+            if _register(xb, Pb, nb, y, r_diag):
+                nm = (nb - nv) // 3
+                for i in range(k_new):
+                    slot_of_id[b, new[i]] = nm + i
+                    id_of_slot[b, nm + i] = new[i]
+                    mapped[b, new[i]] = True
+                n[b] = nb + 3 * k_new
+                diag[D_N_MAPPED, b] = nm + k_new
+            else:
+                diag[D_DIVERGED, b] = 1.0
+
+
+@njit(cache=True)
+def first_nonfinite_lane(lanes: np.ndarray, visible: np.ndarray, meas: FloatArray) -> int:
+    """The first lane of ``lanes`` with a non-finite visible measurement, or -1."""
+    for b in lanes:
+        for j in range(visible.shape[1]):
+            if visible[b, j]:
+                for r in range(3):
+                    if not math.isfinite(meas[b, j, r]):
+                        return b
+    return -1

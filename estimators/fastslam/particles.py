@@ -1,0 +1,412 @@
+"""Shared particle machinery of the FastSLAM filters (seed 000 §III, Table 2; seed 004 §3).
+
+Particles, per-particle landmark EKFs, log-weights, resampling, the NIS loss-of-lock check and
+the estimate. Subclasses supply the motion model and the IMU step.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+
+from estimators.base import Estimate, check_kwargs
+from estimators.fastslam.landmarks import landmark_ekf_update, landmark_init
+from estimators.fastslam.resampling import (
+    effective_sample_size,
+    normalise_log_weights,
+    systematic_resample,
+)
+from estimators.fastslam.settings import (
+    FLOAT,
+    OWNER,
+    SIGMA_FLOOR,
+    VECTOR,
+    fail,
+    parse_process_noise,
+    positive,
+)
+from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.models.frames import dcm_from_euler, dcm_from_euler_batch, wrap_angle
+from quadslam_env.models.linalg import psd_sqrt, swap
+from quadslam_env.types import MEAS_DIM, POSE_DIM, STATE_DIM, FloatArray
+
+
+def _wrap_euler(x: FloatArray) -> None:
+    """Wrap the Euler angles of states (N, 12) to (-π, π] in place."""
+    x[:, 6:9] = wrap_angle(x[:, 6:9])
+
+
+class FastSLAMBase:
+    """Particles, landmark EKFs, weights, resampling and the estimate (shared machinery).
+
+    Subclasses implement :meth:`_propagate` (motion model) and may override the hooks
+    :meth:`_imu_step`, :meth:`_post_predict`, :meth:`_post_update`, :meth:`_resample_extra`.
+    """
+
+    _COMMON: ClassVar[dict[str, type | tuple[type, ...]]] = {
+        "n_particles": int,
+        "resample_threshold": FLOAT,
+        "process_noise": VECTOR,
+        "integrator": str,
+        "known_map_sigma": FLOAT,
+        "likelihood_inflation": FLOAT,
+        "roughening": FLOAT,
+        "nis_divergence": FLOAT,
+        "nis_divergence_s": FLOAT,
+    }
+    _DEFAULT_NOISE: ClassVar[tuple[float, float, float, float]] = (0.0, 0.0, 0.0, 0.0)
+    _DEFAULT_INFLATION: ClassVar[float] = 1.0
+    _DEFAULT_ROUGHENING: ClassVar[float] = 0.0
+
+    def __init__(self, params: dict[str, Any], extra: dict[str, type | tuple[type, ...]]) -> None:
+        allowed = {**self._COMMON, **extra}
+        check_kwargs(OWNER, params, allowed)
+        self.n_particles = int(params.get("n_particles", 500))
+        if self.n_particles < 1:
+            raise fail("n_particles", self.n_particles, "an int >= 1")
+        self.resample_threshold = float(params.get("resample_threshold", 0.5))
+        if not 0.0 <= self.resample_threshold <= 1.0:
+            raise fail("resample_threshold", params["resample_threshold"], "a number in [0, 1]")
+        self.process_noise = parse_process_noise(
+            "process_noise", params.get("process_noise", self._DEFAULT_NOISE)
+        )
+        self.integrator = params.get("integrator", "rk4")
+        if self.integrator not in ("rk4", "euler"):
+            raise fail("integrator", self.integrator, "'rk4' or 'euler'")
+        self.known_map_sigma = positive("known_map_sigma", params.get("known_map_sigma", 1e-3))
+        self.likelihood_inflation = positive(
+            "likelihood_inflation", params.get("likelihood_inflation", self._DEFAULT_INFLATION)
+        )
+        if self.likelihood_inflation < 1.0:
+            raise fail(
+                "likelihood_inflation", params["likelihood_inflation"], "a finite number >= 1"
+            )
+        self.roughening = positive(
+            "roughening", params.get("roughening", self._DEFAULT_ROUGHENING), strict=False
+        )
+        self.nis_divergence = positive(
+            "nis_divergence", params.get("nis_divergence", 1000.0), strict=False
+        )
+        self.nis_divergence_s = positive(
+            "nis_divergence_s", params.get("nis_divergence_s", 2.0), strict=False
+        )
+        self._rng = np.random.default_rng(0)
+        self._alloc()
+
+    # ---------------------------------------------------------------- state
+    def _alloc(self) -> None:
+        n = self.n_particles
+        self.x = np.zeros((n, STATE_DIM))
+        self.logw = np.full(n, -math.log(n))
+        self.mu = np.zeros((n, 0, 3))
+        self.sigma = np.zeros((n, 0, 3, 3))
+        self._slot: dict[int, int] = {}
+        self._slot_ids: list[int] = []
+        self.n_resamples = 0
+        self.n_divergences = 0
+        self._diverged = False
+        self._nis = math.nan
+        self._nis_dof = 0
+        self._time = 0.0
+        self._nis_high_since: float | None = None
+        self._lost = False
+        self._best_nis = math.nan
+
+    def reset(
+        self,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rng: np.random.Generator,
+        known_landmarks: tuple[np.ndarray, FloatArray] | None = None,
+    ) -> None:
+        """Draw N particles from ``N(mean0, cov0)`` and clear the map.
+
+        Args:
+            mean0: (12,) initial state mean ``(ρ, v_B, Λ, ω)``.
+            cov0: (12, 12) initial covariance (PSD; singular allowed).
+            rng: The only source of randomness of this estimator.
+            known_landmarks: Optional ``(ids (L,), positions (L, 3))``: the landmarks start
+                mapped at these positions with covariance ``known_map_sigma² I`` in every
+                particle (known-map mode); they are still EKF-updated (negligibly).
+
+        Raises:
+            ValueError: On wrong shapes or non-finite values.
+        """
+        mean = np.asarray(mean0, dtype=float)
+        cov = np.asarray(cov0, dtype=float)
+        if mean.shape != (STATE_DIM,) or not np.all(np.isfinite(mean)):
+            raise ValueError(f"reset: mean0 must be a finite (12,) array, got shape {mean.shape}")
+        if cov.shape != (STATE_DIM, STATE_DIM) or not np.all(np.isfinite(cov)):
+            raise ValueError(f"reset: cov0 must be a finite (12, 12) array, got shape {cov.shape}")
+        self._rng = rng
+        self._alloc()
+        n = self.n_particles
+        self.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
+        _wrap_euler(self.x)
+        if known_landmarks is not None:
+            ids = np.asarray(known_landmarks[0]).astype(int).ravel()
+            pts = np.asarray(known_landmarks[1], dtype=float).reshape(-1, 3)
+            if ids.shape[0] != pts.shape[0]:
+                raise ValueError(
+                    f"reset: known_landmarks has {ids.shape[0]} ids but {pts.shape[0]} positions"
+                )
+            self._add_slots(ids)
+            self.mu = np.broadcast_to(pts, (n, *pts.shape)).copy()
+            self.sigma = np.broadcast_to(
+                self.known_map_sigma**2 * np.eye(3), (n, pts.shape[0], 3, 3)
+            ).copy()
+        self._reset_extra()
+
+    def _reset_extra(self) -> None:
+        """Hook: reset subclass state after the particles are drawn."""
+
+    def _add_slots(self, ids: np.ndarray) -> None:
+        for lid in ids.tolist():
+            self._slot[int(lid)] = len(self._slot_ids)
+            self._slot_ids.append(int(lid))
+
+    # ---------------------------------------------------------------- weights
+    @property
+    def weights(self) -> FloatArray:
+        """(N,) normalised weights."""
+        return np.exp(self.logw)
+
+    def _apply_loglik(self, loglik: FloatArray) -> None:
+        """``log w ← log w + log p(z | particle)``, normalised; flags divergence (eq. 28)."""
+        new = self.logw + loglik
+        new[np.isnan(new) | (new == np.inf)] = -np.inf
+        if not np.any(np.isfinite(new)):
+            self._diverged = True
+            self.n_divergences += 1
+            return
+        self.logw = normalise_log_weights(new)
+
+    def _maybe_resample(self) -> None:
+        w = self.weights
+        if effective_sample_size(w) < self.resample_threshold * self.n_particles:
+            self._resample(systematic_resample(w, self._rng))
+
+    def _resample(self, idx: np.ndarray) -> None:
+        """Copy the selected particles (fancy indexing: fresh arrays, no shared views).
+
+        With ``roughening = K > 0`` every copied vehicle state is then jittered (Gordon et al.
+        1993 "roughening", the standard remedy for sample impoverishment after SIR resampling,
+        cf. seed 004 §3 on degeneracy/impoverishment): state j gets ``N(0, σ_j²)`` with
+        ``σ_j = K E_j N^{−1/d}``, ``E_j`` the weighted standard deviation of state j *before*
+        resampling and d = 12. The jitter scales with the current spread, so it re-diversifies
+        the duplicates without adding a fixed noise floor; landmark EKFs are not jittered.
+        """
+        if self.roughening > 0.0:
+            w = self.weights
+            mean = w @ self.x
+            dev = self.x - mean
+            dev[:, 6:9] = wrap_angle(dev[:, 6:9])
+            spread = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
+            scale = self.roughening * spread * self.n_particles ** (-1.0 / STATE_DIM)
+        self.x = self.x[idx]
+        if self.roughening > 0.0:
+            self.x = self.x + self._rng.standard_normal(self.x.shape) * scale
+            _wrap_euler(self.x)
+        self.mu = self.mu[idx]
+        self.sigma = self.sigma[idx]
+        self._resample_extra(idx)
+        self.logw = np.full(self.n_particles, -math.log(self.n_particles))
+        self.n_resamples += 1
+
+    def _resample_extra(self, idx: np.ndarray) -> None:
+        """Hook: resample per-particle subclass arrays."""
+
+    # ---------------------------------------------------------------- predict
+    def predict(self, imu: ImuSample, control: Control, dt: float) -> None:
+        """Table 2 steps 1–4 and 6 for one IMU/control period of ``dt`` s.
+
+        Propagates every particle, runs the subclass IMU step (bias KF and IMU likelihood for
+        the dynamic filter), resamples if the ESS fell below the threshold, then applies the
+        stage-2 hook.
+        """
+        dt = float(dt)
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"predict: dt must be a finite number > 0, got {dt!r}")
+        self._diverged = self._lost
+        self._time += dt
+        self._nis = math.nan
+        self._nis_dof = 0
+        x_old = self.x
+        x_new = self._propagate(imu, control, dt)
+        noise = self.process_noise * math.sqrt(dt)
+        x_new += self._rng.standard_normal(x_new.shape) * noise
+        _wrap_euler(x_new)
+        bad = ~np.all(np.isfinite(x_new), axis=1)
+        penalty = None
+        if np.any(bad):
+            if np.all(bad):
+                self._diverged = True
+                self.n_divergences += 1
+                return
+            x_new[bad] = x_old[bad]
+            penalty = np.where(bad, -np.inf, 0.0)
+        self.x = x_new
+        loglik = self._imu_step(imu, control, dt)
+        if penalty is not None:
+            loglik = penalty if loglik is None else loglik + penalty
+        if loglik is not None:
+            self._apply_loglik(loglik)
+        self._maybe_resample()
+        self._post_predict(imu)
+
+    def _propagate(self, imu: ImuSample, control: Control, dt: float) -> FloatArray:
+        """Motion model without process noise: (N, 12) new states (a fresh array)."""
+        raise NotImplementedError
+
+    def _imu_step(self, imu: ImuSample, control: Control, dt: float) -> FloatArray | None:
+        """Hook: IMU log-likelihood (N,) after propagation, or ``None`` for no weighting."""
+        return None
+
+    def _post_predict(self, imu: ImuSample) -> None:
+        """Hook run after resampling in :meth:`predict` (stage 2)."""
+
+    # ---------------------------------------------------------------- update
+    def update(self, scan: LidarScan) -> None:
+        """Weight with the LiDAR likelihood, update/initialise landmark EKFs, resample.
+
+        Table 2 steps 3, 5, 6 (and the stage-2 hook) for one scan; an empty scan is a no-op.
+        """
+        if scan.count == 0:
+            return
+        scan_ids = np.asarray(scan.ids).astype(int).ravel()
+        meas = np.asarray(scan.meas, dtype=float).reshape(-1, 3)
+        if np.unique(scan_ids).size != scan_ids.size:  # repeated id: keep its first return
+            _, first = np.unique(scan_ids, return_index=True)
+            scan_ids, meas = scan_ids[first], meas[first]
+        sig = np.maximum(np.asarray(scan.sigma, dtype=float).reshape(3), SIGMA_FLOOR)
+        R = np.diag(sig * sig)
+        slots = np.array([self._slot.get(i, -1) for i in scan_ids.tolist()])
+        old = slots >= 0
+        pos = self.x[:, 0:3]
+        dcm = dcm_from_euler_batch(self.x[:, 6:9])
+        idx = slots[old]
+        if idx.size:
+            mu_new, sig_new, loglik, nis = landmark_ekf_update(
+                self.mu[:, idx],
+                self.sigma[:, idx],
+                pos[:, None, :],
+                dcm[:, None],
+                meas[old][None],
+                R,
+            )
+            ok = np.isfinite(loglik)
+            if not np.all(ok):  # keep the prior of any landmark whose update broke down
+                mu_new = np.where(ok[..., None], mu_new, self.mu[:, idx])
+                sig_new = np.where(ok[..., None, None], sig_new, self.sigma[:, idx])
+            self.mu[:, idx] = mu_new
+            self.sigma[:, idx] = sig_new
+            self._nis = float(self.weights @ nis.sum(axis=1))
+            self._nis_dof = MEAS_DIM * int(idx.size)
+            self._check_lock(nis.sum(axis=1) / self._nis_dof)
+            # Tempering (likelihood inflation λ): the weights use p(z | x)^{1/λ}, i.e. the
+            # Gaussian with covariance λ·S up to a particle-independent constant; the EKFs
+            # above use the true R.
+            self._apply_loglik(loglik.sum(axis=1) / self.likelihood_inflation)
+        if not np.all(old):
+            new_ids = scan_ids[~old]
+            mu0, sig0 = landmark_init(pos, dcm, meas[~old], R)
+            self.mu = np.concatenate([self.mu, mu0], axis=1)
+            self.sigma = np.concatenate([self.sigma, sig0], axis=1)
+            self._add_slots(new_ids)
+        self._maybe_resample()
+        if idx.size:
+            self._post_update(idx, meas[old], R)
+
+    def _post_update(self, idx: np.ndarray, meas: FloatArray, R: FloatArray) -> None:
+        """Hook run after resampling in :meth:`update` with the mapped observations."""
+
+    def _check_lock(self, nis_per_dof: FloatArray) -> None:
+        """NIS-based loss-of-lock flag (sticky until :meth:`reset`).
+
+        ``nis_per_dof`` (N,) is each particle's LiDAR NIS per degree of freedom. The mean over
+        the best 10 % of particles (lowest NIS) is ≈ 1 while the filter is locked; if it stays
+        above ``nis_divergence`` for ``nis_divergence_s`` seconds of filter time no particle
+        explains the scans any more (the weights are then only relative and the estimate is
+        silently wrong), so ``diagnostics["diverged"]`` is set. ``nis_divergence = 0`` disables
+        the check.
+        """
+        k = max(1, self.n_particles // 10)
+        best = float(np.mean(np.partition(nis_per_dof, k - 1)[:k]))
+        self._best_nis = best
+        if self.nis_divergence <= 0.0:
+            return
+        if not best > self.nis_divergence:  # also catches NaN as "not high"
+            self._nis_high_since = None
+            return
+        if self._nis_high_since is None:
+            self._nis_high_since = self._time
+        if self._time - self._nis_high_since >= self.nis_divergence_s:
+            if not self._lost:
+                self.n_divergences += 1
+            self._lost = True
+            self._diverged = True
+
+    # ---------------------------------------------------------------- estimate
+    def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
+        return None, None
+
+    def _extra_diagnostics(self) -> dict[str, float]:
+        """Hook: subclass diagnostics added to :attr:`Estimate.diagnostics`."""
+        return {}
+
+    def estimate(self) -> Estimate:
+        """Weighted particle mean and covariance, and the mixture map (frozen snapshot).
+
+        Euler angles use the weighted circular mean; the (9, 9) pose covariance of
+        ``(ρ, v_B, Λ)`` uses wrapped angle deviations. Landmark covariances are the mixture
+        covariances ``Σ_i w_i (Σ^i + (μ^i − μ̄)(μ^i − μ̄)ᵀ)``.
+        """
+        w = self.weights
+        x = self.x
+        mean = w @ x
+        euler = np.arctan2(w @ np.sin(x[:, 6:9]), w @ np.cos(x[:, 6:9]))
+        mean[6:9] = euler
+        dev = x[:, :POSE_DIM] - mean[:POSE_DIM]
+        dev[:, 6:9] = wrap_angle(dev[:, 6:9])
+        pose_cov = (dev * w[:, None]).T @ dev
+        pose_cov = 0.5 * (pose_cov + pose_cov.T)
+        n_lm = len(self._slot_ids)
+        ids = np.array(self._slot_ids, dtype=int)
+        order = np.argsort(ids, kind="stable")
+        if n_lm:
+            n = self.n_particles
+            lm_mean = (w @ self.mu.reshape(n, -1)).reshape(n_lm, 3)
+            lm_cov = (w @ self.sigma.reshape(n, -1)).reshape(n_lm, 3, 3)
+            d = (self.mu - lm_mean) * np.sqrt(w)[:, None, None]  # (N, L, 3)
+            dt = np.ascontiguousarray(d.transpose(1, 2, 0))  # (L, 3, N)
+            lm_cov = lm_cov + dt @ swap(dt)
+            lm_mean, lm_cov = lm_mean[order], lm_cov[order]
+        else:
+            lm_mean, lm_cov = np.zeros((0, 3)), np.zeros((0, 3, 3))
+        accel_bias, gyro_bias = self._bias_estimate(w)
+        diagnostics = {
+            "ess": effective_sample_size(w),
+            "n_resamples": float(self.n_resamples),
+            "nis": self._nis,
+            "nis_dof": float(self._nis_dof),
+            "diverged": 1.0 if (self._diverged or self._lost) else 0.0,
+            "best_nis_per_dof": self._best_nis,
+            "n_divergences": float(self.n_divergences),
+            **self._extra_diagnostics(),
+        }
+        return Estimate(
+            position=mean[0:3].copy(),
+            vel_body=mean[3:6].copy(),
+            vel_inertial=dcm_from_euler(euler) @ mean[3:6],
+            euler=euler.copy(),
+            rates=mean[9:12].copy(),
+            pose_cov=pose_cov,
+            landmark_ids=ids[order],
+            landmark_means=lm_mean,
+            landmark_covs=lm_cov,
+            accel_bias=accel_bias,
+            gyro_bias=gyro_bias,
+            diagnostics=diagnostics,
+        )

@@ -1,0 +1,89 @@
+"""Actions: validation and the map from normalised actions to thrust and torque (DESIGN.md §4).
+
+``thrust_torque`` maps ``a0`` to thrust in ``[0, max_thrust]`` and ``a1..a3`` to
+``±max_torque``; ``thrust_rates`` maps ``a1..a3`` to body-rate commands ``±max_rate`` tracked by
+an inner P loop ``τ = J K (ω_cmd - ω̂)`` on the estimate's rates (the gyro minus the estimated
+bias for EKF-SLAM). Works on B lanes at once.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from quadslam_env.config import ActionConfig
+from quadslam_env.models.dynamics import VehicleParams
+from quadslam_env.models.rotations import FloatArray
+
+ACTION_DIM = 4
+
+
+class ActionError(ValueError):
+    """An action of the wrong shape, type or with non-finite entries."""
+
+
+def validate_actions(action: Any, num_lanes: int | None) -> FloatArray:
+    """Check and clip an action to [-1, 1].
+
+    Args:
+        action: The action: shape (4,) for the scalar env (``num_lanes=None``), (B, 4) for a
+            vector env of ``num_lanes`` lanes.
+        num_lanes: B, or ``None`` for a single action.
+
+    Returns:
+        (B, 4) float actions clipped to [-1, 1] (B = 1 for a single action).
+
+    Raises:
+        ActionError: Wrong type or shape, or non-finite entries (naming the lanes).
+    """
+    single = num_lanes is None
+    name = "action" if single else "actions"
+    want = (ACTION_DIM,) if single else (num_lanes, ACTION_DIM)
+    allowed = "4 finite numbers in [-1, 1]" if single else f"shape {want}, finite, in [-1, 1]"
+    try:
+        arr = np.asarray(action)
+        if arr.dtype.kind in "cmM":  # complex, timedelta, datetime: not real numbers
+            raise TypeError(f"dtype {arr.dtype}")
+        arr = arr.astype(float, copy=False)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise ActionError(f"{name}: got {action!r}; allowed: {allowed}") from exc
+    if arr.shape != want:
+        raise ActionError(f"{name}: got shape {arr.shape}; allowed: shape {want} in [-1, 1]")
+    finite = np.isfinite(arr)
+    if not finite.all():
+        if single:
+            raise ActionError(f"action: got non-finite values {arr.tolist()}; allowed: {allowed}")
+        lanes = np.flatnonzero(~finite.all(axis=1)).tolist()
+        raise ActionError(
+            f"actions: non-finite values in lane(s) {lanes}; allowed: {allowed}; no lane was "
+            "stepped"
+        )
+    return np.clip(arr.reshape(-1, ACTION_DIM), -1.0, 1.0)
+
+
+class ActionMap:
+    """Normalised actions → physical inputs for one vehicle and action mode.
+
+    Args:
+        cfg: Action settings (mode, rate limits and inner-loop gains).
+        params: Vehicle parameters (thrust and torque limits, inertia).
+    """
+
+    def __init__(self, cfg: ActionConfig, params: VehicleParams) -> None:
+        self.mode = cfg.mode
+        self.params = params
+        self.max_rate = np.radians(cfg.max_rate_dps)
+        self.rate_gain = np.array(cfg.rate_gain_per_s)
+        self.hover_action = np.array(
+            [2.0 * params.hover_thrust / params.max_thrust - 1.0, 0.0, 0.0, 0.0]
+        )
+
+    def inputs(self, action: FloatArray, rates_hat: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Thrust (B,) N and torque (B, 3) N·m for actions (B, 4) and estimated rates (B, 3)."""
+        p = self.params
+        thrust = 0.5 * (action[:, 0] + 1.0) * p.max_thrust
+        if self.mode == "thrust_torque":
+            return thrust, action[:, 1:] * p.max_torque
+        rates_cmd = action[:, 1:] * self.max_rate
+        return thrust, (self.rate_gain * (rates_cmd - rates_hat)) @ p.inertia.T

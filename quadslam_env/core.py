@@ -1,0 +1,361 @@
+"""The batched simulation: B quadcopter episodes ("lanes") stepped in lockstep (DESIGN.md §9).
+
+:class:`SimCore` owns every lane's true vehicle, IMU, LiDAR, landmark map, reference and the
+estimator of all lanes, as arrays with a leading batch axis. It is the only place that
+sequences a step; the scalar :class:`~quadslam_env.env.QuadSLAMEnv` is its one-lane case and
+:class:`~quadslam_env.vector_env.QuadSLAMVectorEnv` the B-lane case, so lane i of a vector env
+seeded with s + i is the scalar env seeded with s + i.
+
+Randomness: each lane has its own generator (the scalar env's ``np_random``), which spawns five
+children at every reset — landmarks, IMU, LiDAR, estimator, initial estimation error — exactly
+as the scalar env always has.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from estimators.batch import BatchEstimate, health_problems, make_batch
+from estimators.metrics import EpisodeMetrics, step_metrics
+from quadslam_env.actions import ActionMap
+from quadslam_env.config import ConfigError, LandmarksConfig, ScenarioConfig
+from quadslam_env.models.rotations import FloatArray, dcm_from_euler_batch, wrap_angle
+from quadslam_env.observation import ObservationBuilder
+from quadslam_env.reward import reward_terms, tilt_angle
+from quadslam_env.sensors import ImuBatch, LidarBatch
+from quadslam_env.trajectories import FlatOutputs, Trajectory
+from quadslam_env.vehicle import VehicleBatch
+from quadslam_env.world import make_landmarks
+
+RESET_OPTIONS = ("initial_state", "landmarks")
+STATE_DIM = 12
+
+
+def landmark_capacity(cfg: LandmarksConfig) -> int:
+    """Number of landmarks the layout makes (the map's size bound Lmax)."""
+    if cfg.layout == "rauniyar2023":
+        return cfg.count
+    if cfg.layout == "poles4":
+        return 4
+    return len(cfg.positions)
+
+
+def parse_reset_options(options: dict[str, Any] | None) -> dict[str, FloatArray]:
+    """Validate ``reset`` options: ``initial_state`` (12,), ``landmarks`` (L, 3).
+
+    Raises:
+        ConfigError: Not a dict, an unknown key, or a value of the wrong shape or range.
+    """
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise ConfigError(
+            f"reset options: got {options!r}; allowed: a dict with keys {list(RESET_OPTIONS)}"
+        )
+    out: dict[str, FloatArray] = {}
+    for key, value in options.items():
+        if key not in RESET_OPTIONS:
+            raise ConfigError(f"reset options.{key}: unknown key; allowed: {list(RESET_OPTIONS)}")
+        arr = _as_float_array(value)
+        if key == "initial_state":
+            if arr is None or arr.shape != (STATE_DIM,) or not np.all(np.isfinite(arr)):
+                raise ConfigError(
+                    f"reset options.initial_state: got {value!r}; allowed: 12 "
+                    "finite numbers (ρ [m], v_B [m/s], Λ [rad], ω [rad/s])"
+                )
+            if abs(arr[7]) >= math.radians(89.0):
+                raise ConfigError(
+                    f"reset options.initial_state[7] (pitch): got {arr[7]}; allowed: |θ| < 89°"
+                )
+        if key == "landmarks" and (
+            arr is None
+            or arr.ndim != 2
+            or arr.shape[1] != 3
+            or arr.shape[0] == 0
+            or not np.all(np.isfinite(arr))
+        ):
+            raise ConfigError(
+                f"reset options.landmarks: got {value!r}; allowed: a non-empty "
+                "(L, 3) list of finite NED positions in m"
+            )
+        out[key] = arr  # type: ignore[assignment]
+    return out
+
+
+def _as_float_array(value: Any) -> FloatArray | None:
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+
+
+class SimCore:
+    """B lanes of the quadcopter-with-estimator simulation.
+
+    Args:
+        scenario: The validated scenario (every lane runs the same one).
+        num_lanes: B ≥ 1.
+
+    Attributes:
+        steps: (B,) control steps since each lane's reset.
+        t: (B,) lane times in s.
+        landmarks: (B, Lmax, 3) true landmark positions (NED, m); lane i uses the first
+            ``n_landmarks[i]`` rows, whose ids are their row indices.
+        est: The estimator's belief after the last reset or step.
+    """
+
+    def __init__(self, scenario: ScenarioConfig, num_lanes: int) -> None:
+        cfg = scenario
+        b = int(num_lanes)
+        self.scenario = cfg
+        self.num_lanes = b
+        self.dt = 1.0 / cfg.episode.control_hz
+        self.max_steps = cfg.max_steps
+        self.vehicle_params = cfg.vehicle.params()
+        self.vehicle = VehicleBatch(self.vehicle_params, cfg.vehicle.physics_dt_s, b)
+        self.imu = ImuBatch(cfg.imu, self.vehicle_params, cfg.episode.control_hz, b)
+        self.lidar = LidarBatch(cfg.lidar, b)
+        self.trajectory = Trajectory(cfg.trajectory)
+        capacity = landmark_capacity(cfg.landmarks)
+        self.landmarks = np.zeros((b, capacity, 3))
+        self.n_landmarks = np.zeros(b, dtype=np.int64)
+        self.estimator = make_batch(
+            cfg.estimator.name, b, capacity, vehicle=self.vehicle_params, **cfg.estimator.params
+        )
+        self.action_map = ActionMap(cfg.action, self.vehicle_params)
+        self.observer = ObservationBuilder(cfg.observation, self.trajectory)
+        self.steps = np.zeros(b, dtype=np.int64)
+        self.t = np.zeros(b)
+        self.n_visible = np.zeros(b, dtype=np.int64)
+        self.episode = EpisodeMetrics(b)
+        self._nees_run = np.zeros(b, dtype=np.int64)
+        self._nees_window = max(1, round(cfg.episode.nees_window_s / self.dt))
+        self._cov0 = np.diag(cfg.estimator.initial_cov_diag)
+        self._state0 = np.concatenate(
+            [
+                cfg.episode.initial_position,
+                cfg.episode.initial_velocity,
+                np.radians(cfg.episode.initial_euler_deg),
+                np.zeros(3),
+            ]
+        )
+        self.est: BatchEstimate = self._snapshot()
+
+    # ------------------------------------------------------------------ reset
+    def reset_lanes(
+        self,
+        lanes: Sequence[int] | np.ndarray,
+        rngs: Sequence[np.random.Generator],
+        options: dict[str, FloatArray] | None = None,
+    ) -> tuple[np.ndarray, dict[str, FloatArray]]:
+        """Start new episodes in ``lanes`` (k,).
+
+        Args:
+            lanes: Lane indices.
+            rngs: Each lane's generator (k,); five children are spawned from it.
+            options: Parsed options (:func:`parse_reset_options`) applied to every lane.
+
+        Returns:
+            ``(obs (k, n) float32, info)`` with info values (k,) (NaN where a term does not
+            apply).
+        """
+        cfg = self.scenario
+        opts = options or {}
+        lanes = np.asarray(lanes, dtype=np.int64)
+        k = lanes.shape[0]
+        children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
+        states0 = np.empty((k, STATE_DIM))
+        mean0 = np.empty((k, STATE_DIM))
+        sigma0 = np.sqrt(np.diag(self._cov0))
+        for j, lane in enumerate(lanes.tolist()):
+            rng_world, rng_init = children[j][0], children[j][4]
+            if "landmarks" in opts:
+                points = opts["landmarks"]
+            else:
+                points = make_landmarks(cfg.landmarks, self.trajectory.center, rng_world)[1]
+            self._set_landmarks(lane, points)
+            states0[j] = opts.get("initial_state", self._state0)
+            mean0[j] = states0[j]
+            if cfg.estimator.sample_initial_error:
+                mean0[j] += sigma0 * rng_init.standard_normal(STATE_DIM)
+        mean0[:, 6:9] = wrap_angle(mean0[:, 6:9])
+        self.vehicle.reset(lanes, states0)
+        self.imu.reset(lanes, [c[1] for c in children])
+        self.lidar.reset(lanes, [c[2] for c in children])
+        known = None
+        if cfg.estimator.known_map:
+            known = [
+                (np.arange(self.n_landmarks[i]), self.landmarks[i, : self.n_landmarks[i]].copy())
+                for i in lanes.tolist()
+            ]
+        cov0 = np.broadcast_to(self._cov0, (k, STATE_DIM, STATE_DIM)).copy()
+        self.estimator.reset_lanes(lanes, mean0, cov0, [c[3] for c in children], known)
+        self.steps[lanes] = 0
+        self.t[lanes] = 0.0
+        self.n_visible[lanes] = 0
+        self._nees_run[lanes] = 0
+        self.episode.reset(lanes)
+        est = self._snapshot()
+        ref = self.trajectory.batch(self.t)
+        dcm = dcm_from_euler_batch(self.vehicle.state[:, 6:9])
+        info = self._metrics(est, ref, dcm)
+        obs = self.observer.build(est, ref, self.t, self.n_visible)
+        return obs[lanes], {key: value[lanes] for key, value in info.items()}
+
+    def _set_landmarks(self, lane: int, points: FloatArray) -> None:
+        n = points.shape[0]
+        if n > self.landmarks.shape[1]:  # a reset option brought a larger map
+            grown = np.zeros((self.num_lanes, n, 3))
+            grown[:, : self.landmarks.shape[1]] = self.landmarks
+            self.landmarks = grown
+        self.landmarks[lane, :n] = points
+        self.landmarks[lane, n:] = 0.0
+        self.n_landmarks[lane] = n
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self, action: FloatArray, active: np.ndarray | None = None
+    ) -> tuple[np.ndarray, FloatArray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Advance the ``active`` lanes by one control period (``dt`` s).
+
+        Args:
+            action: (B, 4) validated actions in [-1, 1] (rows of inactive lanes are ignored).
+            active: (B,) bool, lanes to advance (default: all). Inactive lanes keep their
+                state; their outputs are meaningless.
+
+        Returns:
+            ``(obs (B, n) float32, reward (B,), terminated (B,), truncated (B,), info)``; info
+            maps each term to a (B,) float array (NaN where it does not apply, episode
+            summaries only in lanes that ended) and ``termination_reason`` to a list of B
+            strings (empty where the lane did not fail).
+        """
+        b = self.num_lanes
+        act = action if active is None else np.where(active[:, None], action, 0.0)
+        active = np.ones(b, dtype=bool) if active is None else active
+        thrust, torque = self.action_map.inputs(act, self.est.rates)
+        vehicle = self.vehicle
+        mean_rates = vehicle.step(thrust, torque, self.dt, active)
+        self.steps += active
+        self.t = self.steps * self.dt
+        state = vehicle.state
+        dcm = dcm_from_euler_batch(state[:, 6:9])
+        accel, gyro = self.imu.sample(
+            self.t, state[:, 3:6], mean_rates, vehicle.applied_thrust, active
+        )
+        scanning = np.flatnonzero(active & (self.steps % self.scenario.lidar_every == 0))
+        if scanning.size:
+            visible, meas = self.lidar.scan(
+                state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning
+            )
+            self.n_visible[scanning] = visible[scanning].sum(axis=1)
+        tic = time.perf_counter()
+        imu = self.imu
+        self.estimator.predict(
+            self.t,
+            accel,
+            gyro,
+            imu.accel_sigma,
+            imu.gyro_sigma,
+            vehicle.applied_thrust,
+            vehicle.applied_torque,
+            self.dt,
+            active,
+        )
+        if scanning.size:
+            self.estimator.update(self.t, scanning, visible, meas, self.lidar.sigma)
+        est = self._snapshot()
+        step_ms = 1e3 * (time.perf_counter() - tic) / max(1, int(active.sum()))
+        ref = self.trajectory.batch(self.t)
+        info: dict[str, Any] = self._metrics(est, ref, dcm)
+        if self.scenario.episode.report_step_time:
+            info["est_step_time_ms"] = np.full(b, step_ms)
+        reasons = self._termination_reasons(est, info, active)
+        terminated = np.array([r != "" for r in reasons]) & active
+        truncated = ~terminated & (self.steps >= self.max_steps) & active
+        terms = reward_terms(
+            self.scenario.reward,
+            state[:, 0:3],
+            np.einsum("bij,bj->bi", dcm, state[:, 3:6]),
+            state[:, 8],
+            ref,
+            act,
+            self.action_map.hover_action,
+            terminated,
+        )
+        info.update(terms)
+        reward = sum(terms.values())
+        self.episode.add(info, active)
+        done = terminated | truncated
+        if done.any():
+            for key, value in self.episode.summary().items():
+                info[key] = np.where(done, value, math.nan)
+        info["termination_reason"] = reasons
+        obs = self.observer.build(est, ref, self.t, self.n_visible)
+        return obs, reward, terminated, truncated, info  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ helpers
+    def _snapshot(self) -> BatchEstimate:
+        if self.estimator.uses_truth:
+            self.estimator.set_truth(  # type: ignore[attr-defined]
+                self.vehicle.state, self.landmarks, self.n_landmarks
+            )
+        self.est = self.estimator.estimate()
+        return self.est
+
+    def reference(self, lanes: Sequence[int] | None = None) -> FlatOutputs:
+        """Reference of every lane (or of ``lanes``) at its current time."""
+        t = self.t if lanes is None else self.t[np.asarray(lanes)]
+        return self.trajectory.batch(t)
+
+    def _metrics(self, est: BatchEstimate, ref: FlatOutputs, dcm: FloatArray) -> dict[str, Any]:
+        state = self.vehicle.state
+        nan = np.full(self.num_lanes, math.nan)
+        info: dict[str, Any] = step_metrics(state, dcm, est, self.landmarks, self.imu.total_bias)
+        # Copies: the estimator reuses its buffers, and an info dict must outlive the step.
+        info["est_nis"] = np.array(est.diagnostics.get("nis", nan))
+        info["est_ess"] = np.array(est.diagnostics.get("ess", nan))
+        info["est_n_visible"] = self.n_visible.astype(float)
+        dp = state[:, 0:3] - ref.pos
+        info["track_pos_err_m"] = np.sqrt(np.einsum("ij,ij->i", dp, dp))
+        info["t"] = self.t.copy()
+        return info
+
+    def _termination_reasons(
+        self, est: BatchEstimate, info: dict[str, Any], active: np.ndarray
+    ) -> list[str]:
+        """Why each active lane's episode ends now (``""`` if it goes on); DESIGN.md §4."""
+        ep = self.scenario.episode
+        state = self.vehicle.state
+        problems = health_problems(est)
+        nees = info["est_nees_pose"]
+        limit = ep.nees_threshold
+        over = active & (nees > limit) if limit is not None else np.zeros_like(active)
+        self._nees_run = np.where(active, np.where(over, self._nees_run + 1, 0), self._nees_run)
+        with np.errstate(invalid="ignore"):
+            checks = (
+                (~np.isfinite(state).all(axis=1), "vehicle_state_non_finite"),
+                (tilt_angle(state[:, 6:9]) > math.radians(ep.max_tilt_deg), "tilt_limit"),
+                (info["track_pos_err_m"] > ep.max_pos_err_m, "position_error_limit"),
+                (
+                    state[:, 2] > ep.ground_z_m
+                    if ep.ground_z_m is not None
+                    else np.zeros(self.num_lanes, dtype=bool),
+                    "ground_contact",
+                ),
+            )
+        reasons = [""] * self.num_lanes
+        for lane in np.flatnonzero(active).tolist():
+            reason = next((name for flag, name in checks if flag[lane]), "")
+            if not reason and problems[lane]:
+                reason = f"estimator_diverged: {problems[lane]}"
+            if not reason and nees[lane] == math.inf:
+                reason = "estimator_diverged: pose covariance not positive semi-definite"
+            if not reason and self._nees_run[lane] >= self._nees_window:
+                reason = "estimator_diverged: NEES above threshold"
+            reasons[lane] = reason
+        return reasons

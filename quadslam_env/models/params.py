@@ -1,0 +1,89 @@
+"""Vehicle parameters and presets (DESIGN.md §3; seed 001 Table 1, seed 000 §IV)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quadslam_env.types import GRAVITY, FloatArray
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Physical parameters of a quadcopter.
+
+    Attributes:
+        name: Preset name or ``"custom"``.
+        mass: Mass m in kg.
+        inertia: (3, 3) inertia matrix J in kg·m² (body frame).
+        max_thrust: Upper thrust limit in N (the lower limit is 0).
+        max_torque: (3,) symmetric torque limits in N·m per body axis.
+        drag: Linear drag coefficient in 1/s (``v̇ += -drag · v``); 0 disables it.
+        actuator_tau: First-order actuator time constant in s; 0 disables the lag.
+        inertia_inv: (3, 3) ``J⁻¹`` in 1/(kg·m²), derived.
+    """
+
+    name: str
+    mass: float
+    inertia: FloatArray
+    max_thrust: float
+    max_torque: FloatArray
+    drag: float = 0.0
+    actuator_tau: float = 0.0
+    inertia_inv: FloatArray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        inertia = np.array(self.inertia, dtype=float).reshape(3, 3)
+        inertia.setflags(write=False)
+        torque = np.array(self.max_torque, dtype=float).reshape(3)
+        torque.setflags(write=False)
+        inv = np.linalg.inv(inertia)
+        inv.setflags(write=False)
+        object.__setattr__(self, "inertia", inertia)
+        object.__setattr__(self, "max_torque", torque)
+        object.__setattr__(self, "inertia_inv", inv)
+
+    @property
+    def hover_thrust(self) -> float:
+        """Thrust that balances gravity, ``m g`` in N."""
+        return self.mass * GRAVITY
+
+
+def _preset(
+    name: str,
+    mass: float,
+    inertia_diag: tuple[float, float, float],
+    torque: float,
+    yaw_torque: float,
+) -> VehicleParams:
+    # Thrust limit 2.5 m g: a typical thrust-to-weight ratio for research quadcopters.
+    return VehicleParams(
+        name=name,
+        mass=mass,
+        inertia=np.diag(inertia_diag),
+        max_thrust=2.5 * mass * GRAVITY,
+        max_torque=np.array([torque, torque, yaw_torque]),
+    )
+
+
+VEHICLE_PRESETS: dict[str, VehicleParams] = {
+    # Seed 001 Table 1. Torque limits: ~0.25 m arm with a quarter of the thrust margin.
+    "rauniyar2023": _preset("rauniyar2023", 1.56, (0.1147, 0.0576, 0.1712), 2.0, 1.0),
+    # Seed 000 §IV (Hector quadrotor): smaller inertia, so smaller torque limits.
+    "sadeghzadeh2021": _preset("sadeghzadeh2021", 1.477, (0.01152, 0.01152, 0.0218), 0.5, 0.25),
+}
+
+
+def vehicle_preset(name: str) -> VehicleParams:
+    """Return the vehicle preset ``name`` (``rauniyar2023`` or ``sadeghzadeh2021``).
+
+    Raises:
+        ValueError: If the name is unknown; the message lists the allowed names.
+    """
+    try:
+        return VEHICLE_PRESETS[name]
+    except KeyError:
+        raise ValueError(
+            f"vehicle.preset: unknown preset {name!r}; allowed: {sorted(VEHICLE_PRESETS)}"
+        ) from None

@@ -1,0 +1,268 @@
+"""Rigid-body quadcopter dynamics (seed 001 eq. 2–3) as numba kernels on one vehicle.
+
+State vector (12,), DESIGN.md §2: ``x = (ρ, v, Λ, ω)`` with
+    ρ  position of the centre of mass in N (NED), m;
+    v  velocity expressed in B (FRD), m/s;
+    Λ  3-2-1 Euler angles (φ, θ, ψ), rad;
+    ω  body rates (p, q, r) in B, rad/s.
+Inputs: collective thrust ``f_T`` (N, along -b3) and body torque ``τ`` (N·m).
+
+Each equation is one ``@njit(cache=True)`` kernel on one vehicle; the lane kernels of
+:mod:`quadslam_env.models.integrators` loop them over a leading batch axis B — vehicles of a
+vector env or particles of FastSLAM — so the simulator and the filters integrate the same
+code. No ``fastmath``: results are reproducible bit for bit.
+
+The kernels take the input as one vector ``u = (f_T, τ, a)`` with an extra body-frame specific
+force ``a`` (m/s²), the parameters as one vector (:func:`pack_bodies`), and a ``hold_rates``
+flag: with ``f_T = 0``, ``drag = 0``, ``a = a_m`` and ``ω̇ = 0`` the same kinematics are the
+IMU strapdown model of seed 000's kinematic FastSLAM (§IV-B), so it needs no copy of them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from quadslam_env.models.frames import dcm_from_trig, euler_rates_from_trig
+from quadslam_env.models.jit import kernel
+from quadslam_env.models.params import VehicleParams
+from quadslam_env.types import GRAVITY, STATE_DIM, FloatArray
+
+Vec3 = tuple[float, float, float]
+
+INPUT_DIM = 7
+"""Input vector ``u = (f_T [N], τ [N·m] (3), a [m/s²] (3))`` of the kernels, B frame."""
+
+BODY_DIM = 20
+"""Body parameter vector ``(m [kg], drag [1/s], J (9), J⁻¹ (9))``, matrices row-major."""
+
+
+@kernel
+def substep_count(duration: float, max_step: float) -> int:
+    """Number of equal RK4 substeps no longer than ``max_step`` s covering ``duration`` s.
+
+    The ``1e-9`` guard keeps e.g. ``0.01 / 0.002`` at 5 substeps despite round-off.
+    """
+    return max(1, math.ceil(duration / max_step - 1e-9))
+
+
+@kernel
+def saturate(
+    thrust: float, tau: Vec3, max_thrust: float, max_torque: FloatArray
+) -> tuple[float, Vec3]:
+    """Clip thrust to ``[0, max_thrust]`` N and torque component i to ``±max_torque[i]`` N·m."""
+    return min(max(thrust, 0.0), max_thrust), (
+        min(max(tau[0], -max_torque[0]), max_torque[0]),
+        min(max(tau[1], -max_torque[1]), max_torque[1]),
+        min(max(tau[2], -max_torque[2]), max_torque[2]),
+    )
+
+
+@kernel
+def specific_force_body(
+    u: float, v: float, w: float, thrust: float, mass: float, drag: float
+) -> Vec3:
+    """Specific force ``f_B = C_NBᵀ(ρ̈ − g n3) = −(f_T/m) b3 − drag · v`` in m/s² (B frame).
+
+    From eq. 2, ``C_NBᵀ ρ̈ = v̇ + ω×v``; this is what an accelerometer senses (seed 000 eq. 7
+    with a physical accelerometer, DESIGN.md §3).
+    """
+    return -drag * u, -drag * v, -drag * w - thrust / mass
+
+
+@kernel
+def kinematics(x: FloatArray, f_b: Vec3, out: FloatArray) -> None:
+    """Rows ρ̇, v̇, Λ̇ of seed 001 eq. 2 for one state, written to ``out[0:9]``.
+
+    ``ρ̇ = C_NB v``, ``v̇ = −ω×v + C_NBᵀ g n3 + f_B``, ``Λ̇ = D(Λ) ω`` (eq. 3).
+
+    Args:
+        x: (12,) state; ω is read from ``x[9:12]``.
+        f_b: Specific force in B, m/s².
+        out: (12,) derivative; entries 9–11 are not touched.
+    """
+    u, v, w = x[3], x[4], x[5]
+    p, q, r = x[9], x[10], x[11]
+    cf, sf = math.cos(x[6]), math.sin(x[6])
+    ct, st = math.cos(x[7]), math.sin(x[7])
+    c = dcm_from_trig(cf, sf, ct, st, math.cos(x[8]), math.sin(x[8]))
+    out[0] = c[0] * u + c[1] * v + c[2] * w
+    out[1] = c[3] * u + c[4] * v + c[5] * w
+    out[2] = c[6] * u + c[7] * v + c[8] * w
+    # C_NBᵀ n3 is the third row of C_NB.
+    out[3] = -(q * w - r * v) + GRAVITY * c[6] + f_b[0]
+    out[4] = -(r * u - p * w) + GRAVITY * c[7] + f_b[1]
+    out[5] = -(p * v - q * u) + GRAVITY * c[8] + f_b[2]
+    out[6], out[7], out[8] = euler_rates_from_trig(cf, sf, ct, st, p, q, r)
+
+
+@kernel
+def pack_bodies(mass: float, drag: float, J: FloatArray, J_inv: FloatArray) -> FloatArray:
+    """Body parameter vectors (K, 20): ``(m [kg], drag [1/s], J (9) [kg·m²], J⁻¹ (9))``.
+
+    Args:
+        mass: m in kg, shared. drag: Linear drag in 1/s, shared.
+        J, J_inv: (K, 3, 3) inertia in B and its inverse (K = 1: one body for all lanes).
+    """
+    out = np.empty((J.shape[0], BODY_DIM))
+    for k in range(J.shape[0]):
+        out[k, 0], out[k, 1] = mass, drag
+        for i in range(3):
+            for j in range(3):
+                out[k, 2 + 3 * i + j] = J[k, i, j]
+                out[k, 11 + 3 * i + j] = J_inv[k, i, j]
+    return out
+
+
+@kernel
+def euler_equation(p: float, q: float, r: float, tau: FloatArray, body: FloatArray) -> Vec3:
+    """``ω̇ = J⁻¹(τ − ω×Jω)`` (seed 001 eq. 2) in rad/s², τ (3,) in N·m, ``body`` (20,)."""
+    J, J_inv = body[2:11], body[11:20]  # row-major 3×3
+    h0 = J[0] * p + J[1] * q + J[2] * r
+    h1 = J[3] * p + J[4] * q + J[5] * r
+    h2 = J[6] * p + J[7] * q + J[8] * r
+    m0 = tau[0] - (q * h2 - r * h1)
+    m1 = tau[1] - (r * h0 - p * h2)
+    m2 = tau[2] - (p * h1 - q * h0)
+    return (
+        J_inv[0] * m0 + J_inv[1] * m1 + J_inv[2] * m2,
+        J_inv[3] * m0 + J_inv[4] * m1 + J_inv[5] * m2,
+        J_inv[6] * m0 + J_inv[7] * m1 + J_inv[8] * m2,
+    )
+
+
+@kernel
+def rigid_body_derivative(
+    x: FloatArray, u: FloatArray, body: FloatArray, hold_rates: bool, out: FloatArray
+) -> None:
+    """``ẋ`` of seed 001 eq. 2 (= seed 000 eq. 1–4) for one state, into ``out`` (12,).
+
+    Args:
+        x: (12,) state ``(ρ [m, N], v [m/s, B], Λ [rad], ω [rad/s, B])``.
+        u: (7,) input ``(f_T [N], τ [N·m] (3), a [m/s²] (3))``, used as given (no
+            saturation); ``a`` is an extra specific force in B added to ``−(f_T/m) b3 − drag v``.
+        body: (20,) parameters from :func:`pack_bodies`.
+        hold_rates: If True, ``ω̇ = 0`` (ω is an input held over the step).
+        out: (12,) output.
+    """
+    f = specific_force_body(x[3], x[4], x[5], u[0], body[0], body[1])
+    kinematics(x, (f[0] + u[4], f[1] + u[5], f[2] + u[6]), out)
+    if hold_rates:
+        out[9], out[10], out[11] = 0.0, 0.0, 0.0
+    else:
+        out[9], out[10], out[11] = euler_equation(x[9], x[10], x[11], u[1:4], body)
+
+
+@kernel
+def rk4_step(
+    x: FloatArray, u: FloatArray, body: FloatArray, hold_rates: bool, h: float, work: FloatArray
+) -> None:
+    """One classical RK4 step of size ``h`` s on ``x`` (12,) in place, input ``u`` held.
+
+    ``work`` is (5, 12) scratch; other arguments as in :func:`rigid_body_derivative`.
+    """
+    k1, k2, k3, k4, tmp = work[0], work[1], work[2], work[3], work[4]
+    half = 0.5 * h
+    rigid_body_derivative(x, u, body, hold_rates, k1)
+    for j in range(STATE_DIM):
+        tmp[j] = x[j] + half * k1[j]
+    rigid_body_derivative(tmp, u, body, hold_rates, k2)
+    for j in range(STATE_DIM):
+        tmp[j] = x[j] + half * k2[j]
+    rigid_body_derivative(tmp, u, body, hold_rates, k3)
+    for j in range(STATE_DIM):
+        tmp[j] = x[j] + h * k3[j]
+    rigid_body_derivative(tmp, u, body, hold_rates, k4)
+    sixth = h / 6.0
+    for j in range(STATE_DIM):
+        x[j] = x[j] + sixth * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+
+
+@kernel
+def _specific_force_kernel(
+    vel: FloatArray, thrust: FloatArray, mass: float, drag: float, out: FloatArray
+) -> None:
+    for i in range(vel.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = specific_force_body(
+            vel[i, 0], vel[i, 1], vel[i, 2], thrust[i], mass, drag
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# NumPy-facing API for one vehicle or a stack of them.
+# --------------------------------------------------------------------------------------------
+
+
+def lane_array(value: ArrayLike, n: int, width: int = 0) -> FloatArray:
+    """Broadcast ``value`` to a fresh C-contiguous float array of (n,) or (n, width).
+
+    The kernels are compiled for contiguous arrays; broadcasting views would compile again.
+    """
+    shape = (n,) if width == 0 else (n, width)
+    out = np.empty(shape)
+    out[...] = np.asarray(value, dtype=float)
+    return out
+
+
+def saturate_inputs(
+    thrust: float, torque: ArrayLike, params: VehicleParams
+) -> tuple[float, FloatArray]:
+    """Clip thrust to ``[0, max_thrust]`` N and each torque to ``±max_torque`` N·m.
+
+    Args:
+        thrust: Commanded f_T in N. torque: (3,) commanded τ in N·m.
+        params: Vehicle limits.
+
+    Returns:
+        ``(thrust, torque (3,))`` after saturation.
+    """
+    t = np.asarray(torque, dtype=float).reshape(3)
+    f, tau = saturate(
+        float(thrust),
+        (float(t[0]), float(t[1]), float(t[2])),
+        float(params.max_thrust),
+        np.array(params.max_torque),
+    )
+    return f, np.array(tau)
+
+
+def specific_force_lanes(
+    vel_body: ArrayLike, thrust: ArrayLike, mass: float, drag: float
+) -> FloatArray:
+    """Specific force ``f_B = −(f_T/m) b3 − drag · v`` sensed by an accelerometer (B frame).
+
+    Args:
+        vel_body: (..., 3) body velocity in m/s, e.g. (3,), (B, 3) or (N, 3).
+        thrust: f_T in N, a scalar or an array broadcastable to ``vel_body.shape[:-1]``.
+        mass: m in kg. drag: Linear drag in 1/s.
+
+    Returns:
+        (..., 3) specific force in m/s².
+    """
+    vel = np.asarray(vel_body, dtype=float)
+    flat = np.ascontiguousarray(vel.reshape(-1, 3))
+    n = flat.shape[0]
+    out = np.empty((n, 3))
+    thrust_arr = np.asarray(thrust, dtype=float)
+    if thrust_arr.shape == (n,) and thrust_arr.flags.c_contiguous:
+        thrust_lanes = thrust_arr
+    else:
+        thrust_lanes = lane_array(np.broadcast_to(thrust_arr, vel.shape[:-1]).reshape(-1), n)
+    _specific_force_kernel(flat, thrust_lanes, float(mass), float(drag), out)
+    return out.reshape(vel.shape)
+
+
+def specific_force(vel_body: ArrayLike, thrust: ArrayLike, params: VehicleParams) -> FloatArray:
+    """:func:`specific_force_lanes` with the mass and drag of ``params``.
+
+    Args:
+        vel_body: (..., 3) body velocity in m/s.
+        thrust: f_T in N, scalar or broadcastable to ``vel_body.shape[:-1]``.
+        params: Vehicle parameters.
+
+    Returns:
+        (..., 3) specific force in m/s² (B frame).
+    """
+    return specific_force_lanes(vel_body, thrust, params.mass, params.drag)

@@ -1,0 +1,36 @@
+"""Shared array type, physical constants, dimensions and index slices (DESIGN.md §2, §9).
+
+Every module that needs one of these imports it from here, so a dimension or a constant is
+written once.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+"""A float64 NumPy array; shapes are given in the docstrings that use it."""
+
+GRAVITY = 9.81
+"""Gravitational acceleration g in m/s² (DESIGN.md §2); gravity is ``+g n3`` in NED."""
+
+DEG = math.pi / 180.0
+"""One degree in rad: configs and reports use degrees, the code radians (DESIGN.md §2)."""
+
+STATE_DIM = 12
+"""Vehicle state ``x = (ρ [m, N], v [m/s, B], Λ [rad], ω [rad/s, B])`` (seed 001 eq. 2)."""
+
+POSE_DIM = 9
+"""Pose part ``s = (ρ, v, Λ)`` of the state (the EKF-SLAM vehicle state, seed 001 §2.3)."""
+
+POS, VEL, EUL, RATE = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
+"""Slices of ρ, v, Λ and ω in the 12-state."""
+
+MEAS_DIM = 3
+"""LiDAR measurement ``y = (α [rad], β [rad], δ [m])`` per landmark (seed 001 §2.3.3)."""
+
+IMU_DIM = 6
+"""IMU sample ``(a_m [m/s²], ω_m [rad/s])`` in B (seed 000 eq. 5–7)."""
