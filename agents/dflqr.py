@@ -24,12 +24,14 @@ at 8 rad/s, 0.04 m at 20 rad/s).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
 from quadslam_env.models.dynamics import GRAVITY, VehicleParams
+from quadslam_env.models.jit import kernel
 from quadslam_env.models.rotations import FloatArray
 
 Q_TILDE = np.diag([0.01] * 6 + [0.04])
@@ -54,6 +56,43 @@ def lqr_gain(Q: FloatArray = Q_TILDE, R: FloatArray = R_TILDE) -> FloatArray:
     return np.linalg.solve(R, B.T @ P)
 
 
+@kernel
+def _inverse_map(ux: float, uy: float, uz: float, u_psi: float, mass: float) -> tuple:
+    """Seed 001 eq. 15–19 for one command: ``(f_T N, φ_d rad, θ_d rad, r_d rad/s)``."""
+    thrust = mass * math.sqrt(ux * ux + uy * uy + uz * uz)
+    scale = -mass / max(thrust, 1e-9)
+    z1, z2, z3 = scale * ux, scale * uy, scale * uz
+    phi_d = math.asin(min(1.0, max(-1.0, -z2)))
+    theta_d = math.atan2(z1, z3)
+    return thrust, phi_d, theta_d, u_psi * math.cos(theta_d) / math.cos(phi_d)
+
+
+@kernel
+def _command_lanes(
+    obs: FloatArray, K: FloatArray, kp: FloatArray, kd: FloatArray, mass: float, out: FloatArray
+) -> None:
+    """DF-LQR thrust and torque ``out`` (n, 4) for observations ``obs`` (n, ≥16), steps 1–4."""
+    r_err = np.empty(7)
+    v = np.empty(4)
+    for b in range(obs.shape[0]):
+        o = obs[b]
+        for i in range(6):
+            r_err[i] = o[i]
+        r_err[6] = o[8]
+        # u = u_d − K r̃ with u_d = (ρ̈_d − g n3, ψ̇_d) (n3 is unchanged by the heading rotation).
+        u = (o[12], o[13], o[14] - GRAVITY, o[15])
+        for i in range(4):
+            acc = u[i]
+            for j in range(7):
+                acc -= K[i, j] * r_err[j]
+            v[i] = acc
+        thrust, phi_d, theta_d, r_d = _inverse_map(v[0], v[1], v[2], v[3], mass)
+        out[b, 0] = thrust
+        out[b, 1] = -kp[0] * (o[6] - phi_d) - kd[0] * o[9]
+        out[b, 2] = -kp[1] * (o[7] - theta_d) - kd[1] * o[10]
+        out[b, 3] = -kp[2] * o[8] - kd[2] * (o[11] - r_d)
+
+
 def inverse_mapping(
     u: FloatArray, mass: float
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -66,13 +105,8 @@ def inverse_mapping(
     Returns:
         ``(f_T (n,) N, φ_d (n,) rad, θ_d (n,) rad, r_d (n,) rad/s)``.
     """
-    u_p = u[:, 0:3]
-    thrust = mass * np.linalg.norm(u_p, axis=1)
-    z = -(mass / np.maximum(thrust, 1e-9))[:, None] * u_p
-    phi_d = np.arcsin(np.clip(-z[:, 1], -1.0, 1.0))
-    theta_d = np.arctan2(z[:, 0], z[:, 2])
-    r_d = u[:, 3] * np.cos(theta_d) / np.cos(phi_d)
-    return thrust, phi_d, theta_d, r_d
+    rows = np.array([_inverse_map(*map(float, row), mass) for row in np.asarray(u)])
+    return rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
 
 
 class DFLQRPolicy:
@@ -119,15 +153,10 @@ class DFLQRPolicy:
         Returns:
             ``(thrust (n,) N, torque (n, 3) N·m)`` before saturation.
         """
-        r_err = np.concatenate([obs[:, 0:6], obs[:, 8:9]], axis=1)
-        u_d = np.concatenate([obs[:, 12:15], obs[:, 15:16]], axis=1)
-        u_d[:, 2] -= GRAVITY  # ρ̈_d - g n3 (n3 is unchanged by the heading rotation)
-        u = u_d - r_err @ self.K.T
-        thrust, phi_d, theta_d, r_d = inverse_mapping(u, self.vehicle.mass)
-        att_err = np.stack([obs[:, 6] - phi_d, obs[:, 7] - theta_d, obs[:, 8]], axis=1)
-        rate_err = obs[:, 9:12] - np.stack([np.zeros_like(r_d), np.zeros_like(r_d), r_d], axis=1)
-        torque = -self.kp * att_err - self.kd * rate_err
-        return thrust, torque
+        out = np.empty((obs.shape[0], 4))
+        _command_lanes(np.asarray(obs, dtype=float), self.K, self.kp, self.kd,
+                       float(self.vehicle.mass), out)  # fmt: skip
+        return out[:, 0], out[:, 1:]
 
     def action(self, thrust: FloatArray, torque: FloatArray) -> FloatArray:
         """Normalised ``thrust_torque`` action (n, 4) in [-1, 1] for physical commands."""

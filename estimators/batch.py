@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -23,6 +24,7 @@ import numpy as np
 
 from estimators.base import POSE_DIM, Estimate, Estimator, make
 from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.models.jit import kernel
 from quadslam_env.models.rotations import FloatArray
 
 IntArray = np.ndarray
@@ -324,47 +326,80 @@ def batch_from_estimates(snaps: Sequence[Estimate]) -> BatchEstimate:
     return out
 
 
-def health_problems(est: BatchEstimate) -> list[str]:
-    """Describe what is wrong with each lane's belief (``""`` where healthy).
+HEALTH_PROBLEMS = (
+    "",
+    "estimator reported divergence",
+    "non-finite position",
+    "non-finite vel_body",
+    "non-finite euler",
+    "non-finite rates",
+    "non-finite landmark means",
+    "non-finite pose covariance",
+    "asymmetric pose covariance",
+)
+"""What :func:`health_codes` codes mean (0: healthy)."""
 
-    Checks (DESIGN.md §7): the estimator's own ``diverged`` flag, a finite mean (pose, rates and
-    mapped landmarks), a finite and symmetric pose covariance. Positive semi-definiteness is
-    tested by the Cholesky factorisation that the NEES needs anyway
-    (:func:`estimators.metrics.pose_nees` returns inf on failure), so it is not repeated here.
+
+@kernel
+def _health_codes(
+    diverged: FloatArray,
+    mean: FloatArray,
+    lm_means: FloatArray,
+    lm_mapped: np.ndarray,
+    cov: FloatArray,
+    has_cov: bool,
+    out: np.ndarray,
+) -> None:
+    """Fill ``out`` (B,) with the first failed check's index into :data:`HEALTH_PROBLEMS`."""
+    for b in range(out.shape[0]):
+        code = 1 if diverged[b] > 0.0 else 0
+        for i in range(12):  # position, vel_body, euler, rates: 3 columns each
+            if code == 0 and not math.isfinite(mean[b, i]):
+                code = 2 + i // 3
+        for j in range(lm_mapped.shape[1]):
+            for i in range(3):
+                if code == 0 and lm_mapped[b, j] and not math.isfinite(lm_means[b, j, i]):
+                    code = 6
+        if code == 0 and has_cov:
+            scale = 1e-12
+            finite = True
+            for i in range(cov.shape[1]):
+                scale = max(scale, abs(cov[b, i, i]))
+                for j in range(cov.shape[2]):
+                    finite = finite and math.isfinite(cov[b, i, j])
+            if not finite:
+                code = 7
+            else:
+                for i in range(cov.shape[1]):
+                    for j in range(i):
+                        if abs(cov[b, i, j] - cov[b, j, i]) > 1e-6 * scale:
+                            code = 8
+        out[b] = code
+
+
+def health_codes(est: BatchEstimate) -> np.ndarray:
+    """What is wrong with each lane's belief, as (B,) indices into :data:`HEALTH_PROBLEMS`.
+
+    Checks (DESIGN.md §7), first failure wins: the estimator's own ``diverged`` flag, a finite
+    mean (pose, rates and mapped landmarks), a finite and symmetric pose covariance. Positive
+    semi-definiteness is tested by the Cholesky factorisation that the NEES needs anyway
+    (:func:`estimators.metrics.cholesky_nees` returns inf on failure), so it is not repeated.
     """
     b = est.position.shape[0]
+    out = np.zeros(b, dtype=np.int64)
     diverged = est.diagnostics.get("diverged")
-    lm = np.where(est.landmark_mapped[:, :, None], est.landmark_means, 0.0)
-    parts = (
-        ("position", est.position),
-        ("vel_body", est.vel_body),
-        ("euler", est.euler),
-        ("rates", est.rates),
-        ("landmark means", lm.reshape(b, -1)),
+    _health_codes(
+        np.zeros(b) if diverged is None else np.asarray(diverged, dtype=float),
+        np.hstack((est.position, est.vel_body, est.euler, est.rates)),
+        est.landmark_means,
+        est.landmark_mapped,
+        est.pose_cov if est.pose_cov is not None else np.zeros((b, 1, 1)),
+        est.pose_cov is not None,
+        out,
     )
-    finite = [np.isfinite(arr).all(axis=1) for _, arr in parts]
-    cov_finite = asym = None
-    if est.pose_cov is not None:
-        cov = est.pose_cov
-        cov_finite = np.isfinite(cov).all(axis=(1, 2))
-        with np.errstate(invalid="ignore"):
-            scale = np.maximum(np.max(np.abs(np.diagonal(cov, axis1=1, axis2=2)), axis=1), 1e-12)
-            asym = np.max(np.abs(cov - cov.transpose(0, 2, 1)), axis=(1, 2)) > 1e-6 * scale
-    out = [""] * b
-    for lane in range(b):
-        if diverged is not None and diverged[lane] > 0:
-            out[lane] = "estimator reported divergence"
-            continue
-        bad = next((name for (name, _), ok in zip(parts, finite, strict=True) if not ok[lane]), "")
-        if bad:
-            out[lane] = f"non-finite {bad}"
-        elif cov_finite is not None and not cov_finite[lane]:
-            out[lane] = "non-finite pose covariance"
-        elif asym is not None and asym[lane]:
-            out[lane] = "asymmetric pose covariance"
     return out
 
 
 def health_problem(est: Estimate) -> str | None:
-    """:func:`health_problems` of one scalar snapshot; ``None`` if it is healthy."""
-    return health_problems(batch_from_estimates([est]))[0] or None
+    """What is wrong with one scalar snapshot (see :func:`health_codes`); ``None`` if healthy."""
+    return HEALTH_PROBLEMS[int(health_codes(batch_from_estimates([est]))[0])] or None

@@ -18,12 +18,12 @@ from scipy.stats import chi2
 
 from estimators.base import POSE_DIM
 from estimators.batch import BatchEstimate
-from quadslam_env.models.rotations import FloatArray, dcm_from_euler_batch, wrap_angle
+from quadslam_env.models.frames import dcm_from_trig, wrap_pi
+from quadslam_env.models.jit import kernel
+from quadslam_env.models.rotations import FloatArray
 
 NEES_POSE_BOUNDS_95 = (float(chi2.ppf(0.025, POSE_DIM)), float(chi2.ppf(0.975, POSE_DIM)))
 """Two-sided 95% interval of a single 9-DOF NEES sample."""
-
-_EYE = np.eye(POSE_DIM)
 
 
 def anees_bounds(dof: int, n_runs: int, prob: float = 0.95) -> tuple[float, float]:
@@ -36,48 +36,150 @@ def anees_bounds(dof: int, n_runs: int, prob: float = 0.95) -> tuple[float, floa
     return float(lo), float(hi)
 
 
-def pose_nees(err: FloatArray, cov: FloatArray | None) -> tuple[FloatArray, FloatArray]:
-    """NEES of whole errors and of their first three components from one Cholesky factor.
+@kernel
+def cholesky_nees(cov: FloatArray, err: FloatArray, L: FloatArray, y: FloatArray) -> tuple:
+    """NEES ``eᵀP⁻¹e`` of one error and of its first three components, from one factor.
 
     With ``P = L Lᵀ`` and ``y = L⁻¹ e``, ``NEES = ‖y‖²``; the leading 3×3 block of ``L`` is the
-    Cholesky factor of the leading block of ``P``, so the position NEES is ``‖y[:3]‖²``.
-    A zero variance (e.g. seed 001 Table 7's attitude P0) is handled by a jitter of 1e-9 of the
-    largest variance.
+    Cholesky factor of the leading block of ``P``, so the position NEES is ``‖y[:3]‖²``. A zero
+    variance (e.g. seed 001 Table 7's attitude P0) is handled by a jitter of 1e-9 of the largest
+    variance.
 
     Args:
-        err: (B, 9) errors.
-        cov: (B, 9, 9) covariances, or ``None``.
+        cov: (n, n) covariance.
+        err: (n,) error.
+        L: (n, n) work space for the factor.
+        y: (n,) work space for ``L⁻¹ e``.
 
     Returns:
-        ``(nees (B,), nees_first3 (B,))``: NaN without a covariance (the oracle); ``inf`` in a
-        lane whose covariance is not positive semi-definite (the factorisation fails), which
-        the env treats as estimator divergence.
+        ``(nees, nees_first3)``; ``inf`` when ``cov`` is not positive semi-definite (a pivot is
+        not positive, or not finite), which the env treats as estimator divergence.
     """
-    b = err.shape[0]
-    if cov is None:
-        return np.full(b, math.nan), np.full(b, math.nan)
-    scale = np.maximum(np.max(np.diagonal(cov, axis1=1, axis2=2), axis=1), 1e-12)
-    A = cov + (1e-9 * scale)[:, None, None] * _EYE
-    nees, nees3 = np.full(b, math.inf), np.full(b, math.inf)
-    try:
-        ok = np.ones(b, dtype=bool)
-        L = np.linalg.cholesky(A)
-    except np.linalg.LinAlgError:  # find the failing lanes one by one (rare)
-        L = np.zeros_like(A)
-        for i in range(b):
-            try:
-                L[i] = np.linalg.cholesky(A[i])
-            except np.linalg.LinAlgError:
-                ok[i] = False
-    y = np.linalg.solve(L[ok], err[ok, :, None])[:, :, 0]
-    nees[ok] = np.einsum("ij,ij->i", y, y)
-    nees3[ok] = np.einsum("ij,ij->i", y[:, :3], y[:, :3])
+    n = err.shape[0]
+    scale = 1e-12
+    for i in range(n):
+        scale = max(scale, cov[i, i])
+    jitter = 1e-9 * scale
+    nees = nees3 = 0.0
+    for j in range(n):  # Cholesky–Crout column j, then forward substitution for y_j
+        d = cov[j, j] + jitter
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not (d > 0.0 and math.isfinite(d)):
+            return math.inf, math.inf
+        L[j, j] = math.sqrt(d)
+        for i in range(j + 1, n):
+            v = cov[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+        v = err[j]
+        for k in range(j):
+            v -= L[j, k] * y[k]
+        y[j] = v / L[j, j]
+        nees += y[j] * y[j]
+        if j == 2:
+            nees3 = nees
     return nees, nees3
+
+
+# Columns of the metrics kernel's output, in order.
+METRIC_KEYS = (
+    "est_pos_err_m",
+    "est_vel_err_mps",
+    "est_att_err_deg",
+    "est_n_mapped",
+    "est_nees_pose",
+    "est_nees_pos",
+    "est_map_rmse_m",
+    "est_accel_bias_err",
+    "est_accel_bias_rel_err",
+    "est_gyro_bias_err",
+    "est_gyro_bias_rel_err",
+)
+
+
+@kernel
+def _metrics_lanes(
+    state: FloatArray,
+    pos: FloatArray,
+    vel_body: FloatArray,
+    vel_inertial: FloatArray,
+    euler: FloatArray,
+    cov: FloatArray,
+    has_cov: bool,
+    lm_means: FloatArray,
+    lm_mapped: np.ndarray,
+    true_lm: FloatArray,
+    true_bias: FloatArray,
+    biases: FloatArray,
+    has_bias: tuple,
+    out: FloatArray,
+) -> None:
+    """Fill ``out`` (B, len(METRIC_KEYS)) with the terms of :func:`step_metrics`."""
+    nan = math.nan
+    err = np.empty(POSE_DIM)
+    L = np.empty((POSE_DIM, POSE_DIM))
+    y = np.empty(POSE_DIM)
+    width = min(lm_mapped.shape[1], true_lm.shape[1])
+    for b in range(state.shape[0]):
+        x = state[b]
+        for i in range(3):
+            err[i] = pos[b, i] - x[i]
+            err[3 + i] = vel_body[b, i] - x[3 + i]
+            err[6 + i] = wrap_pi(euler[b, i] - x[6 + i])
+        out[b, 0] = math.sqrt(err[0] ** 2 + err[1] ** 2 + err[2] ** 2)
+        # True C_NB, the inertial velocity error, and the attitude error as the rotation angle
+        # θ of C_trueᵀ C_est (no Euler parametrisation, no wrap-around). ‖C_true − C_est‖_F² =
+        # 2(3 − tr C_trueᵀC_est) = 8 sin²(θ/2), so θ = 2 asin(‖ΔC‖_F / √8): unlike acos of the
+        # trace, well conditioned near θ = 0 (and exactly 0 for equal attitudes).
+        ct = dcm_from_trig(
+            math.cos(x[6]), math.sin(x[6]), math.cos(x[7]), math.sin(x[7]),
+            math.cos(x[8]), math.sin(x[8]),
+        )  # fmt: skip
+        ce = dcm_from_trig(
+            math.cos(euler[b, 0]), math.sin(euler[b, 0]), math.cos(euler[b, 1]),
+            math.sin(euler[b, 1]), math.cos(euler[b, 2]), math.sin(euler[b, 2]),
+        )  # fmt: skip
+        dc2 = 0.0
+        sq = 0.0
+        for r in range(3):
+            v_true = ct[3 * r] * x[3] + ct[3 * r + 1] * x[4] + ct[3 * r + 2] * x[5]
+            sq += (vel_inertial[b, r] - v_true) ** 2
+            for c in range(3):
+                dc2 += (ct[3 * r + c] - ce[3 * r + c]) ** 2
+        out[b, 1] = math.sqrt(sq)
+        out[b, 2] = math.degrees(2.0 * math.asin(min(1.0, math.sqrt(dc2 / 8.0))))
+        if has_cov:
+            out[b, 4], out[b, 5] = cholesky_nees(cov[b], err, L, y)
+        else:
+            out[b, 4] = out[b, 5] = nan
+        n_mapped = 0
+        sq = 0.0
+        for j in range(lm_mapped.shape[1]):
+            if lm_mapped[b, j]:
+                n_mapped += 1
+                if j < width:
+                    for i in range(3):
+                        sq += (lm_means[b, j, i] - true_lm[b, j, i]) ** 2
+        out[b, 3] = n_mapped
+        out[b, 6] = math.sqrt(sq / n_mapped) if n_mapped > 0 else nan
+        for k in range(2):  # accelerometer, gyro
+            col = 7 + 2 * k
+            if not has_bias[k]:
+                out[b, col] = out[b, col + 1] = nan
+                continue
+            e2 = t2 = 0.0
+            for i in range(3):
+                e2 += (biases[k, b, i] - true_bias[b, 3 * k + i]) ** 2
+                t2 += true_bias[b, 3 * k + i] ** 2
+            out[b, col] = math.sqrt(e2)
+            # ‖b̂ − b‖ / ‖b‖: the "within 20% of the true value" criterion of seed 000.
+            out[b, col + 1] = math.sqrt(e2) / math.sqrt(t2) if t2 > 0.0 else nan
 
 
 def step_metrics(
     true_state: FloatArray,
-    true_dcm: FloatArray,
     est: BatchEstimate,
     true_landmarks: FloatArray,
     true_bias: FloatArray,
@@ -86,62 +188,48 @@ def step_metrics(
 
     Args:
         true_state: (B, 12) true states.
-        true_dcm: (B, 3, 3) true ``C_NB``.
         est: The estimator's belief of the lanes.
         true_landmarks: (B, L, 3) true landmark positions by id (NED, m).
         true_bias: (B, 6) true total IMU bias (accel m/s², gyro rad/s).
 
     Returns:
-        ``est_pos_err_m``, ``est_vel_err_mps``, ``est_att_err_deg``, ``est_n_mapped``,
-        ``est_nees_pose``, ``est_nees_pos``, ``est_map_rmse_m`` and, where biases are
-        estimated, ``est_{accel,gyro}_bias_err`` and ``…_rel_err`` (‖b̂ - b‖ / ‖b‖, seed 000's
-        "within 20%" criterion; NaN for a zero true bias). NaN marks a term that does not apply.
+        The terms of :data:`METRIC_KEYS`: position, inertial-velocity and attitude error, the
+        number of mapped landmarks, pose and position NEES, map RMSE over the mapped landmarks
+        and, where biases are estimated, ``est_{accel,gyro}_bias_err`` and ``…_rel_err``
+        (‖b̂ - b‖ / ‖b‖). NaN marks a term that does not apply to a lane (no covariance,
+        nothing mapped, no bias estimate, zero true bias); bias terms are left out entirely
+        when the estimator estimates no biases.
     """
-    err = np.empty((true_state.shape[0], POSE_DIM))
-    err[:, 0:3] = est.position - true_state[:, 0:3]
-    err[:, 3:6] = est.vel_body - true_state[:, 3:6]
-    err[:, 6:9] = wrap_angle(est.euler - true_state[:, 6:9])
-    # Rotation angle of C_trueᵀ C_est: no Euler parametrisation, no wrap-around.
-    trace = np.einsum("bij,bij->b", true_dcm, dcm_from_euler_batch(est.euler))
-    att = np.arccos(np.clip(0.5 * (trace - 1.0), -1.0, 1.0))
-    vel_err = est.vel_inertial - np.einsum("bij,bj->bi", true_dcm, true_state[:, 3:6])
-    nees_pose, nees_pos = pose_nees(err, est.pose_cov)
-    width = min(est.landmark_mapped.shape[1], true_landmarks.shape[1])
-    mapped = est.landmark_mapped[:, :width]
-    n_mapped = est.landmark_mapped.sum(axis=1)
-    diff = est.landmark_means[:, :width] - true_landmarks[:, :width]
-    sq = np.where(mapped, np.einsum("bij,bij->bi", diff, diff), 0.0).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        map_rmse = np.where(n_mapped > 0, np.sqrt(sq / np.maximum(n_mapped, 1)), math.nan)
-    out = {
-        "est_pos_err_m": _norm(err[:, 0:3]),
-        "est_vel_err_mps": _norm(vel_err),
-        "est_att_err_deg": np.degrees(att),
-        "est_n_mapped": n_mapped.astype(float),
-        "est_nees_pose": nees_pose,
-        "est_nees_pos": nees_pos,
-        "est_map_rmse_m": map_rmse,
-    }
-    for name, est_bias, sl in (
-        ("accel", est.accel_bias, slice(0, 3)),
-        ("gyro", est.gyro_bias, slice(3, 6)),
-    ):
-        if est_bias is not None:
-            err_norm = _norm(est_bias - true_bias[:, sl])
-            true_norm = _norm(true_bias[:, sl])
-            out[f"est_{name}_bias_err"] = err_norm
-            with np.errstate(invalid="ignore", divide="ignore"):
-                out[f"est_{name}_bias_rel_err"] = np.where(
-                    true_norm > 0.0, err_norm / true_norm, math.nan
-                )
-    return out
+    b = true_state.shape[0]
+    has_bias = (est.accel_bias is not None, est.gyro_bias is not None)
+    biases = np.zeros((2, b, 3))
+    for k, value in enumerate((est.accel_bias, est.gyro_bias)):
+        if value is not None:
+            biases[k] = value
+    out = np.empty((b, len(METRIC_KEYS)))
+    _metrics_lanes(
+        true_state,
+        est.position,
+        est.vel_body,
+        est.vel_inertial,
+        est.euler,
+        est.pose_cov if est.pose_cov is not None else np.zeros((1, POSE_DIM, POSE_DIM)),
+        est.pose_cov is not None,
+        est.landmark_means,
+        est.landmark_mapped,
+        true_landmarks,
+        true_bias,
+        biases,
+        has_bias,
+        out,
+    )
+    skip = {f"est_{name}_{kind}" for name, has in zip(("accel", "gyro"), has_bias, strict=True)
+            if not has for kind in ("bias_err", "bias_rel_err")}  # fmt: skip
+    return {key: out[:, j] for j, key in enumerate(METRIC_KEYS) if key not in skip}
 
 
-def _norm(vec: FloatArray) -> FloatArray:
-    """Row norms of (B, 3) vectors."""
-    return np.sqrt(np.einsum("ij,ij->i", vec, vec))
-
-
+# Episode accumulators, one column each: (summary key, per-step info key). The RMS columns
+# hold sums of squares; the "last" columns the latest value; the NEES columns are handled apart.
 _RMS = (
     ("episode_est_pos_rmse_m", "est_pos_err_m"),
     ("episode_est_vel_rmse_mps", "est_vel_err_mps"),
@@ -154,6 +242,34 @@ _LAST = (
     ("episode_accel_bias_rel_err", "est_accel_bias_rel_err"),
     ("episode_gyro_bias_rel_err", "est_gyro_bias_rel_err"),
 )
+_INPUT_KEYS = (*(k for _, k in _RMS), *(k for _, k in _LAST), "est_nees_pose", "est_nees_pos")
+_N_RMS, _N_LAST = len(_RMS), len(_LAST)
+# Accumulator columns: steps, RMS sums, last values, then NEES pose (sum, count, inside the 95%
+# bounds) and NEES position (sum, count).
+_COLS = 1 + _N_RMS + _N_LAST + 5
+
+
+@kernel
+def _accumulate(acc: FloatArray, values: FloatArray, sel: np.ndarray, lo: float, hi: float) -> None:
+    """Add one step's ``values`` (B, len(_INPUT_KEYS)) to the lanes selected by ``sel``."""
+    n_rms, n_last = len(_RMS), len(_LAST)
+    nees_col = 1 + n_rms + n_last
+    for b in range(acc.shape[0]):
+        if not sel[b]:
+            continue
+        acc[b, 0] += 1.0
+        for j in range(n_rms):
+            acc[b, 1 + j] += values[b, j] ** 2
+        for j in range(n_last):
+            acc[b, 1 + n_rms + j] = values[b, n_rms + j]
+        for k in range(2):  # pose, position; NaN/inf NEES values stay out of the ANEES
+            v = values[b, n_rms + n_last + k]
+            if math.isfinite(v):
+                col = nees_col + 3 * k
+                acc[b, col] += v
+                acc[b, col + 1] += 1.0
+                if k == 0 and lo <= v <= hi:
+                    acc[b, col + 2] += 1.0
 
 
 class EpisodeMetrics:
@@ -168,24 +284,13 @@ class EpisodeMetrics:
 
     def __init__(self, num_lanes: int = 1) -> None:
         self.num_lanes = num_lanes
-        self.reset(np.ones(num_lanes, dtype=bool))
+        self._acc = np.zeros((num_lanes, _COLS))
+        self.reset(np.arange(num_lanes))
 
     def reset(self, lanes: np.ndarray) -> None:
         """Zero the sums of the lanes selected by the (B,) mask or index array ``lanes``."""
-        b = self.num_lanes
-        if not hasattr(self, "steps"):
-            self.steps = np.zeros(b)
-            self.sq = {key: np.zeros(b) for _, key in _RMS}
-            self.last = {key: np.full(b, math.nan) for _, key in _LAST}
-            self.nees_pose = np.zeros((3, b))  # sum, count, inside the 95% bounds
-            self.nees_pos = np.zeros((2, b))  # sum, count
-        self.steps[lanes] = 0.0
-        for arr in self.sq.values():
-            arr[lanes] = 0.0
-        for arr in self.last.values():
-            arr[lanes] = math.nan
-        self.nees_pose[:, lanes] = 0.0
-        self.nees_pos[:, lanes] = 0.0
+        self._acc[lanes] = 0.0
+        self._acc[lanes, 1 + _N_RMS : 1 + _N_RMS + _N_LAST] = math.nan
 
     def add(self, info: dict[str, FloatArray], lanes: np.ndarray | None = None) -> None:
         """Record one step's terms of the lanes selected by the (B,) mask ``lanes``.
@@ -194,37 +299,24 @@ class EpisodeMetrics:
         left out of the ANEES; a missing key counts as NaN.
         """
         b = self.num_lanes
+        values = np.empty((b, len(_INPUT_KEYS)))
+        for j, key in enumerate(_INPUT_KEYS):
+            values[:, j] = info.get(key, math.nan)
         sel = np.ones(b, dtype=bool) if lanes is None else lanes
-
-        def lanes_of(key: str) -> FloatArray:
-            return np.broadcast_to(np.asarray(info.get(key, math.nan), dtype=float), (b,))
-
-        self.steps[sel] += 1.0
-        for _, key in _RMS:
-            self.sq[key][sel] += lanes_of(key)[sel] ** 2
-        for _, key in _LAST:
-            self.last[key][sel] = lanes_of(key)[sel]
-        lo, hi = NEES_POSE_BOUNDS_95
-        for acc, key in ((self.nees_pose, "est_nees_pose"), (self.nees_pos, "est_nees_pos")):
-            value = lanes_of(key)
-            ok = sel & np.isfinite(value)
-            acc[0, ok] += value[ok]
-            acc[1, ok] += 1.0
-            if acc.shape[0] == 3:
-                acc[2, ok] += (lo <= value[ok]) & (value[ok] <= hi)
+        _accumulate(self._acc, values, sel, *NEES_POSE_BOUNDS_95)
 
     def summary(self) -> dict[str, FloatArray]:
         """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds, each (B,)."""
-        n = self.steps
+        acc = self._acc
+        n = acc[:, 0]
         with np.errstate(invalid="ignore", divide="ignore"):
             out = {"episode_steps": n.copy()}
-            for name, key in _RMS:
-                out[name] = np.where(n > 0, np.sqrt(self.sq[key] / n), math.nan)
-            for name, key in _LAST:
-                out[name] = self.last[key].copy()
-            s, c, inside = self.nees_pose
+            for j, (name, _) in enumerate(_RMS):
+                out[name] = np.where(n > 0, np.sqrt(acc[:, 1 + j] / n), math.nan)
+            for j, (name, _) in enumerate(_LAST):
+                out[name] = acc[:, 1 + _N_RMS + j].copy()
+            s, c, inside, s3, c3 = acc[:, 1 + _N_RMS + _N_LAST :].T
             out["episode_anees_pose"] = np.where(c > 0, s / c, math.nan)
             out["episode_nees_pose_in_bounds"] = np.where(c > 0, inside / c, math.nan)
-            s, c = self.nees_pos
-            out["episode_anees_pos"] = np.where(c > 0, s / c, math.nan)
+            out["episode_anees_pos"] = np.where(c3 > 0, s3 / c3, math.nan)
         return out

@@ -20,14 +20,15 @@ from typing import Any
 
 import numpy as np
 
-from estimators.batch import BatchEstimate, health_problems, make_batch
+from estimators.batch import BatchEstimate, health_codes, make_batch
 from estimators.metrics import EpisodeMetrics, step_metrics
 from quadslam_env.actions import ActionMap
 from quadslam_env.config import ConfigError, LandmarksConfig, ScenarioConfig
 from quadslam_env.models.rotations import FloatArray, dcm_from_euler_batch, wrap_angle
 from quadslam_env.observation import ObservationBuilder
-from quadslam_env.reward import reward_terms, tilt_angle
+from quadslam_env.reward import reward_terms
 from quadslam_env.sensors import ImuBatch, LidarBatch
+from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
 from quadslam_env.vehicle import VehicleBatch
 from quadslam_env.world import make_landmarks
@@ -133,8 +134,7 @@ class SimCore:
         self.t = np.zeros(b)
         self.n_visible = np.zeros(b, dtype=np.int64)
         self.episode = EpisodeMetrics(b)
-        self._nees_run = np.zeros(b, dtype=np.int64)
-        self._nees_window = max(1, round(cfg.episode.nees_window_s / self.dt))
+        self.termination = Termination(cfg.episode, self.dt, b)
         self._cov0 = np.diag(cfg.estimator.initial_cov_diag)
         self._state0 = np.concatenate(
             [
@@ -198,12 +198,11 @@ class SimCore:
         self.steps[lanes] = 0
         self.t[lanes] = 0.0
         self.n_visible[lanes] = 0
-        self._nees_run[lanes] = 0
+        self.termination.reset(lanes)
         self.episode.reset(lanes)
         est = self._snapshot()
         ref = self.trajectory.batch(self.t)
-        dcm = dcm_from_euler_batch(self.vehicle.state[:, 6:9])
-        info = self._metrics(est, ref, dcm)
+        info = self._metrics(est, ref)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
         return obs[lanes], {key: value[lanes] for key, value in info.items()}
 
@@ -243,12 +242,12 @@ class SimCore:
         self.steps += active
         self.t = self.steps * self.dt
         state = vehicle.state
-        dcm = dcm_from_euler_batch(state[:, 6:9])
         accel, gyro = self.imu.sample(
             self.t, state[:, 3:6], mean_rates, vehicle.applied_thrust, active
         )
         scanning = np.flatnonzero(active & (self.steps % self.scenario.lidar_every == 0))
         if scanning.size:
+            dcm = dcm_from_euler_batch(state[:, 6:9])
             visible, meas = self.lidar.scan(
                 state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning
             )
@@ -271,21 +270,15 @@ class SimCore:
         est = self._snapshot()
         step_ms = 1e3 * (time.perf_counter() - tic) / max(1, int(active.sum()))
         ref = self.trajectory.batch(self.t)
-        info: dict[str, Any] = self._metrics(est, ref, dcm)
+        info: dict[str, Any] = self._metrics(est, ref)
         if self.scenario.episode.report_step_time:
             info["est_step_time_ms"] = np.full(b, step_ms)
-        reasons = self._termination_reasons(est, info, active)
-        terminated = np.array([r != "" for r in reasons]) & active
+        terminated, reasons = self.termination.check(
+            state, info["track_pos_err_m"], info["est_nees_pose"], health_codes(est), active
+        )
         truncated = ~terminated & (self.steps >= self.max_steps) & active
         terms = reward_terms(
-            self.scenario.reward,
-            state[:, 0:3],
-            np.einsum("bij,bj->bi", dcm, state[:, 3:6]),
-            state[:, 8],
-            ref,
-            act,
-            self.action_map.hover_action,
-            terminated,
+            self.scenario.reward, state, ref, act, self.action_map.hover_action, terminated
         )
         info.update(terms)
         reward = sum(terms.values())
@@ -312,10 +305,10 @@ class SimCore:
         t = self.t if lanes is None else self.t[np.asarray(lanes)]
         return self.trajectory.batch(t)
 
-    def _metrics(self, est: BatchEstimate, ref: FlatOutputs, dcm: FloatArray) -> dict[str, Any]:
+    def _metrics(self, est: BatchEstimate, ref: FlatOutputs) -> dict[str, Any]:
         state = self.vehicle.state
         nan = np.full(self.num_lanes, math.nan)
-        info: dict[str, Any] = step_metrics(state, dcm, est, self.landmarks, self.imu.total_bias)
+        info: dict[str, Any] = step_metrics(state, est, self.landmarks, self.imu.total_bias)
         # Copies: the estimator reuses its buffers, and an info dict must outlive the step.
         info["est_nis"] = np.array(est.diagnostics.get("nis", nan))
         info["est_ess"] = np.array(est.diagnostics.get("ess", nan))
@@ -324,38 +317,3 @@ class SimCore:
         info["track_pos_err_m"] = np.sqrt(np.einsum("ij,ij->i", dp, dp))
         info["t"] = self.t.copy()
         return info
-
-    def _termination_reasons(
-        self, est: BatchEstimate, info: dict[str, Any], active: np.ndarray
-    ) -> list[str]:
-        """Why each active lane's episode ends now (``""`` if it goes on); DESIGN.md §4."""
-        ep = self.scenario.episode
-        state = self.vehicle.state
-        problems = health_problems(est)
-        nees = info["est_nees_pose"]
-        limit = ep.nees_threshold
-        over = active & (nees > limit) if limit is not None else np.zeros_like(active)
-        self._nees_run = np.where(active, np.where(over, self._nees_run + 1, 0), self._nees_run)
-        with np.errstate(invalid="ignore"):
-            checks = (
-                (~np.isfinite(state).all(axis=1), "vehicle_state_non_finite"),
-                (tilt_angle(state[:, 6:9]) > math.radians(ep.max_tilt_deg), "tilt_limit"),
-                (info["track_pos_err_m"] > ep.max_pos_err_m, "position_error_limit"),
-                (
-                    state[:, 2] > ep.ground_z_m
-                    if ep.ground_z_m is not None
-                    else np.zeros(self.num_lanes, dtype=bool),
-                    "ground_contact",
-                ),
-            )
-        reasons = [""] * self.num_lanes
-        for lane in np.flatnonzero(active).tolist():
-            reason = next((name for flag, name in checks if flag[lane]), "")
-            if not reason and problems[lane]:
-                reason = f"estimator_diverged: {problems[lane]}"
-            if not reason and nees[lane] == math.inf:
-                reason = "estimator_diverged: pose covariance not positive semi-definite"
-            if not reason and self._nees_run[lane] >= self._nees_window:
-                reason = "estimator_diverged: NEES above threshold"
-            reasons[lane] = reason
-        return reasons

@@ -7,18 +7,67 @@ the reward.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from quadslam_env.config import RewardConfig
-from quadslam_env.models.rotations import FloatArray, wrap_angle
+from quadslam_env.models.frames import dcm_from_trig, wrap_pi
+from quadslam_env.models.jit import kernel
+from quadslam_env.models.rotations import FloatArray
 from quadslam_env.trajectories import FlatOutputs
+
+REWARD_KEYS = (
+    "reward_alive",
+    "reward_pos",
+    "reward_vel",
+    "reward_yaw",
+    "reward_effort",
+    "reward_termination",
+)
+
+
+@kernel
+def _reward_lanes(
+    weights: FloatArray,
+    state: FloatArray,
+    ref_pos: FloatArray,
+    ref_vel: FloatArray,
+    ref_yaw: FloatArray,
+    action: FloatArray,
+    hover_action: FloatArray,
+    terminated: np.ndarray,
+    out: FloatArray,
+) -> None:
+    """Fill ``out`` (B, 6) with the terms of :data:`REWARD_KEYS` (see :func:`reward_terms`)."""
+    alive, w_pos, w_vel, w_yaw, w_effort, penalty = (
+        weights[0], weights[1], weights[2], weights[3], weights[4], weights[5]
+    )  # fmt: skip
+    for b in range(out.shape[0]):
+        x = state[b]
+        c = dcm_from_trig(
+            math.cos(x[6]), math.sin(x[6]), math.cos(x[7]), math.sin(x[7]),
+            math.cos(x[8]), math.sin(x[8]),
+        )  # fmt: skip
+        dp = dv = 0.0
+        for r in range(3):
+            dp += (x[r] - ref_pos[b, r]) ** 2
+            v = c[3 * r] * x[3] + c[3 * r + 1] * x[4] + c[3 * r + 2] * x[5]  # C_NB v
+            dv += (v - ref_vel[b, r]) ** 2
+        effort = 0.0
+        for i in range(4):
+            effort += (action[b, i] - hover_action[i]) ** 2
+        out[b, 0] = alive
+        out[b, 1] = -w_pos * math.sqrt(dp)
+        out[b, 2] = -w_vel * math.sqrt(dv)
+        out[b, 3] = -w_yaw * abs(wrap_pi(x[8] - ref_yaw[b]))
+        out[b, 4] = -w_effort * effort / 4.0
+        out[b, 5] = -penalty if terminated[b] else 0.0
 
 
 def reward_terms(
     cfg: RewardConfig,
-    true_pos: FloatArray,
-    true_vel_inertial: FloatArray,
-    true_yaw: FloatArray,
+    state: FloatArray,
     ref: FlatOutputs,
     action: FloatArray,
     hover_action: FloatArray,
@@ -28,30 +77,17 @@ def reward_terms(
 
     Args:
         cfg: Weights.
-        true_pos: (B, 3) true position in N, m.
-        true_vel_inertial: (B, 3) true velocity in N, m/s.
-        true_yaw: (B,) true ψ in rad.
+        state: (B, 12) true states (ρ N m, v_B m/s, Λ rad, ω rad/s).
         ref: Reference of the lanes at the same time ((B, 3) and (B,) arrays).
         action: (B, 4) normalised action applied this step.
         hover_action: (4,) normalised action that holds hover (effort is measured from it).
         terminated: (B,) bool, whether this step ends the lane's episode by failure.
     """
-    effort = np.sum((action - hover_action) ** 2, axis=1) / 4.0
-    return {
-        "reward_alive": np.full(terminated.shape, float(cfg.alive)),
-        "reward_pos": -cfg.pos_weight * _norm(true_pos - ref.pos),
-        "reward_vel": -cfg.vel_weight * _norm(true_vel_inertial - ref.vel),
-        "reward_yaw": -cfg.yaw_weight * np.abs(wrap_angle(true_yaw - ref.yaw)),
-        "reward_effort": -cfg.effort_weight * effort,
-        "reward_termination": np.where(terminated, -cfg.termination_penalty, 0.0),
-    }
-
-
-def tilt_angle(euler: FloatArray) -> FloatArray:
-    """Angle between b3 and n3 in rad, ``acos(cos φ cos θ)``, for Euler angles (..., 3)."""
-    return np.arccos(np.clip(np.cos(euler[..., 0]) * np.cos(euler[..., 1]), -1.0, 1.0))
-
-
-def _norm(vec: FloatArray) -> FloatArray:
-    """Row norms of (B, 3) vectors."""
-    return np.sqrt(np.einsum("ij,ij->i", vec, vec))
+    weights = np.array(
+        [cfg.alive, cfg.pos_weight, cfg.vel_weight, cfg.yaw_weight, cfg.effort_weight,
+         cfg.termination_penalty]
+    )  # fmt: skip
+    out = np.empty((state.shape[0], len(REWARD_KEYS)))
+    _reward_lanes(weights, state, ref.pos, ref.vel, ref.yaw, action, hover_action, terminated,
+                  out)  # fmt: skip
+    return {key: out[:, j] for j, key in enumerate(REWARD_KEYS)}

@@ -8,7 +8,9 @@ tests/test_ekf_slam.py.
 
 from __future__ import annotations
 
+import copy
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -110,7 +112,7 @@ def _step(batch, scalars, runs, i: int, active: np.ndarray) -> None:
 
 
 def _assert_lane_equals_scalar(batch: EkfSlamBatch, lane: int, scalar: EkfSlam) -> None:
-    xb, Pb, ids_b = batch.lane_full_state(lane)
+    xb, Pb, ids_b = batch.full_state(lane)
     xs, Ps, ids_s = scalar.full_state()
     np.testing.assert_array_equal(ids_b, ids_s)
     np.testing.assert_allclose(xb, xs, rtol=1e-12, atol=1e-12 * np.abs(xs).max())
@@ -147,7 +149,7 @@ def test_inactive_and_non_scanning_lanes_are_untouched():
     batch, scalars, runs = _make_pair(60)
     for i in range(30):
         _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
-    before = [batch.lane_full_state(lane) for lane in range(4)]
+    before = [batch.full_state(lane) for lane in range(4)]
     rates = batch.estimate().rates.copy()
     active = np.array([True, False, True, False])
     accel = np.tile([0.0, 0.0, -GRAVITY], (4, 1))
@@ -160,11 +162,11 @@ def test_inactive_and_non_scanning_lanes_are_untouched():
     meas = np.tile([0.1, 0.05, 10.0], (4, LMAX, 1))
     batch.update(np.zeros(4), np.array([0]), visible, meas, SIG_LIDAR)
     for lane in (1, 3):
-        after = batch.lane_full_state(lane)
+        after = batch.full_state(lane)
         for a, b in zip(before[lane], after, strict=True):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(batch.estimate().rates[lane], rates[lane])
-    x2, P2, _ = batch.lane_full_state(2)  # predicted only
+    x2, P2, _ = batch.full_state(2)  # predicted only
     assert x2.shape == before[2][0].shape and not np.array_equal(P2, before[2][1])
     assert batch.state_dim[0] > before[0][0].size  # lane 0 registered new landmarks
 
@@ -174,13 +176,13 @@ def test_reset_of_one_lane_leaves_the_others_alone():
     batch, scalars, runs = _make_pair(steps)
     for i in range(50):
         _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
-    others = [batch.lane_full_state(lane) for lane in (0, 2, 3)]
+    others = [batch.full_state(lane) for lane in (0, 2, 3)]
     mean0 = runs[1][1]
     batch.reset_lanes(np.array([1]), mean0[None], _cov0()[None], [np.random.default_rng(9)])
     scalars[1] = EkfSlam()
     scalars[1].reset(mean0, _cov0(), np.random.default_rng(9))
     for lane, before in zip((0, 2, 3), others, strict=True):
-        for a, b in zip(before, batch.lane_full_state(lane), strict=True):
+        for a, b in zip(before, batch.full_state(lane), strict=True):
             np.testing.assert_array_equal(a, b)
     est = batch.estimate()
     assert est.diagnostics["n_mapped"][1] == 0 and math.isnan(est.diagnostics["nis"][1])
@@ -220,14 +222,14 @@ def test_capacity_grows_for_larger_ids_and_keeps_every_lane():
     batch, scalars, runs = _make_pair(40)
     for i in range(40):
         _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
-    before = [batch.lane_full_state(lane) for lane in range(4)]
+    before = [batch.full_state(lane) for lane in range(4)]
     big = np.random.default_rng(5).normal(scale=10.0, size=(50, 3))
     batch.reset_lanes(
         np.array([2]), runs[2][1][None], _cov0()[None], [None], [(np.arange(50), big)]
     )
     assert batch.landmark_capacity >= 50
     for lane in (0, 1, 3):
-        for a, b in zip(before[lane], batch.lane_full_state(lane), strict=True):
+        for a, b in zip(before[lane], batch.full_state(lane), strict=True):
             np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(batch.estimate().landmark_means[2, :50], big)
     visible = np.zeros((4, 70), dtype=bool)  # a scan wider than the capacity
@@ -236,7 +238,7 @@ def test_capacity_grows_for_larger_ids_and_keeps_every_lane():
     meas[0, 65] = [0.2, 0.1, 12.0]
     batch.update(np.zeros(4), np.array([0]), visible, meas, SIG_LIDAR)
     assert batch.landmark_capacity >= 70 and batch.estimate().landmark_mapped[0, 65]
-    x0, _, ids0 = batch.lane_full_state(0)
+    x0, _, ids0 = batch.full_state(0)
     assert ids0[-1] == 65 and x0.size == before[0][0].size + 3
 
 
@@ -266,7 +268,7 @@ def test_bad_inputs_raise_and_change_nothing():
     batch, scalars, runs = _make_pair(20)
     for i in range(20):
         _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
-    before = [batch.lane_full_state(lane) for lane in range(4)]
+    before = [batch.full_state(lane) for lane in range(4)]
     visible = np.zeros((4, LMAX), dtype=bool)
     visible[[0, 3], 1] = True
     meas = np.ones((4, LMAX, 3))
@@ -286,7 +288,7 @@ def test_bad_inputs_raise_and_change_nothing():
             [(np.array([-1]), np.ones((1, 3)))],
         )
     for lane in range(4):
-        for a, b in zip(before[lane], batch.lane_full_state(lane), strict=True):
+        for a, b in zip(before[lane], batch.full_state(lane), strict=True):
             np.testing.assert_array_equal(a, b)
 
 
@@ -309,3 +311,26 @@ def test_scalar_wrapper_accepts_arbitrary_ids():
     np.testing.assert_allclose(Ps, Pd, rtol=1e-10, atol=1e-15)
     np.testing.assert_array_equal(sparse.estimate().landmark_ids, [3, 7, 42, 1000])
     assert sparse.capacity == dense.capacity
+
+
+def test_copies_are_independent_and_estimate_views_follow_their_own_buffers():
+    batch, scalars, runs = _make_pair(30)
+    for i in range(30):
+        _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
+    batch.estimate()  # caches views
+    for twin in (copy.deepcopy(batch), pickle.loads(pickle.dumps(batch))):
+        accel = np.tile([0.0, 0.0, -GRAVITY], (4, 1))
+        twin.predict(
+            np.zeros(4),
+            accel,
+            np.ones((4, 3)),
+            SIG_ACC,
+            SIG_GYR,
+            np.zeros(4),
+            np.zeros((4, 3)),
+            DT,
+            np.ones(4, dtype=bool),
+        )
+        np.testing.assert_array_equal(twin.estimate().rates, 1.0)
+        np.testing.assert_array_equal(twin.estimate().euler[1], twin.full_state(1)[0][6:9])
+        assert not np.array_equal(batch.estimate().rates, 1.0)

@@ -4,14 +4,17 @@
   registered as the native batched ``"ekf_slam"``;
 * :mod:`estimators.ekf.update` — the correction kernel (χ² gate, stacked update,
   registration);
-* :mod:`estimators.ekf.kernels` — the prediction kernel and the per-landmark LiDAR model;
+* :mod:`estimators.ekf.kernels` — the prediction kernel, angle wrap and outputs;
+* :mod:`estimators.ekf.measurement` — the LiDAR model of one landmark (numba);
 * :mod:`estimators.ekf.scalar` — :class:`EkfSlam`, the one-lane estimator registered as
-  ``"ekf_slam"`` in :mod:`estimators.base`.
+  ``"ekf_slam"`` in :mod:`estimators.base`;
+* :mod:`estimators.ekf.settings` — :class:`EkfSlamSettings`, the validated parameters.
 
 The process model (seed 001 eq. 24, 28) is :mod:`quadslam_env.models.strapdown`.
 """
 
-from estimators.ekf.filter import BIAS_DIM, EkfSlamBatch
+from estimators.ekf.filter import EkfSlamBatch
 from estimators.ekf.scalar import EkfSlam
+from estimators.ekf.settings import BIAS_DIM, EkfSlamSettings
 
-__all__ = ["BIAS_DIM", "EkfSlam", "EkfSlamBatch"]
+__all__ = ["BIAS_DIM", "EkfSlam", "EkfSlamBatch", "EkfSlamSettings"]

@@ -25,9 +25,8 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy.special import gammaincinv
 
-from estimators.base import POSE_DIM, Estimate, check_kwargs
+from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
 from estimators.ekf.kernels import (
     D_NIS,
@@ -35,25 +34,14 @@ from estimators.ekf.kernels import (
     fill_outputs,
     predict_lanes,
     sync_lane,
-    wrap_state_angle,
 )
-from estimators.ekf.update import first_nonfinite_lane, predicted_measurements, update_lanes
-from quadslam_env.models.rotations import FloatArray, dcm_from_euler
-
-BIAS_DIM = 4
-"""Size of the bias block b = (b_ω (3), b_az (1)) when biases are estimated."""
-
-PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)
-"""Seed 001 Table 7: diagonal of Q over (ρ, v_B, Λ) for the unknown-map case."""
+from estimators.ekf.measurement import stacked_model
+from estimators.ekf.settings import EkfSlamSettings
+from estimators.ekf.update import first_nonfinite_lane, update_lanes
+from quadslam_env.models.frames import dcm_from_euler, wrap_pi
+from quadslam_env.types import POSE_DIM, FloatArray
 
 _AR3 = np.arange(3)
-
-
-def _check_nonneg(key: str, value: float) -> float:
-    value = float(value)
-    if not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: a finite number >= 0")
-    return value
 
 
 @register_batch("ekf_slam")
@@ -68,36 +56,9 @@ class EkfSlamBatch:
         landmark_capacity: Lmax, the number of landmark ids (and map slots) allocated; grows
             (by reallocation) when a known map or a scan brings larger ids.
         vehicle: Nominal vehicle parameters (unused: the process model is driven by the IMU).
-        **params: Settings (all optional):
-
-            ``process_noise`` (list of 9 floats ≥ 0, default seed 001 Table 7
-            ``[0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2]``): diagonal of the
-            continuous-time process-noise spectral density Q over (ρ, v_B, Λ), in m²/s,
-            m²/s³, rad²/s. Table 6 (known landmarks) uses ``[0.01]*6 + [0.02]*3``.
-
-            Known-map mode (localisation only, the paper's known-landmarks case) is selected
-            per lane by passing a known map to :meth:`reset_lanes` (the env does so when the
-            scenario sets ``estimator.known_map: true``); those positions are exact and are
-            not states.
-
-            ``estimate_imu_bias`` (bool, default False): augment the state with the gyro bias
-            b_ω (3) and the accelerometer z bias b_az (1); these are the only IMU axes the
-            model uses (λ = (ã_z, ω̃), seed 001 eq. 25). Random walks with the settings below.
-
-            ``gyro_bias_sigma0`` (float ≥ 0, default 0.01 rad/s): initial bias std per axis.
-
-            ``accel_bias_sigma0`` (float ≥ 0, default 0.05 m/s²): initial z-bias std.
-
-            ``gyro_bias_walk`` (float ≥ 0, default 1e-4 rad/s/√s): random-walk density.
-
-            ``accel_bias_walk`` (float ≥ 0, default 1e-3 m/s²/√s): random-walk density.
-
-            ``gate_probability`` (float in (0, 1], default 0.99): per-landmark χ² gate
-            (3 DOF; 0.99 → NIS threshold 11.345). 1.0 disables gating.
-
-            ``imu_noise_in_q`` (bool, default True): add the IMU white noise mapped through
-            ``∂f/∂λ`` to the discrete process noise (needed for consistency; False reproduces
-            the paper, which only uses Q).
+        **params: ``estimator.params``, see :class:`~estimators.ekf.settings.EkfSlamSettings`.
+            Known-map mode (localisation only) is chosen per lane by passing a known map to
+            :meth:`reset_lanes`.
 
     Raises:
         ValueError: Unknown key, wrong type or out-of-range value (the message names the key,
@@ -109,51 +70,14 @@ class EkfSlamBatch:
     def __init__(
         self, num_lanes: int, landmark_capacity: int, vehicle: Any = None, **params: Any
     ) -> None:
-        check_kwargs(
-            "estimator.params",
-            params,
-            {
-                "process_noise": (list, tuple, np.ndarray),
-                "estimate_imu_bias": bool,
-                "gyro_bias_sigma0": (float, int),
-                "accel_bias_sigma0": (float, int),
-                "gyro_bias_walk": (float, int),
-                "accel_bias_walk": (float, int),
-                "gate_probability": (float, int),
-                "imu_noise_in_q": bool,
-            },
-        )
+        self.settings = settings = EkfSlamSettings.from_params(params)
         if int(num_lanes) < 1:
             raise ValueError(f"num_lanes: got {num_lanes!r}; allowed: an integer >= 1")
         self.vehicle = vehicle
-        q = params.get("process_noise", PAPER_Q_UNKNOWN)
-        if len(q) != POSE_DIM or not all(
-            isinstance(e, float | int) and not isinstance(e, bool) for e in q
-        ):
-            raise ValueError(
-                f"estimator.params.process_noise: got {q!r}; allowed: a list of 9 numbers >= 0"
-            )
-        q_diag = [_check_nonneg("process_noise", e) for e in q]
-        self.estimate_imu_bias = bool(params.get("estimate_imu_bias", False))
-        self.imu_noise_in_q = bool(params.get("imu_noise_in_q", True))
-        self.gyro_bias_sigma0 = _check_nonneg(
-            "gyro_bias_sigma0", params.get("gyro_bias_sigma0", 0.01)
-        )
-        self.accel_bias_sigma0 = _check_nonneg(
-            "accel_bias_sigma0", params.get("accel_bias_sigma0", 0.05)
-        )
-        gyro_walk = _check_nonneg("gyro_bias_walk", params.get("gyro_bias_walk", 1e-4))
-        accel_walk = _check_nonneg("accel_bias_walk", params.get("accel_bias_walk", 1e-3))
-        prob = float(params.get("gate_probability", 0.99))
-        if not 0.0 < prob <= 1.0:
-            raise ValueError(
-                f"estimator.params.gate_probability: got {prob!r}; allowed: 0 < p <= 1"
-            )
-        self.gate_probability = prob
-        self.gate_threshold = math.inf if prob >= 1.0 else float(2.0 * gammaincinv(1.5, prob))
-        self.nv = POSE_DIM + (BIAS_DIM if self.estimate_imu_bias else 0)
-        qc = q_diag + ([gyro_walk**2] * 3 + [accel_walk**2] if self.estimate_imu_bias else [])
-        self._qc = np.array(qc)
+        self.estimate_imu_bias = settings.estimate_imu_bias
+        self.gate_threshold = settings.gate_threshold
+        self.nv = settings.nv
+        self._qc = settings.continuous_noise()
         self.num_lanes = b = int(num_lanes)
         self._n = np.full(b, self.nv, dtype=np.int64)
         self._stale = np.zeros(b, dtype=bool)
@@ -165,28 +89,30 @@ class EkfSlamBatch:
         self._accel_bias = np.zeros((b, 3))
         self._allocate(max(int(landmark_capacity), 0))
 
+    def __getstate__(self) -> dict[str, Any]:
+        # The cached BatchEstimate holds views into the buffers: a copy builds its own.
+        state = self.__dict__.copy()
+        state["_batch_estimate"] = None
+        return state
+
     # ------------------------------------------------------------------ storage
     def _allocate(self, lmax: int, keep: bool = False) -> None:
         """(Re)allocate the per-lane arrays for ``lmax`` landmarks, copying the old content."""
-        b, nv = self.num_lanes, self.nv
-        nmax = nv + 3 * lmax
-        x = np.zeros((b, nmax))
-        P = np.zeros((b, nmax, nmax))
-        slot_of_id = np.full((b, lmax), -1, dtype=np.int64)
-        id_of_slot = np.full((b, lmax), -1, dtype=np.int64)
-        mapped = np.zeros((b, lmax), dtype=bool)
-        known_pos = np.zeros((b, lmax, 3))
-        if keep:
-            m, L = self._x.shape[1], self._mapped.shape[1]
-            x[:, :m] = self._x
-            P[:, :m, :m] = self._P
-            slot_of_id[:, :L] = self._slot_of_id
-            id_of_slot[:, :L] = self._id_of_slot
-            mapped[:, :L] = self._mapped
-            known_pos[:, :L] = self._known_pos
-        self._x, self._P = x, P
-        self._slot_of_id, self._id_of_slot = slot_of_id, id_of_slot
-        self._mapped, self._known_pos = mapped, known_pos
+        b, nmax = self.num_lanes, self.nv + 3 * lmax
+
+        def fresh(name: str, shape: tuple[int, ...], fill: float, dtype: type) -> np.ndarray:
+            out = np.full(shape, fill, dtype=dtype)
+            if keep:  # copy the old content into the leading corner
+                old = getattr(self, name)
+                out[tuple(slice(0, e) for e in old.shape)] = old
+            return out
+
+        self._x = fresh("_x", (b, nmax), 0.0, float)
+        self._P = fresh("_P", (b, nmax, nmax), 0.0, float)
+        self._slot_of_id = fresh("_slot_of_id", (b, lmax), -1, np.int64)
+        self._id_of_slot = fresh("_id_of_slot", (b, lmax), -1, np.int64)
+        self._mapped = fresh("_mapped", (b, lmax), False, bool)
+        self._known_pos = fresh("_known_pos", (b, lmax, 3), 0.0, float)
         self._landmark_means = np.zeros((b, lmax, 3))
         self._batch_estimate: BatchEstimate | None = None
 
@@ -271,13 +197,12 @@ class EkfSlamBatch:
             x[:] = 0.0
             P[:] = 0.0
             x[:POSE_DIM] = mean0[j, :POSE_DIM]
-            x[6] = wrap_state_angle(float(x[6]))
-            x[8] = wrap_state_angle(float(x[8]))
+            x[6] = wrap_pi(float(x[6]))
+            x[8] = wrap_pi(float(x[8]))
             P0 = cov0[j, :POSE_DIM, :POSE_DIM]
             P[:POSE_DIM, :POSE_DIM] = 0.5 * (P0 + P0.T)
             if self.estimate_imu_bias:
-                b_var = [self.gyro_bias_sigma0**2] * 3 + [self.accel_bias_sigma0**2]
-                P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(b_var)
+                P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(self.settings.initial_bias_variances())
             self._n[lane] = nv
             self._stale[lane] = False
             self._rates[lane] = mean0[j, 9:12]
@@ -344,8 +269,8 @@ class EkfSlamBatch:
         del t, thrust, torque
         if not 0.0 < dt < math.inf:
             raise ValueError(f"predict: dt must be a positive finite number of seconds, got {dt}")
-        sa = accel_sigma * dt if self.imu_noise_in_q else 0.0
-        sg = gyro_sigma * dt if self.imu_noise_in_q else 0.0
+        sa = accel_sigma * dt if self.settings.imu_noise_in_q else 0.0
+        sg = gyro_sigma * dt if self.settings.imu_noise_in_q else 0.0
         predict_lanes(
             self._x,
             self._P,
@@ -506,7 +431,7 @@ class EkfSlamBatch:
         )
 
     # ------------------------------------------------------------------ testing/debugging
-    def lane_full_state(self, lane: int) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    def full_state(self, lane: int = 0) -> tuple[FloatArray, FloatArray, np.ndarray]:
         """Copies of one lane's total mean x (n,), covariance P (n, n) and the mapped ids in
         slot order (landmark slot j occupies ``x[nv + 3j : nv + 3j + 3]``)."""
         n = int(self._n[lane])
@@ -518,7 +443,7 @@ class EkfSlamBatch:
             self._id_of_slot[lane, :n_mapped].copy(),
         )
 
-    def set_lane_full_state(self, lane: int, x: FloatArray, P: FloatArray) -> None:
+    def set_full_state(self, x: FloatArray, P: FloatArray, lane: int = 0) -> None:
         """Overwrite one lane's total mean and covariance (same size n as the current state).
 
         Raises:
@@ -536,13 +461,13 @@ class EkfSlamBatch:
         self._stale[lane] = False
 
     def stacked_measurement(
-        self, lane: int, ids: np.ndarray
+        self, ids: np.ndarray, lane: int = 0
     ) -> tuple[np.ndarray, FloatArray, FloatArray]:
         """Stacked observation model of one lane's mapped/known landmarks ``ids`` (eq. 34, 40).
 
         Args:
-            lane: Lane index.
             ids: (k,) landmark ids; all must be mapped (or in the known map).
+            lane: Lane index.
 
         Returns:
             ``(cols, h, H)``: ``cols`` (d,) the columns of x the model depends on
@@ -557,25 +482,12 @@ class EkfSlamBatch:
             if not (0 <= i < self.landmark_capacity and self._mapped[lane, i]):
                 raise KeyError(i)
         x = self._x[lane]
-        k = ids.shape[0]
-        known = bool(self._known[lane])
-        if known:
-            lms = self._known_pos[lane, ids]
-            cols = np.arange(POSE_DIM)
+        if self._known[lane]:
+            lms, lm_cols = self._known_pos[lane, ids], None
         else:
             lm_cols = (self.nv + 3 * self._slot_of_id[lane, ids][:, None] + _AR3).ravel()
-            lms = x[lm_cols].reshape(k, 3)
-            cols = np.concatenate((np.arange(POSE_DIM), lm_cols))
-        h = np.empty((k, 3))
-        blocks = np.empty((k, 3, 9))
-        predicted_measurements(x, np.ascontiguousarray(lms), h, blocks)
-        H = np.zeros((k, 3, cols.shape[0]))
-        H[:, :, 0:3] = blocks[:, :, 0:3]
-        H[:, :, 6:9] = blocks[:, :, 3:6]
-        if not known:
-            for i in range(k):
-                H[i, :, POSE_DIM + 3 * i : POSE_DIM + 3 * i + 3] = blocks[i, :, 6:9]
-        return cols, h.ravel(), H.reshape(3 * k, -1)
+            lms = x[lm_cols].reshape(-1, 3)
+        return stacked_model(x, lms, lm_cols)
 
     def _sync(self, lane: int) -> None:
         """Make one lane's P fully symmetric again (see :func:`predict_lanes`)."""

@@ -15,8 +15,9 @@ import numpy as np
 
 from estimators.base import Estimate, register
 from estimators.ekf.filter import EkfSlamBatch
+from estimators.ekf.settings import EkfSlamSettings
 from quadslam_env.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.types import FloatArray
 
 _INITIAL_LANDMARK_CAPACITY = 32
 
@@ -27,10 +28,10 @@ class EkfSlam:
 
     Args:
         vehicle: Nominal vehicle parameters (unused: the process model is driven by the IMU).
-        **params: Settings of :class:`~estimators.ekf.filter.EkfSlamBatch` (``process_noise``,
-            ``estimate_imu_bias``, ``gyro_bias_sigma0``, ``accel_bias_sigma0``,
-            ``gyro_bias_walk``, ``accel_bias_walk``, ``gate_probability``,
-            ``imu_noise_in_q``). Known-map mode is selected by passing
+        **params: ``estimator.params``, see :class:`~estimators.ekf.settings.EkfSlamSettings`
+            (``process_noise``, ``estimate_imu_bias``, ``gyro_bias_sigma0``,
+            ``accel_bias_sigma0``, ``gyro_bias_walk``, ``accel_bias_walk``,
+            ``gate_probability``, ``imu_noise_in_q``). Known-map mode is selected by passing
             ``known_landmarks=(ids, positions)`` to :meth:`reset`.
 
     Raises:
@@ -58,24 +59,16 @@ class EkfSlam:
         return bool(self._filter.known_map[0])
 
     @property
-    def estimate_imu_bias(self) -> bool:
-        """Whether the state carries the gyro and accelerometer-z biases."""
-        return self._filter.estimate_imu_bias
+    def settings(self) -> EkfSlamSettings:
+        """The validated settings."""
+        return self._filter.settings
 
-    @property
-    def imu_noise_in_q(self) -> bool:
-        """Whether the IMU white noise enters the discrete process noise."""
-        return self._filter.imu_noise_in_q
-
-    @property
-    def gate_probability(self) -> float:
-        """Probability of the per-landmark χ² gate."""
-        return self._filter.gate_probability
-
-    @property
-    def gate_threshold(self) -> float:
-        """Per-landmark 3-DOF NIS threshold (inf: no gating)."""
-        return self._filter.gate_threshold
+    def __getattr__(self, name: str) -> Any:
+        # Settings read as attributes, as before (``f.gate_threshold``, ``f.estimate_imu_bias``,
+        # …). Private names are never forwarded, so copying and unpickling cannot recurse.
+        if not name.startswith("_") and hasattr(EkfSlamSettings, name):
+            return getattr(self._filter.settings, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def capacity(self) -> int:
@@ -208,7 +201,7 @@ class EkfSlam:
     def full_state(self) -> tuple[FloatArray, FloatArray, np.ndarray]:
         """Copies of the total mean x (n,), covariance P (n, n) and the mapped ids in slot
         order (landmark j occupies ``x[nv + 3j : nv + 3j + 3]``, nv = 9 or 13 with biases)."""
-        x, P, slots = self._filter.lane_full_state(0)
+        x, P, slots = self._filter.full_state(0)
         return x, P, np.array(self._ids, dtype=int)[slots]
 
     def set_full_state(self, x: FloatArray, P: FloatArray) -> None:
@@ -217,7 +210,7 @@ class EkfSlam:
         Raises:
             ValueError: On a shape mismatch or non-finite values.
         """
-        self._filter.set_lane_full_state(0, x, P)
+        self._filter.set_full_state(x, P, 0)
 
     def stacked_measurement(self, ids: np.ndarray) -> tuple[np.ndarray, FloatArray, FloatArray]:
         """Stacked observation model of the mapped/known landmarks ``ids`` (eq. 34 and 40).
@@ -228,4 +221,4 @@ class EkfSlam:
             KeyError: If an id is not mapped (or known).
         """
         rows = [self._index[int(i)] for i in np.asarray(ids).reshape(-1).tolist()]
-        return self._filter.stacked_measurement(0, np.array(rows, dtype=np.int64))
+        return self._filter.stacked_measurement(np.array(rows, dtype=np.int64), 0)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from estimators.ekf.kernels import (
     D_DIVERGED,
@@ -30,31 +29,22 @@ from estimators.ekf.kernels import (
     D_N_UPDATES,
     D_NIS,
     D_NIS_DOF,
+    sync_lane,
+)
+from estimators.ekf.measurement import (
     dcm_and_partials,
     lidar_inverse_model,
-    lidar_model,
-    sync_lane,
-    wrap_residual,
-    wrap_state_angle,
+    predicted_measurements,
 )
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.models.frames import wrap_pi
+from quadslam_env.models.jit import kernel
+from quadslam_env.types import FloatArray
 
 _DIAG_FLOOR = -1e-9
 """Most negative posterior variance accepted as round-off."""
 
 
-@njit(cache=True)
-def predicted_measurements(xb: FloatArray, lms: FloatArray, h: FloatArray, H: FloatArray) -> None:
-    """``h`` (k, 3) and Jacobian blocks ``H`` (k, 3, 9) = ``[∂h/∂ρ, ∂h/∂Λ, ∂h/∂l]`` of the
-    landmarks ``lms`` (k, 3) seen from the pose in ``xb`` (eq. 34, 40)."""
-    C = np.empty((3, 3))
-    dC = np.empty((3, 3, 3))
-    dcm_and_partials(xb[6], xb[7], xb[8], C, dC)
-    for i in range(lms.shape[0]):
-        lidar_model(xb[0:3], C, dC, lms[i], h[i], H[i])
-
-
-@njit(cache=True)
+@kernel
 def _solve3_nis(S: FloatArray, o: int, nu: FloatArray) -> float:
     """``νᵀ S_oo⁻¹ ν`` for the 3×3 block at offset ``o`` (LU with partial pivoting, as
     LAPACK's ``gesv``); NaN if the block is exactly singular."""
@@ -84,7 +74,7 @@ def _solve3_nis(S: FloatArray, o: int, nu: FloatArray) -> float:
     return nu[o] * z[0] + nu[o + 1] * z[1] + nu[o + 2] * z[2]
 
 
-@njit(cache=True)
+@kernel
 def _cholesky_lower(A: FloatArray) -> bool:
     """In-place Cholesky ``A = L Lᵀ`` reading the lower triangle (as LAPACK ``potrf('L')``);
     False if A is not positive definite."""
@@ -105,7 +95,7 @@ def _cholesky_lower(A: FloatArray) -> bool:
     return True
 
 
-@njit(cache=True)
+@kernel
 def _stacked_rows(Pb: FloatArray, nb: int, H: FloatArray, cols: np.ndarray, U: FloatArray) -> None:
     """``U = H P[idx, :n]`` (3k, n), with H given as blocks (k, 3, 9) over the columns
     ``ρ, Λ`` and the landmark's own ``cols[i] … cols[i] + 2`` (cols < 0: known landmark)."""
@@ -127,7 +117,7 @@ def _stacked_rows(Pb: FloatArray, nb: int, H: FloatArray, cols: np.ndarray, U: F
                     Ur[j] = Ur[j] + h6 * La[j] + h7 * Lb[j] + h8 * Lc[j]
 
 
-@njit(cache=True)
+@kernel
 def _subtract_outer(Pb: FloatArray, Wt: FloatArray, nb: int) -> None:
     """``P[:n, :n] -= W Wᵀ`` (eq. 43) for ``Wt = Wᵀ`` (m, n), exactly symmetric.
 
@@ -174,7 +164,7 @@ def _subtract_outer(Pb: FloatArray, Wt: FloatArray, nb: int) -> None:
             Pb[j, i] = Pb[i, j]
 
 
-@njit(cache=True)
+@kernel
 def _update_mapped(
     xb: FloatArray,
     Pb: FloatArray,
@@ -194,8 +184,8 @@ def _update_mapped(
     predicted_measurements(xb, lms, h, H)
     nu = np.empty(3 * k)
     for i in range(k):
-        nu[3 * i] = wrap_residual(y[i, 0] - h[i, 0])
-        nu[3 * i + 1] = wrap_residual(y[i, 1] - h[i, 1])
+        nu[3 * i] = wrap_pi(y[i, 0] - h[i, 0])
+        nu[3 * i + 1] = wrap_pi(y[i, 1] - h[i, 1])
         nu[3 * i + 2] = y[i, 2] - h[i, 2]
     U = np.empty((3 * k, nb))
     _stacked_rows(Pb, nb, H, cols, U)
@@ -288,14 +278,14 @@ def _update_mapped(
     for j in range(nb):
         xb[j] += dx[j]
     _subtract_outer(Pb, Wt, nb)
-    xb[6] = wrap_state_angle(xb[6])
-    xb[8] = wrap_state_angle(xb[8])
+    xb[6] = wrap_pi(xb[6])
+    xb[8] = wrap_pi(xb[8])
     diag[D_NIS, b] = nis
     diag[D_NIS_DOF, b] = m
     diag[D_N_UPDATES, b] += 1.0
 
 
-@njit(cache=True)
+@kernel
 def _register(
     xb: FloatArray,
     Pb: FloatArray,
@@ -365,7 +355,7 @@ def _register(
     return True
 
 
-@njit(cache=True)
+@kernel
 def update_lanes(
     x: FloatArray,
     P: FloatArray,
@@ -449,7 +439,7 @@ def update_lanes(
                 diag[D_DIVERGED, b] = 1.0
 
 
-@njit(cache=True)
+@kernel
 def first_nonfinite_lane(lanes: np.ndarray, visible: np.ndarray, meas: FloatArray) -> int:
     """The first lane of ``lanes`` with a non-finite visible measurement, or -1."""
     for b in lanes:

@@ -6,12 +6,11 @@ and the input the IMU-derived ``λ = (a_z, ω)`` (eq. 25): the specific force al
 
     ρ̇ = C_NB v,    v̇ = -ω×v + C_NBᵀ g n3 + a_z b3,    Λ̇ = D(Λ) ω,
 
-with ``C_NB = C3(ψ) C2(θ) C1(φ)`` (eq. 1) and ``D(Λ)`` the Euler-rate matrix (eq. 3).
-
-The kernels work on one vehicle and write into caller-provided arrays, so filters can call
-them inside their own compiled loops over lanes or particles without allocating; the
-NumPy-facing :func:`process_derivative` and :func:`process_jacobians` wrap them for tests and
-interactive use. ``fastmath`` stays off so results are IEEE-reproducible.
+which are the kinematic rows of the rigid body (eq. 2) with the specific force ``a_z b3`` and
+ω held as an input. So the derivative and its RK4 step are those of
+:mod:`quadslam_env.models.rigid_body` (``kinematics``, ``rk4_step`` with ``hold_rates``) on the
+12-vector ``y = (s, ω)``; this module adds what only the filter needs, the analytic Jacobians
+``F = ∂f/∂s`` (eq. 28) and ``G = ∂f/∂λ``, and NumPy-facing wrappers for tests.
 """
 
 from __future__ import annotations
@@ -19,90 +18,35 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
-from quadslam_env.models.dynamics import GRAVITY
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.models.frames import dcm_from_trig
+from quadslam_env.models.jit import kernel
+from quadslam_env.models.rigid_body import kinematics, pack_bodies, rk4_step
+from quadslam_env.types import GRAVITY, POSE_DIM, FloatArray
 
-STRAPDOWN_DIM = 9
-"""Size of the strapdown state s = (ρ, v_B, Λ)."""
-
-
-@njit(cache=True)
-def strapdown_derivative(
-    s: FloatArray, accel_z: float, p: float, q: float, r: float, out: FloatArray
-) -> None:
-    """``ṡ = f_s(s, λ)`` of seed 001 eq. 24 (noise-free), written into ``out``.
-
-    Args:
-        s: (9,) state (ρ [m, N], v_B [m/s, B], Λ [rad]); ρ does not enter.
-        accel_z: Specific force along b3 in m/s².
-        p: Body rate about b1 in rad/s.
-        q: Body rate about b2 in rad/s.
-        r: Body rate about b3 in rad/s.
-        out: (9,) receives ṡ (may not alias ``s``).
-    """
-    u, v, w, phi, theta, psi = s[3], s[4], s[5], s[6], s[7], s[8]
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    g = GRAVITY
-    a = sf * q + cf * r
-    # ρ̇ = C_NB v with the rows of C_NB (eq. 1) written out.
-    out[0] = ct * cp * u + (sf * st * cp - cf * sp) * v + (cf * st * cp + sf * sp) * w
-    out[1] = ct * sp * u + (sf * st * sp + cf * cp) * v + (cf * st * sp - sf * cp) * w
-    out[2] = -st * u + sf * ct * v + cf * ct * w
-    # v̇ = -ω×v + g C_NBᵀ n3 + a_z b3; C_NBᵀ n3 is the last row of C_NB.
-    out[3] = r * v - q * w - g * st
-    out[4] = p * w - r * u + g * sf * ct
-    out[5] = q * u - p * v + g * cf * ct + accel_z
-    # Λ̇ = D(Λ) ω (eq. 3).
-    out[6] = p + a * st / ct
-    out[7] = cf * q - sf * r
-    out[8] = a / ct
+_EYE = np.eye(3)[None]
+_BODY = pack_bodies(1.0, 0.0, _EYE, _EYE)[0]
+"""Unit mass, no drag: with zero thrust the rigid body's specific force is the input alone."""
 
 
-@njit(cache=True)
-def strapdown_rk4(
-    s: FloatArray,
-    accel_z: float,
-    p: float,
-    q: float,
-    r: float,
-    dt: float,
-    work: FloatArray,
-    out: FloatArray,
-) -> None:
+@kernel
+def strapdown_rk4(y: FloatArray, accel_z: float, dt: float, work: FloatArray) -> None:
     """One classical RK4 step of eq. 24 with the input λ held over ``dt`` (eq. 26).
 
     Args:
-        s: (9,) state at the start of the step.
+        y: (12,) ``(s, ω)``: the state s (9,) is advanced in place, ω (rad/s) is the held
+            input. Angles are not wrapped.
         accel_z: Specific force along b3 in m/s².
-        p: Body rate about b1 in rad/s.
-        q: Body rate about b2 in rad/s.
-        r: Body rate about b3 in rad/s.
         dt: Step in s.
-        work: (5, 9) scratch (the four stages and the stage state).
-        out: (9,) receives ``s(t + dt)`` (may alias ``s``); angles are not wrapped.
+        work: (6, 12) scratch (RK4 stages, stage state, input vector).
     """
-    k1, k2, k3, k4, y = work[0], work[1], work[2], work[3], work[4]
-    h2 = 0.5 * dt
-    strapdown_derivative(s, accel_z, p, q, r, k1)
-    for i in range(STRAPDOWN_DIM):
-        y[i] = s[i] + h2 * k1[i]
-    strapdown_derivative(y, accel_z, p, q, r, k2)
-    for i in range(STRAPDOWN_DIM):
-        y[i] = s[i] + h2 * k2[i]
-    strapdown_derivative(y, accel_z, p, q, r, k3)
-    for i in range(STRAPDOWN_DIM):
-        y[i] = s[i] + dt * k3[i]
-    strapdown_derivative(y, accel_z, p, q, r, k4)
-    h6 = dt / 6.0
-    for i in range(STRAPDOWN_DIM):
-        out[i] = s[i] + h6 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])
+    u = work[5, :7]
+    u[:] = 0.0
+    u[6] = accel_z  # input (f_T, τ, a) of the rigid body: only the extra specific force a_z b3
+    rk4_step(y, u, _BODY, True, dt, work[:5])
 
 
-@njit(cache=True)
+@kernel
 def strapdown_jacobians(
     s: FloatArray, p: float, q: float, r: float, F: FloatArray, G: FloatArray
 ) -> None:
@@ -111,21 +55,20 @@ def strapdown_jacobians(
     ``a_z`` enters f_s linearly, so neither Jacobian depends on it.
 
     Args:
-        s: (9,) state (ρ [m, N], v_B [m/s, B], Λ [rad]).
+        s: (≥9,) state (ρ [m, N], v_B [m/s, B], Λ [rad]) in its first 9 entries.
         p: Body rate about b1 in rad/s.
         q: Body rate about b2 in rad/s.
         r: Body rate about b3 in rad/s.
         F: (9, 9) receives ∂f_s/∂s (every entry is written).
         G: (9, 4) receives ∂f_s/∂λ for λ = (a_z, p, q, r) (every entry is written).
     """
-    u, v, w, phi, theta, psi = s[3], s[4], s[5], s[6], s[7], s[8]
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
+    u, v, w = s[3], s[4], s[5]
+    cf, sf = math.cos(s[6]), math.sin(s[6])
+    ct, st = math.cos(s[7]), math.sin(s[7])
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = dcm_from_trig(
+        cf, sf, ct, st, math.cos(s[8]), math.sin(s[8])
+    )
     g = GRAVITY
-    c00, c01, c02 = ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp
-    c10, c11, c12 = ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp
-    c20, c21, c22 = -st, sf * ct, cf * ct
     xd = c00 * u + c01 * v + c02 * w
     yd = c10 * u + c11 * v + c12 * w
     # ∂C/∂φ v = C (e1 × v); ∂C/∂θ v = C ((C1ᵀ e2) × v); ∂C/∂ψ v = e3 × (C v).
@@ -169,9 +112,9 @@ def process_derivative(s: FloatArray, accel_z: float, gyro: FloatArray) -> Float
     Returns:
         (9,) time derivative of s.
     """
-    out = np.empty(STRAPDOWN_DIM)
-    p, q, r = (float(c) for c in gyro)
-    strapdown_derivative(np.ascontiguousarray(s, dtype=float), float(accel_z), p, q, r, out)
+    y = np.concatenate((np.asarray(s, dtype=float), np.asarray(gyro, dtype=float)))
+    out = np.empty(POSE_DIM)
+    kinematics(y, (0.0, 0.0, float(accel_z)), out)
     return out
 
 
@@ -191,8 +134,8 @@ def process_jacobians(
         ``∂f/∂b_az = -G[:, 0]``.
     """
     del accel_z
-    F = np.empty((STRAPDOWN_DIM, STRAPDOWN_DIM))
-    G = np.empty((STRAPDOWN_DIM, 4))
+    F = np.empty((POSE_DIM, POSE_DIM))
+    G = np.empty((POSE_DIM, 4))
     p, q, r = (float(c) for c in gyro)
     strapdown_jacobians(np.ascontiguousarray(s, dtype=float), p, q, r, F, G)
     return F, G

@@ -1,0 +1,139 @@
+"""Validated settings of the EKF-SLAM estimator (``estimator.params`` in a scenario)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.special import gammaincinv
+
+from estimators.base import check_kwargs
+from quadslam_env.types import POSE_DIM, FloatArray
+
+BIAS_DIM = 4
+"""Size of the bias block b = (b_ω (3), b_az (1)) when biases are estimated."""
+
+PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)
+"""Seed 001 Table 7: diagonal of Q over (ρ, v_B, Λ) for the unknown-map case."""
+
+_TYPES = {
+    "process_noise": (list, tuple, np.ndarray),
+    "estimate_imu_bias": bool,
+    "gyro_bias_sigma0": (float, int),
+    "accel_bias_sigma0": (float, int),
+    "gyro_bias_walk": (float, int),
+    "accel_bias_walk": (float, int),
+    "gate_probability": (float, int),
+    "imu_noise_in_q": bool,
+}
+
+
+def _check_nonneg(key: str, value: float) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value >= 0.0):
+        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: a finite number >= 0")
+    return value
+
+
+@dataclass(frozen=True)
+class EkfSlamSettings:
+    """EKF-SLAM settings, built from ``estimator.params`` by :meth:`from_params`.
+
+    The accepted keys (all optional):
+
+    ``process_noise`` (list of 9 floats ≥ 0, default seed 001 Table 7
+    ``[0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2]``): diagonal of the continuous-time
+    process-noise spectral density Q over (ρ, v_B, Λ), in m²/s, m²/s³, rad²/s. Table 6
+    (known landmarks) uses ``[0.01]*6 + [0.02]*3``.
+
+    ``estimate_imu_bias`` (bool, default False): augment the state with the gyro bias b_ω (3)
+    and the accelerometer z bias b_az (1); these are the only IMU axes the model uses
+    (λ = (ã_z, ω̃), seed 001 eq. 25). Random walks with the settings below.
+
+    ``gyro_bias_sigma0`` (float ≥ 0, default 0.01 rad/s): initial bias std per axis.
+
+    ``accel_bias_sigma0`` (float ≥ 0, default 0.05 m/s²): initial z-bias std.
+
+    ``gyro_bias_walk`` (float ≥ 0, default 1e-4 rad/s/√s): random-walk density.
+
+    ``accel_bias_walk`` (float ≥ 0, default 1e-3 m/s²/√s): random-walk density.
+
+    ``gate_probability`` (float in (0, 1], default 0.99): per-landmark χ² gate (3 DOF;
+    0.99 → NIS threshold 11.345). 1.0 disables gating.
+
+    ``imu_noise_in_q`` (bool, default True): add the IMU white noise mapped through ``∂f/∂λ``
+    to the discrete process noise (needed for consistency; False reproduces the paper, which
+    only uses Q).
+
+    Known-map mode (localisation only, the paper's known-landmarks case) is not a setting: it
+    is chosen per run by passing a known map at reset (the env does so when the scenario sets
+    ``estimator.known_map: true``).
+    """
+
+    process_noise: tuple[float, ...] = PAPER_Q_UNKNOWN
+    estimate_imu_bias: bool = False
+    gyro_bias_sigma0: float = 0.01
+    accel_bias_sigma0: float = 0.05
+    gyro_bias_walk: float = 1e-4
+    accel_bias_walk: float = 1e-3
+    gate_probability: float = 0.99
+    imu_noise_in_q: bool = True
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> EkfSlamSettings:
+        """Validate ``estimator.params``.
+
+        Raises:
+            ValueError: Unknown key, wrong type or out-of-range value (the message names the
+                key, the value and what is allowed).
+        """
+        check_kwargs("estimator.params", params, _TYPES)
+        q = params.get("process_noise", PAPER_Q_UNKNOWN)
+        if len(q) != POSE_DIM or not all(
+            isinstance(e, float | int) and not isinstance(e, bool) for e in q
+        ):
+            raise ValueError(
+                f"estimator.params.process_noise: got {q!r}; allowed: a list of 9 numbers >= 0"
+            )
+        prob = float(params.get("gate_probability", 0.99))
+        if not 0.0 < prob <= 1.0:
+            raise ValueError(
+                f"estimator.params.gate_probability: got {prob!r}; allowed: 0 < p <= 1"
+            )
+        return cls(
+            process_noise=tuple(_check_nonneg("process_noise", e) for e in q),
+            estimate_imu_bias=bool(params.get("estimate_imu_bias", False)),
+            gyro_bias_sigma0=_check_nonneg(
+                "gyro_bias_sigma0", params.get("gyro_bias_sigma0", 0.01)
+            ),
+            accel_bias_sigma0=_check_nonneg(
+                "accel_bias_sigma0", params.get("accel_bias_sigma0", 0.05)
+            ),
+            gyro_bias_walk=_check_nonneg("gyro_bias_walk", params.get("gyro_bias_walk", 1e-4)),
+            accel_bias_walk=_check_nonneg("accel_bias_walk", params.get("accel_bias_walk", 1e-3)),
+            gate_probability=prob,
+            imu_noise_in_q=bool(params.get("imu_noise_in_q", True)),
+        )
+
+    @property
+    def nv(self) -> int:
+        """Vehicle-state size: 9, or 13 with bias states."""
+        return POSE_DIM + (BIAS_DIM if self.estimate_imu_bias else 0)
+
+    @property
+    def gate_threshold(self) -> float:
+        """Per-landmark 3-DOF NIS threshold (χ² quantile; inf when gating is off)."""
+        if self.gate_probability >= 1.0:
+            return math.inf
+        return float(2.0 * gammaincinv(1.5, self.gate_probability))
+
+    def continuous_noise(self) -> FloatArray:
+        """(nv,) diagonal of the continuous process-noise density over (s, b)."""
+        walks = [self.gyro_bias_walk**2] * 3 + [self.accel_bias_walk**2]
+        return np.array(list(self.process_noise) + (walks if self.estimate_imu_bias else []))
+
+    def initial_bias_variances(self) -> FloatArray:
+        """(4,) initial variances of (b_ω, b_az)."""
+        return np.array([self.gyro_bias_sigma0**2] * 3 + [self.accel_bias_sigma0**2])
