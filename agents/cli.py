@@ -296,7 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
     from agents.bench import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy
 
     bench = sub.add_parser("bench", help="measure env and estimator speed and scaling")
-    bench.add_argument("--quick", action="store_true", help="small sizes, a few minutes")
+    bench.add_argument("--quick", action="store_true", help="small sizes, about a minute")
     bench.add_argument("--json", type=Path, help="write the measurements as JSON")
     bench.add_argument("--plots", type=Path, help="write scaling plots (PNG) here")
     bench.add_argument(

@@ -1,23 +1,59 @@
-"""``quadslam bench --quick`` runs and writes well-formed JSON (no timing assertions)."""
+"""``quadslam bench`` runs every section and writes well-formed JSON (no timing assertions).
+
+The run uses the ``tiny`` plan (in place of ``quick``) so that it takes seconds; the compile
+section's subprocesses (a cold numba compile takes ~20 s) are replaced by a stub.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
+import os
+from pathlib import Path
 
+import pytest
+
+from agents import bench, bench_process
+from agents.bench import SECTION_NAMES, TINY, sections
+from agents.bench_envs import VECTOR_SCENARIOS
 from agents.cli import main
 
 
-def test_bench_quick_writes_wellformed_json(tmp_path, capsys) -> None:
-    out = tmp_path / "bench.json"
-    plots = tmp_path / "plots"
-    assert main(["bench", "--quick", "--json", str(out), "--plots", str(plots)]) == 0
-    doc = json.loads(out.read_text())
-    assert doc["quick"] is True
-    assert set(doc["sections"]) == {"ekf", "fastslam", "env", "vector"}
-    assert {"cpu", "cores", "python", "numpy"} <= set(doc["machine"])
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path, str, list[str]]:
+    """``quadslam bench --quick --json --plots`` with the tiny plan and a compile stub."""
+    out_dir = tmp_path_factory.mktemp("bench")
+    caches: list[str] = []
+
+    def first_use_stub(cache_dir: str) -> float:
+        caches.append(cache_dir)
+        assert os.path.isdir(cache_dir)
+        return 1.0 + len(caches)
+
+    stdout = io.StringIO()  # capsys is function-scoped, the run module-scoped
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(stdout):
+        mp.setattr(bench, "QUICK", TINY)
+        mp.setattr(bench_process, "first_use_seconds", first_use_stub)
+        code = main(
+            ["bench", "--quick", "--json", str(out_dir / "b.json"), "--plots", str(out_dir)]
+        )
+    assert code == 0
+    return json.loads((out_dir / "b.json").read_text()), out_dir, stdout.getvalue(), caches
+
+
+def test_sections_table_matches_cli_names() -> None:
+    assert tuple(sections()) == SECTION_NAMES
+
+
+def test_document_is_wellformed(tiny_run) -> None:
+    doc, _, _, _ = tiny_run
+    assert doc["quick"] is True and doc["plan"] == "tiny"
+    assert tuple(doc["sections"]) == SECTION_NAMES
+    assert {"cpu", "cores", "python", "numpy", "numba", "load_average"} <= set(doc["machine"])
     groups = {e["group"] for e in doc["results"]}
-    assert groups == {"ekf_slam", "fastslam", "env", "vector"}
+    assert groups == {"ekf_slam", "fastslam", "env", "vector", "memory", "compile"}
     for entry in doc["results"]:
         assert {"group", "name", "params", "unit", "median", "min", "max", "n"} <= set(entry)
         assert entry["n"] >= 1 and entry["unit"]
@@ -25,9 +61,65 @@ def test_bench_quick_writes_wellformed_json(tmp_path, capsys) -> None:
         assert entry["min"] <= entry["median"] <= entry["max"]
     names = {e["name"] for e in doc["results"]}
     assert {"predict", "update", "registration"} <= names
-    assert any(n.startswith("steps_per_s/ekf_slam/") for n in names)
-    assert sorted(p.name for p in plots.glob("*.png")) == [
+    for label in ("oracle", "ekf_slam", f"fastslam_N{TINY.fast_env_particles[0]}"):
+        assert f"steps_per_s/{label}/dflqr" in names
+        assert f"real_time_factor/{label}/dflqr" in names
+
+
+def _by_name(doc: dict, group: str) -> dict[str, list[dict]]:
+    out: dict[str, list[dict]] = {}
+    for e in doc["results"]:
+        if e["group"] == group:
+            out.setdefault(e["name"], []).append(e)
+    return out
+
+
+def test_vector_and_worker_entries(tiny_run) -> None:
+    doc, _, _, _ = tiny_run
+    vector = _by_name(doc, "vector")
+    expected = {f"env_steps_per_s/{label}" for label, _, _ in VECTOR_SCENARIOS}
+    expected |= {f"{name}/{TINY.n_workers}_workers" for name in expected}
+    expected.add(f"env_steps_per_s/ekf_unknown_map/{TINY.n_workers}_workers_all_info")
+    assert set(vector) == expected
+    for name, entries in vector.items():
+        workers = 1 if name.count("/") == 1 else TINY.n_workers
+        batches = TINY.vec_batches if workers == 1 else TINY.worker_batches
+        assert sorted(e["params"]["num_envs"] for e in entries) == sorted(batches)
+        for e in entries:
+            assert e["unit"] == "env-steps/s" and e["params"]["workers"] == workers
+            assert e["params"]["warmup_steps"] == TINY.vec_warmup and "warm-up" in e["note"]
+            assert e["n"] == TINY.repeats
+    assert set(doc["best_batch"]) == expected
+    assert all(b["num_envs"] in TINY.vec_batches for b in doc["best_batch"].values())
+
+
+def test_memory_and_compile_entries(tiny_run) -> None:
+    doc, _, _, caches = tiny_run
+    memory = _by_name(doc, "memory")
+    assert set(memory) == {"peak_rss/ekf_unknown_map"}
+    rows = memory["peak_rss/ekf_unknown_map"]
+    assert sorted(e["params"]["num_envs"] for e in rows) == sorted(TINY.memory_batches)
+    assert all(e["unit"] == "MB" and e["params"]["steps"] == TINY.memory_steps for e in rows)
+    compile_ = _by_name(doc, "compile")
+    assert set(compile_) == {"first_use/empty_cache", "first_use/warm_cache"}
+    assert all(e[0]["unit"] == "s" for e in compile_.values())
+    assert compile_["first_use/empty_cache"][0]["params"]["target_s"] == 20.0
+    assert compile_["first_use/warm_cache"][0]["params"]["target_s"] == 2.0
+    # Empty cache first, then the same (now warm) directory; a new directory per repeat.
+    assert len(caches) == 2 * TINY.process_repeats
+    assert caches[0] == caches[1] and not os.path.exists(caches[0])
+
+
+def test_peak_rss_is_plausible() -> None:
+    assert 1.0 < bench_process.peak_rss_mb() < 1e5
+
+
+def test_table_and_plots(tiny_run) -> None:
+    _, out_dir, stdout, _ = tiny_run
+    assert "steps_per_s" in stdout and "medians vs lanes B:" in stdout
+    assert "env_steps_per_s/ekf_unknown_map" in stdout.split("medians vs lanes B:")[1]
+    assert sorted(p.name for p in out_dir.glob("*.png")) == [
         "ekf_scaling.png",
         "fastslam_scaling.png",
+        "vector_scaling.png",
     ]
-    assert "steps_per_s" in capsys.readouterr().out

@@ -1,0 +1,223 @@
+"""Env sections of ``quadslam bench``: scalar env, native vector env, worker processes.
+
+* ``env``: steps/s and real-time factor of each id through ``gymnasium.make`` (one env), with
+  a zero action and with DF-LQR in the loop;
+* ``vector``: env-steps/s (B × steps / wall time, autoresets included) of the native vector env
+  ``gymnasium.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point")`` vs B, with
+  the batched DF-LQR (``DFLQRPolicy.predict`` on the (B, obs_dim) observations) in the loop;
+* ``workers``: the same with the lanes split over worker processes by
+  :class:`agents.vec_adapter.QuadSLAMVecEnv` (``step_async``/``step_wait``; DF-LQR computes the
+  actions in the parent).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from agents.bench import Plan, Results
+
+# (label, env id, make kwargs) of the vector-env scenarios.
+VECTOR_SCENARIOS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("oracle", "QuadSLAM-Oracle-v0", {}),
+    ("ekf_known_map", "QuadSLAM-EKF-v0", {"scenario": "paper_ekf_figure8_known"}),
+    ("ekf_unknown_map", "QuadSLAM-EKF-v0", {}),  # paper_ekf_figure8: 40 landmarks, 100/10 Hz
+)
+
+
+# ---------------------------------------------------------------- scalar env
+def _env_rate(env: Any, policy: Any, steps: int, repeats: int) -> list[float]:
+    """Steps per second over ``repeats`` blocks of ``steps`` steps (resets included)."""
+    obs, _ = env.reset(seed=0)
+    zero = np.zeros(env.action_space.shape, dtype=np.float32)
+    samples = []
+    for _ in range(repeats + 1):  # the first block is the warm-up
+        tic = time.perf_counter()
+        for _ in range(steps):
+            action = zero if policy is None else policy.predict(obs)[0]
+            obs, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                obs, _ = env.reset()
+        samples.append(steps / (time.perf_counter() - tic))
+    return samples[1:]
+
+
+def bench_env(results: Results, plan: Plan) -> None:
+    """Steps/s of each env id through ``gymnasium.make`` with a zero action and with DF-LQR."""
+    import gymnasium as gym
+
+    import quadslam_env  # noqa: F401
+    from agents.dflqr import DFLQRPolicy
+
+    cases: list[tuple[str, str, dict[str, Any]]] = [
+        ("QuadSLAM-Oracle-v0", "oracle", {}),
+        ("QuadSLAM-EKF-v0", "ekf_slam", {}),
+    ]
+    for n in plan.fast_env_particles:
+        cases.append(
+            (
+                "QuadSLAM-FastSLAM-v0",
+                f"fastslam_N{n}",
+                {"estimator": {"params": {"n_particles": n}}},
+            )
+        )
+    for env_id, label, kwargs in cases:
+        env = gym.make(env_id, **kwargs)
+        dt = env.unwrapped.dt
+        n_lm = int(
+            env.unwrapped.scenario.landmarks.count
+            if env.unwrapped.scenario.landmarks.layout == "rauniyar2023"
+            else 4
+        )
+        steps = plan.env_steps if "fastslam" not in label else max(100, plan.env_steps // 10)
+        for policy_name, policy in (("zero", None), ("dflqr", DFLQRPolicy.from_env(env))):
+            rates = _env_rate(env, policy, steps, plan.repeats)
+            results.add(
+                "env",
+                f"steps_per_s/{label}/{policy_name}",
+                rates,
+                "steps/s",
+                env_id=env_id,
+                estimator=label,
+                policy=policy_name,
+                landmarks=n_lm,
+            )
+            results.add(
+                "env",
+                f"real_time_factor/{label}/{policy_name}",
+                [r * dt for r in rates],
+                "x real time",
+                env_id=env_id,
+                estimator=label,
+                policy=policy_name,
+            )
+        env.close()
+
+
+# ---------------------------------------------------------------- vector envs
+def make_vector(env_id: str, num_envs: int, **kwargs: Any) -> Any:
+    """The native vector env of ``env_id`` with ``num_envs`` lanes."""
+    import gymnasium as gym
+
+    import quadslam_env  # noqa: F401  (registers the ids)
+
+    return gym.make_vec(
+        env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs
+    )
+
+
+def steps_per_sample(plan: Plan, num_envs: int) -> int:
+    """Vector steps per sample: about ``plan.vec_lane_steps`` env-steps, at least the minimum."""
+    return max(plan.vec_min_steps, plan.vec_lane_steps // num_envs)
+
+
+def lane_rates(
+    step: Callable[[np.ndarray], np.ndarray],
+    obs: np.ndarray,
+    policy: Any,
+    num_envs: int,
+    plan: Plan,
+) -> list[float]:
+    """Env-steps/s samples of a vector env driven by ``policy``.
+
+    Args:
+        step: Steps the env with (B, 4) actions and returns the next (B, obs_dim) observations.
+        obs: Observations after the reset.
+        policy: Batched policy with SB3's ``predict``.
+        num_envs: B.
+        plan: Warm-up steps, steps per sample and repeats.
+
+    Returns:
+        ``plan.repeats`` samples of B × steps / wall time (autoresets included).
+    """
+    for _ in range(plan.vec_warmup):
+        obs = step(policy.predict(obs)[0])
+    steps = steps_per_sample(plan, num_envs)
+    samples = []
+    for _ in range(plan.repeats):
+        tic = time.perf_counter()
+        for _ in range(steps):
+            obs = step(policy.predict(obs)[0])
+        samples.append(num_envs * steps / (time.perf_counter() - tic))
+    return samples
+
+
+def _note(plan: Plan, dt: float, extra: str = "") -> str:
+    return (
+        f"batched DF-LQR in the loop; timed after {plan.vec_warmup} warm-up steps "
+        f"({plan.vec_warmup * dt:g} s of flight: the EKF maps its landmarks in the first "
+        f"~10 s, so its cost grows until then); autoresets included{extra}"
+    )
+
+
+def bench_vector(results: Results, plan: Plan) -> None:
+    """Native vector env env-steps/s vs lanes B, one process, for each scenario."""
+    from agents.dflqr import DFLQRPolicy
+
+    for label, env_id, kwargs in VECTOR_SCENARIOS:
+        for b in plan.vec_batches:
+            vec = make_vector(env_id, b, **kwargs)
+            policy = DFLQRPolicy.from_env(vec)
+            obs, _ = vec.reset(seed=0)
+            rates = lane_rates(lambda a, v=vec: v.step(a)[0], obs, policy, b, plan)
+            results.add(
+                "vector",
+                f"env_steps_per_s/{label}",
+                rates,
+                "env-steps/s",
+                note=_note(plan, vec.dt),
+                env_id=env_id,
+                scenario=vec.scenario.name,
+                num_envs=b,
+                workers=1,
+                steps=steps_per_sample(plan, b),
+                warmup_steps=plan.vec_warmup,
+            )
+            vec.close()
+
+
+def bench_workers(results: Results, plan: Plan) -> None:
+    """``QuadSLAMVecEnv`` env-steps/s with the lanes split over ``plan.n_workers`` processes.
+
+    The infos are not copied (``info_keys=()``) except in one extra EKF unknown-map series
+    (``.../all_info``): each lane's info dict is built and pickled back to the parent.
+    """
+    from agents.dflqr import DFLQRPolicy
+    from agents.vec_adapter import QuadSLAMVecEnv
+
+    n = plan.n_workers
+    cases = [(*scenario, ()) for scenario in VECTOR_SCENARIOS]
+    cases.append((*VECTOR_SCENARIOS[-1], None))
+    for label, env_id, kwargs, info_keys in cases:
+        probe = make_vector(env_id, 1, **kwargs)
+        policy, dt, scenario = DFLQRPolicy.from_env(probe), probe.dt, probe.scenario.name
+        probe.close()
+        suffix = f"/{n}_workers" + ("" if info_keys == () else "_all_info")
+        for b in plan.worker_batches:
+            venv = QuadSLAMVecEnv(env_id, b, seed=0, n_workers=n, info_keys=info_keys, **kwargs)
+
+            def step(actions: np.ndarray, v: Any = venv) -> np.ndarray:
+                v.step_async(actions)
+                return v.step_wait()[0]
+
+            try:
+                rates = lane_rates(step, venv.reset(), policy, b, plan)
+            finally:
+                venv.close()
+            results.add(
+                "vector",
+                f"env_steps_per_s/{label}{suffix}",
+                rates,
+                "env-steps/s",
+                note=_note(plan, dt, f"; {n} worker processes (QuadSLAMVecEnv)"),
+                env_id=env_id,
+                scenario=scenario,
+                num_envs=b,
+                workers=n,
+                info_keys="all" if info_keys is None else "none",
+                steps=steps_per_sample(plan, b),
+                warmup_steps=plan.vec_warmup,
+            )
