@@ -163,3 +163,51 @@ def test_batched_dflqr_flies_every_lane():
     # The vehicle starts 2 m from the reference; DF-LQR on the EKF estimate closes the gap.
     assert (info["track_pos_err_m"] < 0.3).all()
     vec.close()
+
+
+class _CorruptLane:
+    """Wraps a batch estimator; from the 6th estimate on, lane ``lane``'s position is NaN."""
+
+    def __init__(self, inner, lane):
+        self.inner, self.lane, self.calls = inner, lane, 0
+        self.num_lanes, self.uses_truth = inner.num_lanes, inner.uses_truth
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def estimate(self):
+        import dataclasses
+
+        self.calls += 1
+        est = self.inner.estimate()
+        if self.calls <= 6:
+            return est
+        position = est.position.copy()
+        position[self.lane] = math.nan
+        return dataclasses.replace(est, position=position)
+
+
+def test_a_diverging_lane_ends_alone_with_its_reason_and_autoresets():
+    vec = gym.make_vec("QuadSLAM-EKF-v0", num_envs=3)
+    clean = gym.make_vec("QuadSLAM-EKF-v0", num_envs=3)
+    core = vec.unwrapped.core
+    core.estimator = _CorruptLane(core.estimator, lane=1)
+    obs, _ = vec.reset(seed=5)
+    clean_obs, _ = clean.reset(seed=5)
+    hover = np.tile(vec.unwrapped.hover_action, (3, 1)).astype(np.float32)
+    for _ in range(5):
+        obs, _, term, _, info = vec.step(hover)
+        clean_obs, *_ = clean.step(hover)
+        assert not term.any()
+    obs, reward, term, trunc, info = vec.step(hover)
+    clean_obs, *_ = clean.step(hover)
+    assert term.tolist() == [False, True, False] and not trunc.any()
+    assert info["_termination_reason"].tolist() == [False, True, False]
+    assert info["termination_reason"][1] == "estimator_diverged: non-finite position"
+    assert np.isfinite(obs).all() and np.isfinite(reward).all()
+    for lane in (0, 2):  # the healthy lanes are untouched by lane 1's failure
+        np.testing.assert_array_equal(obs[lane], clean_obs[lane])
+    obs, reward, term, trunc, info = vec.step(hover)  # next step: lane 1 autoresets
+    assert reward[1] == 0.0 and not term[1] and info["t"][1] == 0.0
+    vec.close()
+    clean.close()
