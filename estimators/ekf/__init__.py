@@ -2,15 +2,16 @@
 
 * :mod:`estimators.ekf.filter` — :class:`EkfSlamBatch` (state, reset, predict, estimate),
   registered as the native batched ``"ekf_slam"``;
-* :mod:`estimators.ekf.update` — the correction kernel (χ² gate, stacked update,
-  registration);
+* :mod:`estimators.ekf.update` — the correction kernel (stacked observation model, χ² gate,
+  stacked update, registration);
 * :mod:`estimators.ekf.kernels` — the prediction kernel, angle wrap and outputs;
-* :mod:`estimators.ekf.measurement` — the LiDAR model of one landmark (numba);
 * :mod:`estimators.ekf.scalar` — :class:`EkfSlam`, the one-lane estimator registered as
   ``"ekf_slam"`` in :mod:`estimators.base`;
 * :mod:`estimators.ekf.settings` — :class:`EkfSlamSettings`, the validated parameters.
 
-The process model (seed 001 eq. 24, 28) is :mod:`quadslam_env.models.strapdown`.
+The process model (seed 001 eq. 24, 28) is :mod:`quadslam_env.models.strapdown`; the LiDAR
+model of one landmark and its inverse (eq. 31, 40, 44–50), numba kernels the correction calls
+per landmark, are :mod:`quadslam_env.models.lidar`.
 """
 
 from estimators.ekf.filter import EkfSlamBatch

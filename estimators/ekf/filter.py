@@ -35,9 +35,8 @@ from estimators.ekf.kernels import (
     predict_lanes,
     sync_lane,
 )
-from estimators.ekf.measurement import stacked_model
 from estimators.ekf.settings import EkfSlamSettings
-from estimators.ekf.update import first_nonfinite_lane, update_lanes
+from estimators.ekf.update import first_nonfinite_lane, stacked_model, update_lanes
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import POSE_DIM, FloatArray
 

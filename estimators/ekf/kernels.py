@@ -15,8 +15,7 @@ import math
 
 import numpy as np
 
-from estimators.ekf.measurement import dcm_and_partials
-from quadslam_env.models.frames import wrap_pi
+from quadslam_env.models.frames import dcm_and_partials, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.strapdown import strapdown_jacobians, strapdown_rk4
 from quadslam_env.types import POSE_DIM, FloatArray

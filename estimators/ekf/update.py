@@ -31,17 +31,52 @@ from estimators.ekf.kernels import (
     D_NIS_DOF,
     sync_lane,
 )
-from estimators.ekf.measurement import (
-    dcm_and_partials,
-    lidar_inverse_model,
-    predicted_measurements,
-)
-from quadslam_env.models.frames import wrap_pi
+from quadslam_env.models.frames import dcm_and_partials, wrap_pi
 from quadslam_env.models.jit import kernel
-from quadslam_env.types import FloatArray
+from quadslam_env.models.lidar import lidar_inverse_models, lidar_models
+from quadslam_env.types import POSE_DIM, FloatArray
 
 _DIAG_FLOOR = -1e-9
 """Most negative posterior variance accepted as round-off."""
+
+
+@kernel
+def predicted_measurements(xb: FloatArray, lms: FloatArray, h: FloatArray, H: FloatArray) -> None:
+    """``h`` (k, 3) and Jacobian blocks ``H`` (k, 3, 9) = ``[∂h/∂ρ, ∂h/∂Λ, ∂h/∂l]`` of the
+    landmarks ``lms`` (k, 3) seen from the pose in ``xb`` (eq. 34, 40)."""
+    C = np.empty((3, 3))
+    dC = np.empty((3, 3, 3))
+    dcm_and_partials(xb[6], xb[7], xb[8], C, dC)
+    lidar_models(xb[0:3], C, dC, lms, h, H)
+
+
+def stacked_model(
+    xb: FloatArray, lms: FloatArray, lm_cols: np.ndarray | None
+) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """Stacked observation model of k landmarks as dense arrays (eq. 34 and 40).
+
+    Args:
+        xb: (n,) total state of one lane.
+        lms: (k, 3) landmark positions in N, m.
+        lm_cols: (3k,) their columns in x, or ``None`` for known (non-state) landmarks.
+
+    Returns:
+        ``(cols, h, H)``: ``cols`` (d,) the columns ``[s, m_κ]`` of x the model depends on
+        (d = 9 + 3k, or 9 for known landmarks), ``h`` (3k,) the predicted (α, β, δ) and
+        ``H`` (3k, d) = ``∂h/∂x[cols]``.
+    """
+    k = lms.shape[0]
+    h = np.empty((k, 3))
+    blocks = np.empty((k, 3, 9))
+    predicted_measurements(xb, np.ascontiguousarray(lms, dtype=float), h, blocks)
+    cols = np.arange(POSE_DIM) if lm_cols is None else np.r_[np.arange(POSE_DIM), lm_cols]
+    H = np.zeros((k, 3, cols.shape[0]))
+    H[:, :, 0:3] = blocks[:, :, 0:3]
+    H[:, :, 6:9] = blocks[:, :, 3:6]
+    if lm_cols is not None:
+        for i in range(k):
+            H[i, :, POSE_DIM + 3 * i : POSE_DIM + 3 * i + 3] = blocks[i, :, 6:9]
+    return cols, h.ravel(), H.reshape(3 * k, -1)
 
 
 @kernel
@@ -310,8 +345,8 @@ def _register(
     G_y = np.empty((kn, 3, 3))
     Plx = np.empty((3 * kn, nb))  # eq. 50
     P6, P7, P8 = Pb[6], Pb[7], Pb[8]
+    lidar_inverse_models(xb[0:3], C, dC, y, lms, G_eul, G_y)
     for i in range(kn):
-        lidar_inverse_model(xb[0:3], C, dC, y[i], lms[i], G_eul[i], G_y[i])
         for r in range(3):
             g0, g1, g2 = G_eul[i, r, 0], G_eul[i, r, 1], G_eul[i, r, 2]
             Pr, row = Pb[r], Plx[3 * i + r]

@@ -8,7 +8,8 @@ No RNG, no state. The per-vehicle math is numba kernels lifted over a leading ba
 - :mod:`~quadslam_env.models.rigid_body`: seed 001 eq. 2–3, specific force, saturation, RK4 step.
 - :mod:`~quadslam_env.models.integrators`: RK4/Euler over lanes (simulator and FastSLAM).
 - :mod:`~quadslam_env.models.imu_noise`: noise density → σ, exact Gauss–Markov discretisation.
-- :mod:`~quadslam_env.models.lidar`: measurement, inverse and Jacobians.
+- :mod:`~quadslam_env.models.lidar`: measurement, inverse and Jacobians (per-landmark kernels,
+  gufuncs over leading axes).
 - :mod:`~quadslam_env.models.linalg`: stacked small-matrix helpers.
 """
 
@@ -35,6 +36,7 @@ from quadslam_env.models.lidar import (
     lidar_inverse,
     lidar_jacobians,
     lidar_measure,
+    lidar_measure_jacobian,
     measure_inverse_jacobian,
     measurement_residual,
 )
@@ -60,6 +62,7 @@ __all__ = [
     "lidar_inverse",
     "lidar_jacobians",
     "lidar_measure",
+    "lidar_measure_jacobian",
     "measure_inverse_jacobian",
     "measurement_residual",
     "rk4_integrate",

@@ -5,9 +5,10 @@ Conventions (DESIGN.md §2): inertial frame N is NED, body frame B is FRD and
 components. All angles are in radians.
 
 Each formula is written once, as a numba kernel on scalars (``dcm_from_trig``,
-``euler_rates_from_trig``, ``wrap_pi``); the NumPy-facing functions below lift those kernels
-over a leading batch axis, and the rigid-body kernels of :mod:`quadslam_env.models.rigid_body`
-call them directly. Kernels are compiled with ``cache=True`` and without ``fastmath`` so the
+``dcm_and_partials``, ``euler_rates_from_trig``, ``wrap_pi``); the NumPy-facing functions below
+lift those kernels over a leading batch axis, and the kernels of
+:mod:`quadslam_env.models.rigid_body`, :mod:`quadslam_env.models.lidar` and the EKF call them
+directly. Kernels are compiled with ``cache=True`` and without ``fastmath`` so the
 results are reproducible (IEEE arithmetic, no reassociation or fused multiply–adds).
 """
 
@@ -93,6 +94,31 @@ def dcm_from_trig(
         sf * ct,
         cf * ct,
     )
+
+
+@kernel
+def dcm_and_partials(phi: float, theta: float, psi: float, C: FloatArray, dC: FloatArray) -> None:
+    """``C_NB(Λ)`` (seed 001 eq. 1) and its partials ``∂C_NB/∂Λ_i`` for one attitude.
+
+    Args:
+        phi, theta, psi: Euler angles (φ, θ, ψ) in rad.
+        C: (3, 3) receives ``C_NB`` (B → N).
+        dC: (3, 3, 3) receives ``dC[i] = ∂C_NB/∂Λ_i`` in 1/rad.
+    """
+    cf, sf = math.cos(phi), math.sin(phi)
+    ct, st = math.cos(theta), math.sin(theta)
+    cp, sp = math.cos(psi), math.sin(psi)
+    c = dcm_from_trig(cf, sf, ct, st, cp, sp)
+    for k in range(9):
+        C[k // 3, k % 3] = c[k]
+    for a in range(3):
+        # ∂C/∂φ = C C1(φ)ᵀ ∂C1/∂φ: column 0 vanishes, columns 1, 2 rotate into each other.
+        dC[0, a, 0], dC[0, a, 1], dC[0, a, 2] = 0.0, C[a, 2], -C[a, 1]
+        # ∂C/∂ψ = ∂C3/∂ψ C3ᵀ C: rows 0, 1 rotate into each other, row 2 vanishes.
+        dC[2, 0, a], dC[2, 1, a], dC[2, 2, a] = -C[1, a], C[0, a], 0.0
+    dC[1, 0, 0], dC[1, 0, 1], dC[1, 0, 2] = -st * cp, sf * ct * cp, cf * ct * cp
+    dC[1, 1, 0], dC[1, 1, 1], dC[1, 1, 2] = -st * sp, sf * ct * sp, cf * ct * sp
+    dC[1, 2, 0], dC[1, 2, 1], dC[1, 2, 2] = -ct, -sf * st, -cf * st
 
 
 @kernel
@@ -232,20 +258,15 @@ def rotation_angle_between(dcm_a: ArrayLike, dcm_b: ArrayLike) -> float:
 
 
 def dcm_euler_partials(euler: ArrayLike) -> FloatArray:
-    """Partial derivatives of ``C_NB`` with respect to (φ, θ, ψ).
+    """Partial derivatives of ``C_NB`` with respect to (φ, θ, ψ) (:func:`dcm_and_partials`).
 
     Args:
         euler: (3,) Euler angles in rad.
 
     Returns:
-        (3, 3, 3) array ``D`` with ``D[i] = ∂C_NB/∂Λ_i``.
+        (3, 3, 3) array ``D`` with ``D[i] = ∂C_NB/∂Λ_i`` in 1/rad.
     """
     phi, theta, psi = (float(a) for a in euler)
-    c1, c2, c3 = rot1(phi), rot2(theta), rot3(psi)
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    d1 = np.array([[0.0, 0.0, 0.0], [0.0, -sf, -cf], [0.0, cf, -sf]])
-    d2 = np.array([[-st, 0.0, ct], [0.0, 0.0, 0.0], [-ct, 0.0, -st]])
-    d3 = np.array([[-sp, -cp, 0.0], [cp, -sp, 0.0], [0.0, 0.0, 0.0]])
-    return np.stack([c3 @ c2 @ d1, c3 @ d2 @ c1, d3 @ c2 @ c1])
+    dC = np.empty((3, 3, 3))
+    dcm_and_partials(phi, theta, psi, np.empty((3, 3)), dC)
+    return dC

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
+from functools import partial
 from typing import Any, TypeVar
 
-from numba import njit, vectorize
+from numba import guvectorize, njit, vectorize
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -34,27 +35,34 @@ def _uncached(err: RuntimeError) -> None:
         warnings.warn(
             f"numba found no writable cache location ({err}); kernels are compiled in every "
             "process. Set NUMBA_CACHE_DIR to a writable directory to cache them.",
-            stacklevel=3,
+            stacklevel=4,
         )
+
+
+def _compile(func: F, decorator: Callable[..., Callable[[F], F]]) -> F:
+    """``decorator(cache=True)(func)``, else (no cache location) ``decorator()(func)``."""
+    try:
+        return decorator(cache=True)(func)
+    except RuntimeError as err:
+        _uncached(err)
+        return decorator()(func)
 
 
 def kernel(func: F) -> F:
     """``numba.njit(cache=True)`` (falls back to an uncached ``njit`` as explained above)."""
-    try:
-        return njit(cache=True)(func)
-    except RuntimeError as err:
-        _uncached(err)
-        return njit(func)
+    return _compile(func, njit)
 
 
 def elementwise(signature: str) -> Callable[[F], F]:
     """``numba.vectorize([signature], cache=True)``: a NumPy ufunc from a scalar kernel."""
+    return partial(_compile, decorator=partial(vectorize, [signature]))
 
-    def deco(func: F) -> F:
-        try:
-            return vectorize([signature], cache=True)(func)
-        except RuntimeError as err:
-            _uncached(err)
-            return vectorize([signature])(func)
 
-    return deco
+def generalized(signature: str, layout: str) -> Callable[[F], F]:
+    """``numba.guvectorize([signature], layout, cache=True)``: a NumPy gufunc from a kernel.
+
+    The kernel works on the core dimensions of ``layout`` (e.g. ``"(n),(n,n),(n)->(n)"``) and
+    writes its outputs in place; the gufunc broadcasts every leading axis of its inputs the
+    way NumPy operators do and loops over them in compiled code, without copies.
+    """
+    return partial(_compile, decorator=partial(guvectorize, [signature], layout))
