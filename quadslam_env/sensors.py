@@ -18,9 +18,10 @@ from quadslam_env.config import ImuConfig, LidarConfig
 from quadslam_env.measurements import ImuSample, LidarScan
 from quadslam_env.models.frames import wrap_angle
 from quadslam_env.models.imu_noise import gauss_markov_discretisation, white_noise_sigma
+from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_measure
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.models.rigid_body import specific_force_lanes
+from quadslam_env.models.rigid_body import specific_force_body
 from quadslam_env.types import DEG, IMU_DIM, MEAS_DIM, FloatArray
 
 _LANE0 = np.zeros(1, dtype=int)
@@ -90,6 +91,11 @@ class ImuBatch:
         self._noise = np.zeros((self.num_lanes, self.BLOCK, 2 * IMU_DIM))
         self._cursor = np.full(self.num_lanes, self.BLOCK)
         self._lane_ids = np.arange(self.num_lanes)
+        # The sample kernel's constants: mass, drag, σ_a, σ_ω, decay, drift driving scale.
+        self._coeffs = np.array(
+            [vehicle.mass, vehicle.drag, self.accel_sigma, self.gyro_sigma, self._decay,
+             self._drift_scale]
+        )  # fmt: skip
 
     def reset(self, lanes: ArrayLike, rngs: Sequence[np.random.Generator]) -> None:
         """Draw each lane's constant bias signs (if random) and a stationary initial drift.
@@ -113,23 +119,14 @@ class ImuBatch:
         """(B, 6) current total bias ``b0 + b1`` (accel m/s², then gyro rad/s): for metrics."""
         return self.bias0 + self.drift
 
-    def _draw(self, lanes: np.ndarray, sel: np.ndarray | slice) -> FloatArray:
-        """(k, 12) normals for one sample of each lane: white noise, then the drift step.
-
-        ``lanes`` (k,) are the lane indices and ``sel`` selects the same rows (a slice when all
-        lanes sample, which indexes faster).
-        """
-        cursor = self._cursor[sel]
-        empty = lanes[cursor >= self.BLOCK]
+    def _refill(self, lanes: np.ndarray) -> None:
+        """Draw the next block of normals for the ``lanes`` (k,) whose block is used up."""
+        empty = lanes[self._cursor[lanes] >= self.BLOCK]
         if empty.size:
             gens = _generators(self._rngs, empty, "ImuBatch")
             for lane, rng in zip(empty.tolist(), gens, strict=True):
                 self._noise[lane] = rng.standard_normal((self.BLOCK, 2 * IMU_DIM))
             self._cursor[empty] = 0
-            cursor = self._cursor[sel]
-        noise = self._noise[lanes, cursor]
-        self._cursor[sel] += 1
-        return noise
 
     def sample(
         self,
@@ -153,29 +150,61 @@ class ImuBatch:
         """
         b = self.num_lanes
         accel, gyro = np.zeros((b, 3)), np.zeros((b, 3))
-        if active is None or np.all(active):
-            lanes, sel = self._lane_ids, slice(None)
-        else:
-            lanes = sel = np.flatnonzero(active)
-            if lanes.size == 0:
-                return accel, gyro
-        noise = self._draw(lanes, sel)
-        drift = self.drift[sel]
-        bias = self.bias0[sel] + drift
-        f_b = specific_force_lanes(
-            np.asarray(vel_body, dtype=float)[sel],
-            np.asarray(thrust, dtype=float)[sel],
-            self.vehicle.mass,
-            self.vehicle.drag,
-        )
-        accel[sel] = f_b + bias[:, :3] + self.accel_sigma * noise[:, 0:3]
-        gyro[sel] = (
-            np.asarray(rates, dtype=float)[sel] + bias[:, 3:] + self.gyro_sigma * noise[:, 3:6]
-        )
-        self.drift[sel] = (
-            self._decay * drift + self._drift_scale * self._drift_sigma * (noise[:, 6:12])
+        lanes = self._lane_ids if active is None or active.all() else np.flatnonzero(active)
+        if lanes.size == 0:
+            return accel, gyro
+        self._refill(lanes)
+        _sample_lanes(
+            lanes,
+            self._cursor,
+            self._noise,
+            self.bias0,
+            self.drift,
+            np.ascontiguousarray(vel_body, dtype=float),
+            np.ascontiguousarray(rates, dtype=float),
+            np.ascontiguousarray(thrust, dtype=float),
+            self._coeffs,
+            self._drift_sigma,
+            accel,
+            gyro,
         )
         return accel, gyro
+
+
+@kernel
+def _sample_lanes(
+    lanes: np.ndarray,
+    cursor: np.ndarray,
+    noise: FloatArray,
+    bias0: FloatArray,
+    drift: FloatArray,
+    vel_body: FloatArray,
+    rates: FloatArray,
+    thrust: FloatArray,
+    coeffs: FloatArray,
+    drift_sigma: FloatArray,
+    accel: FloatArray,
+    gyro: FloatArray,
+) -> None:
+    """One IMU sample of each lane in ``lanes`` (see :class:`ImuBatch`), in place.
+
+    ``coeffs`` = (mass kg, drag 1/s, σ_a, σ_ω, Gauss–Markov decay a, √(1 − a²)); ``noise[i,
+    cursor[i]]`` holds lane i's 12 normals for this sample (white noise, then the drift step).
+    """
+    mass, drag, sigma_a, sigma_g, decay, scale = (
+        coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4], coeffs[5]
+    )  # fmt: skip
+    for i in lanes:
+        z = noise[i, cursor[i]]
+        cursor[i] += 1
+        f_b = specific_force_body(
+            vel_body[i, 0], vel_body[i, 1], vel_body[i, 2], thrust[i], mass, drag
+        )
+        for k in range(3):
+            accel[i, k] = f_b[k] + (bias0[i, k] + drift[i, k]) + sigma_a * z[k]
+            gyro[i, k] = rates[i, k] + (bias0[i, 3 + k] + drift[i, 3 + k]) + sigma_g * z[3 + k]
+        for k in range(6):
+            drift[i, k] = decay * drift[i, k] + scale * drift_sigma[k] * z[6 + k]
 
 
 class Imu:
