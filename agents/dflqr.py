@@ -69,9 +69,20 @@ def _inverse_map(ux: float, uy: float, uz: float, u_psi: float, mass: float) -> 
 
 @kernel
 def _command_lanes(
-    obs: FloatArray, K: FloatArray, kp: FloatArray, kd: FloatArray, mass: float, out: FloatArray
+    obs: FloatArray,
+    K: FloatArray,
+    kp: FloatArray,
+    kd: FloatArray,
+    mass: float,
+    limits: FloatArray,
+    out: FloatArray,
 ) -> None:
-    """DF-LQR thrust and torque ``out`` (n, 4) for observations ``obs`` (n, ≥16), steps 1–4."""
+    """DF-LQR command ``out`` (n, 4) for observations ``obs`` (n, ≥16), steps 1–4.
+
+    With ``limits`` = (max thrust N, max torques (3) N·m) the command is written as the
+    normalised ``thrust_torque`` action clipped to [-1, 1]; with an empty ``limits`` as
+    physical thrust (N) and torque (N·m).
+    """
     r_err = np.empty(7)
     v = np.empty(4)
     for b in range(obs.shape[0]):
@@ -91,6 +102,10 @@ def _command_lanes(
         out[b, 1] = -kp[0] * (o[6] - phi_d) - kd[0] * o[9]
         out[b, 2] = -kp[1] * (o[7] - theta_d) - kd[1] * o[10]
         out[b, 3] = -kp[2] * o[8] - kd[2] * (o[11] - r_d)
+        if limits.shape[0]:
+            out[b, 0] = min(1.0, max(-1.0, 2.0 * out[b, 0] / limits[0] - 1.0))
+            for i in range(1, 4):
+                out[b, i] = min(1.0, max(-1.0, out[b, i] / limits[i]))
 
 
 def inverse_mapping(
@@ -134,6 +149,7 @@ class DFLQRPolicy:
         wn = np.asarray(natural_freq, dtype=float)
         self.kp = inertia * wn**2
         self.kd = 2.0 * damping * wn * inertia
+        self._limits = np.array([vehicle.max_thrust, *vehicle.max_torque])
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> DFLQRPolicy:
@@ -155,14 +171,8 @@ class DFLQRPolicy:
         """
         out = np.empty((obs.shape[0], 4))
         _command_lanes(np.asarray(obs, dtype=float), self.K, self.kp, self.kd,
-                       float(self.vehicle.mass), out)  # fmt: skip
+                       float(self.vehicle.mass), np.empty(0), out)  # fmt: skip
         return out[:, 0], out[:, 1:]
-
-    def action(self, thrust: FloatArray, torque: FloatArray) -> FloatArray:
-        """Normalised ``thrust_torque`` action (n, 4) in [-1, 1] for physical commands."""
-        a_thrust = 2.0 * thrust / self.vehicle.max_thrust - 1.0
-        a_torque = torque / self.vehicle.max_torque
-        return np.clip(np.concatenate([a_thrust[:, None], a_torque], axis=1), -1.0, 1.0)
 
     def predict(
         self,
@@ -175,5 +185,8 @@ class DFLQRPolicy:
         obs = np.asarray(observation, dtype=float)
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
-        act = self.action(*self.command(batch)).astype(np.float32)
+        act = np.empty((batch.shape[0], 4))
+        _command_lanes(batch, self.K, self.kp, self.kd, float(self.vehicle.mass), self._limits,
+                       act)  # fmt: skip
+        act = act.astype(np.float32)
         return (act[0] if single else act), state
