@@ -26,6 +26,10 @@ gyro bias itself; its drift enters as random-walk process noise on ``c``.
 
 An integrating gyro reports the mean rate over its sample period, so ``Φ`` is taken at the
 middle of the period.
+
+The per-sample arithmetic is numba kernels (:func:`regression_step`, :func:`regression_measure`)
+on the (3, 2) means and (3, 2, 2) covariances in place: it runs at every IMU period of the
+dynamics-based FastSLAM.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import math
 
 import numpy as np
 
+from quadslam_env.models.jit import kernel
 from quadslam_env.models.rotations import FloatArray
 
 THETA_RANGE = 10.0
@@ -46,6 +51,96 @@ NIS_WINDOW_S = 1.0
 MAX_NIS = 9.0
 """The estimate is :attr:`GyroTorqueRegression.usable` while the running NIS of every axis is
 below this, i.e. while the rigid-body model explains the gyro data."""
+
+
+@kernel
+def clipped_theta(mean: FloatArray, theta0: FloatArray, out: FloatArray) -> None:
+    """``out = θ̂`` (3,) in 1/(kg·m²): ``mean[:, 1]`` kept within [θ₀/10, 10 θ₀]."""
+    for j in range(3):
+        out[j] = min(max(mean[j, 1], theta0[j] / THETA_RANGE), theta0[j] * THETA_RANGE)
+
+
+@kernel
+def regression_measure(
+    mean: FloatArray,
+    cov: FloatArray,
+    gyro: FloatArray,
+    sigma: float,
+    phi: FloatArray,
+    nis: FloatArray,
+) -> None:
+    """Kalman update with ``z_j = c_j + θ_j Φ_j + v_j`` per axis, in place.
+
+    Args:
+        mean: (3, 2) means ``(c_j, θ_j)``, updated. cov: (3, 2, 2) covariances, updated
+            (symmetrised).
+        gyro: (3,) reading ``z`` in rad/s. sigma: Noise std of ``v`` in rad/s (> 0).
+        phi: (3,) regressor ``Φ`` in N·m·s. nis: (3,) receives ``ν²/S`` per axis.
+    """
+    var = sigma**2
+    for j in range(3):
+        h1 = phi[j]  # H = [1, Φ_j]
+        ph0 = cov[j, 0, 0] * 1.0 + cov[j, 0, 1] * h1  # P Hᵀ
+        ph1 = cov[j, 1, 0] * 1.0 + cov[j, 1, 1] * h1
+        S = (1.0 * ph0 + h1 * ph1) + var
+        k0, k1 = ph0 / S, ph1 / S
+        nu = gyro[j] - (1.0 * mean[j, 0] + h1 * mean[j, 1])
+        mean[j, 0] = mean[j, 0] + k0 * nu
+        mean[j, 1] = mean[j, 1] + k1 * nu
+        c00 = cov[j, 0, 0] - k0 * ph0
+        c01 = cov[j, 0, 1] - k0 * ph1
+        c10 = cov[j, 1, 0] - k1 * ph0
+        c11 = cov[j, 1, 1] - k1 * ph1
+        cov[j, 0, 0] = 0.5 * (c00 + c00)
+        cov[j, 0, 1] = cov[j, 1, 0] = 0.5 * (c01 + c10)
+        cov[j, 1, 1] = 0.5 * (c11 + c11)
+        nis[j] = nu * nu / S
+
+
+@kernel
+def regression_step(
+    mean: FloatArray,
+    cov: FloatArray,
+    phi: FloatArray,
+    nis: FloatArray,
+    theta0: FloatArray,
+    gyro: FloatArray,
+    torque: FloatArray,
+    dt: float,
+    sigma: float,
+    rate_var: float,
+    gain: float,
+) -> None:
+    """One gyro sample: advance ``Φ``, random-walk ``c``, update, track the running NIS.
+
+    Args:
+        mean, cov: (3, 2), (3, 2, 2) posterior, updated in place.
+        phi: (3,) ``Φ`` in N·m·s at the end of the last period, advanced in place.
+        nis: (3,) running mean of ``ν²/S``, updated with weight ``gain``.
+        theta0: (3,) nominal ``1/J₀`` in 1/(kg·m²).
+        gyro: (3,) reading in rad/s. torque: (3,) applied torque in N·m. dt: Period in s.
+        sigma: Noise std of the reading in rad/s. rate_var: Random-walk variance density of
+            ``c`` in rad²/s³. gain: Weight of the new NIS in the running mean.
+    """
+    theta = np.empty(3)
+    clipped_theta(mean, theta0, theta)
+    p, q, r = gyro[0] - mean[0, 0], gyro[1] - mean[1, 0], gyro[2] - mean[2, 0]
+    hx, hy, hz = (1.0 / theta[0]) * p, (1.0 / theta[1]) * q, (1.0 / theta[2]) * r  # J ω
+    # τ − ω × Jω, held over the period; Φ at the middle of the period for the reading.
+    rate = (
+        torque[0] - (q * hz - r * hy),
+        torque[1] - (r * hx - p * hz),
+        torque[2] - (p * hy - q * hx),
+    )
+    phi_mid = np.empty(3)
+    for j in range(3):
+        phi_mid[j] = phi[j] + 0.5 * dt * rate[j]
+        phi[j] = phi[j] + dt * rate[j]
+        cov[j, 0, 0] += rate_var * dt  # c is a random walk, θ a constant
+    new = np.empty(3)
+    regression_measure(mean, cov, gyro, sigma, phi_mid, new)
+    for j in range(3):
+        nis[j] += gain * (new[j] - nis[j])
 
 
 class GyroTorqueRegression:
@@ -88,7 +183,9 @@ class GyroTorqueRegression:
     @property
     def theta(self) -> FloatArray:
         """(3,) posterior mean of ``1/J`` in 1/(kg·m²), kept within :data:`THETA_RANGE`."""
-        return np.clip(self.mean[:, 1], self.theta0 / THETA_RANGE, self.theta0 * THETA_RANGE)
+        out = np.empty(3)
+        clipped_theta(self.mean, self.theta0, out)
+        return out
 
     @property
     def usable(self) -> bool:
@@ -96,7 +193,8 @@ class GyroTorqueRegression:
         every axis. The posterior mean is used from the first sample (it is never worse than
         the prior); random or corrupted gyro/torque streams fail this test within a few
         samples, after which the filter falls back to its nominal model."""
-        return bool(np.all(self.nis < MAX_NIS))
+        nis = self.nis
+        return bool(nis[0] < MAX_NIS and nis[1] < MAX_NIS and nis[2] < MAX_NIS)
 
     @property
     def inertia(self) -> FloatArray:
@@ -121,16 +219,20 @@ class GyroTorqueRegression:
             torque: (3,) applied torque over the period in N·m.
             dt: Period in s.
         """
-        gyro = np.asarray(gyro, dtype=float)
-        p, q, r = (gyro - self.mean[:, 0]).tolist()
-        hx, hy, hz = (self.inertia * (p, q, r)).tolist()  # J ω
-        # τ − ω × Jω written out: np.cross costs ~15 µs on 3-vectors, per IMU period.
-        rate = np.asarray(torque, dtype=float) - (q * hz - r * hy, r * hx - p * hz, p * hy - q * hx)
-        phi_mid = self.phi + 0.5 * dt * rate
-        self.phi = self.phi + dt * rate
-        self.cov[:, 0, 0] += self.bias_rate_sigma**2 * dt  # c is a random walk, θ a constant
-        nis = self.measure(gyro, math.hypot(float(gyro_sigma), MODEL_SIGMA), phi_mid)
-        self.nis += min(1.0, dt / NIS_WINDOW_S) * (nis - self.nis)
+        regression_step(
+            self.mean,
+            self.cov,
+            self.phi,
+            self.nis,
+            self.theta0,
+            np.asarray(gyro, dtype=float),
+            np.asarray(torque, dtype=float),
+            float(dt),
+            math.hypot(float(gyro_sigma), MODEL_SIGMA),
+            self.bias_rate_sigma**2,
+            min(1.0, dt / NIS_WINDOW_S),
+        )
+        self.n_updates += 1
 
     def measure(self, gyro: FloatArray, sigma: float, phi: FloatArray) -> FloatArray:
         """Kalman update with ``z_j = c_j + θ_j Φ_j + v_j`` for a given regressor ``Φ``.
@@ -143,16 +245,17 @@ class GyroTorqueRegression:
         Returns:
             (3,) normalised innovation squared ``ν²/S`` of each axis.
         """
-        H = np.column_stack([np.ones(3), np.asarray(phi, dtype=float)])  # rows [1, Φ_j]
-        PH = np.einsum("jab,jb->ja", self.cov, H)  # P Hᵀ per axis, (3, 2)
-        S = np.einsum("ja,ja->j", H, PH) + float(sigma) ** 2
-        K = PH / S[:, None]
-        nu = np.asarray(gyro, dtype=float) - np.einsum("ja,ja->j", H, self.mean)
-        self.mean = self.mean + K * nu[:, None]
-        self.cov = self.cov - np.einsum("ja,jb->jab", K, PH)
-        self.cov = 0.5 * (self.cov + np.swapaxes(self.cov, 1, 2))
+        nis = np.empty(3)
+        regression_measure(
+            self.mean,
+            self.cov,
+            np.asarray(gyro, dtype=float),
+            float(sigma),
+            np.asarray(phi, dtype=float),
+            nis,
+        )
         self.n_updates += 1
-        return nu * nu / S
+        return nis
 
     def __repr__(self) -> str:
         inertia = ", ".join(f"{v:.5g}" for v in self.inertia)

@@ -20,6 +20,7 @@ from estimators.base import POSE_DIM
 from estimators.batch import BatchEstimate
 from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
+from quadslam_env.models.linalg import cholesky_lower
 from quadslam_env.models.rotations import FloatArray
 
 NEES_POSE_BOUNDS_95 = (float(chi2.ppf(0.025, POSE_DIM)), float(chi2.ppf(0.975, POSE_DIM)))
@@ -59,20 +60,14 @@ def cholesky_nees(cov: FloatArray, err: FloatArray, L: FloatArray, y: FloatArray
     scale = 1e-12
     for i in range(n):
         scale = max(scale, cov[i, i])
-    jitter = 1e-9 * scale
+    for i in range(n):
+        for j in range(i + 1):
+            L[i, j] = cov[i, j]
+        L[i, i] += 1e-9 * scale
+    if not cholesky_lower(L):
+        return math.inf, math.inf
     nees = nees3 = 0.0
-    for j in range(n):  # Cholesky–Crout column j, then forward substitution for y_j
-        d = cov[j, j] + jitter
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not (d > 0.0 and math.isfinite(d)):
-            return math.inf, math.inf
-        L[j, j] = math.sqrt(d)
-        for i in range(j + 1, n):
-            v = cov[i, j]
-            for k in range(j):
-                v -= L[i, k] * L[j, k]
-            L[i, j] = v / L[j, j]
+    for j in range(n):  # forward substitution y = L⁻¹ e
         v = err[j]
         for k in range(j):
             v -= L[j, k] * y[k]
@@ -80,6 +75,8 @@ def cholesky_nees(cov: FloatArray, err: FloatArray, L: FloatArray, y: FloatArray
         nees += y[j] * y[j]
         if j == 2:
             nees3 = nees
+    if not math.isfinite(nees):
+        return math.inf, math.inf
     return nees, nees3
 
 

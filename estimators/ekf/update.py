@@ -34,6 +34,7 @@ from estimators.ekf.kernels import (
 from quadslam_env.models.frames import dcm_and_partials, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_inverse_models, lidar_models
+from quadslam_env.models.linalg import cholesky_lower
 from quadslam_env.types import POSE_DIM, FloatArray
 
 _DIAG_FLOOR = -1e-9
@@ -107,27 +108,6 @@ def _solve3_nis(S: FloatArray, o: int, nu: FloatArray) -> float:
             acc -= a[c, j] * z[j]
         z[c] = acc / a[c, c]
     return nu[o] * z[0] + nu[o + 1] * z[1] + nu[o + 2] * z[2]
-
-
-@kernel
-def _cholesky_lower(A: FloatArray) -> bool:
-    """In-place Cholesky ``A = L Lᵀ`` reading the lower triangle (as LAPACK ``potrf('L')``);
-    False if A is not positive definite."""
-    m = A.shape[0]
-    for j in range(m):
-        d = A[j, j]
-        for c in range(j):
-            d -= A[j, c] * A[j, c]
-        if not d > 0.0:
-            return False
-        ljj = math.sqrt(d)
-        A[j, j] = ljj
-        for i in range(j + 1, m):
-            acc = A[i, j]
-            for c in range(j):
-                acc -= A[i, c] * A[j, c]
-            A[i, j] = acc / ljj
-    return True
 
 
 @kernel
@@ -262,7 +242,7 @@ def _update_mapped(
     for a in range(m):
         for c in range(a + 1):
             L[a, c] = S[idx[a], idx[c]]
-    if not _cholesky_lower(L):
+    if not cholesky_lower(L):
         diag[D_DIVERGED, b] = 1.0
         return
     # Wᵀ = L⁻¹ U and z = L⁻¹ ν by forward substitution, so K = W L⁻¹ and K ν = W z.

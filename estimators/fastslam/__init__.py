@@ -17,7 +17,8 @@ Two Rao-Blackwellised particle filters share one implementation
     ``Λ̇ = D(Λ) ω_m`` with no bias calibration and LiDAR-only weights — seed 000's comparison
     baseline (Fig. 10–14).
 
-Array layout (all particle work is batched; there is no Python loop over particles):
+Array layout (all particle work is batched; there is no Python loop over particles — the
+per-particle loops are numba kernels, DESIGN.md §9):
 
 * ``x``      (N, 12) particle states ``x^D``;
 * ``logw``   (N,) normalised log-weights;
@@ -61,8 +62,17 @@ Choices not fixed by the papers (documented here and in the parameter table):
   the estimate. Set ``estimate_inertia=False`` for the paper's fixed-model filter.
 
 Modules: :mod:`.particles` (the shared particle machinery), :mod:`.dynamic` and
-:mod:`.kinematic` (the two filters), :mod:`.process` (motion models), :mod:`.bias_kf`,
-:mod:`.landmarks`, :mod:`.resampling`, :mod:`.settings` (parameter validation).
+:mod:`.kinematic` (the two filters), :mod:`.process` (motion models, process noise),
+:mod:`.bias_kf`, :mod:`.landmarks`, :mod:`.resampling`, :mod:`.moments` (the estimate's
+weighted moments), :mod:`.settings` (parameter validation).
+
+Kernels (``quadslam_env.models.jit.kernel``, no ``fastmath``) loop over the particles for the hot
+paths: process noise and angle wrapping (:func:`.process.perturb_particles`), the IMU step
+(:func:`.bias_kf.imu_bias_step`: the shared bias covariance once, then every particle's
+innovation, likelihood and bias-mean update), the weights (:mod:`.resampling`), the landmark
+EKFs (:func:`.landmarks.landmark_ekf_particles`, on the LiDAR model's kernels) and the estimate
+(:mod:`.moments`). The normalised weights and the ESS are kept with the log-weights. Random
+draws stay outside the kernels, in the same order as before, so a seed gives the same stream.
 """
 
 # Importing the filter modules registers "fastslam" and "fastslam_kinematic" (estimators.base).

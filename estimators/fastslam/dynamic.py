@@ -11,11 +11,11 @@ from estimators.base import register
 from estimators.fastslam.bias_kf import (
     BIAS_DIM,
     H_BIAS,
-    bias_kf_predict,
-    bias_kf_update,
     bias_transition,
+    imu_bias_step,
 )
 from estimators.fastslam.landmarks import inverse_model_cov, offset_in_inertial
+from estimators.fastslam.moments import weighted_mean
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.process import DynamicsModel
 from estimators.fastslam.settings import FLOAT, SIGMA_FLOOR, fail, positive
@@ -24,7 +24,7 @@ from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.linalg import chol3, inv3_sym, mv
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.types import IMU_DIM, FloatArray
+from quadslam_env.types import FloatArray
 
 
 @register("fastslam")
@@ -184,6 +184,18 @@ class DynamicFastSLAM(FastSLAMBase):
             bias_rate_sigma=self.gyro_drift_sigma * math.sqrt(2.0 / self.bias_tau_s),
         )
         self._bias_cache: tuple[float, FloatArray, FloatArray] | None = None
+        self._imu_R: tuple[float, float, FloatArray] | None = None
+        m, n = H_BIAS.shape  # imu_bias_step's K, L, their sparsity and the innovations
+        self._kf_buffers = (
+            np.empty((n, m)),
+            np.empty((m, m)),
+            np.empty((n, m), dtype=np.int64),
+            np.empty(n, dtype=np.int64),
+            np.empty((m, m), dtype=np.int64),
+            np.empty(m, dtype=np.int64),
+            np.empty((self.n_particles, m)),
+        )
+        self._bias_mean = np.empty(BIAS_DIM)
         self._reset_extra()
 
     def _reset_extra(self) -> None:
@@ -209,29 +221,49 @@ class DynamicFastSLAM(FastSLAMBase):
         )
 
     def _transition(self, dt: float) -> tuple[FloatArray, FloatArray]:
+        """The diagonal ``a`` (12,) of A and Q (12, 12) over ``dt`` s (cached for the last dt)."""
         if self._bias_cache is None or self._bias_cache[0] != dt:
             A, Q = bias_transition(
                 dt, self.bias_tau_s, self.accel_drift_sigma, self.gyro_drift_sigma
             )
-            self._bias_cache = (dt, A, Q)
+            self._bias_cache = (dt, np.diag(A).copy(), Q)
         return self._bias_cache[1], self._bias_cache[2]
 
-    def _imu_step(self, imu: ImuSample, control: Control, dt: float) -> FloatArray | None:
-        """Table 2 steps 2–4: bias KF predict, IMU likelihood (eq. 26), bias KF update."""
-        if self.estimate_inertia:
-            self._identify_inertia(imu, control, dt)
-        A, Q = self._transition(dt)
-        self.xb, self.P = bias_kf_predict(self.xb, self.P, A, Q)
-        z = np.r_[np.asarray(imu.accel, dtype=float), np.asarray(imu.gyro, dtype=float)]
-        hd = np.empty((self.n_particles, IMU_DIM))
-        hd[:, 0:3] = self.model.specific_force(self.x, float(control.thrust))
-        hd[:, 3:6] = self.x[:, 9:12]
-        innovation = z - hd - (self.xb[:, 0:6] + self.xb[:, 6:12])  # z̄ − H x̂^B
+    def _imu_noise(self, imu: ImuSample) -> FloatArray:
+        """(6, 6) IMU noise covariance ``R^I`` (cached for the last pair of σ)."""
         sa = max(float(imu.accel_sigma), SIGMA_FLOOR)
         sg = max(float(imu.gyro_sigma), SIGMA_FLOOR)
-        R = np.diag([sa * sa] * 3 + [sg * sg] * 3)
-        self.xb, self.P, loglik = bias_kf_update(self.xb, self.P, innovation, H_BIAS, R)
-        return loglik if self.use_imu_likelihood else None
+        if self._imu_R is None or self._imu_R[:2] != (sa, sg):
+            self._imu_R = (sa, sg, np.diag([sa * sa] * 3 + [sg * sg] * 3))
+        return self._imu_R[2]
+
+    def _imu_step(self, imu: ImuSample, control: Control, dt: float) -> FloatArray | None:
+        """Table 2 steps 2–4: bias KF predict, IMU likelihood (eq. 26), bias KF update.
+
+        One kernel (:func:`~estimators.fastslam.bias_kf.imu_bias_step`): the shared covariance
+        is predicted and updated once, then every particle's bias mean is predicted, compared
+        with the IMU (``z − h^d(x^{D,i}) − H x̂^B``) and updated.
+        """
+        if self.estimate_inertia:
+            self._identify_inertia(imu, control, dt)
+        a, Q = self._transition(dt)
+        model = self.model
+        imu_bias_step(
+            self.x,
+            self.xb,
+            self.P,
+            a,
+            Q,
+            self._imu_noise(imu),
+            np.asarray(imu.accel, dtype=float),
+            np.asarray(imu.gyro, dtype=float),
+            float(control.thrust),
+            model.mass,
+            model.drag,
+            *self._kf_buffers,
+            self._loglik,
+        )
+        return self._loglik if self.use_imu_likelihood else None
 
     def _identify_inertia(self, imu: ImuSample, control: Control, dt: float) -> None:
         """Update the inertia identification and move the model and the particles to it.
@@ -247,11 +279,7 @@ class DynamicFastSLAM(FastSLAMBase):
         reg.update(imu.gyro, float(imu.gyro_sigma), control.torque, dt)
         # While the data contradict the rigid-body model, fall back to the nominal inertia.
         theta = reg.theta if reg.usable else 1.0 / self._inertia0
-        theta_old = 1.0 / np.diag(self.model.inertia)
-        if np.array_equal(theta, theta_old):
-            return
-        self.x[:, 9:12] += (theta - theta_old) * reg.phi
-        self.model.set_inertia(1.0 / theta)
+        self.model.retune(self.x, theta, reg.phi)
 
     def _post_predict(self, imu: ImuSample) -> None:
         """Stage 2 (Table 2 step 8, eq. 32–34): ``ω^i ~ N(ω_m − b̂_ω^i, σ_g² I)``."""
@@ -287,9 +315,10 @@ class DynamicFastSLAM(FastSLAMBase):
 
     def _extra_diagnostics(self) -> dict[str, float]:
         """The model's principal moments of inertia in kg·m² (identified or nominal)."""
-        j = np.diag(self.model.inertia)
-        return {"inertia_x": float(j[0]), "inertia_y": float(j[1]), "inertia_z": float(j[2])}
+        jx, jy, jz = np.diag(self.model.inertia).tolist()
+        return {"inertia_x": jx, "inertia_y": jy, "inertia_z": jz}
 
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
-        total = w @ self.xb
+        total = self._bias_mean
+        weighted_mean(self.xb, w, total)
         return total[0:3] + total[6:9], total[3:6] + total[9:12]

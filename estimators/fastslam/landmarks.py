@@ -1,18 +1,32 @@
-"""Per-particle landmark EKFs of FastSLAM (seed 000 Table 3), batched over particles × landmarks."""
+"""Per-particle landmark EKFs of FastSLAM (seed 000 Table 3), batched over particles × landmarks.
+
+The EKF update is one numba kernel per (pose, landmark) pair, :func:`landmark_ekf_one`, on the
+LiDAR model's kernels (:mod:`quadslam_env.models.lidar`); :func:`landmark_ekf_particles` loops
+it over the particles and the observed landmarks in place. Initialisation (a landmark's first
+sighting) stays NumPy: it runs once per landmark.
+"""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from quadslam_env.models.frames import wrap_angle
+from estimators.fastslam.process import wrapped
+from quadslam_env.models.frames import dcm_from_trig
+from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import (
     body_from_measure,
-    measure_from_body,
     measure_inverse_jacobian,
-    measure_jacobian_body,
+    spherical_from_body,
+    spherical_jacobian,
 )
-from quadslam_env.models.linalg import LOG_2PI, inv3_sym, mv, swap, swap_copy
+from quadslam_env.models.linalg import LOG_2PI, inv3_sym_one, swap
 from quadslam_env.types import MEAS_DIM, FloatArray
+
+Vec3 = tuple[float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+"""A 3×3 matrix as a tuple of rows (kept in registers inside the kernels)."""
 
 
 def offset_in_inertial(dcm: FloatArray, meas: FloatArray) -> FloatArray:
@@ -67,6 +81,150 @@ def landmark_init(
     return mu, 0.5 * (sigma + swap(sigma))
 
 
+@kernel
+def _dot(a: Vec3, b: Vec3) -> float:
+    """``a · b`` of two 3-vectors."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@kernel
+def _mul_bt(A: Mat3, B: Mat3) -> Mat3:
+    """``A Bᵀ`` of 3×3 matrices given as row tuples (entry (r, c) is ``A_r · B_c``)."""
+    return (
+        (_dot(A[0], B[0]), _dot(A[0], B[1]), _dot(A[0], B[2])),
+        (_dot(A[1], B[0]), _dot(A[1], B[1]), _dot(A[1], B[2])),
+        (_dot(A[2], B[0]), _dot(A[2], B[1]), _dot(A[2], B[2])),
+    )
+
+
+@kernel
+def _t(A: Mat3) -> Mat3:
+    """Transpose of a 3×3 matrix given as row tuples."""
+    return (A[0][0], A[1][0], A[2][0]), (A[0][1], A[1][1], A[2][1]), (A[0][2], A[1][2], A[2][2])
+
+
+@kernel
+def _rows(M: FloatArray) -> Mat3:
+    """Rows of a (3, 3) array as tuples."""
+    return (M[0, 0], M[0, 1], M[0, 2]), (M[1, 0], M[1, 1], M[1, 2]), (M[2, 0], M[2, 1], M[2, 2])
+
+
+@kernel
+def landmark_ekf_one(
+    mu: FloatArray,
+    sigma: FloatArray,
+    pos: FloatArray,
+    C: Mat3,
+    meas: FloatArray,
+    R: Mat3,
+) -> tuple[float, float]:
+    """EKF update of one landmark from one pose in place (seed 000 Table 3, EKF-update).
+
+    ``c = C_NBᵀ (μ − ρ)``, ``ν = z − h(c)`` (angles wrapped), ``H = (∂h/∂c) C_NBᵀ``,
+    ``S = H Σ Hᵀ + R``, ``K = Σ Hᵀ S⁻¹``, ``μ ← μ + K ν``, ``Σ ← Σ − K H Σ`` (symmetrised);
+    the LiDAR model is :mod:`quadslam_env.models.lidar`'s. If the likelihood is not finite
+    (a numerically broken S, det ≤ 0), μ and Σ keep their prior.
+
+    Args:
+        mu: (3,) mean in N, m, updated in place. sigma: (3, 3) covariance in m², in place.
+        pos: (3,) vehicle position in N, m. C: Rows of ``C_NB``.
+        meas: (3,) measurement (α rad, β rad, δ m). R: Rows of the measurement noise.
+
+    Returns:
+        ``(log N(ν; 0, S), νᵀ S⁻¹ ν)``.
+    """
+    d = (mu[0] - pos[0], mu[1] - pos[1], mu[2] - pos[2])
+    Ct = _t(C)
+    c1, c2, c3 = _dot(Ct[0], d), _dot(Ct[1], d), _dot(Ct[2], d)
+    h = spherical_from_body(c1, c2, c3)
+    nu = (wrapped(meas[0] - h[0]), wrapped(meas[1] - h[1]), meas[2] - h[2])
+    H = _mul_bt(spherical_jacobian(c1, c2, c3), C)  # ∂h/∂c · C_NBᵀ
+    HS = _mul_bt(H, _t(_rows(sigma)))  # H Σ
+    HHS = _mul_bt(H, HS)  # H Σ Hᵀ (Σ symmetric)
+    S = (
+        (HHS[0][0] + R[0][0], HHS[0][1] + R[0][1], HHS[0][2] + R[0][2]),
+        (HHS[1][0] + R[1][0], HHS[1][1] + R[1][1], HHS[1][2] + R[1][2]),
+        (HHS[2][0] + R[2][0], HHS[2][1] + R[2][1], HHS[2][2] + R[2][2]),
+    )
+    S_inv, det = inv3_sym_one(S)
+    nis = _dot(nu, (_dot(S_inv[0], nu), _dot(S_inv[1], nu), _dot(S_inv[2], nu)))
+    loglik = -0.5 * (nis + math.log(det) + MEAS_DIM * LOG_2PI)
+    if not math.isfinite(loglik):
+        return loglik, nis
+    HSt = _t(HS)  # Σ Hᵀ
+    K = _mul_bt(HSt, _t(S_inv))  # Σ Hᵀ S⁻¹
+    KHS = _mul_bt(K, HSt)  # K H Σ
+    for a in range(3):
+        mu[a] = mu[a] + _dot(K[a], nu)
+    for a in range(3):
+        sigma[a, a] = sigma[a, a] - KHS[a][a]
+        for b in range(a):
+            lower, upper = sigma[a, b] - KHS[a][b], sigma[b, a] - KHS[b][a]
+            sigma[a, b] = sigma[b, a] = 0.5 * (lower + upper)
+    return loglik, nis
+
+
+@kernel
+def _landmark_ekf_pairs(
+    mu: FloatArray,
+    sigma: FloatArray,
+    pos: FloatArray,
+    dcm: FloatArray,
+    meas: FloatArray,
+    R: FloatArray,
+    loglik: FloatArray,
+    nis: FloatArray,
+) -> None:
+    """:func:`landmark_ekf_one` for M independent (pose, landmark, measurement) triples."""
+    noise = _rows(R)
+    for i in range(mu.shape[0]):
+        loglik[i], nis[i] = landmark_ekf_one(mu[i], sigma[i], pos[i], _rows(dcm[i]), meas[i], noise)
+
+
+@kernel
+def landmark_ekf_particles(
+    x: FloatArray,
+    mu: FloatArray,
+    sigma: FloatArray,
+    slots: np.ndarray,
+    meas: FloatArray,
+    R: FloatArray,
+    loglik: FloatArray,
+    nis: FloatArray,
+) -> None:
+    """Update the observed landmark EKFs of every particle in place (Table 3, EKF-update).
+
+    A landmark whose update breaks down (non-finite likelihood) keeps its prior.
+
+    Args:
+        x: (N, 12) particle states (ρ and Λ are used).
+        mu: (N, L, 3) landmark means in N, m; ``sigma`` (N, L, 3, 3) covariances in m²;
+            the observed slots are updated in place.
+        slots: (k,) int slots of the observed landmarks (distinct).
+        meas: (k, 3) their measurements (α rad, β rad, δ m). R: (3, 3) measurement noise.
+        loglik: (N,) receives each particle's ``Σ_j log N(ν_j; 0, S_j)``.
+        nis: (N,) receives each particle's ``Σ_j ν_jᵀ S_j⁻¹ ν_j``.
+    """
+    noise = _rows(R)
+    for i in range(x.shape[0]):
+        c = dcm_from_trig(
+            math.cos(x[i, 6]),
+            math.sin(x[i, 6]),
+            math.cos(x[i, 7]),
+            math.sin(x[i, 7]),
+            math.cos(x[i, 8]),
+            math.sin(x[i, 8]),
+        )
+        C = (c[0], c[1], c[2]), (c[3], c[4], c[5]), (c[6], c[7], c[8])
+        ll_sum, nis_sum = 0.0, 0.0
+        for j in range(slots.shape[0]):
+            s = slots[j]
+            ll, q = landmark_ekf_one(mu[i, s], sigma[i, s], x[i, 0:3], C, meas[j], noise)
+            ll_sum += ll
+            nis_sum += q
+        loglik[i], nis[i] = ll_sum, nis_sum
+
+
 def landmark_ekf_update(
     mu: FloatArray,
     sigma: FloatArray,
@@ -77,7 +235,9 @@ def landmark_ekf_update(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Batched landmark EKF update (seed 000 Table 3, EKF-update) and the FastSLAM weight.
 
-    All leading dimensions broadcast (typically particles × observed landmarks).
+    :func:`landmark_ekf_one` over broadcast leading dimensions (typically particles ×
+    observed landmarks); the filter itself calls :func:`landmark_ekf_particles`. A landmark
+    whose update breaks down (non-finite likelihood) is returned with its prior.
 
     Args:
         mu: (..., 3) prior landmark means in N, m.
@@ -92,22 +252,23 @@ def landmark_ekf_update(
         ``N(ν; 0, S)`` with ``S = H Σ Hᵀ + R`` and ``ν`` the wrapped innovation, and the NIS
         ``νᵀ S⁻¹ ν``; the last two of shape (...).
     """
-    dcm_t = np.ascontiguousarray(swap(dcm))  # C_NBᵀ; contiguous operands keep matmul fast
-    c = mv(dcm_t, mu - pos)  # C_NBᵀ (μ − ρ), body frame
-    nu = meas - measure_from_body(c)
-    nu[..., :2] = wrap_angle(nu[..., :2])
-    H = measure_jacobian_body(c) @ dcm_t  # ∂h/∂m = ∂h/∂c · C_NBᵀ
-    HS = H @ sigma
-    PHt = swap_copy(HS)  # Σ Hᵀ (Σ symmetric)
-    S = H @ PHt + R
-    S_inv, det = inv3_sym(S)
-    K = PHt @ S_inv  # Σ Hᵀ S⁻¹
-    mu_new = mu + mv(K, nu)
-    # Σ − K H Σ (equal to (I − K H) Σ for the optimal gain), symmetrised.
-    sig_new = sigma - K @ HS
-    sig_new = 0.5 * (sig_new + swap(sig_new))
-    nis = np.sum(nu * mv(S_inv, nu), axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        logdet = np.log(det)  # det <= 0 only for a numerically broken S: the weight becomes NaN
-    loglik = -0.5 * (nis + logdet + MEAS_DIM * LOG_2PI)
-    return mu_new, sig_new, loglik, nis
+    vecs = [np.asarray(a, dtype=float) for a in (mu, pos, meas)]
+    mats = [np.asarray(a, dtype=float) for a in (sigma, dcm)]
+    lead = np.broadcast_shapes(*(a.shape[:-1] for a in vecs), *(a.shape[:-2] for a in mats))
+    m_mu, m_pos, m_meas = (_flat(a, lead, (3,)) for a in vecs)
+    m_sigma, m_dcm = (_flat(a, lead, (3, 3)) for a in mats)
+    m = m_mu.shape[0]
+    loglik, nis = np.empty(m), np.empty(m)
+    R = np.ascontiguousarray(R, dtype=float)
+    _landmark_ekf_pairs(m_mu, m_sigma, m_pos, m_dcm, m_meas, R, loglik, nis)
+    return (
+        m_mu.reshape((*lead, 3)),
+        m_sigma.reshape((*lead, 3, 3)),
+        loglik.reshape(lead),
+        nis.reshape(lead),
+    )
+
+
+def _flat(a: FloatArray, lead: tuple[int, ...], core: tuple[int, ...]) -> FloatArray:
+    """A fresh copy of ``a`` broadcast to ``lead + core``, leading axes flattened to one."""
+    return np.array(np.broadcast_to(a, (*lead, *core))).reshape((-1, *core))

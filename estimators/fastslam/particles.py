@@ -1,7 +1,10 @@
 """Shared particle machinery of the FastSLAM filters (seed 000 §III, Table 2; seed 004 §3).
 
 Particles, per-particle landmark EKFs, log-weights, resampling, the NIS loss-of-lock check and
-the estimate. Subclasses supply the motion model and the IMU step.
+the estimate. Subclasses supply the motion model and the IMU step. The per-particle loops are
+numba kernels (:mod:`.process`, :mod:`.resampling`, :mod:`.landmarks`, :mod:`.moments`); the
+normalised weights and the ESS are kept in step with the log-weights, so each is computed once
+per change.
 """
 
 from __future__ import annotations
@@ -12,12 +15,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from estimators.base import Estimate, check_kwargs
-from estimators.fastslam.landmarks import landmark_ekf_update, landmark_init
-from estimators.fastslam.resampling import (
-    effective_sample_size,
-    normalise_log_weights,
-    systematic_resample,
-)
+from estimators.fastslam.landmarks import landmark_ekf_particles, landmark_init
+from estimators.fastslam.moments import landmark_mixture, state_moments
+from estimators.fastslam.process import perturb_particles, wrap_euler_rows
+from estimators.fastslam.resampling import apply_log_likelihood, ess_of, systematic_resample
 from estimators.fastslam.settings import (
     FLOAT,
     OWNER,
@@ -28,14 +29,9 @@ from estimators.fastslam.settings import (
     positive,
 )
 from quadslam_env.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models.frames import dcm_from_euler, dcm_from_euler_batch, wrap_angle
-from quadslam_env.models.linalg import psd_sqrt, swap
+from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
+from quadslam_env.models.linalg import psd_sqrt
 from quadslam_env.types import MEAS_DIM, POSE_DIM, STATE_DIM, FloatArray
-
-
-def _wrap_euler(x: FloatArray) -> None:
-    """Wrap the Euler angles of states (N, 12) to (-π, π] in place."""
-    x[:, 6:9] = wrap_angle(x[:, 6:9])
 
 
 class FastSLAMBase:
@@ -99,11 +95,20 @@ class FastSLAMBase:
     def _alloc(self) -> None:
         n = self.n_particles
         self.x = np.zeros((n, STATE_DIM))
+        self._w = np.empty(n)  # exp(logw), kept in step with the log-weights
+        self._scratch = np.empty(n)
+        self._loglik = np.empty(n)
+        self._nis_sum = np.empty(n)
+        self._bad = np.zeros(n, dtype=bool)
+        self._draw = np.empty((n, STATE_DIM))
+        self._noise_cache: tuple[float, FloatArray] | None = None
         self.logw = np.full(n, -math.log(n))
         self.mu = np.zeros((n, 0, 3))
         self.sigma = np.zeros((n, 0, 3, 3))
         self._slot: dict[int, int] = {}
         self._slot_ids: list[int] = []
+        self._ids_sorted = np.zeros(0, dtype=int)
+        self._order = np.zeros(0, dtype=int)
         self.n_resamples = 0
         self.n_divergences = 0
         self._diverged = False
@@ -144,7 +149,7 @@ class FastSLAMBase:
         self._alloc()
         n = self.n_particles
         self.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
-        _wrap_euler(self.x)
+        wrap_euler_rows(self.x)
         if known_landmarks is not None:
             ids = np.asarray(known_landmarks[0]).astype(int).ravel()
             pts = np.asarray(known_landmarks[1], dtype=float).reshape(-1, 3)
@@ -166,27 +171,45 @@ class FastSLAMBase:
         for lid in ids.tolist():
             self._slot[int(lid)] = len(self._slot_ids)
             self._slot_ids.append(int(lid))
+        ids_all = np.array(self._slot_ids, dtype=int)
+        self._order = np.argsort(ids_all, kind="stable")
+        self._ids_sorted = ids_all[self._order]
 
     # ---------------------------------------------------------------- weights
     @property
-    def weights(self) -> FloatArray:
-        """(N,) normalised weights."""
-        return np.exp(self.logw)
+    def logw(self) -> FloatArray:
+        """(N,) normalised log-weights (assigning new ones updates the weights and the ESS)."""
+        return self._logw
 
-    def _apply_loglik(self, loglik: FloatArray) -> None:
-        """``log w ← log w + log p(z | particle)``, normalised; flags divergence (eq. 28)."""
-        new = self.logw + loglik
-        new[np.isnan(new) | (new == np.inf)] = -np.inf
-        if not np.any(np.isfinite(new)):
+    @logw.setter
+    def logw(self, value: FloatArray) -> None:
+        self._logw = np.array(value, dtype=float).reshape(self.n_particles)
+        np.exp(self._logw, out=self._w)
+        self._ess = float(ess_of(self._w))
+
+    @property
+    def weights(self) -> FloatArray:
+        """(N,) normalised weights ``exp(logw)`` (a copy)."""
+        return self._w.copy()
+
+    def _apply_loglik(self, loglik: FloatArray, scale: float = 1.0) -> None:
+        """``log w ← log w + log p(z | particle) / scale``, normalised; flags divergence (eq. 28).
+
+        Args:
+            loglik: (N,) log-likelihoods. scale: Tempering λ ≥ 1 (1 = none).
+        """
+        ess = apply_log_likelihood(
+            self._logw, np.asarray(loglik, dtype=float), float(scale), self._scratch, self._w
+        )
+        if ess < 0.0:
             self._diverged = True
             self.n_divergences += 1
             return
-        self.logw = normalise_log_weights(new)
+        self._ess = float(ess)
 
     def _maybe_resample(self) -> None:
-        w = self.weights
-        if effective_sample_size(w) < self.resample_threshold * self.n_particles:
-            self._resample(systematic_resample(w, self._rng))
+        if self._ess < self.resample_threshold * self.n_particles:
+            self._resample(systematic_resample(self._w, self._rng))
 
     def _resample(self, idx: np.ndarray) -> None:
         """Copy the selected particles (fancy indexing: fresh arrays, no shared views).
@@ -199,7 +222,7 @@ class FastSLAMBase:
         the duplicates without adding a fixed noise floor; landmark EKFs are not jittered.
         """
         if self.roughening > 0.0:
-            w = self.weights
+            w = self._w
             mean = w @ self.x
             dev = self.x - mean
             dev[:, 6:9] = wrap_angle(dev[:, 6:9])
@@ -208,7 +231,7 @@ class FastSLAMBase:
         self.x = self.x[idx]
         if self.roughening > 0.0:
             self.x = self.x + self._rng.standard_normal(self.x.shape) * scale
-            _wrap_euler(self.x)
+            wrap_euler_rows(self.x)
         self.mu = self.mu[idx]
         self.sigma = self.sigma[idx]
         self._resample_extra(idx)
@@ -233,20 +256,16 @@ class FastSLAMBase:
         self._time += dt
         self._nis = math.nan
         self._nis_dof = 0
-        x_old = self.x
         x_new = self._propagate(imu, control, dt)
-        noise = self.process_noise * math.sqrt(dt)
-        x_new += self._rng.standard_normal(x_new.shape) * noise
-        _wrap_euler(x_new)
-        bad = ~np.all(np.isfinite(x_new), axis=1)
+        self._rng.standard_normal(out=self._draw)
+        n_bad = perturb_particles(x_new, self.x, self._draw, self._noise_scale(dt), self._bad)
         penalty = None
-        if np.any(bad):
-            if np.all(bad):
+        if n_bad:
+            if n_bad == self.n_particles:
                 self._diverged = True
                 self.n_divergences += 1
                 return
-            x_new[bad] = x_old[bad]
-            penalty = np.where(bad, -np.inf, 0.0)
+            penalty = np.where(self._bad, -np.inf, 0.0)
         self.x = x_new
         loglik = self._imu_step(imu, control, dt)
         if penalty is not None:
@@ -255,6 +274,12 @@ class FastSLAMBase:
             self._apply_loglik(loglik)
         self._maybe_resample()
         self._post_predict(imu)
+
+    def _noise_scale(self, dt: float) -> FloatArray:
+        """(12,) process-noise std over ``dt`` s: density × √dt (cached for the last dt)."""
+        if self._noise_cache is None or self._noise_cache[0] != dt:
+            self._noise_cache = (dt, self.process_noise * math.sqrt(dt))
+        return self._noise_cache[1]
 
     def _propagate(self, imu: ImuSample, control: Control, dt: float) -> FloatArray:
         """Motion model without process noise: (N, 12) new states (a fresh array)."""
@@ -284,33 +309,25 @@ class FastSLAMBase:
         R = np.diag(sig * sig)
         slots = np.array([self._slot.get(i, -1) for i in scan_ids.tolist()])
         old = slots >= 0
-        pos = self.x[:, 0:3]
-        dcm = dcm_from_euler_batch(self.x[:, 6:9])
         idx = slots[old]
         if idx.size:
-            mu_new, sig_new, loglik, nis = landmark_ekf_update(
-                self.mu[:, idx],
-                self.sigma[:, idx],
-                pos[:, None, :],
-                dcm[:, None],
-                meas[old][None],
-                R,
+            # Each observed landmark's EKF in every particle, in place; a landmark whose
+            # update broke down keeps its prior.
+            nis = self._nis_sum
+            landmark_ekf_particles(
+                self.x, self.mu, self.sigma, idx, meas[old], R, self._loglik, nis
             )
-            ok = np.isfinite(loglik)
-            if not np.all(ok):  # keep the prior of any landmark whose update broke down
-                mu_new = np.where(ok[..., None], mu_new, self.mu[:, idx])
-                sig_new = np.where(ok[..., None, None], sig_new, self.sigma[:, idx])
-            self.mu[:, idx] = mu_new
-            self.sigma[:, idx] = sig_new
-            self._nis = float(self.weights @ nis.sum(axis=1))
+            self._nis = float(self._w @ nis)
             self._nis_dof = MEAS_DIM * int(idx.size)
-            self._check_lock(nis.sum(axis=1) / self._nis_dof)
+            self._check_lock(nis / self._nis_dof)
             # Tempering (likelihood inflation λ): the weights use p(z | x)^{1/λ}, i.e. the
             # Gaussian with covariance λ·S up to a particle-independent constant; the EKFs
             # above use the true R.
-            self._apply_loglik(loglik.sum(axis=1) / self.likelihood_inflation)
+            self._apply_loglik(self._loglik, self.likelihood_inflation)
         if not np.all(old):
             new_ids = scan_ids[~old]
+            pos = self.x[:, 0:3]
+            dcm = dcm_from_euler_batch(self.x[:, 6:9])
             mu0, sig0 = landmark_init(pos, dcm, meas[~old], R)
             self.mu = np.concatenate([self.mu, mu0], axis=1)
             self.sigma = np.concatenate([self.sigma, sig0], axis=1)
@@ -363,31 +380,17 @@ class FastSLAMBase:
         ``(ρ, v_B, Λ)`` uses wrapped angle deviations. Landmark covariances are the mixture
         covariances ``Σ_i w_i (Σ^i + (μ^i − μ̄)(μ^i − μ̄)ᵀ)``.
         """
-        w = self.weights
-        x = self.x
-        mean = w @ x
-        euler = np.arctan2(w @ np.sin(x[:, 6:9]), w @ np.cos(x[:, 6:9]))
-        mean[6:9] = euler
-        dev = x[:, :POSE_DIM] - mean[:POSE_DIM]
-        dev[:, 6:9] = wrap_angle(dev[:, 6:9])
-        pose_cov = (dev * w[:, None]).T @ dev
-        pose_cov = 0.5 * (pose_cov + pose_cov.T)
+        w = self._w
+        mean, vel_inertial = np.empty(STATE_DIM), np.empty(3)
+        pose_cov = np.empty((POSE_DIM, POSE_DIM))
+        state_moments(self.x, w, mean, pose_cov, vel_inertial)
         n_lm = len(self._slot_ids)
-        ids = np.array(self._slot_ids, dtype=int)
-        order = np.argsort(ids, kind="stable")
+        lm_mean, lm_cov = np.empty((n_lm, 3)), np.empty((n_lm, 3, 3))
         if n_lm:
-            n = self.n_particles
-            lm_mean = (w @ self.mu.reshape(n, -1)).reshape(n_lm, 3)
-            lm_cov = (w @ self.sigma.reshape(n, -1)).reshape(n_lm, 3, 3)
-            d = (self.mu - lm_mean) * np.sqrt(w)[:, None, None]  # (N, L, 3)
-            dt = np.ascontiguousarray(d.transpose(1, 2, 0))  # (L, 3, N)
-            lm_cov = lm_cov + dt @ swap(dt)
-            lm_mean, lm_cov = lm_mean[order], lm_cov[order]
-        else:
-            lm_mean, lm_cov = np.zeros((0, 3)), np.zeros((0, 3, 3))
+            landmark_mixture(self.mu, self.sigma, w, self._order, lm_mean, lm_cov)
         accel_bias, gyro_bias = self._bias_estimate(w)
         diagnostics = {
-            "ess": effective_sample_size(w),
+            "ess": self._ess,
             "n_resamples": float(self.n_resamples),
             "nis": self._nis,
             "nis_dof": float(self._nis_dof),
@@ -397,13 +400,13 @@ class FastSLAMBase:
             **self._extra_diagnostics(),
         }
         return Estimate(
-            position=mean[0:3].copy(),
-            vel_body=mean[3:6].copy(),
-            vel_inertial=dcm_from_euler(euler) @ mean[3:6],
-            euler=euler.copy(),
-            rates=mean[9:12].copy(),
+            position=mean[0:3],  # views of this call's fresh array
+            vel_body=mean[3:6],
+            vel_inertial=vel_inertial,
+            euler=mean[6:9],
+            rates=mean[9:12],
             pose_cov=pose_cov,
-            landmark_ids=ids[order],
+            landmark_ids=self._ids_sorted.copy(),
             landmark_means=lm_mean,
             landmark_covs=lm_cov,
             accel_bias=accel_bias,

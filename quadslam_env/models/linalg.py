@@ -1,7 +1,8 @@
 """Stacked small-matrix helpers shared by the filters (DESIGN.md §9).
 
-All functions work on arrays with leading batch axes (particles, lanes, landmarks) and are
-NumPy-vectorised: for 3×3 blocks closed forms beat per-matrix LAPACK calls by far.
+The NumPy functions work on arrays with leading batch axes (particles, lanes, landmarks): for
+3×3 blocks closed forms beat per-matrix LAPACK calls by far. ``cholesky_lower`` is a numba
+kernel for one matrix, called from the filters' lane and particle kernels.
 """
 
 from __future__ import annotations
@@ -10,14 +11,70 @@ import math
 
 import numpy as np
 
+from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
 LOG_2PI = math.log(2.0 * math.pi)
 """``log 2π``, the constant of Gaussian log-densities."""
 
 
+@kernel
+def cholesky_lower(A: FloatArray) -> bool:
+    """In-place Cholesky factor ``A = L Lᵀ`` of an (m, m) matrix (numba kernel).
+
+    Reads the lower triangle and overwrites it with L (as LAPACK ``potrf('L')``); the strict
+    upper triangle is left as it was. The one Cholesky of the filters (EKF-SLAM update, FastSLAM
+    bias KF) and of the NEES metric.
+
+    Returns:
+        False if A is not positive definite (a pivot is not > 0, or NaN).
+    """
+    m = A.shape[0]
+    for j in range(m):
+        d = A[j, j]
+        for c in range(j):
+            d -= A[j, c] * A[j, c]
+        if not d > 0.0:
+            return False
+        ljj = math.sqrt(d)
+        A[j, j] = ljj
+        for i in range(j + 1, m):
+            acc = A[i, j]
+            for c in range(j):
+                acc -= A[i, c] * A[j, c]
+            A[i, j] = acc / ljj
+    return True
+
+
+@kernel
+def inv3_sym_one(S: tuple) -> tuple:
+    """Inverse and determinant of one symmetric 3×3 ``S`` (rows as tuples; the upper triangle
+    is read) by cofactors: ``((row0, row1, row2), det)``."""
+    a, b, c = S[0][0], S[0][1], S[0][2]
+    d, e, f = S[1][1], S[1][2], S[2][2]
+    c00 = d * f - e * e
+    c01 = c * e - b * f
+    c02 = b * e - c * d
+    det = a * c00 + b * c01 + c * c02
+    c11, c12, c22 = a * f - c * c, b * c - a * e, a * d - b * b
+    i01, i02, i12 = c01 / det, c02 / det, c12 / det
+    return ((c00 / det, i01, i02), (i01, c11 / det, i12), (i02, i12, c22 / det)), det
+
+
+@kernel
+def _inv3_sym_lanes(S: FloatArray, inv: FloatArray, det: FloatArray) -> None:
+    for n in range(S.shape[0]):
+        m = S[n]
+        rows, det[n] = inv3_sym_one(
+            ((m[0, 0], m[0, 1], m[0, 2]), (m[1, 0], m[1, 1], m[1, 2]), (m[2, 0], m[2, 1], m[2, 2]))
+        )
+        for r in range(3):
+            for c in range(3):
+                inv[n, r, c] = rows[r][c]
+
+
 def inv3_sym(S: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Inverse and determinant of symmetric 3×3 matrices by cofactors.
+    """Inverse and determinant of symmetric 3×3 matrices by cofactors (:func:`inv3_sym_one`).
 
     Args:
         S: (..., 3, 3) symmetric matrices.
@@ -25,21 +82,12 @@ def inv3_sym(S: FloatArray) -> tuple[FloatArray, FloatArray]:
     Returns:
         ``(inverse (..., 3, 3), determinant (...))``.
     """
-    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
-    d, e, f = S[..., 1, 1], S[..., 1, 2], S[..., 2, 2]
-    c00 = d * f - e * e
-    c01 = c * e - b * f
-    c02 = b * e - c * d
-    det = a * c00 + b * c01 + c * c02
-    inv = np.empty(S.shape)
-    inv[..., 0, 0] = c00
-    inv[..., 0, 1] = inv[..., 1, 0] = c01
-    inv[..., 0, 2] = inv[..., 2, 0] = c02
-    inv[..., 1, 1] = a * f - c * c
-    inv[..., 1, 2] = inv[..., 2, 1] = b * c - a * e
-    inv[..., 2, 2] = a * d - b * b
-    inv /= det[..., None, None]
-    return inv, det
+    S = np.asarray(S, dtype=float)
+    flat = np.ascontiguousarray(S.reshape(-1, 3, 3))
+    inv = np.empty(flat.shape)
+    det = np.empty(flat.shape[0])
+    _inv3_sym_lanes(flat, inv, det)
+    return inv.reshape(S.shape), det.reshape(S.shape[:-2])
 
 
 def chol3(a: FloatArray) -> FloatArray:
