@@ -21,9 +21,10 @@ import numpy as np
 import estimators
 from agents.bench import Plan, Results
 from quadslam_env.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models.dynamics import GRAVITY, vehicle_preset
+from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.lidar import lidar_measure
-from quadslam_env.models.rotations import dcm_from_euler
+from quadslam_env.models.params import vehicle_preset
+from quadslam_env.types import GRAVITY
 
 LIDAR_SIGMA = np.radians([0.33, 0.30, 0.0]) + np.array([0.0, 0.0, 0.1])
 

@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from quadslam_env.models.dynamics import GRAVITY, VehicleParams
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.models.params import VehicleParams
+from quadslam_env.types import GRAVITY, FloatArray
 
 Q_TILDE = np.diag([0.01] * 6 + [0.04])
 R_TILDE = np.diag([0.2, 0.2, 0.32, 0.1])

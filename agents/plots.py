@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from agents.evaluation import Trace
-from quadslam_env.models.rotations import dcm_from_euler_batch, wrap_angle
+from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 
 
 def write_figures(trace: Trace, out_dir: Path, title: str) -> list[Path]:

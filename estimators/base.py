@@ -10,10 +10,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from quadslam_env.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models.rotations import FloatArray
-
-POSE_DIM = 9
-"""Pose error state used for NEES: (ρ [m, N], v [m/s, B], Λ [rad])."""
+from quadslam_env.types import FloatArray
 
 
 @dataclass(frozen=True)

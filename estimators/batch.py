@@ -22,10 +22,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from estimators.base import POSE_DIM, Estimate, Estimator, make
+from estimators.base import Estimate, Estimator, make
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.types import POSE_DIM, FloatArray
 
 IntArray = np.ndarray
 KnownMaps = Sequence[tuple[np.ndarray, FloatArray]] | None
@@ -175,7 +175,8 @@ class LaneLoop:
     """A :class:`BatchEstimator` over B scalar estimators, one per lane (a Python loop).
 
     This is how estimators without a batched implementation (FastSLAM, plug-ins) run in the
-    vector env; its cost is the scalar estimator's times B plus ~10 µs per lane and step.
+    vector env; its cost is the scalar estimator's times B plus the per-lane conversion of
+    samples, scans and snapshots.
 
     Args:
         estimators: The B scalar estimators.

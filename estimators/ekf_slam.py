@@ -5,9 +5,9 @@ process model in :mod:`quadslam_env.models.strapdown`; this module is the name
 :mod:`estimators.base` imports for ``"ekf_slam"`` and keeps the public names importable.
 """
 
-from estimators.base import POSE_DIM
 from estimators.ekf import BIAS_DIM, EkfSlam, EkfSlamBatch
 from quadslam_env.models.strapdown import process_derivative, process_jacobians
+from quadslam_env.types import POSE_DIM
 
 __all__ = [
     "BIAS_DIM",

@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.types import FloatArray
 
 THETA_RANGE = 10.0
 """θ̂ is kept within [θ₀/10, 10 θ₀]: the identified inertia is at most 10× off the nominal."""

@@ -16,12 +16,11 @@ import math
 import numpy as np
 from scipy.stats import chi2
 
-from estimators.base import POSE_DIM
 from estimators.batch import BatchEstimate
 from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.linalg import cholesky_lower
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.types import POSE_DIM, FloatArray
 
 NEES_POSE_BOUNDS_95 = (float(chi2.ppf(0.025, POSE_DIM)), float(chi2.ppf(0.975, POSE_DIM)))
 """Two-sided 95% interval of a single 9-DOF NEES sample."""

@@ -15,7 +15,8 @@ import numpy as np
 from estimators.base import Estimate, check_kwargs, register
 from estimators.batch import BatchEstimate, KnownMaps, register_batch
 from quadslam_env.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models.rotations import FloatArray, dcm_from_euler_batch
+from quadslam_env.models.frames import dcm_from_euler_batch
+from quadslam_env.types import FloatArray
 
 
 @register_batch("oracle")

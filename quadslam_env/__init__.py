@@ -14,7 +14,7 @@ batched simulation core in one process.
 from gymnasium.envs.registration import register
 
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
-from quadslam_env.models.dynamics import VehicleParams, vehicle_preset
+from quadslam_env.models.params import VehicleParams, vehicle_preset
 
 ENV_IDS = ("QuadSLAM-v0", "QuadSLAM-EKF-v0", "QuadSLAM-FastSLAM-v0", "QuadSLAM-Oracle-v0")
 

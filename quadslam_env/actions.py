@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 
 from quadslam_env.config import ActionConfig
-from quadslam_env.models.dynamics import VehicleParams
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.models.params import VehicleParams
+from quadslam_env.types import FloatArray
 
 ACTION_DIM = 4
 

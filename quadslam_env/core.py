@@ -24,17 +24,17 @@ from estimators.batch import BatchEstimate, health_codes, make_batch
 from estimators.metrics import EpisodeMetrics, step_metrics
 from quadslam_env.actions import ActionMap
 from quadslam_env.config import ConfigError, LandmarksConfig, ScenarioConfig
-from quadslam_env.models.rotations import FloatArray, dcm_from_euler_batch, wrap_angle
+from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.observation import ObservationBuilder
 from quadslam_env.reward import reward_terms
 from quadslam_env.sensors import ImuBatch, LidarBatch
 from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
+from quadslam_env.types import STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
 from quadslam_env.world import make_landmarks
 
 RESET_OPTIONS = ("initial_state", "landmarks")
-STATE_DIM = 12
 
 
 def landmark_capacity(cfg: LandmarksConfig) -> int:

@@ -19,8 +19,8 @@ from estimators.batch import BatchEstimator, batch_from_estimates
 from quadslam_env.actions import ActionError, validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore, parse_reset_options
-from quadslam_env.models.rotations import FloatArray
 from quadslam_env.trajectories import FlatOutputs
+from quadslam_env.types import FloatArray
 
 __all__ = ["ActionError", "QuadSLAMEnv", "lane_info"]
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.types import FloatArray
 
 
 @dataclass(frozen=True)

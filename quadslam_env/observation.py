@@ -16,8 +16,8 @@ from estimators.batch import BatchEstimate
 from quadslam_env.config import ObservationConfig
 from quadslam_env.models.frames import wrap_pi
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rotations import FloatArray
 from quadslam_env.trajectories import FlatOutputs, Trajectory
+from quadslam_env.types import FloatArray
 
 BASE_LAYOUT: tuple[tuple[str, int], ...] = (
     ("pos_err", 3),  # C3(ψ_d)ᵀ (ρ̂ - ρ_d), m

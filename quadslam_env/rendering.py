@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.models.rotations import FloatArray, dcm_from_euler
+from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.types import FloatArray
 
 
 def render_frame(

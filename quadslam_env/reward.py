@@ -14,8 +14,8 @@ import numpy as np
 from quadslam_env.config import RewardConfig
 from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rotations import FloatArray
 from quadslam_env.trajectories import FlatOutputs
+from quadslam_env.types import FloatArray
 
 REWARD_KEYS = (
     "reward_alive",

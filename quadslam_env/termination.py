@@ -16,7 +16,7 @@ import numpy as np
 from estimators.batch import HEALTH_PROBLEMS
 from quadslam_env.config import EpisodeConfig
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.types import FloatArray
 
 REASONS = (
     "",

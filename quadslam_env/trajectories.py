@@ -17,7 +17,7 @@ import numpy as np
 
 from quadslam_env.config import TrajectoryConfig
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rotations import FloatArray
+from quadslam_env.types import FloatArray
 
 KINDS = ("figure8", "circle", "helix", "hover")
 

@@ -12,8 +12,8 @@ from stable_baselines3.common.monitor import Monitor
 
 import quadslam_env  # noqa: F401
 from agents.dflqr import Q_TILDE, R_TILDE, DFLQRPolicy, inverse_mapping, lqr_gain
-from quadslam_env.models.dynamics import GRAVITY
-from quadslam_env.models.rotations import rot1, rot2, rot3
+from quadslam_env.models.frames import rot1, rot2, rot3
+from quadslam_env.types import GRAVITY
 
 
 def test_lqr_gain_matches_closed_form_riccati_solution() -> None:

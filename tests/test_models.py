@@ -37,7 +37,7 @@ from quadslam_env.models import (
     state_derivative,
     wrap_angle,
 )
-from quadslam_env.models.rotations import rot1, rot2, rot3
+from quadslam_env.models.frames import rot1, rot2, rot3
 from quadslam_env.vehicle import Vehicle
 
 N3 = np.array([0.0, 0.0, 1.0])
