@@ -69,7 +69,7 @@ class ImuBatch:
         num_lanes: B.
     """
 
-    BLOCK = 16
+    BLOCK = 64
     """Samples drawn ahead per lane and generator call."""
 
     def __init__(
