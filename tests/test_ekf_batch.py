@@ -334,3 +334,36 @@ def test_copies_are_independent_and_estimate_views_follow_their_own_buffers():
         np.testing.assert_array_equal(twin.estimate().rates, 1.0)
         np.testing.assert_array_equal(twin.estimate().euler[1], twin.full_state(1)[0][6:9])
         assert not np.array_equal(batch.estimate().rates, 1.0)
+
+
+def test_known_map_batches_carry_no_landmark_states_until_a_slam_lane_returns():
+    """All lanes on known maps: x and P shrink to the vehicle states; a SLAM reset restores
+    the landmark slots without touching the known-map lanes, which still equal scalars."""
+    steps = 60
+    runs = [_lane_run(lane, steps) for lane in range(4)]
+    maps = [(np.arange(r[0].shape[0]), r[0]) for r in runs]
+    batch = EkfSlamBatch(4, LMAX)
+    mean0 = np.stack([r[1] for r in runs])
+    rngs = [np.random.default_rng(lane) for lane in range(4)]
+    batch.reset_lanes(np.arange(4), mean0, np.stack([_cov0()] * 4), rngs, maps)
+    assert batch.state_capacity == batch.nv
+    scalars = []
+    for lane in range(4):
+        f = EkfSlam()
+        f.reset(runs[lane][1], _cov0(), rngs[lane], known_landmarks=maps[lane])
+        scalars.append(f)
+    for i in range(30):
+        _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
+    before = [batch.full_state(lane) for lane in range(3)]
+    batch.reset_lanes(np.array([3]), mean0[3:], _cov0()[None], [np.random.default_rng(3)])
+    scalars[3] = EkfSlam()
+    scalars[3].reset(runs[3][1], _cov0(), np.random.default_rng(3))
+    assert batch.state_capacity == batch.nv + 3 * batch.landmark_capacity
+    for lane in range(3):
+        for a, b in zip(before[lane], batch.full_state(lane), strict=True):
+            np.testing.assert_array_equal(a, b)
+    for i in range(30, steps):
+        _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
+    assert batch.estimate().diagnostics["n_mapped"][3] >= 3  # the SLAM lane maps again
+    for lane in range(4):
+        _assert_lane_equals_scalar(batch, lane, scalars[lane])

@@ -95,15 +95,19 @@ class EkfSlamBatch:
         return state
 
     # ------------------------------------------------------------------ storage
-    def _allocate(self, lmax: int, keep: bool = False) -> None:
-        """(Re)allocate the per-lane arrays for ``lmax`` landmarks, copying the old content."""
-        b, nmax = self.num_lanes, self.nv + 3 * lmax
+    def _allocate(self, lmax: int, keep: bool = False, slots: int | None = None) -> None:
+        """(Re)allocate the per-lane arrays for ``lmax`` landmark ids and ``slots`` landmark
+        states (default ``lmax``), copying the old content that fits."""
+        b = self.num_lanes
+        slots = lmax if slots is None else slots
+        nmax = self.nv + 3 * slots
 
         def fresh(name: str, shape: tuple[int, ...], fill: float, dtype: type) -> np.ndarray:
             out = np.full(shape, fill, dtype=dtype)
-            if keep:  # copy the old content into the leading corner
+            if keep:  # copy the old content into the leading corner (all of it that fits)
                 old = getattr(self, name)
-                out[tuple(slice(0, e) for e in old.shape)] = old
+                corner = tuple(slice(0, min(e, f)) for e, f in zip(old.shape, shape, strict=True))
+                out[corner] = old[corner]
             return out
 
         self._x = fresh("_x", (b, nmax), 0.0, float)
@@ -115,13 +119,22 @@ class EkfSlamBatch:
         self._landmark_means = np.zeros((b, lmax, 3))
         self._batch_estimate: BatchEstimate | None = None
 
+    def _fit_state_slots(self) -> None:
+        """Landmark states only where a lane runs SLAM: when every lane localises against a
+        known map, x and P shrink to the nv vehicle states (the filter then touches no more
+        memory than it needs); a SLAM lane brings the slots back, one per landmark id."""
+        want = self.landmark_capacity if not self._known.all() else 0
+        if want != (self.state_capacity - self.nv) // 3:
+            self._allocate(self.landmark_capacity, keep=True, slots=want)
+
     def _ensure_ids(self, count: int) -> None:
         """Grow so that ids ``0 … count-1`` fit: at least double the state buffer length."""
         lmax = self.landmark_capacity
         if count <= lmax:
             return
         doubled = -(-(2 * (self.nv + 3 * lmax) - self.nv) // 3)  # ceil
-        self._allocate(max(count, doubled), keep=True)
+        grown = max(count, doubled)
+        self._allocate(grown, keep=True, slots=0 if self._known.all() else grown)
 
     @property
     def landmark_capacity(self) -> int:
@@ -216,6 +229,7 @@ class EkfSlamBatch:
             if known is not None:
                 self._known_pos[lane, known[0]] = known[1]
                 self._mapped[lane, known[0]] = True
+        self._fit_state_slots()
 
     @staticmethod
     def _check_known(known: tuple[np.ndarray, FloatArray]) -> tuple[np.ndarray, FloatArray]:
