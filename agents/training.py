@@ -6,7 +6,7 @@ style). Each entry may hold:
 ==================  =========================================================================
 key                 meaning
 ==================  =========================================================================
-``n_envs``          parallel envs (``SubprocVecEnv`` when > 1, ``DummyVecEnv`` for 1)
+``n_envs``          lanes of the native vector env (one process; ``agents.vec_adapter``)
 ``n_timesteps``     total env steps (over all envs)
 ``policy``          SB3 policy name, e.g. ``MlpPolicy``
 ``policy_kwargs``   a mapping, or a zoo-style string ``"dict(net_arch=[64, 64],
@@ -27,10 +27,10 @@ anything else       keyword arguments of the algorithm (``learning_rate``, ``n_s
 A run folder (``<out_dir>/<algo>_<env_id>_s<seed>_<time>``) holds ``config.yaml`` (the resolved
 entry, the algorithm, env id, seed and the env's full resolved scenario), ``seed.txt``,
 ``versions.json``, ``model.zip`` (+ ``vecnormalize.pkl``), ``learning_curve.png``,
-``monitor/`` (per-env episode CSVs), ``logs/`` (TensorBoard events + ``progress.csv``; the
-``quadslam/*`` scalars are the env's ``est_*``/``track_*``/``reward_*`` metrics), ``eval/``
-(``evaluations.npz``, ``best_model.zip``) and ``checkpoints/``. A run's ``config.yaml`` can be
-passed back as ``config_path`` to repeat it.
+``monitor/`` (``lanes.monitor.csv``: every lane's episodes), ``logs/`` (TensorBoard events +
+``progress.csv``; the ``quadslam/*`` scalars are the env's ``est_*``/``track_*``/``reward_*``
+metrics), ``eval/`` (``evaluations.npz``, ``best_model.zip``) and ``checkpoints/``. A run's
+``config.yaml`` can be passed back as ``config_path`` to repeat it.
 
 :func:`load_model` turns a run folder (or a model ``.zip``) back into a policy with SB3's
 ``predict`` on the *raw* env observation, applying the same ``VecNormalize`` statistics and
@@ -46,7 +46,6 @@ import importlib.metadata
 import inspect
 import json
 import math
-import os
 import pickle
 import platform
 import sys
@@ -54,7 +53,6 @@ import time
 import warnings
 import zipfile
 from collections.abc import Sequence
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -390,19 +388,6 @@ def _new_run_dir(out_dir: str | Path | None, algo: str, env_id: str, seed: int) 
     return run_dir
 
 
-def default_torch_threads(n_envs: int) -> int | None:
-    """Torch intra-op threads for training: leave the cores to the env workers.
-
-    With ``SubprocVecEnv`` the env processes occupy ``n_envs`` cores; more torch threads than
-    the remaining cores oversubscribe the CPU (OpenMP threads spin while the workers step) and
-    can slow PPO updates by 10-100x on a busy machine. ``None`` (keep torch's default) for one
-    env.
-    """
-    if n_envs <= 1:
-        return None
-    return max(1, (os.cpu_count() or 1) - n_envs)
-
-
 @contextlib.contextmanager
 def _torch_settings(threads: int | None) -> Any:
     """Deterministic torch algorithms (and optionally a thread count) inside the block."""
@@ -429,19 +414,23 @@ def _make_vec_env(
     seed: int,
     monitor_dir: Path | None,
 ) -> Any:
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    """``n_envs`` lanes of the native vector env in this process, as an SB3 ``VecEnv``.
+
+    Lane i is the env seeded ``seed + i`` (as SB3's ``make_vec_env`` seeds its envs); one
+    ``VecMonitor`` records every lane's episodes in ``monitor_dir/lanes.monitor.csv``.
+    """
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from agents.vec_adapter import QuadSLAMVecEnv
 
     wrapper = settings["wrapper"]
     spec = None if wrapper is None else {"name": wrapper[0], **wrapper[1]}
-    factory = partial(make_wrapped_env, env_id, settings["env_kwargs"], spec)
-    return make_vec_env(
-        factory,
-        n_envs=n_envs,
-        seed=seed,
-        monitor_dir=None if monitor_dir is None else str(monitor_dir),
-        vec_env_cls=SubprocVecEnv if n_envs > 1 else DummyVecEnv,
-    )
+    venv = QuadSLAMVecEnv(env_id, n_envs, seed=seed, wrapper=spec, **settings["env_kwargs"])
+    filename = None
+    if monitor_dir is not None:
+        monitor_dir.mkdir(parents=True, exist_ok=True)
+        filename = str(monitor_dir / "lanes")
+    return VecMonitor(venv, filename=filename)
 
 
 def train(
@@ -475,7 +464,8 @@ def train(
             ``{"policy_kwargs": {"net_arch": [8]}, "env_kwargs": {"episode": {...}}}``.
         verbose: SB3 verbosity (1 also prints the SB3 log table).
         torch_threads: Torch threads during training (default
-            :func:`default_torch_threads`); restored afterwards.
+            torch's default: the lanes step in this process between updates); restored
+            afterwards.
 
     Returns:
         The run folder.
@@ -485,9 +475,8 @@ def train(
         FileNotFoundError: Missing config file.
 
     Note:
-        With ``n_envs > 1`` the envs run in ``SubprocVecEnv`` worker processes started with
-        ``forkserver``/``spawn``, so a script calling ``train`` must guard its entry point with
-        ``if __name__ == "__main__":``.
+        The ``n_envs`` envs are lanes of the native vector env in this process
+        (:class:`agents.vec_adapter.QuadSLAMVecEnv`).
     """
     from stable_baselines3.common.callbacks import (
         CallbackList,
@@ -518,7 +507,7 @@ def train(
         entry["n_envs"] = int(n_envs)
     settings = resolve_settings(algo, entry)
     n = settings["n_envs"]
-    threads = torch_threads if torch_threads is not None else default_torch_threads(n)
+    threads = torch_threads
 
     # Build one env up front: validates env_kwargs / wrapper before any folder is written.
     wrapper_spec = entry.get("wrapper", DEFAULTS["wrapper"])
@@ -599,7 +588,7 @@ def train(
 
             interrupted = False
             with warnings.catch_warnings():
-                # SubprocVecEnv (train) vs DummyVecEnv (eval) is intended.
+                # The eval env is wrapped differently (VecNormalize with training=False).
                 warnings.filterwarnings("ignore", message="Training and eval env are not of")
                 try:
                     model.learn(

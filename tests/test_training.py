@@ -108,7 +108,7 @@ def skip_unless_available(env_id: str, env_kwargs: dict[str, Any]) -> None:
 
 
 def read_monitor(run_dir: Path) -> list[list[str]]:
-    lines = (run_dir / "monitor" / "0.monitor.csv").read_text().splitlines()[2:]
+    lines = (run_dir / "monitor" / "lanes.monitor.csv").read_text().splitlines()[2:]
     return [line.split(",")[:2] for line in lines]  # return, length (not wall time)
 
 
@@ -328,8 +328,8 @@ def test_cli_train_reports_bad_input_in_one_line(
 
 
 def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
-    # The actions the env received inside the training pipeline (VecNormalize + residual
-    # wrapper + model) must equal TrainedPolicy.predict on the raw env.
+    # The actions the env received inside the training pipeline (VecNormalize + residual on
+    # the lanes + model) must equal TrainedPolicy.predict on the raw env.
     from agents.training import resolve_settings as _resolve
 
     config = yaml.safe_load((cli_run / "config.yaml").read_text())
@@ -338,17 +338,16 @@ def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
     venv = VecNormalize.load(str(cli_run / "vecnormalize.pkl"), venv)
     venv.training, venv.norm_reward = False, False
     model = PPO.load(cli_run / "model.zip", device="cpu")
-    wrapper = venv.venv.envs[0]  # Monitor(ResidualDFLQRWrapper(env))
-    while not isinstance(wrapper, ResidualDFLQRWrapper):
-        wrapper = wrapper.env
+    env = gym.make(config["env_id"], **settings["env_kwargs"])
+    scale = ResidualDFLQRWrapper(env, **settings["wrapper"][1]).scale
     obs = venv.reset()
     sent = []
     for _ in range(40):
         act, _ = model.predict(obs, deterministic=True)
-        obs, _, _, _ = venv.step(act)
-        sent.append(wrapper.last_action.copy())
+        obs, _, _, infos = venv.step(act)
+        # The lane reports the DF-LQR action and the residual it composed the action from.
+        sent.append(residual_action(infos[0]["dflqr_action"], infos[0]["residual"], scale))
 
-    env = gym.make(config["env_id"], **settings["env_kwargs"])
     policy = load_model(cli_run, env)
     raw, _ = env.reset(seed=11)
     for expected in sent:
@@ -435,7 +434,7 @@ def test_unreadable_files_give_clear_errors(tmp_path: Path) -> None:
     assert run_config(tmp_path) is None and run_config(junk) is None
 
 
-def test_parallel_envs_run_in_subprocesses_and_restore_torch_threads(tmp_path: Path) -> None:
+def test_parallel_envs_run_as_lanes_and_restore_torch_threads(tmp_path: Path) -> None:
     import torch
 
     threads = torch.get_num_threads()
@@ -451,10 +450,7 @@ def test_parallel_envs_run_in_subprocesses_and_restore_torch_threads(tmp_path: P
         hyperparams=hp,
     )
     assert torch.get_num_threads() == threads
-    assert sorted(p.name for p in (run_dir / "monitor").iterdir()) == [
-        "0.monitor.csv",
-        "1.monitor.csv",
-    ]
+    assert sorted(p.name for p in (run_dir / "monitor").iterdir()) == ["lanes.monitor.csv"]
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
-    assert config["hyperparams"]["n_envs"] == 2 and config["torch_threads"] >= 1
+    assert config["hyperparams"]["n_envs"] == 2
     assert (run_dir / "model.zip").is_file()
