@@ -21,6 +21,7 @@ import time
 from typing import Any
 
 from agents.bench import Plan, Results
+from agents.memory import peak_rss_mb
 
 MEMORY_ENV_ID = "QuadSLAM-EKF-v0"  # default scenario paper_ekf_figure8: unknown map
 COMPILE_ENV_ID = "QuadSLAM-EKF-v0"
@@ -40,27 +41,6 @@ def fly_vector(env_id: str, num_envs: int, steps: int, kwargs: dict[str, Any]) -
     for _ in range(steps):
         obs = vec.step(policy.predict(obs)[0])[0]
     vec.close()
-
-
-def peak_rss_mb() -> float:
-    """Peak resident set size of this process in MB (MiB).
-
-    On Linux this is ``VmHWM`` of ``/proc/self/status``: ``getrusage(RUSAGE_SELF).ru_maxrss``
-    there keeps the high-water mark of the memory image replaced by ``exec``, i.e. a
-    subprocess reports at least its parent's peak (a 400 MB parent made a 10 MB child report
-    407 MB). Elsewhere ``ru_maxrss`` (KiB; bytes on macOS).
-    """
-    import resource
-
-    try:
-        with open("/proc/self/status") as status:
-            for line in status:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return maxrss / (1024.0**2 if sys.platform == "darwin" else 1024.0)
 
 
 def probe(env_id: str, num_envs: str, steps: str, kwargs_json: str = "{}") -> None:

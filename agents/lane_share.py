@@ -15,7 +15,6 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.utils import seeding
 
 from agents.wrappers import ResidualDFLQR, parse_wrapper_spec
 from quadslam_env.core import parse_reset_options
@@ -63,13 +62,7 @@ class LaneShare:
         self.spec = replace(spec, kwargs={**spec.kwargs, **env_kwargs})
         parsed = parse_wrapper_spec(wrapper)
         self.residual = None if parsed is None else ResidualDFLQR(self.vec, **parsed[1])
-        self._rngs: list[np.random.Generator | None] = [None] * num_lanes
         self._obs: np.ndarray | None = None
-
-    def _rng(self, lane: int) -> np.random.Generator:
-        if self._rngs[lane] is None:
-            self._rngs[lane] = seeding.np_random(None)[0]
-        return self._rngs[lane]  # type: ignore[return-value]
 
     def _infos(self, info: dict[str, Any], lanes: Iterable[int]) -> list[dict[str, Any]]:
         if self.info_keys is not None:
@@ -84,9 +77,7 @@ class LaneShare:
         Returns:
             ``(obs (k, obs_dim) float32, infos (k,))``.
         """
-        for lane, seed in enumerate(seeds):
-            if seed is not None:
-                self._rngs[lane] = seeding.np_random(int(seed))[0]
+        self.base.seed_lanes(seeds)  # the lane generators of the vector env
         groups: dict[int, list[int]] = {}  # lanes sharing one options object reset together
         for lane, opts in enumerate(options):
             groups.setdefault(id(opts) if opts else 0, []).append(lane)
@@ -94,7 +85,7 @@ class LaneShare:
         infos: list[dict[str, Any]] = [{} for _ in seeds]
         for lanes in groups.values():
             opts = parse_reset_options(options[lanes[0]] or None)
-            g_obs, g_info = self.core.reset_lanes(lanes, [self._rng(i) for i in lanes], opts)
+            g_obs, g_info = self.core.reset_lanes(lanes, self.base.lane_rngs(lanes), opts)
             obs[lanes] = g_obs
             for j, info in zip(lanes, self._infos(g_info, range(len(lanes))), strict=True):
                 infos[j] = info
@@ -128,7 +119,7 @@ class LaneShare:
         if lanes:
             for j in lanes:
                 infos[j]["terminal_observation"] = obs[j].copy()
-            r_obs, r_info = core.reset_lanes(lanes, [self._rng(i) for i in lanes])
+            r_obs, r_info = core.reset_lanes(lanes, self.base.lane_rngs(lanes))
             obs[lanes] = r_obs
             reset_infos = dict(zip(lanes, self._infos(r_info, range(len(lanes))), strict=True))
         self._obs = obs

@@ -33,7 +33,6 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
-import resource  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Sequence  # noqa: E402
@@ -43,6 +42,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from agents.evaluation import json_float  # noqa: E402
+from agents.memory import peak_rss_mb, rss_mb  # noqa: E402
 
 SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
     "ekf_slam": ("paper_ekf_figure8", {}),
@@ -50,25 +50,6 @@ SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
     "fastslam_kinematic": ("paper_fastslam_helix", {"trajectory": {"climb_rate_mps": 0.0}}),
 }
 DEFAULT_PARTICLES = 200
-
-
-def rss_mb() -> float:
-    """Current resident set size of this process in MiB (``VmRSS``; peak RSS as a fallback)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
-
-
-def peak_rss_mb() -> float:
-    """Peak resident set size of this process in MiB."""
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
 
 
 def cov_health(cov: np.ndarray) -> tuple[float, float, float]:

@@ -189,7 +189,7 @@ class LaneLoop:
         self.uses_truth = bool(getattr(self.lanes[0], "uses_truth", False))
         b = self.num_lanes
         self._estimates: list[Estimate | None] = [None] * b
-        self._out = _empty_batch(b, max(landmark_capacity, 0), with_cov=True)
+        self._out = _empty_batch(b, max(landmark_capacity, 0))
 
     def reset_lanes(
         self,
@@ -263,14 +263,19 @@ class LaneLoop:
     def estimate(self) -> BatchEstimate:
         """Stack every lane's :class:`Estimate` into the batch arrays."""
         snaps = [self.lane_estimate(lane) for lane in range(self.num_lanes)]
-        need = max((int(s.landmark_ids.max()) + 1 for s in snaps if s.landmark_ids.size), default=0)
+        need = _id_width(snaps)
         if need > self._out.landmark_means.shape[1]:
-            self._out = _empty_batch(self.num_lanes, need, with_cov=True)
+            self._out = _empty_batch(self.num_lanes, need)
         fill_batch(self._out, snaps)
         return self._out
 
 
-def _empty_batch(num_lanes: int, capacity: int, with_cov: bool) -> BatchEstimate:
+def _id_width(snaps: Sequence[Estimate]) -> int:
+    """Landmark-array width that holds every id of the snapshots (largest id + 1)."""
+    return max((int(s.landmark_ids.max()) + 1 for s in snaps if s.landmark_ids.size), default=0)
+
+
+def _empty_batch(num_lanes: int, capacity: int) -> BatchEstimate:
     b = num_lanes
     return BatchEstimate(
         position=np.zeros((b, 3)),
@@ -278,7 +283,7 @@ def _empty_batch(num_lanes: int, capacity: int, with_cov: bool) -> BatchEstimate
         vel_inertial=np.zeros((b, 3)),
         euler=np.zeros((b, 3)),
         rates=np.zeros((b, 3)),
-        pose_cov=np.zeros((b, POSE_DIM, POSE_DIM)) if with_cov else None,
+        pose_cov=np.zeros((b, POSE_DIM, POSE_DIM)),
         landmark_means=np.zeros((b, capacity, 3)),
         landmark_mapped=np.zeros((b, capacity), dtype=bool),
     )
@@ -321,8 +326,7 @@ def fill_batch(out: BatchEstimate, snaps: Sequence[Estimate]) -> None:
 
 def batch_from_estimates(snaps: Sequence[Estimate]) -> BatchEstimate:
     """A fresh :class:`BatchEstimate` holding the scalar snapshots ``snaps``."""
-    need = max((int(s.landmark_ids.max()) + 1 for s in snaps if s.landmark_ids.size), default=0)
-    out = _empty_batch(len(snaps), need, with_cov=True)
+    out = _empty_batch(len(snaps), _id_width(snaps))
     fill_batch(out, snaps)
     return out
 

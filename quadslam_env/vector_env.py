@@ -13,6 +13,7 @@ a dict of (B,) arrays, each with a ``_key`` bool mask of the lanes where the ter
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -83,12 +84,21 @@ class QuadSLAMVectorEnv(VectorEnv):
         """The simulation core (its arrays hold every lane's truth: for analysis only)."""
         return self._core
 
-    def _lane_rng(self, lane: int) -> np.random.Generator:
-        rng = self._rngs[lane]
-        if rng is None:
-            rng = seeding.np_random(None)[0]
-            self._rngs[lane] = rng
-        return rng
+    def seed_lanes(self, seeds: Sequence[int | None]) -> None:
+        """Give lane i a generator seeded ``seeds[i]`` (``None``: keep the lane's generator), as
+        ``gymnasium.Env.reset(seed=...)`` does for the scalar env."""
+        for lane, s in enumerate(seeds):
+            if s is not None:
+                self._rngs[lane] = seeding.np_random(int(s))[0]
+
+    def lane_rngs(self, lanes: Iterable[int]) -> list[np.random.Generator]:
+        """The generators of ``lanes`` (a lane never seeded gets one from fresh entropy)."""
+        out = []
+        for lane in lanes:
+            if self._rngs[lane] is None:
+                self._rngs[lane] = seeding.np_random(None)[0]
+            out.append(self._rngs[lane])
+        return out  # type: ignore[return-value]
 
     def reset(
         self,
@@ -108,11 +118,9 @@ class QuadSLAMVectorEnv(VectorEnv):
             seeds = seed
         else:
             seeds = [None if seed is None else int(seed) + i for i in range(b)]
-        for lane, s in enumerate(seeds):
-            if s is not None:
-                self._rngs[lane] = seeding.np_random(s)[0]
+        self.seed_lanes(seeds)
         lanes = np.arange(b)
-        obs, info = self._core.reset_lanes(lanes, [self._lane_rng(i) for i in lanes], opts)
+        obs, info = self._core.reset_lanes(lanes, self.lane_rngs(lanes), opts)
         self._autoreset[:] = False
         return obs, _vector_info(info)
 
@@ -132,7 +140,7 @@ class QuadSLAMVectorEnv(VectorEnv):
         info["termination_reason"] = np.array(info["termination_reason"], dtype=object)
         lanes = np.flatnonzero(resetting)
         if lanes.size:
-            r_obs, r_info = core.reset_lanes(lanes, [self._lane_rng(i) for i in lanes])
+            r_obs, r_info = core.reset_lanes(lanes, self.lane_rngs(lanes))
             obs[lanes] = r_obs
             reward[lanes] = 0.0
             terminated[lanes] = False

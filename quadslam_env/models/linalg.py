@@ -111,11 +111,6 @@ def swap(a: FloatArray) -> FloatArray:
     return np.swapaxes(a, -1, -2)
 
 
-def swap_copy(a: FloatArray) -> FloatArray:
-    """Contiguous transpose of the last two axes (stacked matmul is much faster on it)."""
-    return np.ascontiguousarray(np.swapaxes(a, -1, -2))
-
-
 def mv(a: FloatArray, v: FloatArray) -> FloatArray:
     """Stacked matrix–vector product ``a @ v`` for (..., n, n) and (..., n) → (..., n)."""
     return (a @ v[..., None])[..., 0]
