@@ -12,8 +12,7 @@ import math
 
 import numpy as np
 
-from estimators.fastslam.process import wrapped
-from quadslam_env.models.frames import dcm_from_trig
+from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import (
     body_from_measure,
@@ -137,7 +136,7 @@ def landmark_ekf_one(
     Ct = _t(C)
     c1, c2, c3 = _dot(Ct[0], d), _dot(Ct[1], d), _dot(Ct[2], d)
     h = spherical_from_body(c1, c2, c3)
-    nu = (wrapped(meas[0] - h[0]), wrapped(meas[1] - h[1]), meas[2] - h[2])
+    nu = (wrap_pi(meas[0] - h[0]), wrap_pi(meas[1] - h[1]), meas[2] - h[2])
     H = _mul_bt(spherical_jacobian(c1, c2, c3), C)  # ∂h/∂c · C_NBᵀ
     HS = _mul_bt(H, _t(_rows(sigma)))  # H Σ
     HHS = _mul_bt(H, HS)  # H Σ Hᵀ (Σ symmetric)

@@ -11,8 +11,7 @@ import math
 
 import numpy as np
 
-from estimators.fastslam.process import wrapped
-from quadslam_env.models.frames import dcm_from_trig
+from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import POSE_DIM, FloatArray
 
@@ -62,7 +61,7 @@ def state_moments(
         for a in range(6):
             dev[a] = x[i, a] - mean[a]
         for a in range(6, POSE_DIM):
-            dev[a] = wrapped(x[i, a] - mean[a])
+            dev[a] = wrap_pi(x[i, a] - mean[a])
         for a in range(POSE_DIM):
             da = dev[a] * w[i]
             for b in range(a, POSE_DIM):

@@ -79,18 +79,11 @@ kinematic_derivative_batch = kinematic_derivative
 
 
 @kernel
-def wrapped(angle: float) -> float:
-    """:func:`~quadslam_env.models.frames.wrap_pi` of ``angle`` in rad, skipping the exact
-    remainder when the angle is already in (-π, π] (``wrap_pi`` returns those unchanged)."""
-    return angle if -math.pi < angle <= math.pi else wrap_pi(angle)
-
-
-@kernel
 def wrap_euler_rows(x: FloatArray) -> None:
     """Wrap the Euler angles ``x[:, 6:9]`` of states (N, 12) to (-π, π] in place."""
     for i in range(x.shape[0]):
         for j in range(6, 9):
-            x[i, j] = wrapped(x[i, j])
+            x[i, j] = wrap_pi(x[i, j])
 
 
 @kernel
@@ -119,7 +112,7 @@ def perturb_particles(
         for j in range(row.shape[0]):
             v = row[j] + draw[i, j] * scale[j]
             if 6 <= j < 9:
-                v = wrapped(v)
+                v = wrap_pi(v)
             row[j] = v
             finite = finite and math.isfinite(v)
         bad[i] = not finite

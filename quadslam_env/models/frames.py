@@ -46,7 +46,13 @@ def _ieee_remainder(x: float, y: float) -> float:
 
 @kernel
 def wrap_pi(angle: float) -> float:
-    """Wrap one angle in rad to (-π, π] exactly (the remainder is exact; -π maps to +π)."""
+    """Wrap one angle in rad to (-π, π] exactly (the remainder is exact; -π maps to +π).
+
+    Angles already in the interval are returned as they are without computing the remainder
+    (which would return them unchanged too): the filters call this on mostly wrapped angles.
+    """
+    if -math.pi < angle <= math.pi:
+        return angle
     wrapped = _ieee_remainder(angle, _TWO_PI)
     return math.pi if wrapped == -math.pi else wrapped
 
