@@ -17,6 +17,7 @@ import math
 import os
 import re
 from dataclasses import dataclass, field, fields
+from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -542,11 +543,12 @@ def _plain(value: Any) -> Any:
 
 
 def config_dir() -> Path:
-    """Directory holding ``scenarios/`` and ``agents/`` (``QUADSLAM_CONFIG_DIR`` overrides)."""
+    """Package data ``quadslam_env/configs`` (``QUADSLAM_CONFIG_DIR`` overrides)."""
     env = os.environ.get("QUADSLAM_CONFIG_DIR")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "configs"
+    # Package data (pyproject's package-data), so a wheel install finds it from any folder.
+    return Path(str(resources.files("quadslam_env") / "configs"))
 
 
 def available_scenarios() -> list[str]:
