@@ -15,7 +15,7 @@ import math
 import re
 import sys
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -40,14 +40,19 @@ def _slug(text: str) -> str:
 
 
 class EstimationMetricsCallback(BaseCallback):
-    """Log the env's estimation/tracking metrics from ``self.locals["infos"]``.
+    """Log the env's estimation/tracking metrics into the SB3 logger (TensorBoard/CSV).
 
-    Every step, each finite numeric ``info`` entry whose key starts with one of ``prefixes``
-    is averaged (``logger.record_mean``) under ``quadslam/<key>``; the episode summaries the
-    env adds on the last step (``episode_*``) under ``quadslam_episode/<key>``. At each episode
-    end ``quadslam_episode/failure_rate`` averages ``terminated`` (any termination reason) and
+    Each finite numeric ``info`` entry whose key starts with one of ``prefixes`` is averaged
+    under ``quadslam/<key>``; the episode summaries the env adds on the last step
+    (``episode_*``) under ``quadslam_episode/<key>``. At each episode end
+    ``quadslam_episode/failure_rate`` averages ``terminated`` (any termination reason) and
     ``quadslam_episode/n_<reason>`` counts episodes per reason since the start of training.
-    Means are over all steps (and envs) since the last log dump.
+    Means are over all steps and lanes since the last log dump (NaN entries skipped).
+
+    With :class:`agents.vec_adapter.QuadSLAMVecEnv` (found through the ``VecEnv`` wrappers)
+    the terms are read from its ``step_info`` arrays, so the cost per step does not grow with
+    the number of lanes; with any other ``VecEnv`` from the per-lane ``infos``. The sums are
+    merged into the logger's running means at the end of each rollout.
 
     Args:
         prefixes: Key prefixes of the per-step metrics.
@@ -66,35 +71,72 @@ class EstimationMetricsCallback(BaseCallback):
         self.keys = None if keys is None else tuple(keys)
         self.reasons: Counter[str] = Counter()
         self._route: dict[str, str | None] = {}
+        self._sums: dict[str, float] = defaultdict(float)
+        self._counts: dict[str, int] = defaultdict(int)
 
     def _log_name(self, key: str) -> str | None:
         """Logger key for an ``info`` key, or ``None`` if it is not logged."""
-        if key.startswith(EPISODE_PREFIX):
-            return f"quadslam_episode/{key[len(EPISODE_PREFIX) :]}"
-        wanted = key in self.keys if self.keys is not None else key.startswith(self.prefixes)
-        return f"quadslam/{key}" if wanted else None
+        name = self._route.get(key, "")
+        if name == "":
+            if key.startswith(EPISODE_PREFIX):
+                name = f"quadslam_episode/{key[len(EPISODE_PREFIX) :]}"
+            elif key in self.keys if self.keys is not None else key.startswith(self.prefixes):
+                name = f"quadslam/{key}"
+            else:
+                name = None
+            self._route[key] = name
+        return name
+
+    def _step_arrays(self) -> dict[str, np.ndarray] | None:
+        """The adapter's ``step_info`` arrays, or ``None`` for another ``VecEnv``."""
+        env = self.training_env
+        while env is not None and not hasattr(env, "step_info"):
+            env = getattr(env, "venv", None)
+        return None if env is None else env.step_info
+
+    def _add(self, name: str, values: np.ndarray) -> None:
+        finite = np.isfinite(values)
+        n = int(finite.sum())
+        if n:
+            self._sums[name] += float(values[finite].sum())
+            self._counts[name] += n
 
     def _on_step(self) -> bool:
         infos = self.locals.get("infos") or ()
         dones = self.locals.get("dones")
-        record_mean = self.logger.record_mean
-        route = self._route
-        for i, info in enumerate(infos):
-            for key, value in info.items():
-                name = route.get(key, "")
-                if name == "":
-                    name = route[key] = self._log_name(key)
+        arrays = self._step_arrays()
+        if arrays is not None:
+            for key, values in arrays.items():
+                name = self._log_name(key)
                 if name is not None:
-                    v = _finite_float(value)
+                    self._add(name, values)
+        else:
+            for info in infos:
+                for key, value in info.items():
+                    name = self._log_name(key)
+                    v = None if name is None else _finite_float(value)
                     if v is not None:
-                        record_mean(name, v)
-            if dones is not None and bool(dones[i]):
-                reason = str(info.get("termination_reason", "") or "")
-                record_mean("quadslam_episode/failure_rate", 1.0 if reason else 0.0)
+                        self._add(name, np.array([v]))
+        if dones is not None:
+            for i in np.flatnonzero(dones):
+                reason = str(infos[i].get("termination_reason", "") or "")
+                self._add("quadslam_episode/failure_rate", np.array([1.0 if reason else 0.0]))
                 self.reasons[_slug(reason) if reason else "time_limit"] += 1
-                for name, count in self.reasons.items():
-                    self.logger.record(f"quadslam_episode/n_{name}", count)
         return True
+
+    def _on_rollout_end(self) -> None:
+        """Merge the sums into the logger's running means (as ``record_mean`` per value)."""
+        logger = self.logger
+        for name, total in self._sums.items():
+            count = self._counts[name]
+            old, n = logger.name_to_value[name], logger.name_to_count[name]
+            logger.name_to_value[name] = (old * n + total) / (n + count)
+            logger.name_to_count[name] = n + count
+            logger.name_to_excluded[name] = ()
+        for name, count in self.reasons.items():
+            logger.record(f"quadslam_episode/n_{name}", count)
+        self._sums.clear()
+        self._counts.clear()
 
 
 class TqdmProgressCallback(BaseCallback):

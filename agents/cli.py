@@ -1,4 +1,4 @@
-"""The ``quadslam`` command line: ``run``, ``evaluate``, ``train``, ``bench``.
+"""The ``quadslam`` command line: ``run``, ``evaluate``, ``train``, ``study``, ``bench``.
 
 Bad input (unknown scenario, malformed YAML, wrong model file, bad numbers) is reported in one
 line on stderr with a non-zero exit status.
@@ -165,7 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any policy (``dflqr`` or a trained model) through the same code path as ``run``."""
     from agents.policies import load_policy
-    from agents.training import run_config
+    from agents.run_folder import run_config
 
     # A trained model is evaluated on its training env id and scenario unless told otherwise.
     cfg = run_config(args.policy) if args.policy != "dflqr" and Path(args.policy).exists() else None
@@ -190,7 +190,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an SB3 agent with ``configs/agents/<algo>.yaml`` and print the run folder."""
-    from agents.training import parse_hyperparam_overrides, run_config, train
+    from agents.hyperparams import parse_hyperparam_overrides
+    from agents.run_folder import run_config
+    from agents.training import train
 
     run_dir = train(
         args.algo,
@@ -209,6 +211,24 @@ def cmd_train(args: argparse.Namespace) -> int:
     hint = f" --scenario {scenario}" if scenario else ""
     print(f"run folder: {run_dir}")
     print(f"evaluate:   quadslam evaluate --policy {run_dir} --env {args.env}{hint}")
+    return 0
+
+
+def cmd_study_cost(args: argparse.Namespace) -> int:
+    """Train and evaluate the cost-of-estimation configurations; print the table."""
+    from agents.study_cost import format_study, plot_study, run_study, write_json
+
+    out = args.out or Path("runs") / f"study_cost{'_quick' if args.quick else ''}"
+    tic = time.perf_counter()
+    result = run_study(out, args.quick, args.training_seeds, args.episodes)
+    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    print(format_study(result))
+    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
+    if args.json is not None:
+        write_json(result, args.json)
+        print(f"wrote {args.json}")
+    if args.plots is not None:
+        print(f"wrote {plot_study(result, args.plots)}")
     return 0
 
 
@@ -287,12 +307,25 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--torch-threads",
         type=_positive_int,
-        help="torch threads while training (default: cores minus n_envs when n_envs > 1, "
-        "else torch's default)",
+        help="torch threads while training (default: torch's default)",
     )
     tr.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     tr.add_argument("--verbose", type=int, default=0, choices=[0, 1, 2], help="SB3 verbosity")
     tr.set_defaults(func=cmd_train)
+    study = sub.add_parser("study", help="studies that train and evaluate several agents")
+    studies = study.add_subparsers(dest="study", required=True)
+    cost = studies.add_parser(
+        "cost-of-estimation",
+        help="DF-LQR and residual PPO on truth vs EKF-SLAM vs FastSLAM, privileged critic, "
+        "uncertainty-aware observation (held-out seeds)",
+    )
+    cost.add_argument("--quick", action="store_true", help="1 training seed, small budget")
+    cost.add_argument("--training-seeds", type=_positive_int, help="default 3 (quick: 1)")
+    cost.add_argument("--episodes", type=_positive_int, help="held-out episodes (20; quick 5)")
+    cost.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
+    cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    cost.add_argument("--plots", type=Path, help="write the box plot (PNG) here")
+    cost.set_defaults(func=cmd_study_cost)
     from agents.bench import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy
 
     bench = sub.add_parser("bench", help="measure env and estimator speed and scaling")

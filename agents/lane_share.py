@@ -20,6 +20,10 @@ from agents.wrappers import ResidualDFLQR, parse_wrapper_spec
 from quadslam_env.core import parse_reset_options
 from quadslam_env.env import lane_info
 
+# Keys of the dict observation with privileged=True (agents.asymmetric reads them).
+ACTOR_KEY = "obs"
+PRIVILEGED_KEY = "privileged"
+
 # Attributes that differ per lane, read from the core instead of the shared vector env.
 _LANE_ATTRS = {
     "t": lambda core, i: float(core.t[i]),
@@ -39,7 +43,13 @@ class LaneShare:
         num_lanes: k, lanes in this share.
         env_kwargs: Keyword arguments of ``gymnasium.make(env_id, ...)``.
         wrapper: A config ``wrapper`` entry (``None`` or ``"residual_dflqr"``/a mapping).
-        info_keys: Info keys to copy per lane (``None``: all).
+        info_keys: Info keys to copy per lane (``None``: all); lanes that end get every key.
+        stagger: ``(g0, n)``: this share's lanes are lanes ``g0, g0+1, …`` of ``n``, and the
+            first episode of lane g is cut (truncated) after ``ceil(max_steps (g+1) / n)``
+            steps, so the lanes' episodes are spread over the trajectory instead of running
+            in lockstep (``None``: no cut).
+        privileged: Observations are dicts ``{"obs": estimate-based, "privileged": the same
+            observation built from the true state}`` (for asymmetric actor-critic training).
     """
 
     def __init__(
@@ -49,6 +59,8 @@ class LaneShare:
         env_kwargs: dict[str, Any],
         wrapper: Any,
         info_keys: tuple[str, ...] | None,
+        stagger: tuple[int, int] | None = None,
+        privileged: bool = False,
     ) -> None:
         import quadslam_env  # noqa: F401  (registers the ids)
 
@@ -63,11 +75,18 @@ class LaneShare:
         parsed = parse_wrapper_spec(wrapper)
         self.residual = None if parsed is None else ResidualDFLQR(self.vec, **parsed[1])
         self._obs: np.ndarray | None = None
+        self.stagger = stagger
+        self.privileged = privileged
+        self._cut = np.full(num_lanes, np.iinfo(np.int64).max)
 
-    def _infos(self, info: dict[str, Any], lanes: Iterable[int]) -> list[dict[str, Any]]:
+    def _infos(
+        self, info: dict[str, Any], lanes: Iterable[int], ended: np.ndarray | None = None
+    ) -> list[dict[str, Any]]:
+        """Per-lane info dicts; a lane that ``ended`` gets every key (its summaries, reason)."""
+        kept = info
         if self.info_keys is not None:
-            info = {key: info[key] for key in self.info_keys if key in info}
-        return [lane_info(info, j) for j in lanes]
+            kept = {key: info[key] for key in self.info_keys if key in info}
+        return [lane_info(info if ended is not None and ended[j] else kept, j) for j in lanes]
 
     def reset(
         self, seeds: Sequence[int | None], options: Sequence[dict[str, Any] | None]
@@ -90,16 +109,31 @@ class LaneShare:
             for j, info in zip(lanes, self._infos(g_info, range(len(lanes))), strict=True):
                 infos[j] = info
         self._obs = obs
-        return obs.copy(), infos
+        if self.stagger is not None:
+            g0, n = self.stagger
+            lanes_global = g0 + np.arange(len(seeds)) + 1
+            cut = np.ceil(self.core.max_steps * lanes_global / n).astype(np.int64)
+            self._cut = np.where(cut < self.core.max_steps, cut, np.iinfo(np.int64).max)
+        return self._observation(obs.copy()), infos
+
+    def _observation(self, obs: np.ndarray, lanes: Any = slice(None)) -> Any:
+        """``obs`` (k, n), or with ``privileged`` the dict with the truth-based twin."""
+        if not self.privileged:
+            return obs
+        return {ACTOR_KEY: obs, PRIVILEGED_KEY: self.core.true_observation()[lanes]}
 
     def step(
         self, actions: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]], dict[int, Any]]:
+    ) -> tuple[
+        np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]], dict[int, Any], dict[str, Any]
+    ]:
         """Step every lane with ``actions`` (k, 4), resetting the lanes that end.
 
         Returns:
             ``(obs (k, obs_dim) float32, rewards (k,) float32, dones (k,) bool, infos (k,),
-            reset infos {lane: info} of the lanes that were reset)``.
+            reset infos {lane: info} of the lanes that were reset, the core's info arrays
+            {key: (k,) float} of this step)``. The arrays hold every numeric term (NaN where
+            it does not apply), whatever ``info_keys`` says.
         """
         if self._obs is None:
             raise gym.error.ResetNeeded("QuadSLAMVecEnv: call reset() before step()")
@@ -108,8 +142,12 @@ class LaneShare:
             act, base = self.residual(self._obs, actions)
         core = self.core
         obs, reward, terminated, truncated, info = core.step(np.asarray(act, dtype=float))
+        cut = core.steps >= self._cut  # staggered first episodes end here (truncated)
+        if cut.any():
+            truncated = truncated | cut
+            self._cut[cut] = np.iinfo(np.int64).max
         dones = terminated | truncated
-        infos = self._infos(info, range(core.num_lanes))
+        infos = self._infos(info, range(core.num_lanes), dones)
         for j, lane_dict in enumerate(infos):
             lane_dict["TimeLimit.truncated"] = bool(truncated[j] and not terminated[j])
             if self.residual is not None:
@@ -117,13 +155,20 @@ class LaneShare:
         lanes = np.flatnonzero(dones).tolist()
         reset_infos: dict[int, Any] = {}
         if lanes:
-            for j in lanes:
-                infos[j]["terminal_observation"] = obs[j].copy()
+            final = self._observation(obs, lanes)
+            for i, j in enumerate(lanes):
+                infos[j]["terminal_observation"] = (
+                    {key: value[i].copy() for key, value in final.items()}
+                    if self.privileged
+                    else obs[j].copy()
+                )
             r_obs, r_info = core.reset_lanes(lanes, self.base.lane_rngs(lanes))
             obs[lanes] = r_obs
             reset_infos = dict(zip(lanes, self._infos(r_info, range(len(lanes))), strict=True))
         self._obs = obs
-        return obs.copy(), reward.astype(np.float32), dones, infos, reset_infos
+        arrays = {key: value for key, value in info.items() if key != "termination_reason"}
+        out = self._observation(obs.copy())
+        return out, reward.astype(np.float32), dones, infos, reset_infos, arrays
 
     def _add_residual_info(self, info: dict[str, Any], base: np.ndarray, res: np.ndarray) -> None:
         for key, value in (("dflqr_action", base), ("residual", res)):

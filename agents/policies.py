@@ -21,7 +21,7 @@ def load_policy(spec: str, env: Any) -> tuple[Any, str]:
     """
     if spec == "dflqr":
         return DFLQRPolicy.from_env(env), "dflqr"
-    from agents.training import load_model
+    from agents.loading import load_model
 
     path = Path(spec)
     if not path.exists():

@@ -18,8 +18,11 @@ env, so lane i equals ``DummyVecEnv`` over the scalar env seeded ``s + i``, thro
 :func:`quadslam_env.env.lane_info` (the scalar env's keys). Measured at B = 64 with the Oracle:
 13.0 µs per lane and step with every key, 10.7 µs with ``info_keys=()``, i.e. ~2.3 µs (≈ 20 %
 of the Oracle's step; less for the filters). ``info_keys`` limits the keys copied (``()``
-copies none); ``TimeLimit.truncated`` and ``terminal_observation`` are always present, as are
-``dflqr_action``/``residual`` with the residual wrapper unless excluded.
+copies none) on the lanes that did not end; a lane that ends gets every key (its episode
+summaries and ``termination_reason``). ``TimeLimit.truncated`` and ``terminal_observation`` are
+always present, as are ``dflqr_action``/``residual`` with the residual wrapper unless excluded.
+Every numeric term of every lane is also in ``step_info`` (the core's (B,) arrays, NaN where
+a term does not apply), which costs nothing extra.
 
 **Workers** (``n_workers > 1``): the lanes are split into contiguous shares, each simulated by a
 worker process ("forkserver" where available, else "spawn") holding a core of its lanes and
@@ -42,7 +45,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
     VecEnvStepReturn,
 )
 
-from agents.lane_share import InProcess, unwrap, worker
+from agents.lane_share import ACTOR_KEY, PRIVILEGED_KEY, InProcess, unwrap, worker
 from agents.wrappers import ResidualDFLQRWrapper, parse_wrapper_spec
 from quadslam_env.actions import validate_actions
 from quadslam_env.config import ConfigError
@@ -60,6 +63,13 @@ class QuadSLAMVecEnv(VecEnv):
             ``{"name": "residual_dflqr", "scale": ...}``): actions are residuals on DF-LQR, as
             :class:`agents.wrappers.ResidualDFLQRWrapper` on each lane.
         info_keys: Keys of the scalar env's info to copy per lane (``None``: all; cost above).
+        stagger: Cut the first episode of lane i after ``ceil(max_steps (i+1) / B)`` steps
+            (truncated), so the lanes' episodes are spread over the trajectory instead of
+            running in lockstep (training: otherwise every rollout batch covers one short
+            stretch of the reference).
+        privileged: Observations are dicts ``{"obs": the env's observation, "privileged": the
+            same observation built from the true state}`` (asymmetric actor-critic training,
+            :mod:`agents.asymmetric`); terminal observations too.
         **env_kwargs: Keyword arguments of ``gymnasium.make(env_id, ...)``.
 
     Raises:
@@ -75,6 +85,8 @@ class QuadSLAMVecEnv(VecEnv):
         n_workers: int = 1,
         wrapper: Any = None,
         info_keys: Sequence[str] | None = None,
+        stagger: bool = False,
+        privileged: bool = False,
         **env_kwargs: Any,
     ) -> None:
         for name, value in (("num_envs", num_envs), ("n_workers", n_workers)):
@@ -89,7 +101,8 @@ class QuadSLAMVecEnv(VecEnv):
         self._processes: list[Any] = []
         self._residual = parse_wrapper_spec(wrapper) is not None
         for sl in self._slices:
-            args = (env_id, sl.stop - sl.start, dict(env_kwargs), wrapper, keys)
+            cut = (sl.start, int(num_envs)) if stagger else None
+            args = (env_id, sl.stop - sl.start, dict(env_kwargs), wrapper, keys, cut, privileged)
             self._shares.append(InProcess(*args) if n_workers == 1 else self._spawn(args))
         if n_workers > 1:
             try:
@@ -104,10 +117,16 @@ class QuadSLAMVecEnv(VecEnv):
             self._get_attr_one("observation_space"),
             self._get_attr_one("action_space"),
         )
+        if privileged:
+            single_obs = gym.spaces.Dict({ACTOR_KEY: single_obs, PRIVILEGED_KEY: single_obs})
         super().__init__(int(num_envs), single_obs, single_act)
         if seed is not None:
             self._seeds = [int(seed) + i for i in range(self.num_envs)]
         self._actions: np.ndarray | None = None
+        # The core's info arrays of the last step, {key: (B,) float} (NaN: does not apply):
+        # every numeric term of every lane without building per-lane dicts (the batched
+        # EstimationMetricsCallback reads them).
+        self.step_info: dict[str, np.ndarray] = {}
 
     def _spawn(self, args: tuple) -> Any:
         if "forkserver" in mp.get_all_start_methods():
@@ -157,7 +176,7 @@ class QuadSLAMVecEnv(VecEnv):
         self.reset_infos = [info for _, infos in replies for info in infos]
         self._reset_seeds()
         self._reset_options()
-        return np.concatenate([obs for obs, _ in replies])
+        return _concat([obs for obs, _ in replies])
 
     def step_async(self, actions: np.ndarray) -> None:
         """Check ``actions`` (B, 4) and send each share its rows.
@@ -175,11 +194,18 @@ class QuadSLAMVecEnv(VecEnv):
         """Gather the step results: ``(obs (B, obs_dim), rewards (B,), dones (B,), infos)``."""
         replies = [unwrap(share.recv()) for share in self._shares]
         infos: list[dict[str, Any]] = []
-        for sl, (_, _, _, share_infos, reset_infos) in zip(self._slices, replies, strict=True):
-            infos.extend(share_infos)
-            for lane, info in reset_infos.items():
+        for sl, reply in zip(self._slices, replies, strict=True):
+            infos.extend(reply[3])
+            for lane, info in reply[4].items():
                 self.reset_infos[sl.start + lane] = info
-        obs, rewards, dones = (np.concatenate([r[k] for r in replies]) for k in range(3))
+        obs = _concat([r[0] for r in replies])
+        rewards, dones = (np.concatenate([r[k] for r in replies]) for k in (1, 2))
+        arrays = [r[5] for r in replies]
+        self.step_info = (
+            arrays[0]
+            if len(arrays) == 1
+            else {key: np.concatenate([a[key] for a in arrays]) for key in arrays[0]}
+        )
         return obs, rewards, dones, infos
 
     def close(self) -> None:
@@ -239,3 +265,12 @@ class QuadSLAMVecEnv(VecEnv):
         if (mode or self.render_mode) != "rgb_array" or self.render_mode != "rgb_array":
             return None
         return self.get_images()[0]
+
+
+def _concat(parts: list[Any]) -> Any:
+    """Concatenate the shares' observations (arrays, or dicts of arrays) along the lanes."""
+    if len(parts) == 1:
+        return parts[0]
+    if isinstance(parts[0], dict):
+        return {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    return np.concatenate(parts)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.batch import BatchEstimate, health_codes, make_batch
+from estimators.batch import BatchEstimate, BatchEstimator, health_codes, make_batch
 from estimators.metrics import EpisodeMetrics, step_metrics
 from quadslam_env.actions import ActionMap
 from quadslam_env.config import ConfigError, LandmarksConfig, ScenarioConfig
@@ -128,6 +128,7 @@ class SimCore:
         self.estimator = make_batch(
             cfg.estimator.name, b, capacity, vehicle=self.vehicle_params, **cfg.estimator.params
         )
+        self._truth: BatchEstimator | None = None  # privileged observations, built on demand
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
         self.observer = ObservationBuilder(cfg.observation, self.trajectory)
         self.steps = np.zeros(b, dtype=np.int64)
@@ -300,6 +301,19 @@ class SimCore:
             )
         self.est = self.estimator.estimate()
         return self.est
+
+    def true_observation(self) -> np.ndarray:
+        """Observations (B, n) float32 built from the *true* state (the layout of the env's).
+
+        Privileged information for training critics only (``agents.asymmetric``); the env's
+        own observations come from the estimate. With ``pos_uncertainty`` its entries are 0.
+        """
+        if self._truth is None:
+            self._truth = make_batch("oracle", self.num_lanes, self.landmarks.shape[1])
+        truth_source: Any = self._truth  # OracleBatch: takes the truth through set_truth
+        truth_source.set_truth(self.vehicle.state, self.landmarks, self.n_landmarks)
+        truth = self._truth.estimate()
+        return self.observer.build(truth, self.reference(), self.t, self.n_visible)
 
     def reference(self, lanes: Sequence[int] | None = None) -> FlatOutputs:
         """Reference of every lane (or of ``lanes``) at its current time."""

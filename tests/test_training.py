@@ -24,18 +24,16 @@ from agents import cli
 from agents.callbacks import EstimationMetricsCallback
 from agents.dflqr import DFLQRPolicy
 from agents.evaluation import EPISODE_KEYS, SUMMARY_KEYS, run_episode
-from agents.policies import load_policy
-from agents.training import (
+from agents.hyperparams import (
     RESERVED_KEYS,
-    TrainedPolicy,
-    _make_vec_env,
     default_config_path,
     load_hyperparams,
-    load_model,
     resolve_settings,
-    run_config,
-    train,
 )
+from agents.loading import TrainedPolicy, load_model
+from agents.policies import load_policy
+from agents.run_folder import run_config
+from agents.training import _make_vec_env, train
 from agents.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
 
 ALGOS = ("ppo", "sac")
@@ -203,7 +201,9 @@ def test_residual_is_scaled_per_component_and_clipped() -> None:
 def test_metrics_callback_averages_finite_info_values_and_counts_failures() -> None:
     logger = Logger(folder=None, output_formats=[])
     callback = EstimationMetricsCallback()
-    callback.model = SimpleNamespace(logger=logger)  # type: ignore[assignment]
+    # A model whose env is not the adapter (no step_info): the per-lane path.
+    model = SimpleNamespace(logger=logger, get_env=SimpleNamespace)
+    callback.model = model  # type: ignore[assignment]
     infos = [
         {"est_pos_err_m": 1.0, "est_nees_pose": math.nan, "t": 0.1, "termination_reason": ""},
         {"est_pos_err_m": 3.0, "est_nees_pose": 2.0, "track_pos_err_m": 0.5, "residual": [0]},
@@ -217,6 +217,7 @@ def test_metrics_callback_averages_finite_info_values_and_counts_failures() -> N
     }
     callback.locals = {"infos": [last], "dones": np.array([True])}
     callback._on_step()
+    callback._on_rollout_end()
     values = logger.name_to_value
     assert values["quadslam/est_pos_err_m"] == pytest.approx(3.0)
     assert values["quadslam/est_nees_pose"] == pytest.approx(2.0)  # NaN ignored
@@ -225,6 +226,34 @@ def test_metrics_callback_averages_finite_info_values_and_counts_failures() -> N
     assert values["quadslam_episode/failure_rate"] == pytest.approx(1.0)
     assert values["quadslam_episode/n_estimator_diverged_nees_above_threshold"] == 1
     assert "quadslam/t" not in values and "quadslam/residual" not in values
+
+
+def test_metrics_callback_reads_the_adapter_arrays_as_it_reads_the_lane_infos() -> None:
+    """The batched path (``step_info`` arrays) logs the same means as the per-lane dicts."""
+    from agents.vec_adapter import QuadSLAMVecEnv
+
+    env_kwargs = {"episode": {"duration_s": 0.3}}
+    adapter = QuadSLAMVecEnv(main_env(), 3, seed=4, **env_kwargs)
+    loggers = [Logger(folder=None, output_formats=[]) for _ in range(2)]
+    callbacks = [EstimationMetricsCallback(), EstimationMetricsCallback()]
+    for callback, logger, env in zip(callbacks, loggers, (adapter, SimpleNamespace()), strict=True):
+        model = SimpleNamespace(logger=logger, get_env=lambda env=env: env)
+        callback.model = model  # type: ignore[assignment]
+    adapter.reset()
+    actions = np.zeros((3, 4), dtype=np.float32)
+    for _ in range(45):  # past one episode end (30 steps) in every lane
+        _, _, dones, infos = adapter.step(actions)
+        for callback in callbacks:
+            callback.locals = {"infos": infos, "dones": dones}
+            callback._on_step()
+    for callback in callbacks:
+        callback._on_rollout_end()
+    batched, per_lane = (logger.name_to_value for logger in loggers)
+    assert "quadslam_episode/est_pos_rmse_m" in batched
+    assert batched.keys() == per_lane.keys()
+    for key, value in per_lane.items():
+        assert batched[key] == pytest.approx(value, rel=1e-12), key
+    adapter.close()
 
 
 # ---------------------------------------------------------------------------- training
@@ -330,11 +359,11 @@ def test_cli_train_reports_bad_input_in_one_line(
 def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
     # The actions the env received inside the training pipeline (VecNormalize + residual on
     # the lanes + model) must equal TrainedPolicy.predict on the raw env.
-    from agents.training import resolve_settings as _resolve
+    from agents.hyperparams import resolve_settings as _resolve
 
     config = yaml.safe_load((cli_run / "config.yaml").read_text())
     settings = _resolve("ppo", config["hyperparams"])
-    venv = _make_vec_env(config["env_id"], settings, 1, 11, None)
+    venv = _make_vec_env(config["env_id"], settings, 1, 11, None, info_keys=None)
     venv = VecNormalize.load(str(cli_run / "vecnormalize.pkl"), venv)
     venv.training, venv.norm_reward = False, False
     model = PPO.load(cli_run / "model.zip", device="cpu")

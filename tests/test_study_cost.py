@@ -1,0 +1,68 @@
+"""The cost-of-estimation study pipeline on a tiny budget (seconds, not a result)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from agents import cli
+from agents.study_cost import TRAINED, run_study, write_json
+
+
+@pytest.fixture(scope="module")
+def tiny_study(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
+    out = tmp_path_factory.mktemp("study")
+    result = run_study(out, training_seeds=2, episodes=2, timesteps=128, duration_s=0.3)
+    return result, out
+
+
+def test_rows_cover_every_configuration_and_target(tiny_study: tuple[dict, Path]) -> None:
+    result, _ = tiny_study
+    rows = result["rows"]
+    want = [("dflqr", t) for t in ("truth", "ekf_slam", "fastslam")] + [
+        (cfg.name, t) for cfg in TRAINED for t in cfg.eval_on
+    ]
+    assert [(r["config"], r["eval_on"]) for r in rows] == want
+    for row in rows:
+        assert 0.0 <= row["crash_rate"] <= 1.0
+        stats = row["track_pos_rmse_m"]
+        assert stats["min"] <= stats["median"] <= stats["max"]
+        learned = row["config"] != "dflqr"
+        assert row["n_training_seeds"] == (2 if learned else 0)
+        assert row["n_episodes"] == (4 if learned else 2)
+        assert [e["seed"] for e in row["episodes"]] == [1000, 1001] * (2 if learned else 1)
+    by_key = {(r["config"], r["eval_on"]): r for r in rows}
+    # On the truth the estimation error is exactly zero; on a filter it is not.
+    assert by_key["dflqr", "truth"]["est_pos_rmse_m"]["max"] == 0.0
+    assert by_key["ppo_truth", "truth"]["est_pos_rmse_m"]["max"] == 0.0
+    assert by_key["dflqr", "ekf_slam"]["est_pos_rmse_m"]["min"] > 0.0
+    assert by_key["ppo_truth", "ekf_slam"]["train_on"] == "truth"
+
+
+def test_rerun_reuses_finished_trainings(tiny_study: tuple[dict, Path]) -> None:
+    _, out = tiny_study
+    runs = sorted(out.glob("train/*/s*/*/model.zip"))
+    assert len(runs) == 2 * len(TRAINED)
+    again = run_study(out, training_seeds=2, episodes=1, timesteps=128, duration_s=0.3)
+    assert sorted(out.glob("train/*/s*/*/model.zip")) == runs  # nothing trained again
+    assert len(again["rows"]) == 3 + sum(len(cfg.eval_on) for cfg in TRAINED)
+
+
+def test_json_has_the_documented_fields(tiny_study: tuple[dict, Path], tmp_path: Path) -> None:
+    result, _ = tiny_study
+    path = tmp_path / "study.json"
+    write_json(result, path)
+    data = json.loads(path.read_text())
+    for row in data["rows"]:
+        for key in ("config", "policy", "train_on", "eval_on", "crash_rate"):
+            assert key in row
+        assert set(row["track_pos_rmse_m"]) == {"median", "min", "max"}
+
+
+def test_cli_parses_the_study_command() -> None:
+    args = cli.build_parser().parse_args(
+        ["study", "cost-of-estimation", "--quick", "--json", "x.json"]
+    )
+    assert args.func is cli.cmd_study_cost and args.quick and args.json == Path("x.json")
