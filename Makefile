@@ -8,7 +8,9 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
-.PHONY: demo test lint bench install clean
+DOCS_STAMP := $(VENV)/.docs-installed
+
+.PHONY: demo test lint bench install docs wheel-smoke clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +32,13 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 
+# The fresh-install check of CI: build the wheel, install it into a new venv outside the
+# checkout, use it from an unrelated folder.
+wheel-smoke: $(STAMP)
+	.ci/wheel_smoke.sh $(PYTHON)
+
 bench: $(STAMP)
 	$(BIN)/quadslam bench
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build dist site *.egg-info .pytest_cache .mypy_cache
