@@ -104,3 +104,21 @@ def test_evaluate_uses_the_run_folder_config_only(
     # ppo.yaml's QuadSLAM-v0 entry: the hover scenario with thrust_rates actions.
     assert result["scenario"] == "hover"
     assert result["episodes"][0]["duration_s"] == pytest.approx(0.3)
+
+
+def test_citation_and_changelog_name_the_current_version() -> None:
+    citation = yaml.safe_load((ROOT / "CITATION.cff").read_text())
+    assert str(citation["version"]) == quadslam_env.__version__
+    assert citation["license"] == "MIT"
+    dois = {ref["doi"] for ref in citation["references"]}
+    assert dois == {"10.3390/electronics12051113", "10.1109/ACCESS.2021.3106864"}
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    assert f"## {quadslam_env.__version__} " in changelog
+
+
+def test_readme_cites_the_papers_by_author_year_and_doi() -> None:
+    readme = (ROOT / "README.md").read_text()
+    assert "seed 00" not in readme.lower() and "seed-00" not in readme.lower()
+    for doi in ("10.3390/electronics12051113", "10.1109/ACCESS.2021.3106864"):
+        assert f"doi:[{doi}](https://doi.org/{doi})" in readme
+    assert "download.pytorch.org/whl/cpu" in readme
