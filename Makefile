@@ -31,6 +31,7 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+	$(BIN)/mypy
 
 # The fresh-install check of CI: build the wheel, install it into a new venv outside the
 # checkout, use it from an unrelated folder.

@@ -192,7 +192,8 @@ def check_kwargs(
     for key, value in given.items():
         if key not in allowed:
             raise ValueError(f"{owner}.{key}: unknown key; allowed: {sorted(allowed)}")
-        want = allowed[key] if isinstance(allowed[key], tuple) else (allowed[key],)
+        accepted = allowed[key]
+        want: tuple[type, ...] = accepted if isinstance(accepted, tuple) else (accepted,)
         # NumPy scalars are as good as Python numbers (e.g. a particle count from np.arange).
         if isinstance(value, np.integer) and int in want:
             value = int(value)

@@ -125,7 +125,7 @@ class VehicleConfig(Section):
             mass=mass,
             inertia=inertia,
             max_thrust=base.max_thrust if self.max_thrust_n is None else self.max_thrust_n,
-            max_torque=base.max_torque if self.max_torque_nm is None else self.max_torque_nm,
+            max_torque=base.max_torque if self.max_torque_nm is None else _vec(self.max_torque_nm),
             drag=self.drag_per_s,
             actuator_tau=self.actuator_tau_s,
         )
@@ -143,6 +143,12 @@ def _diag(values: tuple[float, ...]) -> Any:
     import numpy as np
 
     return np.diag(values)
+
+
+def _vec(values: tuple[float, ...]) -> Any:
+    import numpy as np
+
+    return np.array(values, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -623,7 +629,7 @@ class ScenarioConfig:
         scenario = cls(
             name=str(data.get("name", name)),
             description=description,
-            **sections,  # type: ignore[arg-type]
+            **sections,
         )
         ratio = scenario.episode.control_hz / scenario.lidar.rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:

@@ -59,8 +59,13 @@ def spec(
         "doc": doc,
     }
     if isinstance(default, list | dict):
-        return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
+        return field(default_factory=_copier(default), metadata=meta)
     return field(default=default, metadata=meta)
+
+
+def _copier(value: Any) -> Callable[[], Any]:
+    """A default factory returning a fresh deep copy of ``value``."""
+    return lambda: copy.deepcopy(value)
 
 
 def describe(meta: dict[str, Any]) -> str:
