@@ -17,6 +17,7 @@ Run it: ``python examples/complementary_filter.py``.
 
 from __future__ import annotations
 
+# --8<-- [start:filter]
 from typing import Any
 
 import numpy as np
@@ -96,8 +97,12 @@ class ComplementaryFilter:
         )
 
 
+# --8<-- [end:filter]
+
+
 def main() -> None:
     """Fly the DF-LQR baseline on the filter's estimate for 20 s and print the errors."""
+    # --8<-- [start:fly]
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
@@ -119,6 +124,7 @@ def main() -> None:
     rmse = float(np.sqrt(np.mean(np.square(errors))))
     print(f"{len(errors)} steps, estimate position RMSE {rmse:.3f} m, ", end="")
     print(f"tracking error at the end {info['track_pos_err_m']:.3f} m")
+    # --8<-- [end:fly]
 
 
 if __name__ == "__main__":
