@@ -8,7 +8,9 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
-.PHONY: demo test lint bench install clean
+DOCS_STAMP := $(VENV)/.docs-installed
+
+.PHONY: demo test lint bench install docs wheel-smoke clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +23,14 @@ $(STAMP): $(BIN)/python pyproject.toml constraints.txt
 
 install: $(STAMP)
 
+$(DOCS_STAMP): $(STAMP)
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,docs]"
+	touch $(DOCS_STAMP)
+
+# The documentation site (MkDocs + Material + mkdocstrings) into site/; warnings are errors.
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 demo: $(STAMP)
 	$(BIN)/quadslam run
 
@@ -29,9 +39,15 @@ test: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+	$(BIN)/mypy
+
+# The fresh-install check of CI: build the wheel, install it into a new venv outside the
+# checkout, use it from an unrelated folder.
+wheel-smoke: $(STAMP)
+	.ci/wheel_smoke.sh $(PYTHON)
 
 bench: $(STAMP)
 	$(BIN)/quadslam bench
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build dist site *.egg-info .pytest_cache .mypy_cache

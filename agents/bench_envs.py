@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -66,12 +67,10 @@ def bench_env(results: Results, plan: Plan) -> None:
         )
     for env_id, label, kwargs in cases:
         env = gym.make(env_id, **kwargs)
-        dt = env.unwrapped.dt
-        n_lm = int(
-            env.unwrapped.scenario.landmarks.count
-            if env.unwrapped.scenario.landmarks.layout == "rauniyar2023"
-            else 4
-        )
+        base: Any = env.unwrapped  # a QuadSLAMEnv (gymnasium types it as Env)
+        dt = base.dt
+        landmarks = base.scenario.landmarks
+        n_lm = int(landmarks.count if landmarks.layout == "rauniyar2023" else 4)
         steps = plan.env_steps if "fastslam" not in label else max(100, plan.env_steps // 10)
         for policy_name, policy in (("zero", None), ("dflqr", DFLQRPolicy.from_env(env))):
             rates = _env_rate(env, policy, steps, plan.repeats)
@@ -162,7 +161,7 @@ def bench_vector(results: Results, plan: Plan) -> None:
             vec = make_vector(env_id, b, **kwargs)
             policy = DFLQRPolicy.from_env(vec)
             obs, _ = vec.reset(seed=0)
-            rates = lane_rates(lambda a, v=vec: v.step(a)[0], obs, policy, b, plan)
+            rates = lane_rates(partial(_observations, vec), obs, policy, b, plan)
             results.add(
                 "vector",
                 f"env_steps_per_s/{label}",
@@ -179,6 +178,11 @@ def bench_vector(results: Results, plan: Plan) -> None:
             vec.close()
 
 
+def _observations(vec: Any, actions: np.ndarray) -> np.ndarray:
+    """Step a vector env and return only the observations."""
+    return np.asarray(vec.step(actions)[0])
+
+
 def bench_workers(results: Results, plan: Plan) -> None:
     """``QuadSLAMVecEnv`` env-steps/s with the lanes split over ``plan.n_workers`` processes.
 
@@ -189,7 +193,9 @@ def bench_workers(results: Results, plan: Plan) -> None:
     from agents.vec_adapter import QuadSLAMVecEnv
 
     n = plan.n_workers
-    cases = [(*scenario, ()) for scenario in VECTOR_SCENARIOS]
+    cases: list[tuple[str, str, dict[str, Any], tuple[str, ...] | None]] = [
+        (*scenario, ()) for scenario in VECTOR_SCENARIOS
+    ]
     cases.append((*VECTOR_SCENARIOS[-1], None))
     for label, env_id, kwargs, info_keys in cases:
         probe = make_vector(env_id, 1, **kwargs)
@@ -204,7 +210,7 @@ def bench_workers(results: Results, plan: Plan) -> None:
                 return v.step_wait()[0]
 
             try:
-                rates = lane_rates(step, venv.reset(), policy, b, plan)
+                rates = lane_rates(step, np.asarray(venv.reset()), policy, b, plan)
             finally:
                 venv.close()
             results.add(

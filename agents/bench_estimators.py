@@ -14,6 +14,7 @@ import copy
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -103,7 +104,7 @@ def bench_ekf(results: Results, plan: Plan) -> None:
         results.add(
             "ekf_slam",
             "predict",
-            _repeat(lambda e=est: e.predict(imu, control, 0.01), plan.repeats, number),
+            _repeat(partial(est.predict, imu, control, 0.01), plan.repeats, number),
             "ms",
             n_mapped=n,
         )
@@ -113,7 +114,7 @@ def bench_ekf(results: Results, plan: Plan) -> None:
         results.add(
             "ekf_slam",
             "update",
-            _repeat(lambda e=est, s=scan: e.update(s), plan.repeats, number // 4 or 1),
+            _repeat(partial(est.update, scan), plan.repeats, number // 4 or 1),
             "ms",
             n_mapped=n,
             n_observed=k,
@@ -125,7 +126,7 @@ def bench_ekf(results: Results, plan: Plan) -> None:
         results.add(
             "ekf_slam",
             "update",
-            _repeat(lambda e=est, s=scan: e.update(s), plan.repeats, 5),
+            _repeat(partial(est.update, scan), plan.repeats, 5),
             "ms",
             n_mapped=n_big,
             n_observed=k,
@@ -134,7 +135,7 @@ def bench_ekf(results: Results, plan: Plan) -> None:
     for m in plan.ekf_observed:
         rng = np.random.default_rng(100 + m)
         scan = _scan(np.arange(40, 40 + m), _landmarks_ahead(m, rng), rng)
-        samples = []
+        samples: list[float] = []
         for _ in range(plan.repeats):
             trial = copy.deepcopy(base)  # registration changes the map: start from a copy
             with _timer(samples):
@@ -152,7 +153,7 @@ def bench_fastslam(results: Results, plan: Plan) -> None:
             results.add(
                 "fastslam",
                 "predict",
-                _repeat(lambda e=est: e.predict(imu, control, 0.01), plan.repeats, 5),
+                _repeat(partial(est.predict, imu, control, 0.01), plan.repeats, 5),
                 "ms",
                 n_particles=n_particles,
                 n_landmarks=n_lm,
@@ -162,7 +163,7 @@ def bench_fastslam(results: Results, plan: Plan) -> None:
             results.add(
                 "fastslam",
                 "update",
-                _repeat(lambda e=est, s=scan: e.update(s), plan.repeats, 3),
+                _repeat(partial(est.update, scan), plan.repeats, 3),
                 "ms",
                 n_particles=n_particles,
                 n_landmarks=n_lm,

@@ -76,7 +76,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
 
 def make_env(
     env_id: str,
-    scenario: str | None,
+    scenario: str | dict[str, Any] | None,
     estimator: str | None,
     duration: float | None,
     overrides: Sequence[str] = (),
@@ -170,14 +170,39 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     # A trained model is evaluated on its training env id and scenario unless told otherwise.
     cfg = run_config(args.policy) if args.policy != "dflqr" and Path(args.policy).exists() else None
     env_id = args.env or (cfg["env_id"] if cfg else "QuadSLAM-v0")
-    scenario = args.scenario or (
-        cfg["hyperparams"].get("env_kwargs", {}).get("scenario") if cfg else None
-    )
+    # The run's resolved scenario (every section, env_kwargs overrides included) rebuilds the
+    # training env without the scenario files; --scenario replaces it.
+    scenario = args.scenario or (cfg.get("scenario") if cfg else None)
     env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
     policy, name = load_policy(args.policy, env)
     seeds = list(range(args.seed, args.seed + args.episodes))
     fly(env, policy, name, seeds, args.plots, args.json)
     return 0
+
+
+def cmd_scenarios(args: argparse.Namespace) -> int:
+    """List the shipped scenarios with their one-line descriptions."""
+    from quadslam_env.config_files import config_dir, scenario_descriptions
+
+    rows = scenario_descriptions()
+    width = max((len(name) for name in rows), default=0)
+    for name, text in rows.items():
+        print(f"{name:<{width}}  {text}".rstrip())
+    print(f"({len(rows)} scenarios in {config_dir() / 'scenarios'})")
+    return 0
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: print the package version (imported only when asked for)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="print the version and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> None:
+        from quadslam_env._version import __version__
+
+        print(f"quadslam {__version__}")
+        parser.exit()
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -239,6 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Estimation-aware quadcopter control: DF-LQR baseline, RL training, "
         "evaluation and benchmarks on the QuadSLAM Gymnasium environments.",
     )
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", required=True)
 
     def common(p: argparse.ArgumentParser) -> None:
@@ -326,6 +352,8 @@ def build_parser() -> argparse.ArgumentParser:
     cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     cost.add_argument("--plots", type=Path, help="write the box plot (PNG) here")
     cost.set_defaults(func=cmd_study_cost)
+    scn = sub.add_parser("scenarios", help="list the shipped scenarios with their descriptions")
+    scn.set_defaults(func=cmd_scenarios)
     from agents.bench import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy
 
     bench = sub.add_parser("bench", help="measure env and estimator speed and scaling")

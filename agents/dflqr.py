@@ -120,7 +120,12 @@ def inverse_mapping(
     Returns:
         ``(f_T (n,) N, φ_d (n,) rad, θ_d (n,) rad, r_d (n,) rad/s)``.
     """
-    rows = np.array([_inverse_map(*map(float, row), mass) for row in np.asarray(u)])
+    rows = np.array(
+        [
+            _inverse_map(float(r[0]), float(r[1]), float(r[2]), float(r[3]), mass)
+            for r in np.asarray(u, dtype=float)
+        ]
+    )
     return rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
 
 
@@ -176,7 +181,7 @@ class DFLQRPolicy:
 
     def predict(
         self,
-        observation: FloatArray,
+        observation: np.ndarray,
         state: Any = None,
         episode_start: Any = None,
         deterministic: bool = True,

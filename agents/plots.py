@@ -110,6 +110,7 @@ def write_figures(trace: Trace, out_dir: Path, title: str) -> list[Path]:
         ids = trace.est_landmark_ids
         err = trace.est_landmarks - trace.landmarks[ids]
         sig = trace.est_landmark_std
+        assert ids is not None and sig is not None  # recorded together with est_landmarks
         fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
         for i, label in enumerate(["x", "y", "z"]):
             axes[i].errorbar(ids, err[:, i], yerr=3 * sig[:, i], fmt="o", ms=3, capsize=2)

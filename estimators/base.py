@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
+import importlib.metadata
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
@@ -84,9 +86,37 @@ _MODULES: dict[str, str] = {
     "fastslam_kinematic": "estimators.fastslam",
 }
 
+ENTRY_POINT_GROUP = "quadslam.estimators"
+"""Entry-point group through which another distribution provides estimators.
+
+A package declares, in its ``pyproject.toml``::
+
+    [project.entry-points."quadslam.estimators"]
+    mine = "my_package.filters:MyFilter"
+
+and ``estimator.name: mine`` then builds ``MyFilter(vehicle=..., **estimator.params)``. The
+object is imported only when an env first builds that estimator.
+"""
+
+
+@functools.cache
+def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
+    """Installed ``quadslam.estimators`` entry points by name (read once per process)."""
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
 
 def register(name: str) -> Callable[[Callable[..., Estimator]], Callable[..., Estimator]]:
-    """Class decorator that makes an estimator constructible by ``make(name, **cfg)``."""
+    """Class decorator that makes an estimator constructible by ``make(name, **cfg)``.
+
+    The class (or any factory) is called as ``cls(vehicle=VehicleParams, **estimator.params)``
+    and must return an object that implements :class:`Estimator`. A name registered here is
+    accepted by the scenario's ``estimator.name`` from then on.
+
+    Raises:
+        ValueError: ``name`` is not a non-empty string.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"estimators.register: got {name!r}; allowed: a non-empty string")
 
     def deco(cls: Callable[..., Estimator]) -> Callable[..., Estimator]:
         _REGISTRY[name] = cls
@@ -96,8 +126,38 @@ def register(name: str) -> Callable[[Callable[..., Estimator]], Callable[..., Es
 
 
 def available() -> list[str]:
-    """Names accepted by :func:`make`."""
-    return sorted(set(_REGISTRY) | set(_MODULES))
+    """Names accepted by :func:`make` and by the scenario's ``estimator.name``.
+
+    The built-in estimators, those registered with :func:`register` in this process, and those
+    of installed ``quadslam.estimators`` entry points (listed without importing them).
+    """
+    return sorted(set(_REGISTRY) | set(_MODULES) | set(_entry_points()))
+
+
+def _load(name: str) -> None:
+    """Import the module or entry point that registers ``name`` (if not registered yet)."""
+    if name in _REGISTRY:
+        return
+    if name in _MODULES:
+        importlib.import_module(_MODULES[name])
+        return
+    entry = _entry_points().get(name)
+    if entry is None:
+        return
+    try:
+        obj = entry.load()
+    except Exception as exc:  # any import error of a third-party plug-in
+        raise ValueError(
+            f"estimator.name: {name!r} (entry point {entry.value!r} of group "
+            f"{ENTRY_POINT_GROUP!r}) cannot be loaded: {type(exc).__name__}: {exc}"
+        ) from exc
+    if not callable(obj):
+        raise ValueError(
+            f"estimator.name: {name!r} (entry point {entry.value!r}) is a "
+            f"{type(obj).__name__}; allowed: an estimator class or factory"
+        )
+    # The module may have registered itself under this name with @register; keep that.
+    _REGISTRY.setdefault(name, obj)
 
 
 def make(name: str, **cfg: Any) -> Estimator:
@@ -108,12 +168,11 @@ def make(name: str, **cfg: Any) -> Estimator:
         **cfg: Keyword settings for that estimator; unknown keys raise ``ValueError``.
 
     Raises:
-        ValueError: Unknown name or invalid settings.
+        ValueError: Unknown name, a plug-in that cannot be loaded, or invalid settings.
     """
-    if name not in _REGISTRY and name in _MODULES:
-        importlib.import_module(_MODULES[name])
+    _load(name)
     if name not in _REGISTRY:
-        raise ValueError(f"estimator.name: unknown estimator {name!r}; allowed: {available()}")
+        raise ValueError(f"estimator.name: got {name!r}; allowed: one of {available()}")
     return _REGISTRY[name](**cfg)
 
 
@@ -133,7 +192,8 @@ def check_kwargs(
     for key, value in given.items():
         if key not in allowed:
             raise ValueError(f"{owner}.{key}: unknown key; allowed: {sorted(allowed)}")
-        want = allowed[key] if isinstance(allowed[key], tuple) else (allowed[key],)
+        accepted = allowed[key]
+        want: tuple[type, ...] = accepted if isinstance(accepted, tuple) else (accepted,)
         # NumPy scalars are as good as Python numbers (e.g. a particle count from np.arange).
         if isinstance(value, np.integer) and int in want:
             value = int(value)

@@ -13,6 +13,7 @@ batched simulation core in one process.
 
 from gymnasium.envs.registration import register
 
+from quadslam_env._version import __version__
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.models.params import VehicleParams, vehicle_preset
 
@@ -34,6 +35,7 @@ __all__ = [
     "ConfigError",
     "ScenarioConfig",
     "VehicleParams",
+    "__version__",
     "load_scenario",
     "vehicle_preset",
 ]

@@ -12,190 +12,108 @@ Every unknown key, wrong type or out-of-range value raises :class:`ConfigError` 
 
 from __future__ import annotations
 
-import copy
 import math
-import os
-import re
-from dataclasses import dataclass, field, fields
-from importlib import resources
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
-import yaml
-
+from quadslam_env.config_files import (
+    available_scenarios,
+    check_description,
+    config_dir,
+    deep_merge,
+    load_yaml,
+    parse_yaml,
+    scenario_descriptions,
+)
+from quadslam_env.config_schema import ConfigError, FieldRow, Section, field_rows
+from quadslam_env.config_schema import spec as _spec
 from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams
 from quadslam_env.types import DEG, GRAVITY
 
-
-class ConfigError(ValueError):
-    """Invalid configuration: the message names the key, the value and what is allowed."""
-
-
-def _spec(
-    default: Any = None,
-    *,
-    kind: str = "float",
-    lo: float | None = None,
-    hi: float | None = None,
-    lo_open: bool = False,
-    length: int | None = None,
-    choices: tuple[str, ...] | None = None,
-    optional: bool = False,
-    doc: str = "",
-) -> Any:
-    """Declare a validated field: ``kind`` is float|int|bool|str|vec|vecs|dict."""
-    meta = {
-        "kind": kind,
-        "lo": lo,
-        "hi": hi,
-        "lo_open": lo_open,
-        "length": length,
-        "choices": choices,
-        "optional": optional,
-        "doc": doc,
-    }
-    if isinstance(default, list | dict):
-        return field(default_factory=lambda d=default: copy.deepcopy(d), metadata=meta)
-    return field(default=default, metadata=meta)
-
-
-def _describe(meta: dict[str, Any]) -> str:
-    if meta["choices"]:
-        return f"one of {list(meta['choices'])}"
-    kind = meta["kind"]
-    base = {
-        "float": "a number",
-        "int": "an integer",
-        "bool": "true or false",
-        "str": "a string",
-        "vec": f"a list of {meta['length']} numbers",
-        "vecs": "a list of [x, y, z] lists",
-        "dict": "a mapping",
-    }[kind]
-    rng = []
-    if meta["lo"] is not None:
-        rng.append(f"{'>' if meta['lo_open'] else '>='} {meta['lo']}")
-    if meta["hi"] is not None:
-        rng.append(f"<= {meta['hi']}")
-    text = base + (f" {' and '.join(rng)}" if rng else "")
-    return text + (" or null" if meta["optional"] else "")
-
-
-def _check_number(key: str, value: Any, meta: dict[str, Any]) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-    num = float(value)
-    lo, hi = meta["lo"], meta["hi"]
-    bad = not math.isfinite(num) or (
-        lo is not None and (num <= lo if meta["lo_open"] else num < lo)
-    )
-    if bad or (hi is not None and num > hi):
-        raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-    return num
-
-
-def _coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
-    """Validate one value against its field spec and return it in canonical (immutable) form."""
-    if value is None:
-        if meta["optional"]:
-            return None
-        raise ConfigError(f"{key}: got null; allowed: {_describe(meta)}")
-    kind = meta["kind"]
-    if kind == "float":
-        return _check_number(key, value, meta)
-    if kind == "int":
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-        return int(_check_number(key, value, meta))
-    if kind == "bool":
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-        return value
-    if kind == "str":
-        if not isinstance(value, str) or (meta["choices"] and value not in meta["choices"]):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-        return value
-    if kind == "vec":
-        if not isinstance(value, list | tuple) or (
-            meta["length"] is not None and len(value) != meta["length"]
-        ):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-        return tuple(_check_number(f"{key}[{i}]", v, meta) for i, v in enumerate(value))
-    if kind == "vecs":
-        if not isinstance(value, list | tuple):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-        point_meta = {**meta, "length": 3, "lo": None, "hi": None}
-        return tuple(
-            _coerce(f"{key}[{i}]", p, {**point_meta, "kind": "vec"}) for i, p in enumerate(value)
-        )
-    if kind == "dict":
-        if not isinstance(value, dict):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {_describe(meta)}")
-        return copy.deepcopy(value)
-    raise AssertionError(f"unhandled field kind {kind}")  # pragma: no cover - programming error
-
-
-class _Section:
-    """Mixin: build a frozen section dataclass from a plain mapping with validation."""
-
-    SECTION: ClassVar[str] = ""
-    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {}
-
-    @classmethod
-    def from_dict(cls, data: Any) -> Any:
-        if data is None:
-            data = {}
-        if not isinstance(data, dict):
-            raise ConfigError(f"{cls.SECTION}: got {data!r}; allowed: a mapping of settings")
-        known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
-        for key in data:
-            if key not in known:
-                raise ConfigError(f"{cls.SECTION}.{key}: unknown key; allowed: {sorted(known)}")
-        merged = dict(data)
-        preset = data.get("preset")
-        if cls.PRESETS and preset is not None:
-            if not isinstance(preset, str) or preset not in cls.PRESETS:
-                raise ConfigError(
-                    f"{cls.SECTION}.preset: got {preset!r}; allowed: one of {sorted(cls.PRESETS)}"
-                )
-            merged = {**cls.PRESETS[preset], **data}
-        kwargs = {}
-        for name, spec in known.items():
-            # Defaults go through the same coercion so every stored value is immutable.
-            value = (
-                merged[name]
-                if name in merged
-                else (spec.default_factory() if callable(spec.default_factory) else spec.default)
-            )
-            kwargs[name] = _coerce(f"{cls.SECTION}.{name}", value, dict(spec.metadata))
-        obj = cls(**kwargs)
-        obj.validate()
-        return obj
-
-    def validate(self) -> None:
-        """Cross-field checks; overridden where needed."""
+__all__ = [
+    "SECTIONS",
+    "ActionConfig",
+    "ConfigError",
+    "EpisodeConfig",
+    "EstimatorConfig",
+    "FieldRow",
+    "ImuConfig",
+    "LandmarksConfig",
+    "LidarConfig",
+    "ObservationConfig",
+    "RewardConfig",
+    "ScenarioConfig",
+    "TrajectoryConfig",
+    "VehicleConfig",
+    "available_scenarios",
+    "config_dir",
+    "deep_merge",
+    "field_rows",
+    "load_scenario",
+    "load_yaml",
+    "parse_yaml",
+    "scenario_descriptions",
+]
 
 
 _MICRO_G = 1e-6 * GRAVITY
 
 
 @dataclass(frozen=True)
-class VehicleConfig(_Section):
+class VehicleConfig(Section):
     """Vehicle preset and overrides. ``None`` means "take the preset's value"."""
 
     SECTION: ClassVar[str] = "vehicle"
-    preset: str = _spec("rauniyar2023", kind="str", choices=tuple(VEHICLE_PRESETS))
-    mass_kg: float | None = _spec(None, lo=0.0, lo_open=True, optional=True)
+    preset: str = _spec(
+        "rauniyar2023",
+        kind="str",
+        choices=tuple(VEHICLE_PRESETS),
+        doc="vehicle parameters to start from (mass, inertia, limits); see the presets table",
+    )
+    mass_kg: float | None = _spec(
+        None, lo=0.0, lo_open=True, optional=True, doc="mass m in kg; null = the preset's"
+    )
     inertia_diag: tuple[float, ...] | None = _spec(
-        None, kind="vec", length=3, lo=0.0, lo_open=True, optional=True
+        None,
+        kind="vec",
+        length=3,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="principal moments of inertia (J_xx, J_yy, J_zz) in kg·m²; null = the preset's",
     )
-    max_thrust_n: float | None = _spec(None, lo=0.0, lo_open=True, optional=True)
+    max_thrust_n: float | None = _spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="collective thrust limit in N (must exceed m g); null = the preset's",
+    )
     max_torque_nm: tuple[float, ...] | None = _spec(
-        None, kind="vec", length=3, lo=0.0, lo_open=True, optional=True
+        None,
+        kind="vec",
+        length=3,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="body torque limits (τ_x, τ_y, τ_z) in N·m; null = the preset's",
     )
-    drag_per_s: float = _spec(0.0, lo=0.0, hi=10.0)
-    actuator_tau_s: float = _spec(0.0, lo=0.0, hi=1.0)
-    physics_dt_s: float = _spec(0.002, lo=1e-5, hi=0.02)
+    drag_per_s: float = _spec(
+        0.0,
+        lo=0.0,
+        hi=10.0,
+        doc="linear drag coefficient in 1/s (specific force −drag·v); 0 = none, as in the papers",
+    )
+    actuator_tau_s: float = _spec(
+        0.0, lo=0.0, hi=1.0, doc="first-order lag of thrust and torques in s; 0 = instantaneous"
+    )
+    physics_dt_s: float = _spec(
+        0.002,
+        lo=1e-5,
+        hi=0.02,
+        doc="RK4 substep of the rigid body in s (the control period must be a multiple)",
+    )
 
     def params(self) -> VehicleParams:
         """The :class:`VehicleParams` of the preset with this section's overrides applied."""
@@ -207,7 +125,7 @@ class VehicleConfig(_Section):
             mass=mass,
             inertia=inertia,
             max_thrust=base.max_thrust if self.max_thrust_n is None else self.max_thrust_n,
-            max_torque=base.max_torque if self.max_torque_nm is None else self.max_torque_nm,
+            max_torque=base.max_torque if self.max_torque_nm is None else _vec(self.max_torque_nm),
             drag=self.drag_per_s,
             actuator_tau=self.actuator_tau_s,
         )
@@ -227,8 +145,14 @@ def _diag(values: tuple[float, ...]) -> Any:
     return np.diag(values)
 
 
+def _vec(values: tuple[float, ...]) -> Any:
+    import numpy as np
+
+    return np.array(values, dtype=float)
+
+
 @dataclass(frozen=True)
-class ImuConfig(_Section):
+class ImuConfig(Section):
     """IMU error model (seed 000 eq. 5–11; seed 001 Table 5). Noise densities per √Hz."""
 
     SECTION: ClassVar[str] = "imu"
@@ -263,22 +187,42 @@ class ImuConfig(_Section):
         },
     }
     preset: str | None = _spec(
-        None, kind="str", choices=("rauniyar2023", "sadeghzadeh2021", "ideal"), optional=True
+        None,
+        kind="str",
+        choices=("rauniyar2023", "sadeghzadeh2021", "ideal"),
+        optional=True,
+        doc="IMU error model to start from; null = the values below",
     )
     accel_noise_density: float = _spec(300 * _MICRO_G, lo=0.0, hi=1.0, doc="m/s²/√Hz")
     gyro_noise_density: float = _spec(0.01 * DEG, lo=0.0, hi=1.0, doc="rad/s/√Hz")
-    accel_bias: tuple[float, ...] = _spec([0.0, 0.0, 0.0], kind="vec", length=3, lo=-5.0, hi=5.0)
-    gyro_bias: tuple[float, ...] = _spec([0.0, 0.0, 0.0], kind="vec", length=3, lo=-1.0, hi=1.0)
+    accel_bias: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-5.0,
+        hi=5.0,
+        doc="constant accelerometer bias b0_a per axis, m/s²",
+    )
+    gyro_bias: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-1.0,
+        hi=1.0,
+        doc="constant gyro bias b0_ω per axis, rad/s",
+    )
     random_bias_sign: bool = _spec(
         False, kind="bool", doc="flip each bias component's sign at random per episode"
     )
-    drift_tau_s: float = _spec(100.0, lo=0.0, lo_open=True)
+    drift_tau_s: float = _spec(
+        100.0, lo=0.0, lo_open=True, doc="correlation time τ of the Gauss–Markov drift b1, s"
+    )
     accel_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_a, m/s²")
     gyro_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_ω, rad/s")
 
 
 @dataclass(frozen=True)
-class LidarConfig(_Section):
+class LidarConfig(Section):
     """FOV-limited 3D LiDAR (seed 001 Tables 3–4). FOVs are half-widths in degrees."""
 
     SECTION: ClassVar[str] = "lidar"
@@ -305,15 +249,39 @@ class LidarConfig(_Section):
             "rate_hz": 10.0,
         },
     }
-    preset: str | None = _spec(None, kind="str", choices=("rauniyar2023", "vlp16"), optional=True)
-    azimuth_fov_deg: float = _spec(45.0, lo=0.0, hi=180.0, lo_open=True)
-    elevation_fov_deg: float = _spec(30.0, lo=0.0, hi=90.0, lo_open=True)
-    range_min_m: float = _spec(0.0, lo=0.0)
-    range_max_m: float = _spec(100.0, lo=0.0, lo_open=True)
-    sigma_azimuth_deg: float = _spec(0.33, lo=0.0, hi=30.0)
-    sigma_elevation_deg: float = _spec(0.30, lo=0.0, hi=30.0)
-    sigma_range_m: float = _spec(0.1, lo=0.0, hi=10.0)
-    rate_hz: float = _spec(10.0, lo=0.0, lo_open=True, hi=1000.0)
+    preset: str | None = _spec(
+        None,
+        kind="str",
+        choices=("rauniyar2023", "vlp16"),
+        optional=True,
+        doc="sensor to start from; null = the values below",
+    )
+    azimuth_fov_deg: float = _spec(
+        45.0,
+        lo=0.0,
+        hi=180.0,
+        lo_open=True,
+        doc="half-width of the azimuth field of view, deg (180 = all round)",
+    )
+    elevation_fov_deg: float = _spec(
+        30.0, lo=0.0, hi=90.0, lo_open=True, doc="half-width of the elevation field of view, deg"
+    )
+    range_min_m: float = _spec(0.0, lo=0.0, doc="minimum range of a return, m")
+    range_max_m: float = _spec(100.0, lo=0.0, lo_open=True, doc="maximum range of a return, m")
+    sigma_azimuth_deg: float = _spec(
+        0.33, lo=0.0, hi=30.0, doc="azimuth noise standard deviation, deg"
+    )
+    sigma_elevation_deg: float = _spec(
+        0.30, lo=0.0, hi=30.0, doc="elevation noise standard deviation, deg"
+    )
+    sigma_range_m: float = _spec(0.1, lo=0.0, hi=10.0, doc="range noise standard deviation, m")
+    rate_hz: float = _spec(
+        10.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1000.0,
+        doc="scan rate in Hz (must divide episode.control_hz)",
+    )
 
     def validate(self) -> None:
         if self.range_max_m <= self.range_min_m:
@@ -324,21 +292,54 @@ class LidarConfig(_Section):
 
 
 @dataclass(frozen=True)
-class LandmarksConfig(_Section):
+class LandmarksConfig(Section):
     """Landmark layout (DESIGN.md §3): ``rauniyar2023`` random points, ``poles4``, ``explicit``."""
 
     SECTION: ClassVar[str] = "landmarks"
-    layout: str = _spec("rauniyar2023", kind="str", choices=("rauniyar2023", "poles4", "explicit"))
-    count: int = _spec(40, kind="int", lo=1, hi=100000)
-    azimuth_deg: tuple[float, ...] = _spec([-180.0, 180.0], kind="vec", length=2, lo=-180, hi=180)
-    elevation_deg: tuple[float, ...] = _spec([-50.0, 50.0], kind="vec", length=2, lo=-90, hi=90)
-    range_m: tuple[float, ...] = _spec([8.0, 20.0], kind="vec", length=2, lo=0.0)
+    layout: str = _spec(
+        "rauniyar2023",
+        kind="str",
+        choices=("rauniyar2023", "poles4", "explicit"),
+        doc="rauniyar2023: random points about the centre; poles4: four poles; explicit: positions",
+    )
+    count: int = _spec(
+        40, kind="int", lo=1, hi=100000, doc="number of random landmarks (rauniyar2023 layout)"
+    )
+    azimuth_deg: tuple[float, ...] = _spec(
+        [-180.0, 180.0],
+        kind="vec",
+        length=2,
+        lo=-180,
+        hi=180,
+        doc="[min, max] azimuth of random landmarks about the centre, deg",
+    )
+    elevation_deg: tuple[float, ...] = _spec(
+        [-50.0, 50.0],
+        kind="vec",
+        length=2,
+        lo=-90,
+        hi=90,
+        doc="[min, max] elevation of random landmarks about the centre, deg",
+    )
+    range_m: tuple[float, ...] = _spec(
+        [8.0, 20.0],
+        kind="vec",
+        length=2,
+        lo=0.0,
+        doc="[min, max] distance of random landmarks from the centre, m",
+    )
     center: tuple[float, ...] | None = _spec(
         None, kind="vec", length=3, optional=True, doc="NED m; null = trajectory centre"
     )
-    pole_spacing_m: float = _spec(2.0, lo=0.0, lo_open=True)
-    pole_altitude_m: float = _spec(1.0)
-    positions: tuple[tuple[float, ...], ...] = _spec([], kind="vecs")
+    pole_spacing_m: float = _spec(
+        2.0, lo=0.0, lo_open=True, doc="poles4: the poles stand at (±spacing, ±spacing), m"
+    )
+    pole_altitude_m: float = _spec(
+        1.0, doc="poles4: altitude of each pole's landmark above the origin, m"
+    )
+    positions: tuple[tuple[float, ...], ...] = _spec(
+        [], kind="vecs", doc="explicit: landmark positions [x, y, z] in NED, m"
+    )
 
     def validate(self) -> None:
         for name in ("azimuth_deg", "elevation_deg", "range_m"):
@@ -355,30 +356,58 @@ class LandmarksConfig(_Section):
 
 
 @dataclass(frozen=True)
-class TrajectoryConfig(_Section):
+class TrajectoryConfig(Section):
     """Reference trajectory (flat outputs). ``center`` is NED, so altitude is ``-center[2]``."""
 
     SECTION: ClassVar[str] = "trajectory"
-    kind: str = _spec("figure8", kind="str", choices=("figure8", "helix", "circle", "hover"))
-    center: tuple[float, ...] = _spec([0.0, 0.0, -2.0], kind="vec", length=3, lo=-1e6, hi=1e6)
-    amplitude_x_m: float = _spec(4.0, lo=0.0, hi=1e4)
-    amplitude_y_m: float = _spec(2.0, lo=0.0, hi=1e4)
-    radius_m: float = _spec(1.0, lo=0.0, hi=1e4)
-    period_s: float = _spec(25.0, lo=0.1)
-    climb_rate_mps: float = _spec(0.0, lo=-10.0, hi=10.0)
-    yaw_mode: str = _spec("tangent", kind="str", choices=("tangent", "fixed"))
-    yaw_deg: float = _spec(0.0, lo=-180.0, hi=180.0)
+    kind: str = _spec(
+        "figure8",
+        kind="str",
+        choices=("figure8", "helix", "circle", "hover"),
+        doc="reference shape (flat outputs ρ_d, ψ_d)",
+    )
+    center: tuple[float, ...] = _spec(
+        [0.0, 0.0, -2.0],
+        kind="vec",
+        length=3,
+        lo=-1e6,
+        hi=1e6,
+        doc="centre of the shape in NED, m (altitude is −center[2])",
+    )
+    amplitude_x_m: float = _spec(
+        4.0, lo=0.0, hi=1e4, doc="figure8: x amplitude A in x = A sin ωt, m"
+    )
+    amplitude_y_m: float = _spec(
+        2.0, lo=0.0, hi=1e4, doc="figure8: y amplitude B in y = B sin 2ωt, m"
+    )
+    radius_m: float = _spec(1.0, lo=0.0, hi=1e4, doc="circle and helix: radius, m")
+    period_s: float = _spec(25.0, lo=0.1, doc="time of one lap, s (ω = 2π/period)")
+    climb_rate_mps: float = _spec(
+        0.0, lo=-10.0, hi=10.0, doc="helix: climb rate (altitude gained per second), m/s"
+    )
+    yaw_mode: str = _spec(
+        "tangent",
+        kind="str",
+        choices=("tangent", "fixed"),
+        doc="tangent: heading along the horizontal velocity; fixed: yaw_deg",
+    )
+    yaw_deg: float = _spec(0.0, lo=-180.0, hi=180.0, doc="heading of the fixed yaw mode, deg")
 
 
 @dataclass(frozen=True)
-class EstimatorConfig(_Section):
+class EstimatorConfig(Section):
     """Estimator choice, its own settings, and the initial uncertainty P0."""
 
     SECTION: ClassVar[str] = "estimator"
     name: str = _spec(
-        "ekf_slam", kind="str", choices=("ekf_slam", "fastslam", "fastslam_kinematic", "oracle")
+        "ekf_slam",
+        kind="str",
+        doc="a registered estimator: built in ekf_slam, fastslam, fastslam_kinematic, oracle; "
+        "more through estimators.register or a 'quadslam.estimators' entry point",
     )
-    params: dict[str, Any] = _spec({}, kind="dict")  # noqa: RUF009 (validated field spec)
+    params: dict[str, Any] = _spec(  # noqa: RUF009 (validated field spec)
+        {}, kind="dict", doc="the estimator's own settings (see the estimators page)"
+    )
     # Seed 001 Table 7 for (ρ, v, Λ) followed by the body rates (rad²/s²).
     initial_cov_diag: tuple[float, ...] = _spec(
         [0.001, 0.001, 0.001, 0.1, 0.1, 0.1, 0.0, 0.0, 0.0, 1e-6, 1e-6, 1e-6],
@@ -386,74 +415,145 @@ class EstimatorConfig(_Section):
         length=12,
         lo=0.0,
         hi=100.0,
+        doc="diagonal of P0 over (ρ m², v m²/s², Λ rad², ω rad²/s²)",
     )
-    sample_initial_error: bool = _spec(True, kind="bool")
+    sample_initial_error: bool = _spec(
+        True, kind="bool", doc="start the estimate at the truth plus an error drawn from P0"
+    )
     known_map: bool = _spec(
         False, kind="bool", doc="hand the true landmarks to the estimator at reset"
     )
 
+    def validate(self) -> None:
+        # The names come from the estimator registry (layer 3). Only its name table is read
+        # here (estimators.base imports no estimator); plug-ins listed by entry points are not
+        # imported until the env builds them.
+        from estimators.base import available
+
+        names = available()
+        if self.name not in names:
+            raise ConfigError(
+                f"estimator.name: got {self.name!r}; allowed: one of {names} (more through "
+                "estimators.register or a 'quadslam.estimators' entry point)"
+            )
+
 
 @dataclass(frozen=True)
-class RewardConfig(_Section):
+class RewardConfig(Section):
     """Reward weights; reward = alive - Σ w·term (+ termination penalty on failure)."""
 
     SECTION: ClassVar[str] = "reward"
-    alive: float = _spec(1.0)
-    pos_weight: float = _spec(1.0, lo=0.0)
-    vel_weight: float = _spec(0.1, lo=0.0)
-    yaw_weight: float = _spec(0.1, lo=0.0)
-    effort_weight: float = _spec(0.01, lo=0.0)
-    termination_penalty: float = _spec(100.0, lo=0.0)
+    alive: float = _spec(1.0, doc="reward per step for staying in the air")
+    pos_weight: float = _spec(1.0, lo=0.0, doc="w_p on the true position error ‖ρ − ρ_d‖ (m)")
+    vel_weight: float = _spec(0.1, lo=0.0, doc="w_v on the true velocity error ‖ρ̇ − ρ̇_d‖ (m/s)")
+    yaw_weight: float = _spec(0.1, lo=0.0, doc="w_ψ on the true yaw error |wrap(ψ − ψ_d)| (rad)")
+    effort_weight: float = _spec(
+        0.01, lo=0.0, doc="w_u on the effort ‖a − a_hover‖²/4 (normalised action)"
+    )
+    termination_penalty: float = _spec(
+        100.0, lo=0.0, doc="subtracted on the step that terminates the episode"
+    )
 
 
 @dataclass(frozen=True)
-class ObservationConfig(_Section):
+class ObservationConfig(Section):
     """Optional observation features on top of the base 16 (see ``QuadSLAMEnv``)."""
 
     SECTION: ClassVar[str] = "observation"
-    pos_uncertainty: bool = _spec(False, kind="bool")
-    landmark_counts: bool = _spec(False, kind="bool")
-    lookahead_s: tuple[float, ...] = _spec([], kind="vec", lo=0.0, hi=10.0)
-    clip: float = _spec(100.0, lo=1e-6, hi=1e30)
+    pos_uncertainty: bool = _spec(
+        False, kind="bool", doc="append √diag of the position covariance (3 values, m)"
+    )
+    landmark_counts: bool = _spec(
+        False, kind="bool", doc="append landmarks visible in the last scan and mapped (2 values)"
+    )
+    lookahead_s: tuple[float, ...] = _spec(
+        [],
+        kind="vec",
+        lo=0.0,
+        hi=10.0,
+        doc="append the reference displacement Δ seconds ahead (3 values each, m)",
+    )
+    clip: float = _spec(
+        100.0, lo=1e-6, hi=1e30, doc="observations are clipped to ±clip (the Box bounds)"
+    )
 
 
 @dataclass(frozen=True)
-class ActionConfig(_Section):
+class ActionConfig(Section):
     """Action interpretation: ``thrust_torque`` or ``thrust_rates`` (inner body-rate loop)."""
 
     SECTION: ClassVar[str] = "action"
-    mode: str = _spec("thrust_torque", kind="str", choices=("thrust_torque", "thrust_rates"))
+    mode: str = _spec(
+        "thrust_torque",
+        kind="str",
+        choices=("thrust_torque", "thrust_rates"),
+        doc="thrust_torque: a1..a3 are torques; thrust_rates: a1..a3 are body-rate commands",
+    )
     max_rate_dps: tuple[float, ...] = _spec(
-        [180.0, 180.0, 90.0], kind="vec", length=3, lo=0.0, lo_open=True
+        [180.0, 180.0, 90.0],
+        kind="vec",
+        length=3,
+        lo=0.0,
+        lo_open=True,
+        doc="thrust_rates: body-rate command at |a| = 1 per axis, deg/s",
     )
     rate_gain_per_s: tuple[float, ...] = _spec(
-        [20.0, 20.0, 10.0], kind="vec", length=3, lo=0.0, lo_open=True
+        [20.0, 20.0, 10.0],
+        kind="vec",
+        length=3,
+        lo=0.0,
+        lo_open=True,
+        doc="thrust_rates: inner-loop gain K in τ = J K (ω_cmd − ω̂), 1/s",
     )
 
 
 @dataclass(frozen=True)
-class EpisodeConfig(_Section):
+class EpisodeConfig(Section):
     """Timing, initial state and termination limits."""
 
     SECTION: ClassVar[str] = "episode"
-    duration_s: float = _spec(50.0, lo=0.0, lo_open=True, hi=1e6)
-    control_hz: float = _spec(100.0, lo=0.0, lo_open=True, hi=10000.0)
+    duration_s: float = _spec(
+        50.0, lo=0.0, lo_open=True, hi=1e6, doc="episode length in s (truncated after it)"
+    )
+    control_hz: float = _spec(
+        100.0,
+        lo=0.0,
+        lo_open=True,
+        hi=10000.0,
+        doc="agent steps per second (env.unwrapped.dt = 1/control_hz)",
+    )
     initial_position: tuple[float, ...] = _spec(
-        [0.0, 0.0, 0.0], kind="vec", length=3, lo=-1e6, hi=1e6
+        [0.0, 0.0, 0.0], kind="vec", length=3, lo=-1e6, hi=1e6, doc="true start position in NED, m"
     )
     initial_velocity: tuple[float, ...] = _spec(
-        [0.0, 0.0, 0.0], kind="vec", length=3, lo=-1e3, hi=1e3
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-1e3,
+        hi=1e3,
+        doc="true start velocity in the body frame, m/s",
     )
     initial_euler_deg: tuple[float, ...] = _spec(
-        [0.0, 0.0, 0.0], kind="vec", length=3, lo=-180.0, hi=180.0
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-180.0,
+        hi=180.0,
+        doc="true start attitude (φ, θ, ψ), deg",
     )
-    max_tilt_deg: float = _spec(80.0, lo=0.0, hi=89.0, lo_open=True)
-    max_pos_err_m: float = _spec(10.0, lo=0.0, lo_open=True)
+    max_tilt_deg: float = _spec(
+        80.0, lo=0.0, hi=89.0, lo_open=True, doc="terminate when the tilt exceeds this, deg"
+    )
+    max_pos_err_m: float = _spec(
+        10.0, lo=0.0, lo_open=True, doc="terminate when the true tracking error exceeds this, m"
+    )
     ground_z_m: float | None = _spec(None, optional=True, doc="NED z of the ground; null = none")
     nees_threshold: float | None = _spec(
         1000.0, lo=0.0, lo_open=True, optional=True, doc="null disables the NEES divergence check"
     )
-    nees_window_s: float = _spec(2.0, lo=0.0)
+    nees_window_s: float = _spec(
+        2.0, lo=0.0, doc="terminate when the pose NEES stays above nees_threshold this long, s"
+    )
     report_step_time: bool = _spec(
         False, kind="bool", doc="put the estimator's wall-clock time in info['est_step_time_ms']"
     )
@@ -466,7 +566,7 @@ class EpisodeConfig(_Section):
             )
 
 
-SECTIONS: dict[str, type[_Section]] = {
+SECTIONS: dict[str, type[Section]] = {
     "vehicle": VehicleConfig,
     "imu": ImuConfig,
     "lidar": LidarConfig,
@@ -482,7 +582,11 @@ SECTIONS: dict[str, type[_Section]] = {
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    """A complete, validated scenario."""
+    """A complete, validated scenario.
+
+    Besides the sections, a scenario mapping may hold ``name`` and ``description`` (one line,
+    listed by ``quadslam scenarios``).
+    """
 
     name: str
     vehicle: VehicleConfig
@@ -495,6 +599,7 @@ class ScenarioConfig:
     observation: ObservationConfig
     action: ActionConfig
     episode: EpisodeConfig
+    description: str = ""
 
     @property
     def lidar_every(self) -> int:
@@ -515,10 +620,17 @@ class ScenarioConfig:
                 f"with sections {sorted(SECTIONS)}"
             )
         for key in data:
-            if key not in SECTIONS and key != "name":
-                raise ConfigError(f"{key}: unknown section; allowed: {sorted(SECTIONS)}")
+            if key not in SECTIONS and key not in ("name", "description"):
+                allowed = sorted([*SECTIONS, "description", "name"])
+                raise ConfigError(f"{key}: unknown section; allowed: {allowed}")
+        text = data.get("description")
+        description = "" if text is None else check_description(text)
         sections = {key: sec.from_dict(data.get(key)) for key, sec in SECTIONS.items()}
-        scenario = cls(name=str(data.get("name", name)), **sections)  # type: ignore[arg-type]
+        scenario = cls(
+            name=str(data.get("name", name)),
+            description=description,
+            **sections,
+        )
         ratio = scenario.episode.control_hz / scenario.lidar.rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ConfigError(
@@ -530,6 +642,8 @@ class ScenarioConfig:
     def to_dict(self) -> dict[str, Any]:
         """Plain-data form (YAML/JSON serialisable), e.g. for run folders."""
         out: dict[str, Any] = {"name": self.name}
+        if self.description:
+            out["description"] = self.description
         for key in SECTIONS:
             sec = getattr(self, key)
             out[key] = {f.name: _plain(getattr(sec, f.name)) for f in fields(sec)}
@@ -540,71 +654,6 @@ def _plain(value: Any) -> Any:
     if isinstance(value, tuple):
         return [_plain(v) for v in value]
     return value
-
-
-def config_dir() -> Path:
-    """Package data ``quadslam_env/configs`` (``QUADSLAM_CONFIG_DIR`` overrides)."""
-    env = os.environ.get("QUADSLAM_CONFIG_DIR")
-    if env:
-        return Path(env)
-    # Package data (pyproject's package-data), so a wheel install finds it from any folder.
-    return Path(str(resources.files("quadslam_env") / "configs"))
-
-
-def available_scenarios() -> list[str]:
-    """Names of the scenario files shipped in ``configs/scenarios``."""
-    return sorted(p.stem for p in (config_dir() / "scenarios").glob("*.yaml"))
-
-
-def deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
-    """Recursively merge ``override`` into a copy of ``base`` (mappings merge, others replace)."""
-    out = copy.deepcopy(base)
-    for key, value in override.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = deep_merge(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
-
-
-class _YamlLoader(yaml.SafeLoader):
-    """PyYAML's safe loader that also reads ``1e-4`` as a float.
-
-    PyYAML follows YAML 1.1, where a float needs a dot (``1.0e-4``) and ``1e-4`` is the string
-    ``"1e-4"``; config values would then fail validation with a confusing message.
-    """
-
-
-_YamlLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
-    list("-+0123456789"),
-)
-
-
-def parse_yaml(text: str) -> Any:
-    """``yaml.safe_load`` that also reads exponent floats without a dot (``1e-4``)."""
-    return yaml.load(text, Loader=_YamlLoader)  # a SafeLoader subclass: no arbitrary objects
-
-
-def load_yaml(path: Path) -> dict[str, Any]:
-    """Read a YAML mapping, with errors that name the file."""
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"scenario file {str(path)!r}: cannot be read ({exc.strerror})") from exc
-    try:
-        data = parse_yaml(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"scenario file {str(path)!r}: malformed YAML ({exc})") from exc
-    if data is None:
-        return {}
-    if not isinstance(data, dict):
-        raise ConfigError(
-            f"scenario file {str(path)!r}: got {type(data).__name__}; "
-            "allowed: a YAML mapping of sections"
-        )
-    return data
 
 
 def load_scenario(

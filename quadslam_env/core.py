@@ -132,7 +132,7 @@ class SimCore:
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
         self.observer = ObservationBuilder(cfg.observation, self.trajectory)
         self.steps = np.zeros(b, dtype=np.int64)
-        self.t = np.zeros(b)
+        self.t: FloatArray = np.zeros(b)
         self.n_visible = np.zeros(b, dtype=np.int64)
         self.episode = EpisodeMetrics(b)
         self.termination = Termination(cfg.episode, self.dt, b)
@@ -241,7 +241,7 @@ class SimCore:
         vehicle = self.vehicle
         mean_rates = vehicle.step(thrust, torque, self.dt, active)
         self.steps += active
-        self.t = self.steps * self.dt
+        self.t = (self.steps * self.dt).astype(np.float64, copy=False)
         state = vehicle.state
         accel, gyro = self.imu.sample(
             self.t, state[:, 3:6], mean_rates, vehicle.applied_thrust, active

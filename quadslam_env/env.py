@@ -8,7 +8,7 @@ lane's arrays into Gymnasium's single-env API and draws the frames.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -81,7 +81,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         **overrides: Section mappings merged into the scenario, e.g. ``episode={...}``.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(
         self,

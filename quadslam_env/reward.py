@@ -88,6 +88,7 @@ def reward_terms(
          cfg.termination_penalty]
     )  # fmt: skip
     out = np.empty((state.shape[0], len(REWARD_KEYS)))
-    _reward_lanes(weights, state, ref.pos, ref.vel, ref.yaw, action, hover_action, terminated,
+    yaw = np.asarray(ref.yaw, dtype=float)  # (B,) already; asarray only narrows the type
+    _reward_lanes(weights, state, ref.pos, ref.vel, yaw, action, hover_action, terminated,
                   out)  # fmt: skip
     return {key: out[:, j] for j, key in enumerate(REWARD_KEYS)}

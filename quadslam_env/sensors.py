@@ -38,7 +38,7 @@ def _generators(
     missing = [i for i, g in zip(lanes.tolist(), gens, strict=True) if g is None]
     if missing:
         raise RuntimeError(f"{who}: lanes {missing} were used before reset() gave them a generator")
-    return gens  # type: ignore[return-value]
+    return gens
 
 
 class ImuBatch:

@@ -14,7 +14,7 @@ a dict of (B,) arrays, each with a ``_key`` bool mask of the lanes where the ter
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -40,7 +40,7 @@ class QuadSLAMVectorEnv(VectorEnv):
         **overrides: Section mappings merged into the scenario, e.g. ``episode={...}``.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {
+    metadata = {
         "render_modes": ["rgb_array"],
         "render_fps": 10,
         "autoreset_mode": AutoresetMode.NEXT_STEP,
@@ -155,7 +155,8 @@ class QuadSLAMVectorEnv(VectorEnv):
         self._autoreset = terminated | truncated
         return obs, reward, terminated, truncated, _vector_info(info)
 
-    def render(self) -> np.ndarray | None:
+    # VectorEnv.render is typed as one frame per lane; this env draws lane 0 only (README).
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
         """An RGB frame (H, W, 3) of lane 0, or ``None`` without ``render_mode``."""
         if self.render_mode != "rgb_array":
             return None

@@ -103,7 +103,7 @@ class EkfSlamBatch:
         nmax = self.nv + 3 * slots
 
         def fresh(name: str, shape: tuple[int, ...], fill: float, dtype: type) -> np.ndarray:
-            out = np.full(shape, fill, dtype=dtype)
+            out: np.ndarray = np.full(shape, fill, dtype=dtype)
             if keep:  # copy the old content into the leading corner (all of it that fits)
                 old = getattr(self, name)
                 corner = tuple(slice(0, min(e, f)) for e, f in zip(old.shape, shape, strict=True))

@@ -18,7 +18,7 @@ BIAS_DIM = 4
 PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)
 """Seed 001 Table 7: diagonal of Q over (ρ, v_B, Λ) for the unknown-map case."""
 
-_TYPES = {
+_TYPES: dict[str, type | tuple[type, ...]] = {
     "process_noise": (list, tuple, np.ndarray),
     "estimate_imu_bias": bool,
     "gyro_bias_sigma0": (float, int),

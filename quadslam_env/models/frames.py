@@ -240,12 +240,13 @@ def euler_rate_matrix(euler: ArrayLike) -> FloatArray:
     Returns:
         (3, 3) matrix mapping body rates (p, q, r) in rad/s to Euler-angle rates.
     """
-    return _euler_rate_matrix(float(euler[0]), float(euler[1]))
+    angles = np.asarray(euler, dtype=float)
+    return _euler_rate_matrix(float(angles[0]), float(angles[1]))
 
 
 def skew(vec: ArrayLike) -> FloatArray:
     """Cross-product matrix (3, 3): ``skew(a) @ b == a × b`` for (3,) vectors."""
-    x, y, z = (float(a) for a in vec)
+    x, y, z = (float(a) for a in np.asarray(vec, dtype=float))
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
@@ -272,7 +273,7 @@ def dcm_euler_partials(euler: ArrayLike) -> FloatArray:
     Returns:
         (3, 3, 3) array ``D`` with ``D[i] = ∂C_NB/∂Λ_i`` in 1/rad.
     """
-    phi, theta, psi = (float(a) for a in euler)
+    phi, theta, psi = (float(a) for a in np.asarray(euler, dtype=float))
     dC = np.empty((3, 3, 3))
     dcm_and_partials(phi, theta, psi, np.empty((3, 3)), dC)
     return dC

@@ -53,16 +53,22 @@ def kernel(func: F) -> F:
     return _compile(func, njit)
 
 
-def elementwise(signature: str) -> Callable[[F], F]:
-    """``numba.vectorize([signature], cache=True)``: a NumPy ufunc from a scalar kernel."""
+def elementwise(signature: str) -> Callable[[Callable[..., Any]], Any]:
+    """``numba.vectorize([signature], cache=True)``: a NumPy ufunc from a scalar kernel.
+
+    The result is a ufunc (array in, array out), not a function with the kernel's signature,
+    so it is typed ``Any``.
+    """
     return partial(_compile, decorator=partial(vectorize, [signature]))
 
 
-def generalized(signature: str, layout: str) -> Callable[[F], F]:
+def generalized(signature: str, layout: str) -> Callable[[Callable[..., Any]], Any]:
     """``numba.guvectorize([signature], layout, cache=True)``: a NumPy gufunc from a kernel.
 
     The kernel works on the core dimensions of ``layout`` (e.g. ``"(n),(n,n),(n)->(n)"``) and
     writes its outputs in place; the gufunc broadcasts every leading axis of its inputs the
-    way NumPy operators do and loops over them in compiled code, without copies.
+    way NumPy operators do and loops over them in compiled code, without copies. Called
+    without the output arguments it allocates and returns them, so the result is typed
+    ``Any`` (a gufunc), not the kernel's signature.
     """
     return partial(_compile, decorator=partial(guvectorize, [signature], layout))

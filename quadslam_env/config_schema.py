@@ -1,0 +1,232 @@
+"""Validated field specs for the scenario sections of :mod:`quadslam_env.config`.
+
+Every setting is a dataclass field declared with :func:`spec`, which stores its kind, range,
+choices and a short description in the field's metadata. :class:`Section` turns a plain mapping
+into the frozen dataclass through :func:`coerce`, and :func:`field_rows` reads the same metadata
+back for the documentation, so the documented settings cannot drift from the validated ones.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable
+from dataclasses import MISSING, dataclass, field, fields
+from typing import Any, ClassVar
+
+
+class ConfigError(ValueError):
+    """Invalid configuration: the message names the key, the value and what is allowed."""
+
+
+def spec(
+    default: Any = None,
+    *,
+    kind: str = "float",
+    lo: float | None = None,
+    hi: float | None = None,
+    lo_open: bool = False,
+    length: int | None = None,
+    choices: tuple[str, ...] | None = None,
+    optional: bool = False,
+    doc: str = "",
+) -> Any:
+    """Declare a validated field.
+
+    Args:
+        default: Default value (lists and mappings are copied per instance).
+        kind: ``float``, ``int``, ``bool``, ``str``, ``vec`` (list of numbers), ``vecs`` (list of
+            ``[x, y, z]``) or ``dict``.
+        lo: Lower bound (inclusive unless ``lo_open``), also per element of a ``vec``.
+        hi: Upper bound (inclusive).
+        lo_open: Make ``lo`` exclusive.
+        length: Required length of a ``vec``.
+        choices: Allowed strings of a ``str`` field.
+        optional: Accept ``null`` (``None``).
+        doc: One-line meaning and unit, shown in the documentation.
+
+    Returns:
+        A :func:`dataclasses.field` carrying the spec in its metadata.
+    """
+    meta = {
+        "kind": kind,
+        "lo": lo,
+        "hi": hi,
+        "lo_open": lo_open,
+        "length": length,
+        "choices": choices,
+        "optional": optional,
+        "doc": doc,
+    }
+    if isinstance(default, list | dict):
+        return field(default_factory=_copier(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def _copier(value: Any) -> Callable[[], Any]:
+    """A default factory returning a fresh deep copy of ``value``."""
+    return lambda: copy.deepcopy(value)
+
+
+def describe(meta: dict[str, Any]) -> str:
+    """What a field accepts, in words (used by error messages and the docs)."""
+    if meta["choices"]:
+        return f"one of {list(meta['choices'])}"
+    kind = meta["kind"]
+    base = {
+        "float": "a number",
+        "int": "an integer",
+        "bool": "true or false",
+        "str": "a string",
+        "vec": f"a list of {meta['length']} numbers" if meta["length"] else "a list of numbers",
+        "vecs": "a list of [x, y, z] lists",
+        "dict": "a mapping",
+    }[kind]
+    rng = []
+    if meta["lo"] is not None:
+        rng.append(f"{'>' if meta['lo_open'] else '>='} {meta['lo']}")
+    if meta["hi"] is not None:
+        rng.append(f"<= {meta['hi']}")
+    text = base + (f" {' and '.join(rng)}" if rng else "")
+    return text + (" or null" if meta["optional"] else "")
+
+
+def _check_number(key: str, value: Any, meta: dict[str, Any]) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+    num = float(value)
+    lo, hi = meta["lo"], meta["hi"]
+    bad = not math.isfinite(num) or (
+        lo is not None and (num <= lo if meta["lo_open"] else num < lo)
+    )
+    if bad or (hi is not None and num > hi):
+        raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+    return num
+
+
+def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
+    """Validate one value against its field spec and return it in canonical (immutable) form.
+
+    Raises:
+        ConfigError: The value does not fit the spec (the message names ``key``).
+    """
+    if value is None:
+        if meta["optional"]:
+            return None
+        raise ConfigError(f"{key}: got null; allowed: {describe(meta)}")
+    kind = meta["kind"]
+    if kind == "float":
+        return _check_number(key, value, meta)
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+        return int(_check_number(key, value, meta))
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+        return value
+    if kind == "str":
+        if not isinstance(value, str) or (meta["choices"] and value not in meta["choices"]):
+            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+        return value
+    if kind == "vec":
+        if not isinstance(value, list | tuple) or (
+            meta["length"] is not None and len(value) != meta["length"]
+        ):
+            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+        return tuple(_check_number(f"{key}[{i}]", v, meta) for i, v in enumerate(value))
+    if kind == "vecs":
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+        point_meta = {**meta, "length": 3, "lo": None, "hi": None}
+        return tuple(
+            coerce(f"{key}[{i}]", p, {**point_meta, "kind": "vec"}) for i, p in enumerate(value)
+        )
+    if kind == "dict":
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+        return copy.deepcopy(value)
+    raise AssertionError(f"unhandled field kind {kind}")  # pragma: no cover - programming error
+
+
+class Section:
+    """Mixin: build a frozen section dataclass from a plain mapping with validation.
+
+    Subclasses are frozen dataclasses whose fields are declared with :func:`spec`; ``SECTION``
+    is the section's key in a scenario and ``PRESETS`` maps a ``preset`` value to the settings
+    it stands for.
+    """
+
+    SECTION: ClassVar[str] = ""
+    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Any:
+        """Validate ``data`` (a mapping or ``None``) and build the section.
+
+        Raises:
+            ConfigError: Unknown key, unknown preset, or an invalid value.
+        """
+        if data is None:
+            data = {}
+        if not isinstance(data, dict):
+            raise ConfigError(f"{cls.SECTION}: got {data!r}; allowed: a mapping of settings")
+        known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+        for key in data:
+            if key not in known:
+                raise ConfigError(f"{cls.SECTION}.{key}: unknown key; allowed: {sorted(known)}")
+        merged = dict(data)
+        preset = data.get("preset")
+        if cls.PRESETS and preset is not None:
+            if not isinstance(preset, str) or preset not in cls.PRESETS:
+                raise ConfigError(
+                    f"{cls.SECTION}.preset: got {preset!r}; allowed: one of {sorted(cls.PRESETS)}"
+                )
+            merged = {**cls.PRESETS[preset], **data}
+        kwargs = {}
+        for name, fld in known.items():
+            # Defaults go through the same coercion so every stored value is immutable.
+            value = merged[name] if name in merged else _default(fld)
+            kwargs[name] = coerce(f"{cls.SECTION}.{name}", value, dict(fld.metadata))
+        obj = cls(**kwargs)
+        obj.validate()
+        return obj
+
+    def validate(self) -> None:
+        """Cross-field checks; overridden where needed."""
+
+
+def _default(fld: Any) -> Any:
+    factory: Callable[[], Any] | Any = fld.default_factory
+    if factory is not MISSING and callable(factory):
+        return factory()
+    return fld.default
+
+
+@dataclass(frozen=True)
+class FieldRow:
+    """One documented setting of a section.
+
+    Attributes:
+        key: Dotted key, e.g. ``"episode.duration_s"``.
+        default: The default as plain data (``None`` is shown as ``null``).
+        allowed: What the validator accepts, in words.
+        doc: Meaning and unit (may be empty).
+    """
+
+    key: str
+    default: Any
+    allowed: str
+    doc: str
+
+
+def field_rows(section: type[Section]) -> list[FieldRow]:
+    """Every setting of ``section`` with its default, accepted values and meaning."""
+    rows = []
+    for fld in fields(section):  # type: ignore[arg-type]
+        meta = dict(fld.metadata)
+        default = _default(fld)
+        if isinstance(default, tuple):
+            default = list(default)
+        rows.append(FieldRow(f"{section.SECTION}.{fld.name}", default, describe(meta), meta["doc"]))
+    return rows

@@ -1,0 +1,28 @@
+"""MkDocs hooks: fill the generated sections of the documentation pages at build time.
+
+A page asks for a generated section with an HTML comment marker (see ``MARKERS``); the content
+comes from :mod:`agents.reference`, i.e. from the validated config specs, the estimators'
+validators and the CLI's argument parser, so the pages cannot go stale.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from agents import reference
+
+MARKERS: dict[str, Callable[[], str]] = {
+    "<!-- generated: scenario-settings -->": reference.scenario_settings_markdown,
+    "<!-- generated: shipped-scenarios -->": reference.shipped_scenarios_markdown,
+    "<!-- generated: estimator-params -->": reference.estimator_params_markdown,
+    "<!-- generated: cli -->": reference.cli_markdown,
+}
+
+
+def on_page_markdown(markdown: str, **kwargs: Any) -> str:
+    """Replace every generated-section marker of a page by its content."""
+    for marker, make in MARKERS.items():
+        if marker in markdown:
+            markdown = markdown.replace(marker, make())
+    return markdown
