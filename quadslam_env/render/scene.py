@@ -19,9 +19,9 @@ from quadslam_env.types import FloatArray
 
 ESTIMATOR_LABELS = {
     "ekf_slam": "EKF-SLAM",
-    "fastslam": "FastSLAM (dynamics-based)",
-    "fastslam_kinematic": "FastSLAM 1.0 (kinematic)",
-    "oracle": "oracle (truth, no covariance)",
+    "fastslam": "FastSLAM",
+    "fastslam_kinematic": "FastSLAM 1.0 kinematic",
+    "oracle": "oracle (truth)",
 }
 SIGMA_SCALE = 3.0  # ellipses and bounds are drawn at 3σ
 REF_STEP_S = 0.05  # sampling of the drawn reference path
