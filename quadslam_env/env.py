@@ -123,6 +123,11 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------------ properties
     @property
+    def core(self) -> SimCore:
+        """The one-lane simulation core (its arrays hold the truth: for analysis only)."""
+        return self._core
+
+    @property
     def true_state(self) -> FloatArray:
         """(12,) copy of the true state (for analysis and truth-driven controllers only)."""
         return self._core.vehicle.state[0].copy()

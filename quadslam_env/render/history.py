@@ -92,9 +92,11 @@ class LaneHistory:
             row[SIGMA] = math.nan
         else:
             row[SIGMA] = np.sqrt(np.clip(np.diagonal(est.pose_cov[lane])[0:3], 0.0, None))
-        for key in LATEST_KEYS:
+        for key in LATEST_KEYS:  # (B,) arrays of the core, or one lane's floats
             value = info.get(key) if info is not None else None
-            self.latest[key] = math.nan if value is None else float(value[lane])
+            if value is not None and np.ndim(value):
+                value = value[lane]
+            self.latest[key] = math.nan if value is None else float(value)
         row[NEES] = self.latest["est_nees_pose"]
         self._head = (self._head + 1) % self.capacity
         self._count = min(self._count + 1, self.capacity)
