@@ -1,9 +1,10 @@
 """The ``render`` section of ``quadslam bench``: frame rate and the cost of recording videos.
 
-* ``frames_per_s``: ``env.render()`` of ``gymnasium.make(id, render_mode="rgb_array")`` on the
-  paper EKF-SLAM scenario and the FastSLAM helix (default 640×480 frame), DF-LQR flying;
-  between two timed frames the env steps 0.1 s (untimed), so every call draws a new frame.
-  Frames/s = frames / time spent in ``render()``; the map has been filling for ``warmup_s``.
+* ``frames_per_s/<estimator>``: ``env.render()`` of ``gymnasium.make(id,
+  render_mode="rgb_array")`` on the paper EKF-SLAM scenario and the FastSLAM helix (default
+  640×480 frame), DF-LQR flying; between two timed frames the env steps 0.1 s (untimed), so
+  every call draws a new frame. Frames/s = frames / time spent in ``render()``; the map has
+  been filling for ``warmup_s``.
 * ``episode_render_s``: a whole episode (paper EKF-SLAM, 50 s in the quick and full plans)
   with ``render()`` called after every step, as ``gymnasium.wrappers.RecordVideo`` does: the
   seconds spent in ``render()`` (frames are drawn ``render.fps`` = 10 times per simulated
@@ -60,7 +61,9 @@ def _fly(env: Any, policy: Any, obs: Any, seconds: float) -> Any:
     return obs
 
 
-def frame_rates(env_id: str, kwargs: dict[str, Any], frames: int, warmup_s: float, repeats: int):
+def frame_rates(
+    env_id: str, kwargs: dict[str, Any], frames: int, warmup_s: float, repeats: int
+) -> list[float]:
     """Frames/s samples of ``env.render()``, each over ``frames`` new frames."""
     from agents.dflqr import DFLQRPolicy
 
@@ -128,7 +131,7 @@ def bench_render(results: Results, plan: Plan) -> None:
     for label, env_id, kwargs in FRAME_CASES:
         results.add(
             "render",
-            "frames_per_s",
+            f"frames_per_s/{label}",
             frame_rates(env_id, kwargs, frames, warmup_s, plan.repeats),
             "frames/s",
             note=f"render() of a new frame every {STEPS_PER_FRAME_S} s of flight, 640x480",

@@ -7,6 +7,7 @@ y = altitude. Ellipses are 3σ outlines of the marginal covariances in those pla
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from matplotlib.patches import Polygon
@@ -202,11 +203,11 @@ class SideView:
         _set_pose_ellipse(self.est_ell, s, EA)
 
 
-def _set_pose_ellipse(line: object, s: Scene, axes: tuple[int, int]) -> None:
+def _set_pose_ellipse(line: Any, s: Scene, axes: tuple[int, int]) -> None:
     """The estimate's 3σ position ellipse in the plane of NED ``axes`` (none without a
     covariance)."""
     if s.est_pos_cov is None:
-        line.set_data([], [])  # type: ignore[attr-defined]
+        line.set_data([], [])
         return
     center = s.est_pos[list(axes)] * np.array([1.0, -1.0 if axes[1] == 2 else 1.0])
-    line.set_data(*ellipse_lines(center[None], plane_cov(s.est_pos_cov[None], axes)))  # type: ignore[attr-defined]
+    line.set_data(*ellipse_lines(center[None], plane_cov(s.est_pos_cov[None], axes)))

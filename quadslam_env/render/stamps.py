@@ -10,6 +10,7 @@ the finished RGB frame.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import get_hinting_flag
@@ -36,7 +37,7 @@ class TextStamps:
         font.set_text("0", 0.0, flags=get_hinting_flag())
         self.advance_px = font.get_width_height()[0] / 64.0  # one digit (monospace: any char)
 
-    def _font(self) -> object:
+    def _font(self) -> Any:
         font = get_font(self._path)
         font.clear()
         font.set_size(self.size_pt, self.dpi)
@@ -47,10 +48,10 @@ class TextStamps:
         hit = self._cache.get(text)
         if hit is None:
             font = self._font()
-            font.set_text(text, 0.0, flags=get_hinting_flag())  # type: ignore[attr-defined]
-            font.draw_glyphs_to_bitmap(antialiased=True)  # type: ignore[attr-defined]
-            alpha = np.asarray(font.get_image(), dtype=np.float32) / 255.0  # type: ignore[attr-defined]
-            descent = math.ceil(font.get_descent() / 64.0)  # type: ignore[attr-defined]
+            font.set_text(text, 0.0, flags=get_hinting_flag())
+            font.draw_glyphs_to_bitmap(antialiased=True)
+            alpha = np.asarray(font.get_image(), dtype=np.float32) / 255.0
+            descent = math.ceil(font.get_descent() / 64.0)
             if len(self._cache) >= CACHE_SIZE:
                 self._cache.clear()
             hit = self._cache[text] = (alpha, descent)

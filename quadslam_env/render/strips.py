@@ -31,7 +31,7 @@ class StripCharts:
         self.history_s = history_s
         ax = self.err_ax = b.axes(box(*ERR), nbins=5, xticklabels=False)
         ax.set_title(f"position error ρ̂ − ρ and ±{SIGMA_SCALE:.0f}σ [m]", fontsize=FONT, pad=2)
-        ax.axhline(0.0, color="0.7", lw=0.5)
+        b.add(ax, ax.axhline(0.0, color="0.7", lw=0.5))
         self.err = []
         self.sig = []
         for name, color in zip(("north", "east", "down"), AXIS_COLORS, strict=True):
@@ -52,9 +52,9 @@ class StripCharts:
             f"pose NEES, 95% χ²({POSE_DIM}) bounds {lo:.1f}–{hi:.1f} (log)", fontsize=FONT, pad=2
         )
         ax.set_yscale("log")
-        for bound in (lo, hi):
-            ax.axhline(bound, color=SCAN, ls="--", lw=0.8)
-        ax.axhline(POSE_DIM, color="0.6", ls=":", lw=0.8)
+        for bound in (lo, hi):  # dynamic: the y limits follow the NEES
+            b.add(ax, ax.axhline(bound, color=SCAN, ls="--", lw=0.8))
+        b.add(ax, ax.axhline(POSE_DIM, color="0.6", ls=":", lw=0.8))
         self.nees = b.line(ax, color="black", lw=1.0)
         note = ax.text(
             0.5, 0.5, "", transform=ax.transAxes, ha="center", va="center", fontsize=FONT
