@@ -10,7 +10,9 @@ unit, as one JSON entry. The sections (``--only``):
 * ``vector``, ``workers`` (:mod:`agents.bench_envs`): native vector env throughput in
   env-steps/s vs lanes B, in one process and split over 2 worker processes;
 * ``memory``, ``compile`` (:mod:`agents.bench_process`): peak RSS vs B and numba compile time,
-  each measured in fresh subprocesses.
+  each measured in fresh subprocesses;
+* ``render`` (:mod:`agents.bench_render`): ``rgb_array`` frames/s and the time to record a
+  video of an episode (``gymnasium.wrappers.RecordVideo``).
 
 The old ``AsyncVectorEnv``/``SubprocVecEnv`` scaling section (about 2,000 steps/s for 1–4
 workers of the scalar env) was dropped: the native vector env does 5,000 steps/s with one lane
@@ -30,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-SECTION_NAMES = ("ekf", "fastslam", "env", "vector", "workers", "memory", "compile")
+SECTION_NAMES = ("ekf", "fastslam", "env", "vector", "workers", "memory", "compile", "render")
 
 
 @dataclass(frozen=True)
@@ -290,6 +292,7 @@ def sections() -> dict[str, Callable[[Results, Plan], None]]:
     from agents.bench_envs import bench_env, bench_vector, bench_workers
     from agents.bench_estimators import bench_ekf, bench_fastslam
     from agents.bench_process import bench_compile, bench_memory
+    from agents.bench_render import bench_render
 
     return {
         "ekf": bench_ekf,
@@ -299,6 +302,7 @@ def sections() -> dict[str, Callable[[Results, Plan], None]]:
         "workers": bench_workers,
         "memory": bench_memory,
         "compile": bench_compile,
+        "render": bench_render,
     }
 
 

@@ -109,10 +109,14 @@ def fly(
     seeds: Sequence[int],
     plots: Path | None,
     json_path: Path | None,
+    video: Path | None = None,
 ) -> dict[str, Any]:
-    """Fly ``policy`` for each seed with a progress bar, print the table, write JSON/plots."""
+    """Fly ``policy`` for each seed with a progress bar, print the table, write JSON/plots
+    (and a video of the first seed's episode)."""
     from agents.evaluation import Trace, format_table, run_episodes, summarize
+    from agents.video import LaneVideo
 
+    recorder = None if video is None else LaneVideo(video)  # checks the path before flying
     base = env.unwrapped
     total = base.max_steps * len(seeds)
     trace = Trace() if plots is not None else None
@@ -124,7 +128,7 @@ def fly(
         mininterval=0.5,
     ) as bar:
         # The episodes run as lanes of the native vector env (same numbers as one by one).
-        episodes = run_episodes(env, policy, seeds, trace=trace, on_step=bar.update)
+        episodes = run_episodes(env, policy, seeds, trace=trace, on_step=bar.update, video=recorder)
     summary = summarize(episodes)
     result = {
         "scenario": base.scenario.name,
@@ -141,6 +145,9 @@ def fly(
             trace, plots, f"{base.scenario.name} / {base.scenario.estimator.name} / seed {seeds[0]}"
         )
         print(f"figures: {plots} ({len(files)} PNG)")
+    if recorder is not None:
+        recorder.close()
+        print(f"video: {video} (seed {seeds[0]}, {recorder.frames} frames)")
     if json_path is not None:
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(result, indent=2))
@@ -158,7 +165,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         plots = Path("runs") / f"run-{stamp}-{env.unwrapped.scenario.name}"
     seeds = list(range(args.seed, args.seed + args.seeds))
-    fly(env, DFLQRPolicy.from_env(env), "dflqr", seeds, plots, args.json)
+    fly(env, DFLQRPolicy.from_env(env), "dflqr", seeds, plots, args.json, args.video)
     return 0
 
 
@@ -176,7 +183,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
     policy, name = load_policy(args.policy, env)
     seeds = list(range(args.seed, args.seed + args.episodes))
-    fly(env, policy, name, seeds, args.plots, args.json)
+    fly(env, policy, name, seeds, args.plots, args.json, args.video)
     return 0
 
 
@@ -277,6 +284,12 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--duration", type=_positive_float, help="episode length in s")
         p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
         p.add_argument("--json", type=Path, help="write results as JSON to this file")
+        p.add_argument(
+            "--video",
+            type=Path,
+            metavar="FILE",
+            help="record the first seed's episode (.mp4 or .gif)",
+        )
         p.add_argument(
             "--set",
             action="append",

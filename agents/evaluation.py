@@ -123,11 +123,15 @@ def run_episode(
     seed: int,
     trace: Trace | None = None,
     on_step: Callable[[], None] | None = None,
+    video: Any | None = None,
 ) -> dict[str, Any]:
-    """Fly one episode and return its JSON record (keys :data:`EPISODE_KEYS`)."""
-    obs, _ = env.reset(seed=seed)
+    """Fly one episode and return its JSON record (keys :data:`EPISODE_KEYS`); ``video``
+    (an :class:`agents.video.LaneVideo`) records its frames."""
+    obs, info = env.reset(seed=seed)
     if trace is not None:
         trace.record(env)
+    if video is not None:
+        video.attach(env.unwrapped.core, 0, info)
     state, start = None, np.array([True])
     steps, info = 0, {}
     tic = time.perf_counter()
@@ -138,6 +142,8 @@ def run_episode(
         steps += 1
         if trace is not None:
             trace.record(env)
+        if video is not None:
+            video.record(info)
         if on_step is not None:
             on_step()
         if terminated or truncated:
@@ -171,6 +177,7 @@ def run_episodes(
     trace: Trace | None = None,
     on_step: Callable[[int], None] | None = None,
     max_lanes: int = MAX_LANES,
+    video: Any | None = None,
 ) -> list[dict[str, Any]]:
     """Fly one episode per seed, as lanes of the native vector env of ``env``'s id and kwargs.
 
@@ -190,6 +197,7 @@ def run_episodes(
             an episode that ended early counting as ``max_steps``, so the calls add up to
             ``max_steps × N`` (a progress bar's total).
         max_lanes: Most lanes in one vector env.
+        video: An :class:`agents.video.LaneVideo` that records the first seed's episode.
 
     Returns:
         One record per seed, in the order of ``seeds``.
@@ -202,7 +210,10 @@ def run_episodes(
         records = []
         for i, seed in enumerate(seeds):
             tick = None if on_step is None else (lambda: on_step(1))
-            rec = run_episode(env, policy, seed, trace if i == 0 else None, tick)
+            first = i == 0
+            rec = run_episode(
+                env, policy, seed, trace if first else None, tick, video if first else None
+            )
             if on_step is not None:
                 on_step(max_steps - round(rec["duration_s"] / env.unwrapped.dt))
             records.append(rec)
@@ -214,7 +225,10 @@ def run_episodes(
             spec.id, num_envs=len(chunk), vectorization_mode="vector_entry_point", **spec.kwargs
         )
         try:
-            records += _run_lanes(vec, policy, chunk, trace if first == 0 else None, on_step)
+            records += _run_lanes(
+                vec, policy, chunk, trace if first == 0 else None, on_step,
+                video if first == 0 else None,
+            )  # fmt: skip
         finally:
             vec.close()
     return records
@@ -226,13 +240,16 @@ def _run_lanes(
     seeds: list[int],
     trace: Trace | None,
     on_step: Callable[[int], None] | None,
+    video: Any | None = None,
 ) -> list[dict[str, Any]]:
     """Fly lane i of ``vec`` with seed ``seeds[i]`` until its first episode ends."""
     core = vec.unwrapped.core
     n = len(seeds)
-    obs, _ = vec.reset(seed=seeds)
+    obs, info = vec.reset(seed=seeds)
     if trace is not None:
         trace.record_lane(core, 0)
+    if video is not None:
+        video.attach(core, 0, info)
     records: list[dict[str, Any]] = [{} for _ in seeds]
     active = np.ones(n, dtype=bool)
     state, start = None, np.ones(n, dtype=bool)
@@ -245,6 +262,8 @@ def _run_lanes(
         steps += 1
         if trace is not None and active[0]:
             trace.record_lane(core, 0)
+        if video is not None and active[0]:
+            video.record(info)
         ended = np.flatnonzero(active & (terminated | truncated)).tolist()
         wall = time.perf_counter() - tic
         for lane in ended:

@@ -252,6 +252,12 @@ class LaneLoop:
             est.set_truth(states[lane], np.arange(n), landmarks[lane, :n])  # type: ignore[attr-defined]
             self._estimates[lane] = None
 
+    def lane_particles(self, lane: int) -> FloatArray | None:
+        """(N, 3) particle positions of lane ``lane`` (m), or ``None`` when its estimator has
+        no particles (for display)."""
+        positions = getattr(self.lanes[lane], "particle_positions", None)
+        return None if positions is None else positions()
+
     def lane_estimate(self, lane: int) -> Estimate:
         """The scalar estimator's own snapshot (cached until the lane changes)."""
         est = self._estimates[lane]

@@ -2,9 +2,9 @@
 
 A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the sections ``vehicle``,
 ``imu``, ``lidar``, ``landmarks``, ``trajectory``, ``estimator``, ``reward``, ``observation``,
-``action`` and ``episode``. Per-call overrides (``gymnasium.make(id, episode={...})``) are merged
-into it key by key. Sections with a ``preset`` key start from that preset's values; keys given
-explicitly win over the preset.
+``action``, ``episode`` and ``render``. Per-call overrides (``gymnasium.make(id,
+episode={...})``) are merged into it key by key. Sections with a ``preset`` key start from that
+preset's values; keys given explicitly win over the preset.
 
 Every unknown key, wrong type or out-of-range value raises :class:`ConfigError` (a
 ``ValueError``) whose message names the dotted key, the bad value and what is allowed.
@@ -566,6 +566,36 @@ class EpisodeConfig(Section):
             )
 
 
+@dataclass(frozen=True)
+class RenderConfig(Section):
+    """``rgb_array`` frames (:mod:`quadslam_env.render`): size, frame rate and view extents.
+
+    Only read when the env has ``render_mode="rgb_array"``; a make() kwarg
+    ``render={"width_px": 800}`` overrides it like any section.
+    """
+
+    SECTION: ClassVar[str] = "render"
+    width_px: int = _spec(640, kind="int", lo=320, hi=3840, doc="frame width in pixels")
+    height_px: int = _spec(480, kind="int", lo=240, hi=2160, doc="frame height in pixels")
+    fps: float | None = _spec(
+        10.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1000.0,
+        optional=True,
+        doc="frames drawn per simulated second; a render() call sooner than 1/fps after the "
+        "last drawn frame returns that frame again; null draws on every call",
+    )
+    view_radius_m: float = _spec(
+        8.0, lo=0.5, hi=1e4, doc="half-width of the top-down view around the vehicle, m"
+    )
+    trail_s: float = _spec(25.0, lo=0.0, hi=3600.0, doc="length of the drawn paths, s")
+    history_s: float = _spec(10.0, lo=0.5, hi=3600.0, doc="time span of the strip charts, s")
+    max_particles: int = _spec(
+        200, kind="int", lo=0, hi=100000, doc="particles drawn (an evenly strided subsample)"
+    )
+
+
 SECTIONS: dict[str, type[Section]] = {
     "vehicle": VehicleConfig,
     "imu": ImuConfig,
@@ -577,6 +607,7 @@ SECTIONS: dict[str, type[Section]] = {
     "observation": ObservationConfig,
     "action": ActionConfig,
     "episode": EpisodeConfig,
+    "render": RenderConfig,
 }
 
 
@@ -599,6 +630,7 @@ class ScenarioConfig:
     observation: ObservationConfig
     action: ActionConfig
     episode: EpisodeConfig
+    render: RenderConfig
     description: str = ""
 
     @property

@@ -108,6 +108,9 @@ class SimCore:
         landmarks: (B, Lmax, 3) true landmark positions (NED, m); lane i uses the first
             ``n_landmarks[i]`` rows, whose ids are their row indices.
         est: The estimator's belief after the last reset or step.
+        last_scan: ``(lanes (k,), visible (B, Lmax) bool, meas (B, Lmax, 3))`` of the scan
+            taken in the last step (see :meth:`LidarBatch.scan`), or ``None`` when no lane
+            scanned then; references, not copies (for the renderer).
     """
 
     def __init__(self, scenario: ScenarioConfig, num_lanes: int) -> None:
@@ -145,6 +148,7 @@ class SimCore:
                 np.zeros(3),
             ]
         )
+        self.last_scan: tuple[np.ndarray, np.ndarray, FloatArray] | None = None
         self.est: BatchEstimate = self._snapshot()
 
     # ------------------------------------------------------------------ reset
@@ -253,6 +257,9 @@ class SimCore:
                 state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning
             )
             self.n_visible[scanning] = visible[scanning].sum(axis=1)
+            self.last_scan = (scanning, visible, meas)
+        else:
+            self.last_scan = None
         timed = self.scenario.episode.report_step_time
         tic = time.perf_counter() if timed else 0.0
         imu = self.imu

@@ -8,7 +8,7 @@ lane's arrays into Gymnasium's single-env API and draws the frames.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -22,7 +22,16 @@ from quadslam_env.core import SimCore, parse_reset_options
 from quadslam_env.trajectories import FlatOutputs
 from quadslam_env.types import FloatArray
 
-__all__ = ["ActionError", "QuadSLAMEnv", "lane_info"]
+if TYPE_CHECKING:
+    from quadslam_env.render import LaneRenderer
+
+__all__ = ["ActionError", "QuadSLAMEnv", "lane_info", "step_rate"]
+
+
+def step_rate(scenario: ScenarioConfig) -> int | float:
+    """Control steps per second (an int when whole): the env's ``metadata["render_fps"]``."""
+    hz = float(scenario.episode.control_hz)
+    return int(hz) if hz.is_integer() else hz
 
 
 def lane_info(info: dict[str, Any], lane: int) -> dict[str, Any]:
@@ -81,7 +90,9 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         **overrides: Section mappings merged into the scenario, e.g. ``episode={...}``.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    # render_fps: one frame per control step (an instance sets its scenario's control rate),
+    # so videos recorded step by step, e.g. by RecordVideo, play in real time.
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
 
     def __init__(
         self,
@@ -103,9 +114,19 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = core.observer.space
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.hover_action = core.action_map.hover_action
-        self._history: dict[str, list[FloatArray]] = {"true": [], "est": [], "ref": []}
+        self.metadata = {**self.metadata, "render_fps": step_rate(self.scenario)}
+        self._renderer: LaneRenderer | None = None
+        if render_mode is not None:  # nothing is recorded, or imported, without it
+            from quadslam_env.render import LaneRenderer
+
+            self._renderer = LaneRenderer(core, 0)
 
     # ------------------------------------------------------------------ properties
+    @property
+    def core(self) -> SimCore:
+        """The one-lane simulation core (its arrays hold the truth: for analysis only)."""
+        return self._core
+
     @property
     def true_state(self) -> FloatArray:
         """(12,) copy of the true state (for analysis and truth-driven controllers only)."""
@@ -177,30 +198,29 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         opts = parse_reset_options(options)
         super().reset(seed=seed)
         obs, info = self._core.reset_lanes([0], [self.np_random], opts)
-        self._history = {"true": [], "est": [], "ref": []}
-        self._record()
+        if self._renderer is not None:
+            self._renderer.record(info)
         return obs[0], lane_info(info, 0)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """Advance one control period (``dt`` s)."""
         act = validate_actions(action, None)
         obs, reward, terminated, truncated, info = self._core.step(act)
-        self._record()
+        if self._renderer is not None:
+            self._renderer.record(info)
         return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), lane_info(info, 0)
 
     # ------------------------------------------------------------------ rendering
-    def _record(self) -> None:
-        if self.render_mode is None:
-            return
-        core = self._core
-        self._history["true"].append(core.vehicle.state[0, 0:3].copy())
-        self._history["est"].append(core.est.position[0].copy())
-        self._history["ref"].append(core.reference([0]).pos[0])
-
     def render(self) -> np.ndarray | None:
-        """An RGB frame (H, W, 3) of paths, landmarks and the LiDAR FOV, or ``None``."""
-        if self.render_mode != "rgb_array":
-            return None
-        from quadslam_env.rendering import render_lane
+        """The frame now, (render.height_px, render.width_px, 3) uint8, or ``None`` without
+        ``render_mode``.
 
-        return render_lane(self._core, 0, self._history)
+        Panels: top-down and side views around the vehicle (reference, true and estimated
+        paths, estimated pose and landmarks with 3σ ellipses, LiDAR FOV and this scan's
+        returns, FastSLAM particles), position error against ±3σ and NEES against its χ²
+        bounds over the last ``render.history_s``. At most ``render.fps`` frames are drawn
+        per simulated second; calls in between return the last frame (read-only).
+        """
+        if self._renderer is None:
+            return None
+        return self._renderer.frame()

@@ -14,7 +14,7 @@ a dict of (B,) arrays, each with a ``_key`` bool mask of the lanes where the ter
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium import spaces
@@ -25,6 +25,10 @@ from gymnasium.vector.utils import batch_space
 from quadslam_env.actions import validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore, parse_reset_options
+from quadslam_env.env import step_rate
+
+if TYPE_CHECKING:
+    from quadslam_env.render import LaneRenderer
 
 
 class QuadSLAMVectorEnv(VectorEnv):
@@ -42,7 +46,7 @@ class QuadSLAMVectorEnv(VectorEnv):
 
     metadata = {
         "render_modes": ["rgb_array"],
-        "render_fps": 10,
+        "render_fps": 100,  # an instance sets its control rate: one frame per step
         "autoreset_mode": AutoresetMode.NEXT_STEP,
     }
 
@@ -78,6 +82,12 @@ class QuadSLAMVectorEnv(VectorEnv):
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self.metadata = {**self.metadata, "render_fps": step_rate(self.scenario)}
+        self._renderer: LaneRenderer | None = None
+        if render_mode is not None:  # lane 0's history; nothing without render_mode
+            from quadslam_env.render import LaneRenderer
+
+            self._renderer = LaneRenderer(core, 0)
 
     @property
     def core(self) -> SimCore:
@@ -122,6 +132,8 @@ class QuadSLAMVectorEnv(VectorEnv):
         lanes = np.arange(b)
         obs, info = self._core.reset_lanes(lanes, self.lane_rngs(lanes), opts)
         self._autoreset[:] = False
+        if self._renderer is not None:
+            self._renderer.record(info)
         return obs, _vector_info(info)
 
     def step(
@@ -153,16 +165,16 @@ class QuadSLAMVectorEnv(VectorEnv):
                 else:
                     value[lanes] = np.nan
         self._autoreset = terminated | truncated
+        if self._renderer is not None:
+            self._renderer.record(info)
         return obs, reward, terminated, truncated, _vector_info(info)
 
     # VectorEnv.render is typed as one frame per lane; this env draws lane 0 only (README).
     def render(self) -> np.ndarray | None:  # type: ignore[override]
-        """An RGB frame (H, W, 3) of lane 0, or ``None`` without ``render_mode``."""
-        if self.render_mode != "rgb_array":
+        """Lane 0's frame (see :meth:`QuadSLAMEnv.render`), or ``None`` without ``render_mode``."""
+        if self._renderer is None:
             return None
-        from quadslam_env.rendering import render_lane
-
-        return render_lane(self._core, 0)
+        return self._renderer.frame()
 
 
 def _vector_info(info: dict[str, Any]) -> dict[str, Any]:

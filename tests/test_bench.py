@@ -53,7 +53,7 @@ def test_document_is_wellformed(tiny_run) -> None:
     assert tuple(doc["sections"]) == SECTION_NAMES
     assert {"cpu", "cores", "python", "numpy", "numba", "load_average"} <= set(doc["machine"])
     groups = {e["group"] for e in doc["results"]}
-    assert groups == {"ekf_slam", "fastslam", "env", "vector", "memory", "compile"}
+    assert groups == {"ekf_slam", "fastslam", "env", "vector", "memory", "compile", "render"}
     for entry in doc["results"]:
         assert {"group", "name", "params", "unit", "median", "min", "max", "n"} <= set(entry)
         assert entry["n"] >= 1 and entry["unit"]
@@ -108,6 +108,18 @@ def test_memory_and_compile_entries(tiny_run) -> None:
     # Empty cache first, then the same (now warm) directory; a new directory per repeat.
     assert len(caches) == 2 * TINY.process_repeats
     assert caches[0] == caches[1] and not os.path.exists(caches[0])
+
+
+def test_render_entries(tiny_run) -> None:
+    doc, _, _, _ = tiny_run
+    rows = {e["name"]: e for e in doc["results"] if e["group"] == "render"}
+    assert {"frames_per_s/ekf_slam", "frames_per_s/fastslam", "episode_render_s"} <= set(rows)
+    for label in ("ekf_slam", "fastslam"):
+        entry = rows[f"frames_per_s/{label}"]
+        assert entry["unit"] == "frames/s" and entry["n"] == TINY.repeats
+    episode = rows["episode_render_s"]
+    steps = round(episode["params"]["episode_s"] * 100)  # render() after reset and every step
+    assert episode["unit"] == "s" and episode["params"]["calls"] == steps + 1
 
 
 def test_peak_rss_is_plausible() -> None:

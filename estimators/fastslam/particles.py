@@ -192,6 +192,10 @@ class FastSLAMBase:
         """(N,) normalised weights ``exp(logw)`` (a copy)."""
         return self._w.copy()
 
+    def particle_positions(self) -> FloatArray:
+        """(N, 3) particle positions ρ in N, m (a copy; for display)."""
+        return self.x[:, 0:3].copy()
+
     def _apply_loglik(self, loglik: FloatArray, scale: float = 1.0) -> None:
         """``log w ← log w + log p(z | particle) / scale``, normalised; flags divergence (eq. 28).
 

@@ -117,6 +117,6 @@ def mv(a: FloatArray, v: FloatArray) -> FloatArray:
 
 
 def psd_sqrt(cov: FloatArray) -> FloatArray:
-    """A square root ``S`` with ``S Sᵀ = cov`` of a symmetric PSD (possibly singular) (n, n)."""
-    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
-    return vecs * np.sqrt(np.clip(vals, 0.0, None))
+    """A square root ``S`` with ``S Sᵀ = cov`` of symmetric PSD (possibly singular) (..., n, n)."""
+    vals, vecs = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, -1, -2)))
+    return vecs * np.sqrt(np.clip(vals, 0.0, None))[..., None, :]
