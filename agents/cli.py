@@ -223,7 +223,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an SB3 agent with ``configs/agents/<algo>.yaml`` and print the run folder."""
     from agents.hyperparams import parse_hyperparam_overrides
-    from agents.run_folder import run_config
     from agents.training import train
 
     run_dir = train(
@@ -239,10 +238,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         verbose=args.verbose,
         torch_threads=args.torch_threads,
     )
-    scenario = ((run_config(run_dir) or {}).get("scenario") or {}).get("name")
-    hint = f" --scenario {scenario}" if scenario else ""
+    timing = json.loads((run_dir / "timing.json").read_text())
     print(f"run folder: {run_dir}")
-    print(f"evaluate:   quadslam evaluate --policy {run_dir} --env {args.env}{hint}")
+    print(
+        f"wall clock: {timing['wall_s']:.1f} s ({timing['timesteps']:,} env steps, "
+        f"{timing['steps_per_s']:,.0f} steps/s while learning)"
+    )
+    print(f"evaluate:   quadslam evaluate --policy {run_dir} --episodes 20 --seed 1000")
     return 0
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,7 @@ def read_monitor_episodes(monitor_dir: Path) -> tuple[np.ndarray, np.ndarray, np
     """Episodes from SB3 ``*.monitor.csv`` files, in wall-clock order.
 
     Returns:
-        ``(timesteps at episode end (cumulative over envs), returns, lengths)``.
+        ``(wall-clock time at episode end in s since the start, returns, lengths)``.
     """
     rows: list[tuple[float, float, int]] = []
     for path in sorted(Path(monitor_dir).glob("*.monitor.csv")):
@@ -26,12 +27,37 @@ def read_monitor_episodes(monitor_dir: Path) -> tuple[np.ndarray, np.ndarray, np
     rows.sort()
     if not rows:
         return np.zeros(0), np.zeros(0), np.zeros(0, dtype=int)
-    _, r, length = (np.array(c) for c in zip(*rows, strict=True))
-    return np.cumsum(length), r, length.astype(int)
+    t, r, length = (np.array(c) for c in zip(*rows, strict=True))
+    return t, r, length.astype(int)
+
+
+def read_progress(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(env steps, wall-clock s)`` at each log dump of ``logs/progress.csv`` (may be empty)."""
+    path = Path(run_dir) / "logs" / "progress.csv"
+    steps: list[float] = []
+    wall: list[float] = []
+    if path.is_file():
+        with path.open() as fh:
+            for row in csv.DictReader(fh):
+                try:
+                    step, elapsed = (
+                        float(row["time/total_timesteps"]),
+                        float(row["time/time_elapsed"]),
+                    )
+                except (KeyError, TypeError, ValueError):
+                    continue
+                steps.append(step)
+                wall.append(elapsed)
+    return np.array(steps), np.array(wall)
 
 
 def plot_learning_curve(run_dir: str | Path) -> Path:
-    """Write ``learning_curve.png``: training episode returns (Monitor) and evaluations.
+    """Write ``learning_curve.png``: returns against env steps and against wall-clock time.
+
+    Training episodes come from the monitor file, evaluations from ``eval/evaluations.npz``.
+    Env steps and wall-clock time are paired through the log dumps of ``logs/progress.csv``
+    (with many lanes, the completed episodes' lengths alone lag the step count by up to one
+    episode per lane).
 
     Returns:
         The PNG path.
@@ -39,15 +65,19 @@ def plot_learning_curve(run_dir: str | Path) -> Path:
     from matplotlib.figure import Figure
 
     run_dir = Path(run_dir)
-    steps, returns, lengths = read_monitor_episodes(run_dir / "monitor")
-    fig = Figure(figsize=(9, 6.5), layout="constrained")
-    ax_r, ax_l = fig.subplots(2, 1, sharex=True)
+    t_end, returns, lengths = read_monitor_episodes(run_dir / "monitor")
+    log_steps, log_wall = read_progress(run_dir)
+    paired = log_steps.size >= 2
+    steps = np.interp(t_end, log_wall, log_steps) if paired else np.cumsum(lengths)
+    fig = Figure(figsize=(9, 8), layout="constrained")
+    ax_r, ax_w, ax_l = fig.subplots(3, 1)
     if returns.size:
-        ax_r.plot(steps, returns, ".", ms=3, alpha=0.35, color="tab:blue", label="episode")
         window = max(1, min(50, returns.size // 10))
-        if window > 1:
-            smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
-            ax_r.plot(steps[window - 1 :], smooth, color="tab:blue", label=f"mean of {window}")
+        for ax, x in ((ax_r, steps), (ax_w, t_end / 60.0)):
+            ax.plot(x, returns, ".", ms=3, alpha=0.35, color="tab:blue", label="episode")
+            if window > 1:
+                smooth = np.convolve(returns, np.ones(window) / window, mode="valid")
+                ax.plot(x[window - 1 :], smooth, color="tab:blue", label=f"mean of {window}")
         ax_l.plot(steps, lengths, ".", ms=3, alpha=0.5, color="tab:gray")
     evals = run_dir / "eval" / "evaluations.npz"
     if evals.exists():
@@ -55,16 +85,21 @@ def plot_learning_curve(run_dir: str | Path) -> Path:
             ts, res, ep_len = data["timesteps"], data["results"], data["ep_lengths"]
         if ts.size:
             mean, std = res.mean(axis=1), res.std(axis=1)
-            ax_r.errorbar(
-                ts, mean, yerr=std, fmt="o-", color="tab:red", ms=4, capsize=3, label="evaluation"
-            )
+            style = {"fmt": "o-", "color": "tab:red", "ms": 4, "capsize": 3}
+            ax_r.errorbar(ts, mean, yerr=std, label="evaluation", **style)
+            if paired:
+                wall = np.interp(ts, log_steps, log_wall) / 60.0
+                ax_w.errorbar(wall, mean, yerr=std, label="evaluation", **style)
             ax_l.plot(ts, ep_len.mean(axis=1), "o-", color="tab:red", ms=4)
     if not returns.size and not evals.exists():
         ax_r.text(0.5, 0.5, "no completed episodes", ha="center", transform=ax_r.transAxes)
-    ax_r.set_ylabel("episode return")
-    ax_r.grid(alpha=0.3)
-    if ax_r.get_legend_handles_labels()[0]:
-        ax_r.legend(loc="lower right")
+    ax_r.set_xlabel("environment steps")
+    ax_w.set_xlabel("wall-clock time [min]")
+    for ax in (ax_r, ax_w):
+        ax.set_ylabel("episode return")
+        ax.grid(alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="lower right")
     ax_l.set_ylabel("episode length [steps]")
     ax_l.set_xlabel("environment steps")
     ax_l.grid(alpha=0.3)

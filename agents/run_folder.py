@@ -2,7 +2,8 @@
 
 A run folder (``<out_dir>/<algo>_<env_id>_s<seed>_<time>``) holds ``config.yaml`` (the resolved
 entry, the algorithm, env id, seed and the env's full resolved scenario), ``seed.txt``,
-``versions.json``, ``model.zip`` (+ ``vecnormalize.pkl``), ``learning_curve.png``,
+``versions.json``, ``model.zip`` (+ ``vecnormalize.pkl``), ``learning_curve.png`` (returns vs env
+steps and vs wall-clock time), ``timing.json`` (wall clock, steps/s; written last),
 ``monitor/`` (``lanes.monitor.csv``: every lane's episodes), ``logs/`` (TensorBoard events +
 ``progress.csv``; the ``quadslam/*`` scalars are the env's ``est_*``/``track_*``/``reward_*``
 metrics), ``eval/`` (``evaluations.npz``, ``best_model.zip``) and ``checkpoints/``. A run's

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -171,19 +170,16 @@ def _train(
     from quadslam_env.config import deep_merge
 
     folder = out / "train" / cfg.name / f"s{seed}"
-    for done in sorted(folder.glob("*/model.zip")):
-        marker = done.parent / "wall_s.txt"
-        if marker.is_file() and not (done.parent / "INTERRUPTED").exists():
+    for done in sorted(folder.glob("*/timing.json")):  # written last by a finished train()
+        if not (done.parent / "INTERRUPTED").exists():
             print(f"  reusing {done.parent}", file=sys.stderr)
-            return done.parent, float(marker.read_text())
+            return done.parent, float(json.loads(done.read_text())["wall_s"])
     entry = deep_merge(load_hyperparams("ppo", EKF), cfg.overrides)
     entry["env_kwargs"] = deep_merge(entry.get("env_kwargs", {}), env_kwargs)
-    tic = time.perf_counter()
     run = train(
         "ppo", cfg.env_id, timesteps=timesteps, seed=seed, out_dir=folder, hyperparams=entry
     )
-    wall = time.perf_counter() - tic
-    (run / "wall_s.txt").write_text(f"{wall:.1f}\n")
+    wall = float(json.loads((run / "timing.json").read_text())["wall_s"])
     print(f"  {cfg.name} seed {seed}: trained in {wall:.0f} s ({run})", file=sys.stderr)
     return run, wall
 

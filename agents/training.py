@@ -153,6 +153,7 @@ def train(
         TqdmProgressCallback,
     )
 
+    tic = time.perf_counter()
     algo = algo.lower()
     if env_id not in gym.registry:
         quad = sorted(k for k in gym.registry if k.startswith("QuadSLAM"))
@@ -254,6 +255,7 @@ def train(
                 callbacks.append(TqdmProgressCallback(desc=f"{algo} {env_id}"))
 
             interrupted = False
+            learn_tic = time.perf_counter()
             with warnings.catch_warnings():
                 # The eval env is wrapped differently (VecNormalize with training=False).
                 warnings.filterwarnings("ignore", message="Training and eval env are not of")
@@ -268,6 +270,7 @@ def train(
                         f"training interrupted at {model.num_timesteps} steps; saving the model",
                         file=sys.stderr,
                     )
+            learn_s = time.perf_counter() - learn_tic
             model.save(run_dir / "model.zip")
             if norm is not None:
                 model.get_vec_normalize_env().save(str(run_dir / "vecnormalize.pkl"))
@@ -280,4 +283,11 @@ def train(
                     if vec is not None:
                         vec.close()
     plot_learning_curve(run_dir)
+    timing = {
+        "timesteps": int(model.num_timesteps),
+        "learn_s": round(learn_s, 2),  # model.learn: stepping, updates, evaluations
+        "wall_s": round(time.perf_counter() - tic, 2),  # all of train(), from config to plot
+        "steps_per_s": round(model.num_timesteps / max(learn_s, 1e-9), 1),
+    }
+    (run_dir / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
     return run_dir
