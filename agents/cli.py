@@ -47,6 +47,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     """Turn ``["episode.duration_s=20", "imu.preset=ideal"]`` into nested override mappings.
 
     Values are parsed as YAML (numbers, booleans, lists); keys are ``section.key[.key...]``.
+    A key given twice (or a YAML value that repeats a key) is an error, not "last one wins".
     """
     import yaml
 
@@ -69,6 +70,8 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
             node = node.setdefault(part, {})
             if not isinstance(node, dict):
                 raise ValueError(f"--set: {key!r} conflicts with another --set")
+        if parts[-1] in node:
+            raise ValueError(f"--set {key}: given twice; allowed: each key once")
         node[parts[-1]] = value
     return out
 

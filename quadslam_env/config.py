@@ -296,6 +296,14 @@ class LandmarksConfig(Section):
     """Landmark layout (DESIGN.md §3): ``rauniyar2023`` random points, ``poles4``, ``explicit``."""
 
     SECTION: ClassVar[str] = "landmarks"
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
+        **dict.fromkeys(
+            ("count", "azimuth_deg", "elevation_deg", "range_m", "center"),
+            ("layout", ("rauniyar2023",)),
+        ),
+        **dict.fromkeys(("pole_spacing_m", "pole_altitude_m"), ("layout", ("poles4",))),
+        "positions": ("layout", ("explicit",)),
+    }
     layout: str = _spec(
         "rauniyar2023",
         kind="str",
@@ -360,6 +368,12 @@ class TrajectoryConfig(Section):
     """Reference trajectory (flat outputs). ``center`` is NED, so altitude is ``-center[2]``."""
 
     SECTION: ClassVar[str] = "trajectory"
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
+        **dict.fromkeys(("amplitude_x_m", "amplitude_y_m"), ("kind", ("figure8",))),
+        "radius_m": ("kind", ("circle", "helix")),
+        "climb_rate_mps": ("kind", ("helix",)),
+        "period_s": ("kind", ("figure8", "circle", "helix")),
+    }
     kind: str = _spec(
         "figure8",
         kind="str",
@@ -483,6 +497,9 @@ class ActionConfig(Section):
     """Action interpretation: ``thrust_torque`` or ``thrust_rates`` (inner body-rate loop)."""
 
     SECTION: ClassVar[str] = "action"
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = dict.fromkeys(
+        ("max_rate_dps", "rate_gain_per_s"), ("mode", ("thrust_rates",))
+    )
     mode: str = _spec(
         "thrust_torque",
         kind="str",
@@ -709,6 +726,15 @@ def load_scenario(
     """
     if scenario is None:
         scenario = "paper_ekf_figure8"
+    if not isinstance(scenario, str | Path | dict) or scenario == "":
+        raise ConfigError(
+            f"scenario: got {scenario!r}; allowed: a scenario name (one of "
+            f"{available_scenarios()}), a path to a YAML file or a mapping of sections"
+        )
+    if estimator_name is not None and not isinstance(estimator_name, str):
+        raise ConfigError(
+            f"estimator_name: got {estimator_name!r}; allowed: an estimator name (a string)"
+        )
     if isinstance(scenario, dict):
         data, name = scenario, str(scenario.get("name", "custom"))
     else:
