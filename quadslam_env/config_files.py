@@ -78,7 +78,7 @@ class _YamlLoader(yaml.SafeLoader):
     overridden as YAML intends.
     """
 
-    def construct_mapping(self, node: yaml.Node, deep: bool = False) -> dict[Any, Any]:
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         if isinstance(node, yaml.MappingNode):
             seen: dict[Any, int] = {}
             for key_node, _ in node.value:
@@ -92,7 +92,7 @@ class _YamlLoader(yaml.SafeLoader):
                     seen[key] = line
                 except TypeError:  # an unhashable key: PyYAML reports it itself
                     continue
-        return super().construct_mapping(node, deep=deep)  # type: ignore[no-any-return]
+        return super().construct_mapping(node, deep=deep)
 
 
 _YamlLoader.add_implicit_resolver(
