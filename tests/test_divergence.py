@@ -35,7 +35,7 @@ def spin(duration_s: float, **kwargs: Any) -> tuple[dict[str, Any], bool, bool, 
     episode = {**RELAXED, "duration_s": duration_s, **kwargs.pop("episode", {})}
     env = gym.make("QuadSLAM-EKF-v0", **{**kwargs, "episode": episode})
     env.reset(seed=0)
-    core = env.unwrapped.core
+    core = env.unwrapped.core  # type: ignore[attr-defined]
     action = np.array(core.action_map.hover_action, dtype=np.float32)
     action[3] = 1.0  # full yaw torque, held
     traces = []
