@@ -71,7 +71,7 @@ def read_only(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     folder.mkdir()
     real = tempfile.mkstemp
 
-    def mkstemp(*args: Any, dir: Any = None, **kwargs: Any) -> Any:  # noqa: A002
+    def mkstemp(*args: Any, dir: Any = None, **kwargs: Any) -> Any:
         if dir is not None and _inside(dir, folder):
             raise PermissionError(errno.EACCES, "Permission denied")
         return real(*args, dir=dir, **kwargs)
