@@ -69,7 +69,7 @@ def read_only(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     """A folder that refuses new files, even for root (the probe fails like EACCES)."""
     folder = tmp_path / "ro"
     folder.mkdir()
-    real = tempfile.mkstemp
+    real: Any = tempfile.mkstemp
 
     def mkstemp(*args: Any, dir: Any = None, **kwargs: Any) -> Any:
         if dir is not None and _inside(dir, folder):
