@@ -21,7 +21,6 @@ and about 100,000 with a few hundred, so it no longer said anything useful.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import platform
@@ -351,20 +350,32 @@ def main_bench(
     only: list[str] | None = None,
     plan: Plan | None = None,
 ) -> dict[str, Any]:
-    """CLI body: run, print the table, write JSON and plots."""
-    from agents.bench_plots import write_plots
+    """CLI body: check the output paths, run, print the table, write JSON and plots.
 
+    Raises:
+        agents.outputs.OutputPathError: ``--json`` or ``--plots`` cannot be written (before
+            anything is measured).
+        agents.outputs.OutputWriteError: A file could not be written at the end; it was saved
+            elsewhere and the message says where.
+    """
+    from agents.bench_plots import write_plots
+    from agents.outputs import Saver, check_output_dir, check_output_file
+
+    if json_path is not None:
+        check_output_file(json_path, "--json")
+    if plots is not None:
+        check_output_dir(plots, "--plots")
     doc = run_bench(quick, only, plan=plan)
     print(format_results(doc["results"]))
     print(
         f"machine: {doc['machine']['cpu']} ({doc['machine']['cores']} cores); "
         f"wall time {doc['wall_time_s']:.1f} s"
     )
+    saver = Saver()
     if json_path is not None:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(doc, indent=2))
-        print(f"json: {json_path}")
+        print(f"json: {saver.write_json(json_path, doc, '--json')}")
     if plots is not None:
-        files = write_plots(doc["results"], plots)
+        files = write_plots(doc["results"], plots, saver)
         print(f"plots: {', '.join(str(f) for f in files)}")
+    saver.check()
     return doc

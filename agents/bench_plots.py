@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from agents.bench_envs import VECTOR_SCENARIOS
+from agents.outputs import Saver
 
 Series = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
@@ -138,21 +139,30 @@ def _vector_figure(plt: Any, entries: list[dict[str, Any]]) -> Any:
     return fig
 
 
-def write_plots(entries: list[dict[str, Any]], out_dir: Path) -> list[Path]:
+def write_plots(
+    entries: list[dict[str, Any]], out_dir: Path, saver: Saver | None = None
+) -> list[Path]:
     """Write the PNGs whose measurements are in ``entries``.
 
     Files: ``ekf_scaling.png``, ``fastslam_scaling.png`` (estimator time vs map size and
     particles) and ``vector_scaling.png`` (env-steps/s vs lanes B per scenario, peak RSS).
 
+    Args:
+        entries: Bench result entries.
+        out_dir: Folder for the PNGs (created when missing).
+        saver: Writes atomically and records failures (see :class:`agents.outputs.Saver`);
+            without one, a failed write raises after every plot was written somewhere.
+
     Returns:
-        The paths written.
+        Where each file was written.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    own = saver is None
+    saver = saver or Saver()
     groups = {e["group"] for e in entries}
     figures = (
         ("ekf_scaling.png", {"ekf_slam"}, _ekf_figure),
@@ -165,7 +175,8 @@ def write_plots(entries: list[dict[str, Any]], out_dir: Path) -> list[Path]:
             continue
         fig = make(plt, entries)
         fig.tight_layout()
-        paths.append(out_dir / filename)
-        fig.savefig(paths[-1], dpi=110)
+        paths.append(saver.save_figure(fig, out_dir / filename, "--plots", dpi=110))
         plt.close(fig)
+    if own:
+        saver.check()
     return paths

@@ -7,7 +7,6 @@ line on stderr with a non-zero exit status.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -48,6 +47,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     """Turn ``["episode.duration_s=20", "imu.preset=ideal"]`` into nested override mappings.
 
     Values are parsed as YAML (numbers, booleans, lists); keys are ``section.key[.key...]``.
+    A key given twice (or a YAML value that repeats a key) is an error, not "last one wins".
     """
     import yaml
 
@@ -70,6 +70,8 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
             node = node.setdefault(part, {})
             if not isinstance(node, dict):
                 raise ValueError(f"--set: {key!r} conflicts with another --set")
+        if parts[-1] in node:
+            raise ValueError(f"--set {key}: given twice; allowed: each key once")
         node[parts[-1]] = value
     return out
 
@@ -102,6 +104,23 @@ def make_env(
     return gym.make(env_id, **kwargs)
 
 
+def check_outputs(plots: Path | None, json_path: Path | None, video: Path | None) -> None:
+    """Check every output path of ``run``/``evaluate`` before anything is flown.
+
+    Raises:
+        agents.outputs.OutputPathError: One-line message naming the option and the path.
+    """
+    from agents.outputs import check_output_dir, check_output_file
+    from agents.video import check_video_path
+
+    if json_path is not None:
+        check_output_file(json_path, "--json")
+    if video is not None:
+        check_video_path(video)
+    if plots is not None:
+        check_output_dir(plots, "--plots")
+
+
 def fly(
     env: Any,
     policy: Any,
@@ -112,11 +131,23 @@ def fly(
     video: Path | None = None,
 ) -> dict[str, Any]:
     """Fly ``policy`` for each seed with a progress bar, print the table, write JSON/plots
-    (and a video of the first seed's episode)."""
+    (and a video of the first seed's episode).
+
+    The output paths are checked before the flight (:func:`check_outputs`); the files are
+    written atomically, and one that cannot be written at the end is saved elsewhere
+    (:class:`agents.outputs.Saver`).
+
+    Raises:
+        agents.outputs.OutputPathError: An output path cannot be written (before flying).
+        agents.outputs.OutputWriteError: After every result was written somewhere, when a
+            file could not be written where asked (the message says where it went).
+    """
     from agents.evaluation import Trace, format_table, run_episodes, summarize
+    from agents.outputs import Saver
     from agents.video import LaneVideo
 
-    recorder = None if video is None else LaneVideo(video)  # checks the path before flying
+    check_outputs(plots, json_path, video)
+    recorder = None if video is None else LaneVideo(video)
     base = env.unwrapped
     total = base.max_steps * len(seeds)
     trace = Trace() if plots is not None else None
@@ -138,20 +169,23 @@ def fly(
         "summary": summary,
     }
     print(format_table(episodes, summary))
+    saver = Saver()
+    if json_path is not None:  # the smallest and most precious file first
+        print(f"json: {saver.write_json(json_path, result, '--json')}")
     if plots is not None and trace is not None:
         from agents.plots import write_figures
 
         files = write_figures(
-            trace, plots, f"{base.scenario.name} / {base.scenario.estimator.name} / seed {seeds[0]}"
+            trace,
+            plots,
+            f"{base.scenario.name} / {base.scenario.estimator.name} / seed {seeds[0]}",
+            saver,
         )
-        print(f"figures: {plots} ({len(files)} PNG)")
+        print(f"figures: {files[0].parent if files else plots} ({len(files)} PNG)")
     if recorder is not None:
-        recorder.close()
-        print(f"video: {video} (seed {seeds[0]}, {recorder.frames} frames)")
-    if json_path is not None:
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        json_path.write_text(json.dumps(result, indent=2))
-        print(f"json: {json_path}")
+        where = recorder.close(saver)
+        print(f"video: {where} (seed {seeds[0]}, {recorder.frames} frames)")
+    saver.check()
     return result
 
 
@@ -164,6 +198,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if plots is None and not args.no_plots:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         plots = Path("runs") / f"run-{stamp}-{env.unwrapped.scenario.name}"
+    check_outputs(plots, args.json, args.video)
     seeds = list(range(args.seed, args.seed + args.seeds))
     fly(env, DFLQRPolicy.from_env(env), "dflqr", seeds, plots, args.json, args.video)
     return 0
@@ -181,6 +216,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     # training env without the scenario files; --scenario replaces it.
     scenario = args.scenario or (cfg.get("scenario") if cfg else None)
     env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
+    check_outputs(args.plots, args.json, args.video)  # before loading and flying
     policy, name = load_policy(args.policy, env)
     seeds = list(range(args.seed, args.seed + args.episodes))
     fly(env, policy, name, seeds, args.plots, args.json, args.video)
@@ -223,8 +259,10 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an SB3 agent with ``configs/agents/<algo>.yaml`` and print the run folder."""
     from agents.hyperparams import parse_hyperparam_overrides
+    from agents.outputs import check_output_dir
     from agents.training import train
 
+    check_output_dir(args.out or Path("runs"), "--out")
     run_dir = train(
         args.algo,
         args.env,
@@ -238,6 +276,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         verbose=args.verbose,
         torch_threads=args.torch_threads,
     )
+    import json
+
     timing = json.loads((run_dir / "timing.json").read_text())
     print(f"run folder: {run_dir}")
     print(
@@ -250,20 +290,46 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_study_cost(args: argparse.Namespace) -> int:
     """Train and evaluate the cost-of-estimation configurations; print the table."""
+    from agents.outputs import Saver, check_output_dir, check_output_file
     from agents.study_cost import format_study, plot_study, run_study, write_json
 
     out = args.out or Path("runs") / f"study_cost{'_quick' if args.quick else ''}"
+    check_output_dir(out, "--out")  # every output path before the first training
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.plots is not None:
+        check_output_dir(args.plots, "--plots")
     tic = time.perf_counter()
     result = run_study(out, args.quick, args.training_seeds, args.episodes)
     result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
     print(format_study(result))
     print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
+    saver = Saver()
     if args.json is not None:
-        write_json(result, args.json)
-        print(f"wrote {args.json}")
+        where = saver.produce(args.json, "--json", lambda target: write_json(result, target))
+        print(f"wrote {where}")
     if args.plots is not None:
-        print(f"wrote {plot_study(result, args.plots)}")
+        where = saver.produce(
+            args.plots / "cost_of_estimation.png",
+            "--plots",
+            lambda target: _plot_to(plot_study, result, target),
+        )
+        print(f"wrote {where}")
+    saver.check()
     return 0
+
+
+def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
+    """Call ``plot(result, folder)`` (which writes one PNG into ``folder``) so that the PNG
+    ends up at ``target`` (a temporary folder beside it holds the PNG until it is moved)."""
+    import shutil
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix=".plot-", dir=target.parent))
+    try:
+        os.replace(plot(result, folder), target)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def build_parser() -> argparse.ArgumentParser:

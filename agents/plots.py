@@ -7,21 +7,37 @@ from pathlib import Path
 import numpy as np
 
 from agents.evaluation import Trace
+from agents.outputs import Saver
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 
 
-def write_figures(trace: Trace, out_dir: Path, title: str) -> list[Path]:
+def write_figures(
+    trace: Trace, out_dir: Path, title: str, saver: Saver | None = None
+) -> list[Path]:
     """Write the 3D path, state-estimate and landmark-error figures as PNG files.
 
+    Args:
+        trace: The recorded episode.
+        out_dir: Folder for the PNGs (created when missing).
+        title: Figure title prefix.
+        saver: Writes the files atomically and records failures (a file that cannot be
+            written goes to a fallback place); without one, a failure raises after every
+            figure was written somewhere.
+
     Returns:
-        Paths of the files written.
+        Where each file was written.
+
+    Raises:
+        agents.outputs.OutputWriteError: Without ``saver``, when a file could not be written
+            in ``out_dir``.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    own = saver is None
+    saver = saver or Saver()
     t = np.array(trace.t)
     true = np.array(trace.true_state)
     est_pos = np.array(trace.est_pos)
@@ -50,7 +66,7 @@ def write_figures(trace: Trace, out_dir: Path, title: str) -> list[Path]:
     ax.set_zlabel("altitude [m]")
     ax.set_title(title)
     ax.legend(fontsize=7)
-    paths.append(_save(fig, out_dir / "path_3d.png"))
+    paths.append(_save(saver, fig, out_dir / "path_3d.png"))
 
     def panel(
         name: str,
@@ -78,7 +94,7 @@ def write_figures(trace: Trace, out_dir: Path, title: str) -> list[Path]:
         axes[2, 0].set_xlabel("time [s]")
         axes[2, 1].set_xlabel("time [s]")
         fig.suptitle(f"{title}: {name}")
-        paths.append(_save(fig, out_dir / f"{name}.png"))
+        paths.append(_save(saver, fig, out_dir / f"{name}.png"))
 
     panel("position", ["x", "y", "z"], true[:, 0:3], est_pos, std[:, 0:3], "m")
     panel(
@@ -104,7 +120,7 @@ def write_figures(trace: Trace, out_dir: Path, title: str) -> list[Path]:
     ax.plot(t, np.linalg.norm(true_vel_n - est_vel_n, axis=1), "r-", lw=0.8)
     ax.set_xlabel("time [s]")
     ax.set_ylabel("inertial velocity error [m/s]")
-    paths.append(_save(fig, out_dir / "velocity_error.png"))
+    paths.append(_save(saver, fig, out_dir / "velocity_error.png"))
 
     if trace.est_landmarks is not None and trace.est_landmarks.size and trace.landmarks is not None:
         ids = trace.est_landmark_ids
@@ -118,14 +134,16 @@ def write_figures(trace: Trace, out_dir: Path, title: str) -> list[Path]:
             axes[i].set_ylabel(f"{label} error [m]")
         axes[2].set_xlabel("landmark id (bars: ±3σ)")
         fig.suptitle(f"{title}: landmark errors")
-        paths.append(_save(fig, out_dir / "landmarks.png"))
+        paths.append(_save(saver, fig, out_dir / "landmarks.png"))
+    if own:
+        saver.check()
     return paths
 
 
-def _save(fig: object, path: Path) -> Path:
+def _save(saver: Saver, fig: object, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()  # type: ignore[attr-defined]
-    fig.savefig(path, dpi=110)  # type: ignore[attr-defined]
+    where = saver.save_figure(fig, path, "--plots", dpi=110)
     plt.close(fig)  # type: ignore[arg-type]
-    return path
+    return where

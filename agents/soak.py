@@ -30,7 +30,6 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
@@ -43,6 +42,7 @@ import numpy as np  # noqa: E402
 
 from agents.evaluation import json_float  # noqa: E402
 from agents.memory import peak_rss_mb, rss_mb  # noqa: E402
+from agents.outputs import OutputWriteError, Saver, check_output_file  # noqa: E402
 
 SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
     "ekf_slam": ("paper_ekf_figure8", {}),
@@ -346,6 +346,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     seconds = args.seconds if args.seconds is not None else 3600.0 * (args.hours or 1.0)
     try:
+        if args.json is not None:
+            check_output_file(args.json, "--json")
         rep = run_soak(
             args.estimator,
             seconds,
@@ -361,9 +363,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     rep["command"] = "python -m agents.soak " + " ".join(argv if argv is not None else sys.argv[1:])
     print(format_report(rep))
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(rep, indent=2))
-        print(f"json: {args.json}")
+        saver = Saver()
+        print(f"json: {saver.write_json(args.json, rep, '--json')}")
+        try:
+            saver.check()
+        except OutputWriteError as exc:
+            print(f"quadslam soak: error: {exc}", file=sys.stderr)
+            return 2
     healthy = not rep["terminated"] and not rep["any_non_finite"] and not rep["health_problem"]
     return 0 if healthy else 1
 

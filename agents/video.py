@@ -12,10 +12,13 @@ second and played back at that rate, so the video runs in real time. Formats by 
 from __future__ import annotations
 
 import importlib.util
+import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from agents.outputs import Saver, check_output_file
 
 FORMATS = (".gif", ".mp4")
 
@@ -23,12 +26,12 @@ FORMATS = (".gif", ".mp4")
 def check_video_path(path: Path) -> None:
     """Fail early (before anything is flown) on a video path that cannot be written.
 
-    Missing parent folders are created, as for ``--json``; the file is opened for writing
-    once (and removed again if it did not exist).
+    Missing parent folders are created, as for ``--json``; the folder must accept a new file
+    (see :func:`agents.outputs.check_output_file`).
 
     Raises:
         ValueError: One-line message: an extension other than :data:`FORMATS`, a folder at
-            ``path``, a file or folder that cannot be created or written, or ``.mp4`` without
+            ``path``, a folder that cannot be created or written, or ``.mp4`` without
             ``imageio-ffmpeg``.
     """
     suffix = path.suffix.lower()
@@ -36,23 +39,7 @@ def check_video_path(path: Path) -> None:
         raise ValueError(
             f"--video: got {str(path)!r}; allowed: a file name ending in {' or '.join(FORMATS)}"
         )
-    if path.is_dir():
-        raise ValueError(f"--video: {str(path)!r} is a folder; allowed: a file name")
-    parent = path.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(
-            f"--video: cannot create the folder {str(parent)!r} ({exc.strerror})"
-        ) from None
-    existed = path.exists()
-    try:  # the only reliable test (permissions, read-only or virtual file systems)
-        with open(path, "ab"):
-            pass
-    except OSError as exc:
-        raise ValueError(f"--video: cannot write {str(path)!r} ({exc.strerror})") from None
-    if not existed:
-        path.unlink()
+    check_output_file(path, "--video")
     if suffix == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise ValueError(
             "--video: writing .mp4 needs imageio-ffmpeg (pip install 'quadslam[video]'); "
@@ -75,6 +62,7 @@ class VideoWriter:
         self.frames = 0
         self._gif: list[Any] = []
         self._mp4: Any = None
+        self._mp4_tmp: Path | None = None
 
     def append(self, frame: np.ndarray) -> None:
         """Add one frame (all frames must have the same size)."""
@@ -90,8 +78,10 @@ class VideoWriter:
                 import imageio_ffmpeg
 
                 height, width = frame.shape[:2]
+                # Streamed under a temporary name beside the file, renamed at close().
+                self._mp4_tmp = self.path.with_name(f".{self.path.stem}.tmp-video.mp4")
                 self._mp4 = imageio_ffmpeg.write_frames(
-                    str(self.path),
+                    str(self._mp4_tmp),
                     (width, height),
                     fps=self.fps,
                     codec="libx264",
@@ -103,20 +93,51 @@ class VideoWriter:
             self._mp4.send(np.ascontiguousarray(frame))
         self.frames += 1
 
-    def close(self) -> None:
-        """Finish the file (a GIF is written here; an MP4 stream is flushed)."""
+    def close(self, saver: Saver | None = None) -> Path:
+        """Finish the file: a GIF is written here, an MP4 stream is flushed; both are moved
+        into place atomically.
+
+        Args:
+            saver: Records a failed write (the video then goes to a fallback place, see
+                :class:`agents.outputs.Saver`); without one, a failure raises at once.
+
+        Returns:
+            Where the video was written.
+
+        Raises:
+            agents.outputs.OutputWriteError: Without ``saver``, when the file could not be
+                written where asked.
+        """
+        own = saver is None
+        saver = saver or Saver()
+        where = self.path
         if self._gif:
-            self._gif[0].save(
-                self.path,
-                save_all=True,
-                append_images=self._gif[1:],
-                duration=round(1000.0 / self.fps),
-                loop=0,
-            )
-            self._gif = []
-        if self._mp4 is not None:
+            frames, self._gif = self._gif, []
+            duration = round(1000.0 / self.fps)
+
+            def produce(target: Path) -> None:
+                frames[0].save(
+                    target,
+                    format="GIF",
+                    save_all=True,
+                    append_images=frames[1:],
+                    duration=duration,
+                    loop=0,
+                )
+
+            where = saver.produce(self.path, "--video", produce)
+        if self._mp4 is not None and self._mp4_tmp is not None:
             self._mp4.close()
             self._mp4 = None
+            tmp, self._mp4_tmp = self._mp4_tmp, None
+            try:
+                os.replace(tmp, self.path)
+            except OSError as exc:  # the finished stream stays under its temporary name
+                saver.record("--video", self.path, exc, tmp)
+                where = tmp
+        if own:
+            saver.check()
+        return where
 
 
 class LaneVideo:
@@ -161,7 +182,8 @@ class LaneVideo:
         """Frames written so far."""
         return 0 if self.writer is None else self.writer.frames
 
-    def close(self) -> None:
-        """Write the file."""
+    def close(self, saver: Saver | None = None) -> Path:
+        """Write the file (see :meth:`VideoWriter.close`); returns where it went."""
         if self.writer is not None:
-            self.writer.close()
+            return self.writer.close(saver)
+        return self.path

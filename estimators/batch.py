@@ -347,8 +347,16 @@ HEALTH_PROBLEMS = (
     "non-finite landmark means",
     "non-finite pose covariance",
     "asymmetric pose covariance",
+    "pose covariance not positive semi-definite (negative variance)",
+    "pose covariance not positive semi-definite (correlation beyond ±1)",
+    "pose covariance trace above episode.max_cov_trace",
 )
 """What :func:`health_codes` codes mean (0: healthy)."""
+
+PSD_TOLERANCE = 1e-6
+"""Round-off allowed by the positive-semi-definiteness checks, relative to the largest pose
+variance: a variance below ``-tol·scale`` or a 2×2 minor ``P_ij² − P_ii P_jj`` above
+``tol·P_ii P_jj + (tol·scale)²`` is not round-off."""
 
 
 @kernel
@@ -359,9 +367,11 @@ def _health_codes(
     lm_mapped: np.ndarray,
     cov: FloatArray,
     has_cov: bool,
+    max_trace: float,
     out: np.ndarray,
 ) -> None:
     """Fill ``out`` (B,) with the first failed check's index into :data:`HEALTH_PROBLEMS`."""
+    tol = PSD_TOLERANCE
     for b in range(out.shape[0]):
         code = 1 if diverged[b] > 0.0 else 0
         for i in range(12):  # position, vel_body, euler, rates: 3 columns each
@@ -372,29 +382,50 @@ def _health_codes(
                 if code == 0 and lm_mapped[b, j] and not math.isfinite(lm_means[b, j, i]):
                     code = 6
         if code == 0 and has_cov:
+            n = cov.shape[1]
             scale = 1e-12
+            trace = 0.0
             finite = True
-            for i in range(cov.shape[1]):
+            for i in range(n):
                 scale = max(scale, abs(cov[b, i, i]))
-                for j in range(cov.shape[2]):
+                trace += cov[b, i, i]
+                for j in range(n):
                     finite = finite and math.isfinite(cov[b, i, j])
             if not finite:
                 code = 7
             else:
-                for i in range(cov.shape[1]):
+                for i in range(n):
                     for j in range(i):
-                        if abs(cov[b, i, j] - cov[b, j, i]) > 1e-6 * scale:
+                        if code == 0 and abs(cov[b, i, j] - cov[b, j, i]) > 1e-6 * scale:
                             code = 8
+                for i in range(n):
+                    if code == 0 and cov[b, i, i] < -tol * scale:
+                        code = 9
+                for i in range(n):
+                    for j in range(i):
+                        prod = max(cov[b, i, i], 0.0) * max(cov[b, j, j], 0.0)
+                        excess = cov[b, i, j] * cov[b, i, j] - prod
+                        if code == 0 and excess > tol * prod + (tol * scale) ** 2:
+                            code = 10
+                if code == 0 and trace > max_trace:
+                    code = 11
         out[b] = code
 
 
-def health_codes(est: BatchEstimate) -> np.ndarray:
+def health_codes(est: BatchEstimate, max_cov_trace: float = math.inf) -> np.ndarray:
     """What is wrong with each lane's belief, as (B,) indices into :data:`HEALTH_PROBLEMS`.
 
     Checks (DESIGN.md §7), first failure wins: the estimator's own ``diverged`` flag, a finite
-    mean (pose, rates and mapped landmarks), a finite and symmetric pose covariance. Positive
-    semi-definiteness is tested by the Cholesky factorisation that the NEES needs anyway
-    (:func:`estimators.metrics.cholesky_nees` returns inf on failure), so it is not repeated.
+    mean (pose, rates and mapped landmarks), a finite and symmetric pose covariance with no
+    negative variance and no correlation beyond ±1 (beyond :data:`PSD_TOLERANCE` round-off),
+    and a pose-covariance trace (over ρ m², v m²/s², Λ rad²) at most ``max_cov_trace``. The
+    full positive-semi-definiteness test is the Cholesky factorisation that the NEES needs
+    anyway (:func:`estimators.metrics.cholesky_nees` returns inf on failure), so it is not
+    repeated. Every estimator is checked the same way (the oracle has no covariance).
+
+    Args:
+        est: The belief of B lanes.
+        max_cov_trace: Largest healthy trace of the 9×9 pose covariance (``inf``: no limit).
     """
     b = est.position.shape[0]
     out = np.zeros(b, dtype=np.int64)
@@ -406,11 +437,13 @@ def health_codes(est: BatchEstimate) -> np.ndarray:
         est.landmark_mapped,
         est.pose_cov if est.pose_cov is not None else np.zeros((b, 1, 1)),
         est.pose_cov is not None,
+        float(max_cov_trace),
         out,
     )
     return out
 
 
-def health_problem(est: Estimate) -> str | None:
+def health_problem(est: Estimate, max_cov_trace: float = math.inf) -> str | None:
     """What is wrong with one scalar snapshot (see :func:`health_codes`); ``None`` if healthy."""
-    return HEALTH_PROBLEMS[int(health_codes(batch_from_estimates([est]))[0])] or None
+    code = int(health_codes(batch_from_estimates([est]), max_cov_trace)[0])
+    return HEALTH_PROBLEMS[code] or None

@@ -177,6 +177,27 @@ class ImuConfig(Section):
             "accel_drift_sigma": 0.001,
             "gyro_drift_sigma": 0.001,
         },
+        # MEMS IMUs with their full-scale ranges (datasheet noise densities; no bias).
+        "mpu6000": {
+            "accel_noise_density": 400 * _MICRO_G,
+            "gyro_noise_density": 0.005 * DEG,
+            "accel_bias": [0.0] * 3,
+            "gyro_bias": [0.0] * 3,
+            "accel_drift_sigma": 0.0,
+            "gyro_drift_sigma": 0.0,
+            "accel_range_g": 16.0,
+            "gyro_range_dps": 2000.0,
+        },
+        "icm42688": {
+            "accel_noise_density": 70 * _MICRO_G,
+            "gyro_noise_density": 0.0028 * DEG,
+            "accel_bias": [0.0] * 3,
+            "gyro_bias": [0.0] * 3,
+            "accel_drift_sigma": 0.0,
+            "gyro_drift_sigma": 0.0,
+            "accel_range_g": 16.0,
+            "gyro_range_dps": 2000.0,
+        },
         "ideal": {
             "accel_noise_density": 0.0,
             "gyro_noise_density": 0.0,
@@ -189,7 +210,7 @@ class ImuConfig(Section):
     preset: str | None = _spec(
         None,
         kind="str",
-        choices=("rauniyar2023", "sadeghzadeh2021", "ideal"),
+        choices=("rauniyar2023", "sadeghzadeh2021", "mpu6000", "icm42688", "ideal"),
         optional=True,
         doc="IMU error model to start from; null = the values below",
     )
@@ -219,6 +240,21 @@ class ImuConfig(Section):
     )
     accel_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_a, m/s²")
     gyro_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_ω, rad/s")
+    accel_range_g: float | None = _spec(
+        None,
+        lo=0.5,
+        hi=1000.0,
+        optional=True,
+        doc="accelerometer full scale ±range per axis in g (9.81 m/s²), readings saturate "
+        "there; null = unlimited",
+    )
+    gyro_range_dps: float | None = _spec(
+        None,
+        lo=1.0,
+        hi=100000.0,
+        optional=True,
+        doc="gyro full scale ±range per axis in deg/s, readings saturate there; null = unlimited",
+    )
 
 
 @dataclass(frozen=True)
@@ -296,6 +332,14 @@ class LandmarksConfig(Section):
     """Landmark layout (DESIGN.md §3): ``rauniyar2023`` random points, ``poles4``, ``explicit``."""
 
     SECTION: ClassVar[str] = "landmarks"
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
+        **dict.fromkeys(
+            ("count", "azimuth_deg", "elevation_deg", "range_m", "center"),
+            ("layout", ("rauniyar2023",)),
+        ),
+        **dict.fromkeys(("pole_spacing_m", "pole_altitude_m"), ("layout", ("poles4",))),
+        "positions": ("layout", ("explicit",)),
+    }
     layout: str = _spec(
         "rauniyar2023",
         kind="str",
@@ -360,6 +404,12 @@ class TrajectoryConfig(Section):
     """Reference trajectory (flat outputs). ``center`` is NED, so altitude is ``-center[2]``."""
 
     SECTION: ClassVar[str] = "trajectory"
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
+        **dict.fromkeys(("amplitude_x_m", "amplitude_y_m"), ("kind", ("figure8",))),
+        "radius_m": ("kind", ("circle", "helix")),
+        "climb_rate_mps": ("kind", ("helix",)),
+        "period_s": ("kind", ("figure8", "circle", "helix")),
+    }
     kind: str = _spec(
         "figure8",
         kind="str",
@@ -483,6 +533,9 @@ class ActionConfig(Section):
     """Action interpretation: ``thrust_torque`` or ``thrust_rates`` (inner body-rate loop)."""
 
     SECTION: ClassVar[str] = "action"
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = dict.fromkeys(
+        ("max_rate_dps", "rate_gain_per_s"), ("mode", ("thrust_rates",))
+    )
     mode: str = _spec(
         "thrust_torque",
         kind="str",
@@ -553,6 +606,14 @@ class EpisodeConfig(Section):
     )
     nees_window_s: float = _spec(
         2.0, lo=0.0, doc="terminate when the pose NEES stays above nees_threshold this long, s"
+    )
+    max_cov_trace: float | None = _spec(
+        1e6,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="terminate (estimator divergence) when the trace of the 9×9 pose covariance "
+        "(ρ m², v m²/s², Λ rad²) exceeds this; null disables the check",
     )
     report_step_time: bool = _spec(
         False, kind="bool", doc="put the estimator's wall-clock time in info['est_step_time_ms']"
@@ -709,6 +770,15 @@ def load_scenario(
     """
     if scenario is None:
         scenario = "paper_ekf_figure8"
+    if not isinstance(scenario, str | Path | dict) or scenario == "":
+        raise ConfigError(
+            f"scenario: got {scenario!r}; allowed: a scenario name (one of "
+            f"{available_scenarios()}), a path to a YAML file or a mapping of sections"
+        )
+    if estimator_name is not None and not isinstance(estimator_name, str):
+        raise ConfigError(
+            f"estimator_name: got {estimator_name!r}; allowed: an estimator name (a string)"
+        )
     if isinstance(scenario, dict):
         data, name = scenario, str(scenario.get("name", "custom"))
     else:

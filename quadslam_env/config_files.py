@@ -51,12 +51,48 @@ def deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]
     return out
 
 
+class DuplicateKeyError(yaml.YAMLError):
+    """A YAML mapping names the same key twice (PyYAML would silently keep the last one).
+
+    Attributes:
+        key: The repeated key.
+        first_line: 1-based line of its first occurrence.
+        line: 1-based line of the repetition.
+    """
+
+    def __init__(self, key: Any, first_line: int, line: int) -> None:
+        self.key, self.first_line, self.line = key, first_line, line
+        super().__init__(
+            f"duplicate key {key!r} at line {line} (first at line {first_line}); "
+            "allowed: each key once per mapping"
+        )
+
+
 class _YamlLoader(yaml.SafeLoader):
-    """PyYAML's safe loader that also reads ``1e-4`` as a float.
+    """PyYAML's safe loader that also reads ``1e-4`` as a float and rejects duplicate keys.
 
     PyYAML follows YAML 1.1, where a float needs a dot (``1.0e-4``) and ``1e-4`` is the string
-    ``"1e-4"``; config values would then fail validation with a confusing message.
+    ``"1e-4"``; config values would then fail validation with a confusing message. A mapping
+    that repeats a key (a second ``episode:`` section) raises :class:`DuplicateKeyError`
+    instead of silently dropping the first; keys brought in by a ``<<`` merge may be
+    overridden as YAML intends.
     """
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                line = key_node.start_mark.line + 1
+                try:
+                    if key in seen:
+                        raise DuplicateKeyError(key, seen[key], line)
+                    seen[key] = line
+                except TypeError:  # an unhashable key: PyYAML reports it itself
+                    continue
+        return super().construct_mapping(node, deep=deep)
 
 
 _YamlLoader.add_implicit_resolver(
@@ -67,22 +103,50 @@ _YamlLoader.add_implicit_resolver(
 
 
 def parse_yaml(text: str) -> Any:
-    """``yaml.safe_load`` that also reads exponent floats without a dot (``1e-4``)."""
+    """``yaml.safe_load`` that also reads exponent floats without a dot (``1e-4``).
+
+    Raises:
+        yaml.YAMLError: Malformed YAML; :class:`DuplicateKeyError` for a repeated key.
+    """
     return yaml.load(text, Loader=_YamlLoader)  # a SafeLoader subclass: no arbitrary objects
 
 
-def load_yaml(path: Path) -> dict[str, Any]:
-    """Read a YAML mapping, with errors that name the file."""
+def read_text_file(path: Path, what: str = "scenario file") -> str:
+    """A UTF-8 text file's content, with errors that name the file.
+
+    Raises:
+        ConfigError: The file cannot be read or is not UTF-8 text.
+    """
     try:
-        text = path.read_text()
+        return path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ConfigError(f"scenario file {str(path)!r}: cannot be read ({exc.strerror})") from exc
+        raise ConfigError(f"{what} {str(path)!r}: cannot be read ({exc.strerror})") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{what} {str(path)!r}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at "
+            f"offset {exc.start}); allowed: a UTF-8 YAML file"
+        ) from None
+
+
+def load_yaml(path: Path) -> dict[str, Any]:
+    """Read a YAML mapping, with errors that name the file.
+
+    Raises:
+        ConfigError: Unreadable, not UTF-8, malformed YAML, a repeated key, empty (no
+            mapping at all; write ``{}`` for "all defaults"), or not a mapping.
+    """
+    text = read_text_file(path)
     try:
         data = parse_yaml(text)
+    except DuplicateKeyError as exc:
+        raise ConfigError(f"scenario file {str(path)!r}: {exc}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"scenario file {str(path)!r}: malformed YAML ({exc})") from exc
     if data is None:
-        return {}
+        raise ConfigError(
+            f"scenario file {str(path)!r}: empty (no settings); allowed: a YAML mapping of "
+            "sections (write {} to mean every default)"
+        )
     if not isinstance(data, dict):
         raise ConfigError(
             f"scenario file {str(path)!r}: got {type(data).__name__}; "

@@ -159,6 +159,10 @@ class Section:
 
     SECTION: ClassVar[str] = ""
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {}
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {}
+    """Settings that only some choices read: ``key -> (selector key, choices that use it)``.
+    A key set away from its default while the selector has another value is an error (the
+    setting would be silently ignored)."""
 
     @classmethod
     def from_dict(cls, data: Any) -> Any:
@@ -190,10 +194,44 @@ class Section:
             kwargs[name] = coerce(f"{cls.SECTION}.{name}", value, dict(fld.metadata))
         obj = cls(**kwargs)
         obj.validate()
+        obj.check_used()
         return obj
+
+    @classmethod
+    def defaults(cls) -> dict[str, Any]:
+        """Every setting's default in canonical (validated) form."""
+        return {
+            f.name: coerce(f"{cls.SECTION}.{f.name}", _default(f), dict(f.metadata))
+            for f in fields(cls)  # type: ignore[arg-type]
+        }
+
+    def check_used(self) -> None:
+        """Reject settings that the chosen layout, kind or mode ignores (see ``ONLY_FOR``).
+
+        Raises:
+            ConfigError: Names the key, its value, the selector's value and what is allowed.
+        """
+        if not self.ONLY_FOR:
+            return
+        defaults = self.defaults()
+        for key, (selector, users) in self.ONLY_FOR.items():
+            choice = getattr(self, selector)
+            value = getattr(self, key)
+            if choice not in users and value != defaults[key]:
+                shown, default = _listed(value), _listed(defaults[key])
+                raise ConfigError(
+                    f"{self.SECTION}.{key}: got {shown!r}, which {self.SECTION}.{selector} "
+                    f"{choice!r} ignores; allowed: leave it at its default ({default!r}) or "
+                    f"set {self.SECTION}.{selector} to one of {list(users)}"
+                )
 
     def validate(self) -> None:
         """Cross-field checks; overridden where needed."""
+
+
+def _listed(value: Any) -> Any:
+    """Canonical tuples back to (nested) lists, as the user wrote them."""
+    return [_listed(v) for v in value] if isinstance(value, tuple) else value
 
 
 def _default(fld: Any) -> Any:
@@ -228,5 +266,9 @@ def field_rows(section: type[Section]) -> list[FieldRow]:
         default = _default(fld)
         if isinstance(default, tuple):
             default = list(default)
-        rows.append(FieldRow(f"{section.SECTION}.{fld.name}", default, describe(meta), meta["doc"]))
+        doc = meta["doc"]
+        if fld.name in section.ONLY_FOR:
+            selector, users = section.ONLY_FOR[fld.name]
+            doc += f" (read only when {selector} is {' or '.join(users)})"
+        rows.append(FieldRow(f"{section.SECTION}.{fld.name}", default, describe(meta), doc))
     return rows

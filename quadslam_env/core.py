@@ -139,6 +139,8 @@ class SimCore:
         self.n_visible = np.zeros(b, dtype=np.int64)
         self.episode = EpisodeMetrics(b)
         self.termination = Termination(cfg.episode, self.dt, b)
+        trace = cfg.episode.max_cov_trace
+        self._max_cov_trace = math.inf if trace is None else trace
         self._cov0 = np.diag(cfg.estimator.initial_cov_diag)
         self._state0 = np.concatenate(
             [
@@ -283,8 +285,9 @@ class SimCore:
         if timed:  # the batch's estimator time per lane stepped
             info["est_step_time_ms"] = np.full(b, 1e3 * (toc - tic) / max(1, int(active.sum())))
         terminated, reasons = self.termination.check(
-            state, info["track_pos_err_m"], info["est_nees_pose"], health_codes(est), active
-        )
+            state, info["track_pos_err_m"], info["est_nees_pose"],
+            health_codes(est, self._max_cov_trace), active,
+        )  # fmt: skip
         truncated = ~terminated & (self.steps >= self.max_steps) & active
         terms = reward_terms(
             self.scenario.reward, state, ref, act, self.action_map.hover_action, terminated

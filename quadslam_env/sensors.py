@@ -22,7 +22,7 @@ from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_measure
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import specific_force_body
-from quadslam_env.types import DEG, IMU_DIM, MEAS_DIM, FloatArray
+from quadslam_env.types import DEG, GRAVITY, IMU_DIM, MEAS_DIM, FloatArray
 
 _LANE0 = np.zeros(1, dtype=int)
 
@@ -46,7 +46,8 @@ class ImuBatch:
 
     Seed 000 eq. 5–11 with a physical accelerometer (DESIGN.md §3):
     ``a_m = f_B + b0_a + b1_a + v_a``, ``ω_m = ω + b0_ω + b1_ω + v_ω``, where ``f_B`` is the
-    specific force. The drift is first-order Gauss–Markov, discretised exactly:
+    specific force; with ``accel_range_g`` / ``gyro_range_dps`` each reading saturates at the
+    sensor's full scale. The drift is first-order Gauss–Markov, discretised exactly:
     ``b1 ← e^{-T/τ} b1 + N(0, σ_b1² (1 - e^{-2T/τ}))`` (so its stationary std is σ_b1). White
     noise per sample has std ``ND · √f_s`` for noise density ND and sample rate f_s.
 
@@ -61,6 +62,8 @@ class ImuBatch:
         gyro_sigma: White-noise std per axis of the gyro in rad/s.
         bias0: (B, 6) constant biases (accel m/s², gyro rad/s).
         drift: (B, 6) current drift b1.
+        accel_range: Accelerometer full scale per axis in m/s² (inf: unlimited).
+        gyro_range: Gyro full scale per axis in rad/s (inf: unlimited).
 
     Args:
         cfg: IMU settings.
@@ -91,10 +94,14 @@ class ImuBatch:
         self._noise = np.zeros((self.num_lanes, self.BLOCK, 2 * IMU_DIM))
         self._cursor = np.full(self.num_lanes, self.BLOCK)
         self._lane_ids = np.arange(self.num_lanes)
-        # The sample kernel's constants: mass, drag, σ_a, σ_ω, decay, drift driving scale.
+        # Full-scale ranges (inf: unlimited).
+        self.accel_range = math.inf if cfg.accel_range_g is None else cfg.accel_range_g * GRAVITY
+        self.gyro_range = math.inf if cfg.gyro_range_dps is None else cfg.gyro_range_dps * DEG
+        # The sample kernel's constants: mass, drag, σ_a, σ_ω, decay, drift driving scale,
+        # accelerometer and gyro ranges.
         self._coeffs = np.array(
             [vehicle.mass, vehicle.drag, self.accel_sigma, self.gyro_sigma, self._decay,
-             self._drift_scale]
+             self._drift_scale, self.accel_range, self.gyro_range]
         )  # fmt: skip
 
     def reset(self, lanes: ArrayLike, rngs: Sequence[np.random.Generator]) -> None:
@@ -188,12 +195,15 @@ def _sample_lanes(
 ) -> None:
     """One IMU sample of each lane in ``lanes`` (see :class:`ImuBatch`), in place.
 
-    ``coeffs`` = (mass kg, drag 1/s, σ_a, σ_ω, Gauss–Markov decay a, √(1 − a²)); ``noise[i,
-    cursor[i]]`` holds lane i's 12 normals for this sample (white noise, then the drift step).
+    ``coeffs`` = (mass kg, drag 1/s, σ_a, σ_ω, Gauss–Markov decay a, √(1 − a²), accelerometer
+    range m/s², gyro range rad/s); ``noise[i, cursor[i]]`` holds lane i's 12 normals for this
+    sample (white noise, then the drift step). Each reading saturates at ±range (after noise
+    and bias, as a real sensor's output does).
     """
     mass, drag, sigma_a, sigma_g, decay, scale = (
         coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4], coeffs[5]
     )  # fmt: skip
+    a_max, g_max = coeffs[6], coeffs[7]
     for i in lanes:
         z = noise[i, cursor[i]]
         cursor[i] += 1
@@ -201,8 +211,10 @@ def _sample_lanes(
             vel_body[i, 0], vel_body[i, 1], vel_body[i, 2], thrust[i], mass, drag
         )
         for k in range(3):
-            accel[i, k] = f_b[k] + (bias0[i, k] + drift[i, k]) + sigma_a * z[k]
-            gyro[i, k] = rates[i, k] + (bias0[i, 3 + k] + drift[i, 3 + k]) + sigma_g * z[3 + k]
+            a = f_b[k] + (bias0[i, k] + drift[i, k]) + sigma_a * z[k]
+            g = rates[i, k] + (bias0[i, 3 + k] + drift[i, 3 + k]) + sigma_g * z[3 + k]
+            accel[i, k] = min(max(a, -a_max), a_max)
+            gyro[i, k] = min(max(g, -g_max), g_max)
         for k in range(6):
             drift[i, k] = decay * drift[i, k] + scale * drift_sigma[k] * z[6 + k]
 

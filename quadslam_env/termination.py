@@ -2,8 +2,10 @@
 
 ``terminated`` on a non-finite true state, tilt beyond ``max_tilt_deg``, tracking error beyond
 ``max_pos_err_m``, ground contact (``ground_z_m``), or estimator divergence: the estimator's
-health check (:func:`estimators.batch.health_codes`), a pose covariance that is not positive
-semi-definite (infinite NEES), or pose NEES above ``nees_threshold`` for ``nees_window_s``.
+health check (:func:`estimators.batch.health_codes`: non-finite values, a pose covariance that
+is asymmetric, has a negative variance or a correlation beyond ±1, or a trace above
+``max_cov_trace``), a pose covariance that is not positive semi-definite (infinite NEES), or
+pose NEES above ``nees_threshold`` for ``nees_window_s``.
 The first failed check, in that order, names the reason.
 """
 

@@ -37,6 +37,7 @@ from estimators.ekf.kernels import (
 )
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.ekf.update import first_nonfinite_lane, stacked_model, update_lanes
+from estimators.memory import check_ekf_map
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import POSE_DIM, FloatArray
 
@@ -100,6 +101,7 @@ class EkfSlamBatch:
         states (default ``lmax``), copying the old content that fits."""
         b = self.num_lanes
         slots = lmax if slots is None else slots
+        check_ekf_map(b, self.nv, slots)  # before allocating (B, n, n)
         nmax = self.nv + 3 * slots
 
         def fresh(name: str, shape: tuple[int, ...], fill: float, dtype: type) -> np.ndarray:
