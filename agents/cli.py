@@ -414,7 +414,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--torch-threads",
         type=_positive_int,
-        help="torch threads while training (default: torch's default)",
+        help="torch threads while training (default 1: small networks; see agents.training)",
     )
     tr.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     tr.add_argument("--verbose", type=int, default=0, choices=[0, 1, 2], help="SB3 verbosity")
