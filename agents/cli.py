@@ -278,6 +278,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     import json
 
+    if (run_dir / "INTERRUPTED").exists():
+        print(f"run folder: {run_dir} (partial: interrupted, model saved)", file=sys.stderr)
+        return 130  # the shell's status for SIGINT, so scripts see the run did not finish
     timing = json.loads((run_dir / "timing.json").read_text())
     print(f"run folder: {run_dir}")
     print(

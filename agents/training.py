@@ -93,6 +93,47 @@ def _make_vec_env(
     return VecMonitor(venv, filename=filename)
 
 
+def _build_model(
+    algo: str, settings: dict[str, Any], venv: Any, seed: int, verbose: int = 0
+) -> Any:
+    """The SB3 algorithm on ``venv`` with the resolved settings."""
+    policy: Any = settings["policy"]
+    if policy == ASYMMETRIC:
+        from agents.asymmetric import AsymmetricActorCriticPolicy
+
+        policy = AsymmetricActorCriticPolicy
+    return algorithms()[algo](
+        policy,
+        venv,
+        seed=seed,
+        policy_kwargs=settings["policy_kwargs"] or None,
+        verbose=verbose,
+        **settings["algo_kwargs"],
+    )
+
+
+def _check_model(algo: str, settings: dict[str, Any], env_id: str) -> None:
+    """Build the model once on a throwaway vector env of the same lanes.
+
+    SB3 validates many values only when the model is built (``n_steps=0`` is an
+    ``AssertionError``, ``learning_rate: fast`` a ``TypeError`` from the optimizer); this turns
+    them into a one-line ``ValueError`` before the run folder exists.
+
+    Raises:
+        ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason).
+    """
+    venv = _make_vec_env(env_id, settings, settings["n_envs"], 0, None)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            _build_model(algo, settings, venv, 0)
+    except (AssertionError, ValueError, TypeError, KeyError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"hyperparameters rejected by {algo.upper()}: {reason}") from None
+    finally:
+        venv.close()
+
+
 def train(
     algo: str,
     env_id: str,
@@ -178,6 +219,7 @@ def train(
     scenario_dict = scenario.to_dict() if scenario is not None else None
     probe.close()
 
+    _check_model(algo, settings, env_id)  # SB3's own checks, before any folder is written
     run_dir = new_run_dir(out_dir, algo, env_id, seed)
     config = {
         "algo": algo,
@@ -201,19 +243,7 @@ def train(
             if norm is not None:
                 gamma = settings["algo_kwargs"].get("gamma", 0.99)
                 venv = VecNormalize(venv, **{"gamma": gamma, **norm})
-            policy = settings["policy"]
-            if policy == ASYMMETRIC:
-                from agents.asymmetric import AsymmetricActorCriticPolicy
-
-                policy = AsymmetricActorCriticPolicy
-            model = algorithms()[algo](
-                policy,
-                venv,
-                seed=seed,
-                policy_kwargs=settings["policy_kwargs"] or None,
-                verbose=verbose,
-                **settings["algo_kwargs"],
-            )
+            model = _build_model(algo, settings, venv, seed, verbose)
             formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
             model.set_logger(configure(str(run_dir / "logs"), formats))
 

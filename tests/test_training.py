@@ -356,6 +356,35 @@ def test_cli_train_reports_bad_input_in_one_line(
     assert "n_stepz: unknown hyperparameter for PPO" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize(
+    ("override", "reason"), [("n_steps=0", "PPO"), ("learning_rate=fast", "PPO")]
+)
+def test_values_sb3_rejects_fail_before_the_run_folder(
+    override: str, reason: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    capsys.readouterr()
+    out = tmp_path / "runs"
+    args = ["train", "--algo", "ppo", "--env", main_env(), "--out", str(out)]
+    code = cli.main([*args, "--hyperparams", override, "n_envs=2"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"hyperparameters rejected by {reason}" in err
+    assert not out.exists() or not any(out.iterdir())  # no run folder was made
+
+
+def test_interrupted_training_exits_130(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import agents.training
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "INTERRUPTED").write_text("4096\n")
+    monkeypatch.setattr(agents.training, "train", lambda *a, **k: run)
+    code = cli.main(["train", "--algo", "ppo", "--out", str(tmp_path)])
+    assert code == 130 and "partial" in capsys.readouterr().err
+
+
 def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
     # The actions the env received inside the training pipeline (VecNormalize + residual on
     # the lanes + model) must equal TrainedPolicy.predict on the raw env.
