@@ -1,0 +1,281 @@
+"""Scenario sections of the vehicle and its sensors: ``vehicle``, ``imu``, ``lidar`` (presets of
+the papers' hardware and of common MEMS IMUs); re-exported by :mod:`quadslam_env.config`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from quadslam_env.config_schema import ConfigError, Section
+from quadslam_env.config_schema import spec as _spec
+from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams
+from quadslam_env.types import DEG, GRAVITY
+
+_MICRO_G = 1e-6 * GRAVITY
+
+
+@dataclass(frozen=True)
+class VehicleConfig(Section):
+    """Vehicle preset and overrides. ``None`` means "take the preset's value"."""
+
+    SECTION: ClassVar[str] = "vehicle"
+    preset: str = _spec(
+        "rauniyar2023",
+        kind="str",
+        choices=tuple(VEHICLE_PRESETS),
+        doc="vehicle parameters to start from (mass, inertia, limits); see the presets table",
+    )
+    mass_kg: float | None = _spec(
+        None, lo=0.0, lo_open=True, optional=True, doc="mass m in kg; null = the preset's"
+    )
+    inertia_diag: tuple[float, ...] | None = _spec(
+        None,
+        kind="vec",
+        length=3,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="principal moments of inertia (J_xx, J_yy, J_zz) in kg·m²; null = the preset's",
+    )
+    max_thrust_n: float | None = _spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="collective thrust limit in N (must exceed m g); null = the preset's",
+    )
+    max_torque_nm: tuple[float, ...] | None = _spec(
+        None,
+        kind="vec",
+        length=3,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="body torque limits (τ_x, τ_y, τ_z) in N·m; null = the preset's",
+    )
+    drag_per_s: float = _spec(
+        0.0,
+        lo=0.0,
+        hi=10.0,
+        doc="linear drag coefficient in 1/s (specific force −drag·v); 0 = none, as in the papers",
+    )
+    actuator_tau_s: float = _spec(
+        0.0, lo=0.0, hi=1.0, doc="first-order lag of thrust and torques in s; 0 = instantaneous"
+    )
+    physics_dt_s: float = _spec(
+        0.002,
+        lo=1e-5,
+        hi=0.02,
+        doc="RK4 substep of the rigid body in s (the control period must be a multiple)",
+    )
+
+    def params(self) -> VehicleParams:
+        """The :class:`VehicleParams` of the preset with this section's overrides applied."""
+        base = VEHICLE_PRESETS[self.preset]
+        mass = base.mass if self.mass_kg is None else self.mass_kg
+        inertia = base.inertia if self.inertia_diag is None else _diag(self.inertia_diag)
+        return VehicleParams(
+            name=self.preset,
+            mass=mass,
+            inertia=inertia,
+            max_thrust=base.max_thrust if self.max_thrust_n is None else self.max_thrust_n,
+            max_torque=base.max_torque if self.max_torque_nm is None else _vec(self.max_torque_nm),
+            drag=self.drag_per_s,
+            actuator_tau=self.actuator_tau_s,
+        )
+
+    def validate(self) -> None:
+        params = self.params()
+        if params.max_thrust <= params.mass * GRAVITY:
+            raise ConfigError(
+                f"vehicle.max_thrust_n: got {params.max_thrust:.3f}; allowed: > m g = "
+                f"{params.mass * GRAVITY:.3f} N (the vehicle must be able to hover)"
+            )
+
+
+def _diag(values: tuple[float, ...]) -> Any:
+    import numpy as np
+
+    return np.diag(values)
+
+
+def _vec(values: tuple[float, ...]) -> Any:
+    import numpy as np
+
+    return np.array(values, dtype=float)
+
+
+@dataclass(frozen=True)
+class ImuConfig(Section):
+    """IMU error model (seed 000 eq. 5–11; seed 001 Table 5). Noise densities per √Hz."""
+
+    SECTION: ClassVar[str] = "imu"
+    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
+        # Seed 001 Table 5: 300 µg/√Hz and 0.01 °/s/√Hz, no bias.
+        "rauniyar2023": {
+            "accel_noise_density": 300 * _MICRO_G,
+            "gyro_noise_density": 0.01 * DEG,
+            "accel_bias": [0.0] * 3,
+            "gyro_bias": [0.0] * 3,
+            "accel_drift_sigma": 0.0,
+            "gyro_drift_sigma": 0.0,
+        },
+        # Seed 000 §IV: 0.005 m/s² and 0.005 rad/s per axis; τ and σ_b1 are not given there,
+        # we use τ = 100 s and a stationary drift std of 20% of the bias.
+        "sadeghzadeh2021": {
+            "accel_noise_density": 300 * _MICRO_G,
+            "gyro_noise_density": 0.01 * DEG,
+            "accel_bias": [0.005] * 3,
+            "gyro_bias": [0.005] * 3,
+            "drift_tau_s": 100.0,
+            "accel_drift_sigma": 0.001,
+            "gyro_drift_sigma": 0.001,
+        },
+        # MEMS IMUs with their full-scale ranges (datasheet noise densities; no bias).
+        "mpu6000": {
+            "accel_noise_density": 400 * _MICRO_G,
+            "gyro_noise_density": 0.005 * DEG,
+            "accel_bias": [0.0] * 3,
+            "gyro_bias": [0.0] * 3,
+            "accel_drift_sigma": 0.0,
+            "gyro_drift_sigma": 0.0,
+            "accel_range_g": 16.0,
+            "gyro_range_dps": 2000.0,
+        },
+        "icm42688": {
+            "accel_noise_density": 70 * _MICRO_G,
+            "gyro_noise_density": 0.0028 * DEG,
+            "accel_bias": [0.0] * 3,
+            "gyro_bias": [0.0] * 3,
+            "accel_drift_sigma": 0.0,
+            "gyro_drift_sigma": 0.0,
+            "accel_range_g": 16.0,
+            "gyro_range_dps": 2000.0,
+        },
+        "ideal": {
+            "accel_noise_density": 0.0,
+            "gyro_noise_density": 0.0,
+            "accel_bias": [0.0] * 3,
+            "gyro_bias": [0.0] * 3,
+            "accel_drift_sigma": 0.0,
+            "gyro_drift_sigma": 0.0,
+        },
+    }
+    preset: str | None = _spec(
+        None,
+        kind="str",
+        choices=("rauniyar2023", "sadeghzadeh2021", "mpu6000", "icm42688", "ideal"),
+        optional=True,
+        doc="IMU error model to start from; null = the values below",
+    )
+    accel_noise_density: float = _spec(300 * _MICRO_G, lo=0.0, hi=1.0, doc="m/s²/√Hz")
+    gyro_noise_density: float = _spec(0.01 * DEG, lo=0.0, hi=1.0, doc="rad/s/√Hz")
+    accel_bias: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-5.0,
+        hi=5.0,
+        doc="constant accelerometer bias b0_a per axis, m/s²",
+    )
+    gyro_bias: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-1.0,
+        hi=1.0,
+        doc="constant gyro bias b0_ω per axis, rad/s",
+    )
+    random_bias_sign: bool = _spec(
+        False, kind="bool", doc="flip each bias component's sign at random per episode"
+    )
+    drift_tau_s: float = _spec(
+        100.0, lo=0.0, lo_open=True, doc="correlation time τ of the Gauss–Markov drift b1, s"
+    )
+    accel_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_a, m/s²")
+    gyro_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_ω, rad/s")
+    accel_range_g: float | None = _spec(
+        None,
+        lo=0.5,
+        hi=1000.0,
+        optional=True,
+        doc="accelerometer full scale ±range per axis in g (9.81 m/s²), readings saturate "
+        "there; null = unlimited",
+    )
+    gyro_range_dps: float | None = _spec(
+        None,
+        lo=1.0,
+        hi=100000.0,
+        optional=True,
+        doc="gyro full scale ±range per axis in deg/s, readings saturate there; null = unlimited",
+    )
+
+
+@dataclass(frozen=True)
+class LidarConfig(Section):
+    """FOV-limited 3D LiDAR (seed 001 Tables 3–4). FOVs are half-widths in degrees."""
+
+    SECTION: ClassVar[str] = "lidar"
+    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
+        "rauniyar2023": {
+            "azimuth_fov_deg": 45.0,
+            "elevation_fov_deg": 30.0,
+            "range_min_m": 0.0,
+            "range_max_m": 100.0,
+            "sigma_azimuth_deg": 0.33,
+            "sigma_elevation_deg": 0.30,
+            "sigma_range_m": 0.1,
+            "rate_hz": 10.0,
+        },
+        # Velodyne VLP-16: 360° azimuth, ±15° elevation, 100 m, ~3 cm range noise.
+        "vlp16": {
+            "azimuth_fov_deg": 180.0,
+            "elevation_fov_deg": 15.0,
+            "range_min_m": 0.5,
+            "range_max_m": 100.0,
+            "sigma_azimuth_deg": 0.1,
+            "sigma_elevation_deg": 0.1,
+            "sigma_range_m": 0.03,
+            "rate_hz": 10.0,
+        },
+    }
+    preset: str | None = _spec(
+        None,
+        kind="str",
+        choices=("rauniyar2023", "vlp16"),
+        optional=True,
+        doc="sensor to start from; null = the values below",
+    )
+    azimuth_fov_deg: float = _spec(
+        45.0,
+        lo=0.0,
+        hi=180.0,
+        lo_open=True,
+        doc="half-width of the azimuth field of view, deg (180 = all round)",
+    )
+    elevation_fov_deg: float = _spec(
+        30.0, lo=0.0, hi=90.0, lo_open=True, doc="half-width of the elevation field of view, deg"
+    )
+    range_min_m: float = _spec(0.0, lo=0.0, doc="minimum range of a return, m")
+    range_max_m: float = _spec(100.0, lo=0.0, lo_open=True, doc="maximum range of a return, m")
+    sigma_azimuth_deg: float = _spec(
+        0.33, lo=0.0, hi=30.0, doc="azimuth noise standard deviation, deg"
+    )
+    sigma_elevation_deg: float = _spec(
+        0.30, lo=0.0, hi=30.0, doc="elevation noise standard deviation, deg"
+    )
+    sigma_range_m: float = _spec(0.1, lo=0.0, hi=10.0, doc="range noise standard deviation, m")
+    rate_hz: float = _spec(
+        10.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1000.0,
+        doc="scan rate in Hz (must divide episode.control_hz)",
+    )
+
+    def validate(self) -> None:
+        if self.range_max_m <= self.range_min_m:
+            raise ConfigError(
+                f"lidar.range_max_m: got {self.range_max_m}; allowed: > "
+                f"lidar.range_min_m = {self.range_min_m}"
+            )
