@@ -41,7 +41,7 @@ class SelectKeys(BaseFeaturesExtractor):
     """
 
     def __init__(self, observation_space: gym.spaces.Dict, keys: tuple[str, ...]) -> None:
-        dims = [int(np.prod(observation_space[key].shape)) for key in keys]
+        dims = [int(np.prod(observation_space[key].shape or ())) for key in keys]
         super().__init__(observation_space, features_dim=sum(dims))
         self.keys = tuple(keys)
 
@@ -114,7 +114,9 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
     def _build_mlp_extractor(self) -> None:
         # ActorCriticPolicy built both extractors from features_extractor_kwargs (actor keys);
         # the critic's reads the privileged entry too.
-        self.vf_features_extractor = SelectKeys(self.observation_space, (ACTOR_KEY, PRIVILEGED_KEY))
+        space = self.observation_space
+        assert isinstance(space, gym.spaces.Dict)  # checked in __init__
+        self.vf_features_extractor = SelectKeys(space, (ACTOR_KEY, PRIVILEGED_KEY))
         self.mlp_extractor = _SplitMlpExtractor(  # type: ignore[assignment]
             self.pi_features_extractor.features_dim,
             self.vf_features_extractor.features_dim,

@@ -28,7 +28,7 @@ from agents.bench import Plan, Results
 
 # Per plan: (timed frames per sample, warm-up s, episode s, episode repeats).
 SIZES = {"tiny": (4, 0.5, 2.0, 1), "quick": (50, 10.0, 50.0, 1), "full": (100, 10.0, 50.0, 3)}
-FRAME_CASES = (
+FRAME_CASES: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("ekf_slam", "QuadSLAM-EKF-v0", {}),
     ("fastslam", "QuadSLAM-FastSLAM-v0", {}),
 )

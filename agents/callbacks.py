@@ -18,6 +18,7 @@ import time
 from collections import Counter, defaultdict
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -89,7 +90,7 @@ class EstimationMetricsCallback(BaseCallback):
 
     def _step_arrays(self) -> dict[str, np.ndarray] | None:
         """The adapter's ``step_info`` arrays, or ``None`` for another ``VecEnv``."""
-        env = self.training_env
+        env: Any = self.training_env
         while env is not None and not hasattr(env, "step_info"):
             env = getattr(env, "venv", None)
         return None if env is None else env.step_info
@@ -115,7 +116,7 @@ class EstimationMetricsCallback(BaseCallback):
                 for key, value in info.items():
                     name = self._log_name(key)
                     v = None if name is None else _finite_float(value)
-                    if v is not None:
+                    if name is not None and v is not None:
                         self._add(name, np.array([v]))
         if dones is not None:
             for i in np.flatnonzero(dones):

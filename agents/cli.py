@@ -349,8 +349,9 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--scenario", help="scenario name in configs/scenarios or a YAML path")
         p.add_argument(
             "--estimator",
-            choices=["ekf_slam", "fastslam", "fastslam_kinematic", "oracle"],
-            help="replace the scenario's estimator",
+            metavar="NAME",
+            help="replace the scenario's estimator: ekf_slam, fastslam, fastslam_kinematic, "
+            "oracle or a registered plug-in",
         )
         p.add_argument("--duration", type=_positive_float, help="episode length in s")
         p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")

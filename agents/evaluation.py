@@ -131,7 +131,8 @@ def run_episode(
     if trace is not None:
         trace.record(env)
     if video is not None:
-        video.attach(env.unwrapped.core, 0, info)
+        base: Any = env.unwrapped  # a QuadSLAMEnv
+        video.attach(base.core, 0, info)
     state, start = None, np.array([True])
     steps, info = 0, {}
     tic = time.perf_counter()
@@ -206,16 +207,17 @@ def run_episodes(
     while isinstance(layer, OrderEnforcing | PassiveEnvChecker):
         layer = layer.env
     if spec is None or spec.vector_entry_point is None or layer is not env.unwrapped:
-        max_steps = env.unwrapped.max_steps
+        scalar: Any = env.unwrapped  # a QuadSLAMEnv
+        max_steps = scalar.max_steps
         records = []
         for i, seed in enumerate(seeds):
             tick = None if on_step is None else (lambda: on_step(1))
-            first = i == 0
+            is_first = i == 0
             rec = run_episode(
-                env, policy, seed, trace if first else None, tick, video if first else None
+                env, policy, seed, trace if is_first else None, tick, video if is_first else None
             )
             if on_step is not None:
-                on_step(max_steps - round(rec["duration_s"] / env.unwrapped.dt))
+                on_step(max_steps - round(rec["duration_s"] / scalar.dt))
             records.append(rec)
         return records
     records = []

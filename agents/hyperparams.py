@@ -273,7 +273,7 @@ def resolve_settings(algo: str, entry: dict[str, Any]) -> dict[str, Any]:
     env_kwargs = full["env_kwargs"] or {}
     if not isinstance(env_kwargs, dict):
         raise ValueError(f"env_kwargs: got {env_kwargs!r}; allowed: a mapping")
-    params = inspect.signature(cls.__init__).parameters
+    params = inspect.signature(cls).parameters  # the constructor's
     algo_kwargs: dict[str, Any] = {}
     for key, value in entry.items():
         if key in RESERVED_KEYS:

@@ -19,6 +19,7 @@ import numpy as np
 from agents.wrappers import ResidualDFLQR, parse_wrapper_spec
 from quadslam_env.core import parse_reset_options
 from quadslam_env.env import lane_info
+from quadslam_env.vector_env import QuadSLAMVectorEnv
 
 # Keys of the dict observation with privileged=True (agents.asymmetric reads them).
 ACTOR_KEY = "obs"
@@ -67,8 +68,10 @@ class LaneShare:
         self.vec = gym.make_vec(
             env_id, num_envs=num_lanes, vectorization_mode="vector_entry_point", **env_kwargs
         )
-        self.base = self.vec.unwrapped
-        self.core = self.base.core
+        base = self.vec.unwrapped
+        assert isinstance(base, QuadSLAMVectorEnv)  # the id's vector entry point
+        self.base = base
+        self.core = base.core
         self.info_keys = info_keys
         spec = gym.spec(env_id)
         self.spec = replace(spec, kwargs={**spec.kwargs, **env_kwargs})
@@ -100,7 +103,7 @@ class LaneShare:
         groups: dict[int, list[int]] = {}  # lanes sharing one options object reset together
         for lane, opts in enumerate(options):
             groups.setdefault(id(opts) if opts else 0, []).append(lane)
-        obs = np.empty(self.base.observation_space.shape, dtype=np.float32)
+        obs = np.empty((len(seeds), self.core.observer.size), dtype=np.float32)
         infos: list[dict[str, Any]] = [{} for _ in seeds]
         for lanes in groups.values():
             opts = parse_reset_options(options[lanes[0]] or None)
@@ -240,11 +243,13 @@ def handle(share: LaneShare, cmd: str, data: Any) -> tuple[str, Any]:
         if cmd == "get_attr":
             return "ok", share.get_attr(*data)
         if cmd == "set_attr":
-            return "ok", share.set_attr(*data)
+            share.set_attr(*data)
+            return "ok", None
         if cmd == "call":
             return "ok", share.call(*data)
         if cmd == "close":
-            return "ok", share.close()
+            share.close()
+            return "ok", None
         return "error", ValueError(f"unknown command {cmd!r}")
     except Exception as exc:  # handed to the caller, which raises it
         return "error", exc

@@ -108,7 +108,7 @@ class TrainedPolicy:
         extras = []
         if self.vec_normalize is not None:
             extras.append("VecNormalize")
-        if self.controller is not None:
+        if self.controller is not None and self.scale is not None:
             extras.append(f"residual_dflqr(scale={self.scale.tolist()})")
         return f"TrainedPolicy({self.algo}{', ' if extras else ''}{', '.join(extras)})"
 
@@ -134,13 +134,14 @@ def _load_sb3(zip_path: Path, algo: str | None) -> tuple[Any, str]:
     if not zipfile.is_zipfile(zip_path):
         raise ValueError(f"{zip_path}: not a stable-baselines3 model (.zip) file")
     hint = algo or _algo_hint(zip_path)
-    order = [hint] if algo is not None else [*([hint] if hint else []), "ppo", "sac", "td3"]
+    order: list[str] = [*([hint] if hint else []), *([] if algo else ["ppo", "sac", "td3"])]
     errors = []
     for name in dict.fromkeys(order):
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                return algos[name].load(zip_path, device="cpu"), name
+                cls: Any = algos[name]
+                return cls.load(zip_path, device="cpu"), name
         except Exception as exc:  # SB3 raises many kinds on a foreign/corrupt archive
             errors.append(f"{name}: {type(exc).__name__}: {exc}")
     raise ValueError(f"{zip_path}: cannot load as a stable-baselines3 model ({'; '.join(errors)})")

@@ -129,6 +129,7 @@ class QuadSLAMVecEnv(VecEnv):
         self.step_info: dict[str, np.ndarray] = {}
 
     def _spawn(self, args: tuple) -> Any:
+        ctx: Any
         if "forkserver" in mp.get_all_start_methods():
             ctx = mp.get_context("forkserver")
             ctx.set_forkserver_preload(["agents.lane_share"])  # workers fork with it imported
@@ -239,7 +240,11 @@ class QuadSLAMVecEnv(VecEnv):
         self._ask([("set_attr", (attr_name, value))] * len(self._shares))
 
     def env_method(
-        self, method_name: str, *method_args: Any, indices: VecEnvIndices = None, **method_kwargs
+        self,
+        method_name: str,
+        *method_args: Any,
+        indices: VecEnvIndices = None,
+        **method_kwargs: Any,
     ) -> list[Any]:
         """Call ``method_name`` once on the vector env of each share holding some of
         ``indices``; its result is repeated for each of those lanes."""

@@ -71,7 +71,7 @@ class Board:
     ) -> Any:
         """Axes at ``rect`` (figure fractions) with per-frame :class:`Ticks` (if ``ticks``);
         the axis labels are static text."""
-        ax = self.fig.add_axes(rect)
+        ax = self.fig.add_axes((rect[0], rect[1], rect[2], rect[3]))
         ax.xaxis.set_visible(False)
         ax.yaxis.set_visible(False)
         if ticks:

@@ -11,7 +11,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from matplotlib.lines import TICKDOWN, TICKLEFT, Line2D
+from matplotlib.lines import Line2D
+from matplotlib.markers import TICKDOWN, TICKLEFT, MarkerStyle
 
 from quadslam_env.render.stamps import TextStamps
 
@@ -56,7 +57,7 @@ class Ticks:
             self.transform = ax.get_yaxis_transform()
             marker = TICKLEFT
         self.marks = Line2D(
-            [], [], ls="none", marker=marker, ms=length, mew=0.8, color="black",
+            [], [], ls="none", marker=MarkerStyle(marker), ms=length, mew=0.8, color="black",
             transform=self.transform, animated=True,
         )  # fmt: skip
         ax.add_artist(self.marks)
