@@ -260,8 +260,18 @@ def cmd_train(args: argparse.Namespace) -> int:
     """Train an SB3 agent with ``configs/agents/<algo>.yaml`` and print the run folder."""
     from agents.hyperparams import parse_hyperparam_overrides
     from agents.outputs import check_output_dir
-    from agents.training import train
+    from agents.training import resume, train
 
+    if args.resume is not None:
+        run_dir = resume(
+            args.resume,
+            progress=not args.no_progress,
+            verbose=args.verbose,
+            torch_threads=args.torch_threads,
+        )
+        return _report_run(run_dir)
+    if args.algo is None:
+        raise ValueError("--algo: required (one of ppo, sac, td3, a2c) unless --resume RUN")
     check_output_dir(args.out or Path("runs"), "--out")
     run_dir = train(
         args.algo,
@@ -276,6 +286,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         verbose=args.verbose,
         torch_threads=args.torch_threads,
     )
+    return _report_run(run_dir)
+
+
+def _report_run(run_dir: Path) -> int:
+    """Print a finished (or interrupted: status 130) run folder with its wall clock."""
     import json
 
     if (run_dir / "INTERRUPTED").exists():
@@ -396,7 +411,14 @@ def build_parser() -> argparse.ArgumentParser:
         "train",
         help="train a stable-baselines3 agent (hyperparameters from configs/agents/<algo>.yaml)",
     )
-    tr.add_argument("--algo", required=True, choices=["ppo", "sac", "td3", "a2c"])
+    tr.add_argument("--algo", choices=["ppo", "sac", "td3", "a2c"])
+    tr.add_argument(
+        "--resume",
+        type=Path,
+        metavar="RUN",
+        help="continue a run folder from its latest checkpoint (or interrupted model) to its "
+        "n_timesteps; other options are taken from the run",
+    )
     tr.add_argument(
         "--env", default="QuadSLAM-EKF-v0", help="env id and config key (default QuadSLAM-EKF-v0)"
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
@@ -12,23 +13,30 @@ def read_monitor_episodes(monitor_dir: Path) -> tuple[np.ndarray, np.ndarray, np
     """Episodes from SB3 ``*.monitor.csv`` files, in wall-clock order.
 
     Returns:
-        ``(wall-clock time at episode end in s since the start, returns, lengths)``.
+        ``(wall-clock time at episode end in s since the first session started, returns,
+        lengths)``; the episodes of a resumed run's sessions are ordered by their real time.
     """
     rows: list[tuple[float, float, int]] = []
+    starts: list[float] = []
     for path in sorted(Path(monitor_dir).glob("*.monitor.csv")):
         lines = path.read_text().splitlines()
+        try:  # '#{"t_start": …}': a resumed run's sessions each have their own file
+            t_start = float(json.loads(lines[0][1:])["t_start"])
+        except (IndexError, ValueError, KeyError, TypeError):
+            t_start = 0.0
+        starts.append(t_start)
         for line in lines[2:]:  # '#{json}' header, then 'r,l,t'
             parts = line.split(",")
             if len(parts) >= 3:
                 try:
-                    rows.append((float(parts[2]), float(parts[0]), int(float(parts[1]))))
+                    rows.append((t_start + float(parts[2]), float(parts[0]), int(float(parts[1]))))
                 except ValueError:
                     continue
     rows.sort()
     if not rows:
         return np.zeros(0), np.zeros(0), np.zeros(0, dtype=int)
     t, r, length = (np.array(c) for c in zip(*rows, strict=True))
-    return t, r, length.astype(int)
+    return t - min(starts), r, length.astype(int)
 
 
 def read_progress(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -67,7 +75,9 @@ def plot_learning_curve(run_dir: str | Path) -> Path:
     run_dir = Path(run_dir)
     t_end, returns, lengths = read_monitor_episodes(run_dir / "monitor")
     log_steps, log_wall = read_progress(run_dir)
-    paired = log_steps.size >= 2
+    # A resumed run's later sessions log elsewhere: pair through progress.csv only if it is one.
+    resumed = len(list((run_dir / "monitor").glob("*.monitor.csv"))) > 1
+    paired = log_steps.size >= 2 and not resumed
     steps = np.interp(t_end, log_wall, log_steps) if paired else np.cumsum(lengths)
     fig = Figure(figsize=(9, 8), layout="constrained")
     ax_r, ax_w, ax_l = fig.subplots(3, 1)

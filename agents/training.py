@@ -12,6 +12,7 @@ import json
 import sys
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +28,7 @@ from agents.hyperparams import (
     load_hyperparams,
     resolve_settings,
 )
-from agents.run_folder import new_run_dir, versions
+from agents.run_folder import new_run_dir, read_run_config, versions
 from agents.wrappers import make_wrapped_env
 from quadslam_env.config import deep_merge
 
@@ -59,11 +60,12 @@ def _make_vec_env(
     monitor_dir: Path | None,
     stagger: bool = False,
     info_keys: tuple[str, ...] | None = (),
+    name: str = "lanes",
 ) -> Any:
     """``n_envs`` lanes of the native vector env in this process, as an SB3 ``VecEnv``.
 
     Lane i is the env seeded ``seed + i`` (as SB3's ``make_vec_env`` seeds its envs); one
-    ``VecMonitor`` records every lane's episodes in ``monitor_dir/lanes.monitor.csv``. With
+    ``VecMonitor`` records every lane's episodes in ``monitor_dir/<name>.monitor.csv``. With
     ``stagger`` the lanes' first episodes are cut at spread lengths (``QuadSLAMVecEnv``); the
     asymmetric actor-critic policy gets the privileged dict observation.
     """
@@ -89,7 +91,7 @@ def _make_vec_env(
     filename = None
     if monitor_dir is not None:
         monitor_dir.mkdir(parents=True, exist_ok=True)
-        filename = str(monitor_dir / "lanes")
+        filename = str(monitor_dir / name)
     return VecMonitor(venv, filename=filename)
 
 
@@ -180,20 +182,8 @@ def train(
         The ``n_envs`` envs are lanes of the native vector env in this process
         (:class:`agents.vec_adapter.QuadSLAMVecEnv`).
     """
-    from stable_baselines3.common.callbacks import (
-        CallbackList,
-        CheckpointCallback,
-        EvalCallback,
-    )
-    from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.vec_env import VecNormalize
 
     import quadslam_env  # noqa: F401  (registers the ids)
-    from agents.callbacks import (
-        EstimationMetricsCallback,
-        SaveVecNormalizeCallback,
-        TqdmProgressCallback,
-    )
 
     tic = time.perf_counter()
     algo = algo.lower()
@@ -209,7 +199,6 @@ def train(
     if n_envs is not None:
         entry["n_envs"] = int(n_envs)
     settings = resolve_settings(algo, entry)
-    n = settings["n_envs"]
     threads = torch_threads
 
     # Build one env up front: validates env_kwargs / wrapper before any folder is written.
@@ -235,17 +224,133 @@ def train(
     (run_dir / "seed.txt").write_text(f"{int(seed)}\n")
     (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
 
+    return _learn(run_dir, algo, env_id, settings, seed, progress, verbose, threads, tic)
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """Where a resumed run continues: a model zip, its VecNormalize statistics, its step."""
+
+    model: Path
+    vecnormalize: Path | None
+    steps: int
+
+
+def latest_checkpoint(run_dir: Path) -> Checkpoint | None:
+    """The furthest saved point of a run: a checkpoint, or an interrupted run's model."""
+    found: list[Checkpoint] = []
+    for path in (run_dir / "checkpoints").glob("model_*_steps.zip"):
+        steps = path.stem[len("model_") : -len("_steps")]
+        if steps.isdigit():
+            pkl = path.parent / f"model_vecnormalize_{steps}_steps.pkl"
+            found.append(Checkpoint(path, pkl if pkl.is_file() else None, int(steps)))
+    marker = run_dir / "INTERRUPTED"
+    if marker.is_file() and (run_dir / "model.zip").is_file():
+        text = marker.read_text().strip()
+        if text.isdigit():
+            pkl = run_dir / "vecnormalize.pkl"
+            found.append(
+                Checkpoint(run_dir / "model.zip", pkl if pkl.is_file() else None, int(text))
+            )
+    return max(found, key=lambda c: c.steps, default=None)
+
+
+def resume(
+    run_dir: str | Path,
+    progress: bool = True,
+    *,
+    verbose: int = 0,
+    torch_threads: int | None = 1,
+) -> Path:
+    """Continue a run folder from its latest checkpoint up to its ``n_timesteps``.
+
+    The model, optimizer state, ``VecNormalize`` statistics and step count come from the
+    checkpoint (or an interrupted run's ``model.zip``); lane i restarts with seed
+    ``seed + steps + i`` (fresh episodes, not those of the first session). The new session's
+    episodes go to ``monitor/lanes_from_<steps>.monitor.csv``, its logs to
+    ``logs/from_<steps>/``; ``model.zip``, ``vecnormalize.pkl`` and ``timing.json`` are
+    replaced.
+
+    Raises:
+        ValueError: Not a run folder, nothing saved to resume from, or already finished.
+    """
+    tic = time.perf_counter()
+    run_dir = Path(run_dir)
+    config = read_run_config(run_dir)
+    if config is None:
+        raise ValueError(f"--resume {str(run_dir)!r}: not a run folder (no readable config.yaml)")
+    algo, env_id, seed = config["algo"], config["env_id"], int(config["seed"])
+    settings = resolve_settings(algo, config["hyperparams"])
+    start = latest_checkpoint(run_dir)
+    if start is None:
+        raise ValueError(
+            f"--resume {str(run_dir)!r}: no checkpoint (checkpoints/model_<N>_steps.zip) and no "
+            "interrupted model.zip to continue from"
+        )
+    if start.steps >= settings["n_timesteps"]:
+        raise ValueError(
+            f"--resume {str(run_dir)!r}: already at {start.steps} of its "
+            f"{settings['n_timesteps']} steps"
+        )
+    if settings["normalize"] is not None and start.vecnormalize is None:
+        raise ValueError(f"--resume {str(run_dir)!r}: {start.model.name} has no VecNormalize file")
+    (run_dir / "INTERRUPTED").unlink(missing_ok=True)
+    return _learn(
+        run_dir, algo, env_id, settings, seed, progress, verbose, torch_threads, tic, start
+    )
+
+
+def _learn(
+    run_dir: Path,
+    algo: str,
+    env_id: str,
+    settings: dict[str, Any],
+    seed: int,
+    progress: bool,
+    verbose: int,
+    threads: int | None,
+    tic: float,
+    start: Checkpoint | None = None,
+) -> Path:
+    """Build the lanes and the model (or load ``start``), learn, save; returns ``run_dir``."""
+    from stable_baselines3.common.callbacks import (
+        CallbackList,
+        CheckpointCallback,
+        EvalCallback,
+    )
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.callbacks import (
+        EstimationMetricsCallback,
+        SaveVecNormalizeCallback,
+        TqdmProgressCallback,
+    )
+
+    n = settings["n_envs"]
+    done = 0 if start is None else start.steps
+    suffix = "" if start is None else f"_from_{done}"
     with _torch_settings(threads):
-        venv = _make_vec_env(env_id, settings, n, seed, run_dir / "monitor", stagger=True)
+        venv = _make_vec_env(
+            env_id, settings, n, seed + done, run_dir / "monitor", True, name=f"lanes{suffix}"
+        )
         eval_venv = None
         try:
             norm = settings["normalize"]
-            if norm is not None:
+            if start is not None and start.vecnormalize is not None:
+                venv = VecNormalize.load(str(start.vecnormalize), venv)
+                venv.training = True
+            elif norm is not None:
                 gamma = settings["algo_kwargs"].get("gamma", 0.99)
                 venv = VecNormalize(venv, **{"gamma": gamma, **norm})
-            model = _build_model(algo, settings, venv, seed, verbose)
+            if start is None:
+                model = _build_model(algo, settings, venv, seed, verbose)
+            else:
+                cls: Any = algorithms()[algo]
+                model = cls.load(start.model, env=venv, device="cpu")
             formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
-            model.set_logger(configure(str(run_dir / "logs"), formats))
+            log_dir = run_dir / "logs" / suffix.lstrip("_") if start else run_dir / "logs"
+            model.set_logger(configure(str(log_dir), formats))
 
             callbacks: list[Any] = [EstimationMetricsCallback()]
             if settings["eval_freq"] > 0:
@@ -292,8 +397,9 @@ def train(
                 warnings.filterwarnings("ignore", message="Training and eval env are not of")
                 try:
                     model.learn(
-                        total_timesteps=settings["n_timesteps"],
+                        total_timesteps=settings["n_timesteps"] - done,
                         callback=CallbackList(callbacks),
+                        reset_num_timesteps=start is None,
                     )
                 except KeyboardInterrupt:
                     interrupted = True

@@ -512,3 +512,33 @@ def test_parallel_envs_run_as_lanes_and_restore_torch_threads(tmp_path: Path) ->
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert config["hyperparams"]["n_envs"] == 2
     assert (run_dir / "model.zip").is_file()
+
+
+def test_resume_continues_from_the_latest_checkpoint(tmp_path: Path) -> None:
+    from agents.training import latest_checkpoint, resume
+
+    hp = tiny("ppo", checkpoint_freq=64, eval_freq=0)
+    run = train("ppo", main_env(), timesteps=128, n_envs=2, out_dir=tmp_path, progress=False,
+                hyperparams=hp)  # fmt: skip
+    with pytest.raises(ValueError, match="already at 128"):
+        resume(run, progress=False)
+    # A crash after the 64-step checkpoint: the later files never got written.
+    for name in ("model_128_steps.zip", "model_vecnormalize_128_steps.pkl"):
+        (run / "checkpoints" / name).unlink(missing_ok=True)
+    (run / "timing.json").unlink()
+    start = latest_checkpoint(run)
+    assert start is not None and start.steps == 64
+    assert resume(run, progress=False) == run
+    timing = json.loads((run / "timing.json").read_text())
+    # PPO collects whole rollouts (64 steps × 2 lanes): from 64, one rollout passes 128.
+    assert timing["timesteps"] == 64 + 128
+    assert PPO.load(run / "model.zip", device="cpu").num_timesteps == 64 + 128
+    assert (run / "monitor" / "lanes_from_64.monitor.csv").is_file()
+    assert (run / "logs" / "from_64" / "progress.csv").is_file()
+
+
+def test_resume_needs_a_run_folder_with_something_saved(tmp_path: Path) -> None:
+    from agents.training import resume
+
+    with pytest.raises(ValueError, match="not a run folder"):
+        resume(tmp_path, progress=False)
