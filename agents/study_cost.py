@@ -148,10 +148,7 @@ def _evaluate(policy_spec: Any, target: str, env_kwargs: dict[str, Any], seeds: 
     from quadslam_env.config import deep_merge
 
     env_id, extra = EVAL_ON[target]
-    kwargs = deep_merge(env_kwargs, {k: v for k, v in extra.items() if k != "estimator_name"})
-    if "estimator_name" in extra:
-        kwargs["estimator_name"] = extra["estimator_name"]
-    env = gym.make(env_id, **kwargs)
+    env = gym.make(env_id, **deep_merge(env_kwargs, extra))
     try:
         with warnings.catch_warnings():  # evaluating off the training setup is the point here
             warnings.filterwarnings("ignore", "evaluating on a different setup than training")

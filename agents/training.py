@@ -29,7 +29,6 @@ from agents.hyperparams import (
     resolve_settings,
 )
 from agents.run_folder import new_run_dir, read_run_config, versions
-from agents.wrappers import make_wrapped_env
 from quadslam_env.config import deep_merge
 
 
@@ -114,18 +113,23 @@ def _build_model(
     )
 
 
-def _check_model(algo: str, settings: dict[str, Any], env_id: str) -> None:
-    """Build the model once on a throwaway vector env of the same lanes.
+def _check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, Any]:
+    """Build the lanes and the model once, on a throwaway vector env, before any folder exists.
 
-    SB3 validates many values only when the model is built (``n_steps=0`` is an
-    ``AssertionError``, ``learning_rate: fast`` a ``TypeError`` from the optimizer); this turns
-    them into a one-line ``ValueError`` before the run folder exists.
+    Building the lanes validates ``env_kwargs`` and the wrapper (their errors propagate as
+    they are). SB3 validates many values only when the model is built (``n_steps=0`` is an
+    ``AssertionError``, ``learning_rate: fast`` a ``TypeError`` from the optimizer); those
+    become a one-line ``ValueError``.
+
+    Returns:
+        The env's full resolved scenario (for the run's ``config.yaml``).
 
     Raises:
         ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason).
     """
     venv = _make_vec_env(env_id, settings, settings["n_envs"], 0, None)
     try:
+        scenario: dict[str, Any] = venv.get_attr("scenario", [0])[0].to_dict()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             _build_model(algo, settings, venv, 0)
@@ -134,6 +138,7 @@ def _check_model(algo: str, settings: dict[str, Any], env_id: str) -> None:
         raise ValueError(f"hyperparameters rejected by {algo.upper()}: {reason}") from None
     finally:
         venv.close()
+    return scenario
 
 
 def train(
@@ -201,14 +206,7 @@ def train(
     settings = resolve_settings(algo, entry)
     threads = torch_threads
 
-    # Build one env up front: validates env_kwargs / wrapper before any folder is written.
-    wrapper_spec = entry.get("wrapper", DEFAULTS["wrapper"])
-    probe = make_wrapped_env(env_id, settings["env_kwargs"], wrapper_spec)
-    scenario = getattr(probe.unwrapped, "scenario", None)
-    scenario_dict = scenario.to_dict() if scenario is not None else None
-    probe.close()
-
-    _check_model(algo, settings, env_id)  # SB3's own checks, before any folder is written
+    scenario_dict = _check_setup(algo, settings, env_id)  # before any folder is written
     run_dir = new_run_dir(out_dir, algo, env_id, seed)
     config = {
         "algo": algo,
