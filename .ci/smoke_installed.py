@@ -87,9 +87,9 @@ def main() -> None:
     # checks the spec and then says in one line how to get Ray.
     from agents.sweep_spec import load_spec
 
-    assert len(load_spec("seed001_table")) == 20
+    assert len(load_spec("rauniyar2023_table")) == 20
     done = subprocess.run(
-        [str(BIN / "quadslam"), "sweep", "seed001_table", "--out", "sweep"],
+        [str(BIN / "quadslam"), "sweep", "rauniyar2023_table", "--out", "sweep"],
         capture_output=True,
         text=True,
         check=False,

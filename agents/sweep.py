@@ -21,7 +21,6 @@ also cover ``run`` and ``evaluate`` jobs).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import logging
 import os
@@ -201,8 +200,8 @@ def run_jobs(
 ) -> None:
     """Run ``jobs`` as Ray tasks, at most ``limit`` at once; save each as it finishes.
 
-    A job's exception is recorded in ``report.failed`` and its ``error.txt``; Ctrl-C cancels
-    the jobs in flight (those finished stay finished) and sets ``report.interrupted``.
+    A job's exception is recorded in ``report.failed`` and its ``error.txt``; Ctrl-C stops
+    the loop (the jobs finished stay finished) and sets ``report.interrupted``.
     """
     from tqdm import tqdm
 
@@ -233,10 +232,10 @@ def run_jobs(
                 bar.update(1)
                 bar.set_postfix(failed=len(report.failed), refresh=False)
     except KeyboardInterrupt:
+        # The jobs in flight are not cancelled one by one (a forced ray.cancel racing with a
+        # task's completion can abort Ray's core worker); they end with the driver's Ray
+        # session: ray.shutdown() for a local Ray, the job's end on a cluster.
         report.interrupted = True
-        for ref in pending:
-            with contextlib.suppress(Exception):
-                ray.cancel(ref, force=True)
     finally:
         bar.close()
 

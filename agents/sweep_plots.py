@@ -20,7 +20,7 @@ import numpy as np
 
 from agents.sweep_table import SUMMARY_METRICS, varying_columns
 
-_SETTINGS = ("scenario", "env", "algo", "policy", "name")
+_SETTINGS = ("scenario", "env", "algo", "policy")
 _LABELS = {
     "est_pos_rmse_m": "estimated position RMSE [m]",
     "track_pos_rmse_m": "true tracking RMSE [m]",
@@ -45,9 +45,10 @@ def plot_sweep(df: Any, setting_cols: list[str], folder: Path, saver: Any) -> li
     swept = varying_columns(ok, [*_SETTINGS, *setting_cols])
     written = []
     for x in swept:
-        others = [c for c in ["estimator", *swept] if c != x and c in ok]
-        others = [c for c in others if ok[c].nunique(dropna=False) > 1] or ["estimator"]
-        fig = _figure_vs(ok, x, others, metrics)
+        rows = ok[ok[x].notna()]  # the jobs that set x (other blocks may not)
+        others = [c for c in ["estimator", *swept] if c != x]
+        others = [c for c in others if rows[c].nunique(dropna=False) > 1] or ["estimator"]
+        fig = _figure_vs(rows, x, others, metrics)
         name = re.sub(r"[^A-Za-z0-9_.-]+", "_", x)
         written.append(saver.save_figure(fig, folder / f"{name}.png", "--out"))
     if not swept:

@@ -123,7 +123,7 @@ def shipped_specs() -> list[str]:
 
 
 def spec_path(spec: str | Path) -> Path:
-    """A spec path, or the shipped spec of that name (``seed001_table``).
+    """A spec path, or the shipped spec of that name (``rauniyar2023_table``).
 
     Raises:
         SweepSpecError: Neither an existing file nor a shipped spec name.

@@ -123,6 +123,10 @@ def _kind(value: Any) -> str:
     return type(value).__name__
 
 
+def _text(value: Any) -> str:
+    return "-" if value is None or _is_nan(value) else str(value)
+
+
 def _is_nan(value: Any) -> bool:
     return isinstance(value, float) and math.isnan(value)
 
@@ -149,7 +153,8 @@ def summary_text(df: Any, jobs: list[Job]) -> str:
     candidates = ["kind", "name", "scenario", "estimator", "env", "algo", "policy"]
     groups = varying_columns(ok, [*candidates, *setting_columns(jobs)]) or ["scenario"]
     metrics = [m for m in SUMMARY_METRICS if ok[m].notna().any()]
-    keyed = ok.assign(**{g: ok[g].astype(str) for g in groups})
+    # A setting that a block does not set is blank (not NaN, which groupby would drop).
+    keyed = ok.assign(**{g: [_text(v) for v in ok[g]] for g in groups})
     table = keyed.groupby(groups, sort=False).agg(
         episodes=("job_id", "size"), **{m: (m, "median") for m in metrics}
     )

@@ -128,10 +128,10 @@ def test_train_block_resolves_the_agent_entry():
 
 def test_shipped_specs_are_valid():
     names = shipped_specs()
-    assert {"seed001_table", "lidar_noise", "cost_of_estimation"} <= set(names)
+    assert {"rauniyar2023_table", "lidar_noise", "cost_of_estimation"} <= set(names)
     for name in names:
         assert load_spec(name), name
-    table = load_spec("seed001_table")
+    table = load_spec("rauniyar2023_table")
     assert [j.seed for j in table] == list(range(20))
     assert {j.columns["scenario"] for j in table} == {"paper_ekf_figure8"}
 
@@ -218,7 +218,7 @@ def test_bad_spec_is_one_line_before_any_job(capsys, tmp_path, spec, expected):
 def test_missing_spec_file(capsys, tmp_path):
     code = main(["sweep", str(tmp_path / "missing.yaml")])
     line = capsys.readouterr().err.strip()
-    assert code == 2 and "missing.yaml" in line and "seed001_table" in line
+    assert code == 2 and "missing.yaml" in line and "rauniyar2023_table" in line
 
 
 def test_out_folder_with_results_needs_resume(capsys, tmp_path):
