@@ -337,13 +337,6 @@ def cmd_study_cost(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_sweep(args: argparse.Namespace) -> int:
-    """Run a sweep spec's jobs on Ray (``agents.sweep``) and collect one table."""
-    from agents.sweep import main_sweep
-
-    return main_sweep(args.spec, args.out, args.address, args.resume, args.workers)
-
-
 def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
     """Call ``plot(result, folder)`` (which writes one PNG into ``folder``) so that the PNG
     ends up at ``target`` (a temporary folder beside it holds the PNG until it is moved)."""
@@ -466,13 +459,9 @@ def build_parser() -> argparse.ArgumentParser:
     cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     cost.add_argument("--plots", type=Path, help="write the box plot (PNG) here")
     cost.set_defaults(func=cmd_study_cost)
-    sweep = sub.add_parser("sweep", help="run a grid of run/train/evaluate jobs on Ray")
-    sweep.add_argument("spec", metavar="SPEC", help="sweep spec YAML, or a shipped spec name")
-    sweep.add_argument("--address", help="join a Ray cluster: auto, HOST:PORT or ray://HOST:PORT")
-    sweep.add_argument("--out", type=Path, help="output folder (default runs/sweep_<spec>)")
-    sweep.add_argument("--resume", action="store_true", help="skip the jobs already finished")
-    sweep.add_argument("--workers", type=_positive_int, help="most jobs at once (local CPUs)")
-    sweep.set_defaults(func=cmd_sweep)
+    from agents.sweep import add_sweep_parser  # light: Ray is imported when a sweep runs
+
+    add_sweep_parser(sub, _positive_int)
     scn = sub.add_parser("scenarios", help="list the shipped scenarios with their descriptions")
     scn.set_defaults(func=cmd_scenarios)
     from agents.bench import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy

@@ -28,6 +28,7 @@ import socket
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -332,6 +333,19 @@ def write_outputs(jobs: list[Job], out: Path, report: SweepReport) -> list[Path]
     report.summary = summary_text(df, jobs)
     saver.check()
     return written
+
+
+def add_sweep_parser(sub: Any, positive_int: Callable[[str], int]) -> None:
+    """Add ``quadslam sweep`` to the CLI's subcommands (``sub``: argparse subparsers)."""
+    sweep = sub.add_parser("sweep", help="run a grid of run/train/evaluate jobs on Ray")
+    sweep.add_argument("spec", metavar="SPEC", help="sweep spec YAML, or a shipped spec name")
+    sweep.add_argument("--address", help="join a Ray cluster: auto, HOST:PORT or ray://HOST:PORT")
+    sweep.add_argument("--out", type=Path, help="output folder (default runs/sweep_<spec>)")
+    sweep.add_argument("--resume", action="store_true", help="skip the jobs already finished")
+    sweep.add_argument("--workers", type=positive_int, help="most jobs at once (local CPUs)")
+    sweep.set_defaults(
+        func=lambda args: main_sweep(args.spec, args.out, args.address, args.resume, args.workers)
+    )
 
 
 def main_sweep(

@@ -52,6 +52,10 @@ from typing import Any
 
 import yaml
 
+from agents.sweep_resolve import Resolver, SweepSpecError, is_int
+
+__all__ = ["KINDS", "Job", "SweepSpecError", "load_spec", "parse_spec", "shipped_specs"]
+
 KINDS = ("run", "evaluate", "train")
 _COMMON = ("kind", "name", "scenario", "estimator", "seed", "seeds", "set", "cpus")
 KIND_KEYS: dict[str, tuple[str, ...]] = {
@@ -72,12 +76,6 @@ KIND_KEYS: dict[str, tuple[str, ...]] = {
 #: Keys whose list value is a grid axis (``set`` and ``hyperparams`` entries are too).
 AXIS_KEYS = ("scenario", "estimator", "env", "algo", "policy", "config", "timesteps", "n_envs")
 TOP_KEYS = ("description", "jobs")
-DEFAULT_EVAL_SEED = 1000  # held-out seeds of train jobs start here (as in the study)
-DEFAULT_EPISODES = 10  # held-out episodes per train job (quadslam evaluate's default)
-
-
-class SweepSpecError(ValueError):
-    """A malformed sweep spec (one line: where, the key, the value, what is allowed)."""
 
 
 @dataclass(frozen=True)
@@ -185,7 +183,7 @@ def parse_spec(data: Any, where: str = "spec") -> list[Job]:
         )
     jobs: list[Job] = []
     seen: dict[str, int] = {}
-    validator = _Validator()
+    validator = Resolver()
     for i, block in enumerate(blocks):
         for job in _expand_block(block, i, f"{where}: jobs[{i}]", validator):
             if job.job_id in seen:
@@ -199,7 +197,7 @@ def parse_spec(data: Any, where: str = "spec") -> list[Job]:
 
 
 # ----------------------------------------------------------------------------- one block
-def _expand_block(block: Any, index: int, where: str, validator: _Validator) -> list[Job]:
+def _expand_block(block: Any, index: int, where: str, validator: Resolver) -> list[Job]:
     """Check one job block's keys and values and expand its grid."""
     if not isinstance(block, dict):
         raise SweepSpecError(f"{where}: got {block!r}; allowed: a mapping with a 'kind' key")
@@ -223,7 +221,7 @@ def _expand_block(block: Any, index: int, where: str, validator: _Validator) -> 
         raise SweepSpecError(f"{where}.name: got {name!r}; allowed: a non-empty string")
     seeds = _seeds(block, where)
     per_job = block.get("seeds_per_job", 1)
-    if not _is_int(per_job) or per_job < 1:
+    if not is_int(per_job) or per_job < 1:
         raise SweepSpecError(f"{where}.seeds_per_job: got {per_job!r}; allowed: a positive integer")
     groups = [seeds[i : i + per_job] for i in range(0, len(seeds), per_job)]
     cpus = block.get("cpus", 1)
@@ -270,7 +268,7 @@ def _seeds(block: dict[str, Any], where: str) -> list[int]:
     """``seeds`` (a count from ``seed``, or a list) as a list of seeds."""
     seeds = block.get("seeds", 1)
     first = block.get("seed", 0)
-    if not _is_int(first) or first < 0:
+    if not is_int(first) or first < 0:
         raise SweepSpecError(f"{where}.seed: got {first!r}; allowed: an integer >= 0")
     if isinstance(seeds, list):
         if "seed" in block:
@@ -281,14 +279,14 @@ def _seeds(block: dict[str, Any], where: str) -> list[int]:
         if not seeds:
             raise SweepSpecError(f"{where}.seeds: empty list; allowed: a non-empty list of seeds")
         for s in seeds:
-            if not _is_int(s) or s < 0:
+            if not is_int(s) or s < 0:
                 raise SweepSpecError(
                     f"{where}.seeds: got {s!r} in the list; allowed: integers >= 0"
                 )
         if len(set(seeds)) != len(seeds):
             raise SweepSpecError(f"{where}.seeds: got {seeds!r}; allowed: each seed once")
         return [int(s) for s in seeds]
-    if not _is_int(seeds) or seeds < 1:
+    if not is_int(seeds) or seeds < 1:
         raise SweepSpecError(
             f"{where}.seeds: got {seeds!r}; allowed: a positive number of seeds or a "
             "non-empty list of seeds"
@@ -299,18 +297,14 @@ def _seeds(block: dict[str, Any], where: str) -> list[int]:
 def _check_scalars(fixed: dict[str, Any], where: str) -> None:
     if "plots" in fixed and not isinstance(fixed["plots"], bool):
         raise SweepSpecError(f"{where}.plots: got {fixed['plots']!r}; allowed: true or false")
-    if "episodes" in fixed and (not _is_int(fixed["episodes"]) or fixed["episodes"] < 0):
+    if "episodes" in fixed and (not is_int(fixed["episodes"]) or fixed["episodes"] < 0):
         raise SweepSpecError(
             f"{where}.episodes: got {fixed['episodes']!r}; allowed: an integer >= 0"
         )
-    if "eval_seed" in fixed and (not _is_int(fixed["eval_seed"]) or fixed["eval_seed"] < 0):
+    if "eval_seed" in fixed and (not is_int(fixed["eval_seed"]) or fixed["eval_seed"] < 0):
         raise SweepSpecError(
             f"{where}.eval_seed: got {fixed['eval_seed']!r}; allowed: an integer >= 0"
         )
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _axis(value: Any, where: str) -> list[Any]:
@@ -347,18 +341,6 @@ def _dotted(entries: Any, where: str, min_parts: int) -> dict[str, Any]:
     return dict(entries)
 
 
-def nest(flat: dict[str, Any]) -> dict[str, Any]:
-    """``{"episode.duration_s": 5}`` → ``{"episode": {"duration_s": 5}}``."""
-    out: dict[str, Any] = {}
-    for key, value in flat.items():
-        node = out
-        *parents, leaf = key.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = copy.deepcopy(value)
-    return out
-
-
 def _job_id(kind: str, params: dict[str, Any], columns: dict[str, Any]) -> str:
     """``<kind>-<label>-s<seed>[+<n>]-<hash>``: readable, stable while the job is the same."""
     blob = json.dumps({"kind": kind, "params": params}, sort_keys=True, default=str)
@@ -368,200 +350,3 @@ def _job_id(kind: str, params: dict[str, Any], columns: dict[str, Any]) -> str:
     seeds = params.get("seeds") or [params["seed"]]
     more = f"+{len(seeds) - 1}" if len(seeds) > 1 else ""
     return f"{kind}-{label}-s{seeds[0]}{more}-{digest}"
-
-
-# ----------------------------------------------------------------------------- validation
-class _Validator:
-    """Resolves each grid point against the scenarios, env ids and agent YAMLs (cached)."""
-
-    def __init__(self) -> None:
-        self._scenarios: dict[str, Any] = {}
-
-    def resolve(
-        self, kind: str, point: dict[str, Any], fixed: dict[str, Any], where: str
-    ) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Job parameters and table columns of one grid point.
-
-        Raises:
-            SweepSpecError: The point names something that does not exist or is invalid.
-        """
-        try:
-            return self._resolve(kind, point, fixed, where)
-        except SweepSpecError:
-            raise
-        except (ValueError, TypeError, KeyError, FileNotFoundError) as exc:
-            message = " ".join(str(exc).split()) or type(exc).__name__
-            raise SweepSpecError(f"{where}: {message}") from None
-
-    def _resolve(
-        self, kind: str, point: dict[str, Any], fixed: dict[str, Any], where: str
-    ) -> tuple[dict[str, Any], dict[str, Any]]:
-        for key in ("scenario", "estimator", "env", "algo", "policy", "config"):
-            value = point.get(key)
-            if value is not None and (not isinstance(value, str) or not value):
-                raise SweepSpecError(
-                    f"{where}: {key}: got {value!r}; allowed: a non-empty string (a list of "
-                    "them is a grid axis)"
-                )
-        sets = {k[4:]: v for k, v in point.items() if k.startswith("set:")}
-        hps = {k[3:]: v for k, v in point.items() if k.startswith("hp:")}
-        scenario = self._scenario_arg(point.get("scenario"))
-        columns: dict[str, Any] = {}
-        if kind == "train":
-            params, resolved = self._train(point, fixed, scenario, sets, hps)
-        else:
-            params, resolved = self._fly(kind, point, fixed, scenario, sets)
-        columns.update(
-            scenario=resolved.name,
-            estimator=resolved.estimator.name,
-            env=params["env"],
-            algo=params.get("algo"),
-            policy=params.get("policy", "dflqr") if kind != "train" else params["algo"],
-        )
-        columns.update({k: _cell(v) for k, v in sets.items()})
-        columns.update({f"hyperparams.{k}": _cell(v) for k, v in hps.items()})
-        return params, columns
-
-    def _scenario_arg(self, scenario: str | None) -> str | dict[str, Any] | None:
-        """A shipped name stays a name; a YAML path is read here (the workers get its content)."""
-        from quadslam_env.config import available_scenarios, load_yaml
-
-        if scenario is None or scenario in available_scenarios():
-            return scenario
-        path = Path(scenario)
-        if path.suffix in (".yaml", ".yml") or path.exists():
-            if scenario not in self._scenarios:
-                data = load_yaml(path)
-                self._scenarios[scenario] = {"name": path.stem, **data}
-            return copy.deepcopy(self._scenarios[scenario])
-        return scenario  # load_scenario names the allowed ones
-
-    def _fly(
-        self,
-        kind: str,
-        point: dict[str, Any],
-        fixed: dict[str, Any],
-        scenario: Any,
-        sets: dict[str, Any],
-    ) -> tuple[dict[str, Any], Any]:
-        """run / evaluate: the env the job flies on, resolved as ``quadslam run`` would."""
-        policy = point.get("policy", "dflqr")
-        env_id = point.get("env")
-        if kind == "evaluate" and policy != "dflqr":
-            from agents.run_folder import run_config
-
-            path = Path(policy)
-            if not path.exists():
-                raise SweepSpecError(
-                    f"policy: got {policy!r}; allowed: 'dflqr', a run folder or a model .zip"
-                )
-            policy = str(path.resolve())
-            cfg = run_config(path)
-            env_id = env_id or (cfg["env_id"] if cfg else None)
-            if scenario is None and cfg is not None:
-                scenario = cfg.get("scenario")
-        env_id = env_id or "QuadSLAM-v0"
-        resolved = _resolve_env(env_id, scenario, point.get("estimator"), nest(sets))
-        params = {
-            "env": env_id,
-            "scenario": scenario,
-            "estimator": point.get("estimator"),
-            "overrides": nest(sets),
-            "plots": bool(fixed.get("plots", False)),
-        }
-        if kind == "evaluate":
-            params["policy"] = policy
-        return params, resolved
-
-    def _train(
-        self,
-        point: dict[str, Any],
-        fixed: dict[str, Any],
-        scenario: Any,
-        sets: dict[str, Any],
-        hps: dict[str, Any],
-    ) -> tuple[dict[str, Any], Any]:
-        """train: the agent YAML entry with the overrides, checked as ``quadslam train`` does."""
-        from agents.hyperparams import (
-            algorithms,
-            default_config_path,
-            load_hyperparams,
-            resolve_settings,
-        )
-        from quadslam_env.config import deep_merge
-
-        algo = str(point["algo"]).lower()
-        if algo not in algorithms():
-            raise SweepSpecError(f"algo: got {point['algo']!r}; allowed: {sorted(algorithms())}")
-        env_id = point.get("env", "QuadSLAM-EKF-v0")
-        config = point.get("config")
-        source = Path(config).resolve() if config is not None else default_config_path(algo)
-        for key in ("timesteps", "n_envs"):
-            value = point.get(key)
-            if value is not None and (not _is_int(value) or value < 1):
-                raise SweepSpecError(f"{key}: got {value!r}; allowed: a positive integer")
-        env_kwargs: dict[str, Any] = nest(sets)
-        if scenario is not None:
-            env_kwargs["scenario"] = scenario
-        if point.get("estimator") is not None:
-            env_kwargs["estimator_name"] = point["estimator"]
-        hyperparams = deep_merge(nest(hps), {"env_kwargs": env_kwargs} if env_kwargs else {})
-        _check_env_id(env_id)
-        entry = deep_merge(load_hyperparams(algo, env_id, source), hyperparams)
-        for key, name in (("timesteps", "n_timesteps"), ("n_envs", "n_envs")):
-            if point.get(key) is not None:
-                entry[name] = int(point[key])
-        settings = resolve_settings(algo, entry)
-        kwargs = dict(settings["env_kwargs"])
-        resolved = _resolve_env(
-            env_id, kwargs.pop("scenario", None), kwargs.pop("estimator_name", None), kwargs
-        )
-        params = {
-            "algo": algo,
-            "env": env_id,
-            # The default file is found again where the job runs (package data).
-            "config": None if config is None else str(source),
-            "hyperparams": hyperparams,
-            "timesteps": point.get("timesteps"),
-            "n_envs": point.get("n_envs"),
-            "episodes": int(fixed.get("episodes", DEFAULT_EPISODES)),
-            "eval_seed": int(fixed.get("eval_seed", DEFAULT_EVAL_SEED)),
-        }
-        return params, resolved
-
-
-def _check_env_id(env_id: str) -> None:
-    import gymnasium as gym
-
-    import quadslam_env
-
-    if env_id not in gym.registry:
-        raise SweepSpecError(
-            f"env: got {env_id!r}; allowed: one of {list(quadslam_env.ENV_IDS)} or another "
-            "registered Gymnasium id"
-        )
-
-
-def _resolve_env(env_id: str, scenario: Any, estimator: str | None, overrides: dict) -> Any:
-    """The ``ScenarioConfig`` that ``gymnasium.make(env_id, ...)`` would build (no env)."""
-    import gymnasium as gym
-
-    from quadslam_env.config import load_scenario
-
-    _check_env_id(env_id)
-    kwargs = {**gym.spec(env_id).kwargs, **overrides}
-    if scenario is not None:
-        kwargs["scenario"] = scenario
-    if estimator is not None:
-        kwargs["estimator_name"] = estimator
-    kwargs.pop("render_mode", None)
-    name = kwargs.pop("scenario", None)
-    swap = kwargs.pop("estimator_name", None)
-    return load_scenario(name, kwargs, swap)
-
-
-def _cell(value: Any) -> Any:
-    """A table cell: scalars as they are, lists and mappings as JSON text."""
-    if value is None or isinstance(value, bool | int | float | str):
-        return value
-    return json.dumps(value, sort_keys=True)
