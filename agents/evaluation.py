@@ -54,6 +54,12 @@ _FROM_INFO = {
     "accel_bias_rel_err": "episode_accel_bias_rel_err",
     "gyro_bias_rel_err": "episode_gyro_bias_rel_err",
 }
+# Unknown data association (``lidar.association: unknown``) adds these to the record.
+_ASSOCIATION_FROM_INFO = {
+    "assoc_wrong_rate": "episode_assoc_wrong_rate",
+    "assoc_missed_rate": "episode_assoc_missed_rate",
+    "spurious_landmarks": "episode_spurious_landmarks",
+}
 MAX_LANES = 64  # episodes flown at once by run_episodes
 
 
@@ -167,6 +173,9 @@ def episode_record(
     }
     for key, src in _FROM_INFO.items():
         record[key] = json_float(info.get(src, math.nan))
+    for key, src in _ASSOCIATION_FROM_INFO.items():
+        if src in info:
+            record[key] = json_float(info[src])
     record["steps_per_s"] = steps / wall_s if wall_s > 0 else math.nan
     return record
 
@@ -282,7 +291,8 @@ def _run_lanes(
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
     """Median, min and max over episodes of each numeric key (NaNs ignored; None if all NaN)."""
     out: dict[str, dict[str, float | None]] = {}
-    for key in SUMMARY_KEYS:
+    extra = [k for k in _ASSOCIATION_FROM_INFO if episodes and k in episodes[0]]
+    for key in (*SUMMARY_KEYS, *extra):
         vals = np.array([np.nan if e[key] is None else e[key] for e in episodes], dtype=float)
         vals = vals[np.isfinite(vals)]
         out[key] = (
@@ -308,6 +318,12 @@ def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) ->
         ("steps/s", "steps_per_s", "{:.0f}"),
         ("end", "termination_reason", "{}"),
     ]
+    if episodes and "assoc_wrong_rate" in episodes[0]:
+        cols[-2:-2] = [
+            ("wrong", "assoc_wrong_rate", "{:.3f}"),
+            ("missed", "assoc_missed_rate", "{:.3f}"),
+            ("spurious", "spurious_landmarks", "{:.0f}"),
+        ]
 
     def cell(fmt: str, value: Any) -> str:
         if value is None or (isinstance(value, float) and not math.isfinite(value)):

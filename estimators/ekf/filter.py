@@ -28,6 +28,8 @@ import numpy as np
 
 from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
+from estimators.association import UNASSOCIATED, joint_thresholds
+from estimators.ekf.associate import associate_lanes
 from estimators.ekf.kernels import (
     D_NIS,
     DIAGNOSTIC_NAMES,
@@ -38,10 +40,14 @@ from estimators.ekf.kernels import (
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.ekf.update import first_nonfinite_lane, stacked_model, update_lanes
 from estimators.memory import check_ekf_map
+from estimators.tentative import Candidates
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import POSE_DIM, FloatArray
 
 _AR3 = np.arange(3)
+CANDIDATE_SLOTS = 64
+"""Tentative landmarks per lane (unknown association); a return finding all in use is
+dropped (clutter 10 per scan with a window of 5 scans uses about 50)."""
 
 
 @register_batch("ekf_slam")
@@ -66,6 +72,7 @@ class EkfSlamBatch:
     """
 
     uses_truth = False
+    associates_unlabeled = True
 
     def __init__(
         self, num_lanes: int, landmark_capacity: int, vehicle: Any = None, **params: Any
@@ -87,6 +94,9 @@ class EkfSlamBatch:
         self._diag[D_NIS] = math.nan
         self._vel_inertial = np.zeros((b, 3))
         self._accel_bias = np.zeros((b, 3))
+        self._candidates = Candidates(b, CANDIDATE_SLOTS)
+        self._assoc = np.zeros((b, 0), dtype=np.int64)
+        self._thresholds = joint_thresholds(0, settings.gate_probability)
         self._allocate(max(int(landmark_capacity), 0))
 
     def __getstate__(self) -> dict[str, Any]:
@@ -226,11 +236,13 @@ class EkfSlamBatch:
             self._id_of_slot[lane] = -1
             self._mapped[lane] = False
             self._known_pos[lane] = 0.0
+            self._assoc[lane] = UNASSOCIATED
             known = maps[j]
             self._known[lane] = known is not None
             if known is not None:
                 self._known_pos[lane, known[0]] = known[1]
                 self._mapped[lane, known[0]] = True
+        self._candidates.clear(lanes)
         self._fit_state_slots()
 
     @staticmethod
@@ -360,6 +372,77 @@ class EkfSlamBatch:
             r_diag,
             self.gate_threshold,
         )
+
+    def update_unlabeled(
+        self,
+        t: FloatArray,
+        lanes: IntArray,
+        count: np.ndarray,
+        returns: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Associate ``lanes``' unlabeled returns, then correct as :meth:`update` does.
+
+        The association front end (:mod:`estimators.ekf.associate`: χ² gate, NN or JCBB,
+        tentative landmarks under the M-of-N rule) labels the returns with map slots (or the
+        known map's ids); :attr:`last_association` holds each return's label afterwards.
+
+        Args:
+            t: (B,) scan times in s (unused).
+            lanes: (k,) int, lanes that scan.
+            count: (B,) int returns per lane.
+            returns: (B, R, 3) returns (α rad, β rad, δ m), in any order; rows ``≥ count``
+                are not read.
+            sigma: (3,) measurement noise stds (σ_α rad, σ_β rad, σ_δ m).
+
+        Raises:
+            ValueError: On a non-finite return (nothing is changed then).
+        """
+        lanes = np.ascontiguousarray(lanes, dtype=np.int64).reshape(-1)
+        count = np.ascontiguousarray(count, dtype=np.int64)
+        returns = np.ascontiguousarray(returns, dtype=float)
+        width = returns.shape[1]
+        present = np.arange(width) < count[:, None]
+        bad = first_nonfinite_lane(lanes, present, returns)
+        if bad >= 0:
+            raise ValueError(f"update: lane {bad}: scan measurements must be finite")
+        if self._assoc.shape[1] < width:
+            self._assoc = np.full((self.num_lanes, width), UNASSOCIATED, dtype=np.int64)
+            self._thresholds = joint_thresholds(width, self.settings.gate_probability)
+        self._assoc[lanes] = UNASSOCIATED
+        if lanes.size == 0:
+            return
+        self._ensure_ids(int(((self._n[lanes] - self.nv) // 3 + count[lanes]).max()))
+        lcap = self.landmark_capacity
+        visible = np.zeros((self.num_lanes, lcap), dtype=bool)
+        meas = np.zeros((self.num_lanes, lcap, 3))
+        r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
+        cand = self._candidates
+        associate_lanes(
+            self._x, self._P, self._n, self.nv, self._stale, self._slot_of_id, self._mapped,
+            self._known, self._known_pos, lanes, count, returns, r_diag, self.gate_threshold,
+            self._thresholds, self.settings.association == "jcbb", cand.pos, cand.cov,
+            cand.hits, cand.age, cand.matched, self.settings.confirm_hits,
+            self.settings.confirm_window, visible, meas, self._assoc,
+        )  # fmt: skip
+        self.update(t, lanes, visible, meas, sigma)
+        # A label whose registration failed (a diverged step) names no map entry.
+        rows = self._assoc[lanes]
+        mapped = np.take_along_axis(self._mapped[lanes], np.maximum(rows, 0), axis=1)
+        self._assoc[lanes] = np.where(mapped, rows, UNASSOCIATED)
+
+    @property
+    def last_association(self) -> np.ndarray:
+        """(B, R) int label of each return of the lanes' last unlabeled scans (-1: none):
+        map slots in SLAM lanes, known-map ids in known-map lanes (read only)."""
+        out = self._assoc.view()
+        out.flags.writeable = False
+        return out
+
+    @property
+    def tentative_count(self) -> np.ndarray:
+        """(B,) int tentative landmarks each lane holds (unknown association)."""
+        return self._candidates.active()
 
     # ------------------------------------------------------------------ output
     def estimate(self) -> BatchEstimate:

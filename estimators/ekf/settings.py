@@ -27,7 +27,13 @@ _TYPES: dict[str, type | tuple[type, ...]] = {
     "accel_bias_walk": (float, int),
     "gate_probability": (float, int),
     "imu_noise_in_q": bool,
+    "association": str,
+    "confirm_hits": int,
+    "confirm_window": int,
 }
+
+ASSOCIATION_METHODS = ("nn", "jcbb")
+"""``estimator.params.association`` choices: nearest neighbour, joint compatibility B&B."""
 
 
 def _check_nonneg(key: str, value: float) -> float:
@@ -67,6 +73,17 @@ class EkfSlamSettings:
     to the discrete process noise (needed for consistency; False reproduces the paper, which
     only uses Q).
 
+    With ``lidar.association: unknown`` (unlabeled returns, :mod:`estimators.ekf.associate`):
+
+    ``association`` (``nn`` | ``jcbb``, default ``jcbb``): nearest neighbour or joint
+    compatibility branch and bound, both gated at ``gate_probability``
+    (:mod:`estimators.association`).
+
+    ``confirm_hits`` (int ≥ 1, default 3) and ``confirm_window`` (int ≥ confirm_hits,
+    default 5): a return that gates with no map landmark starts a tentative landmark, which
+    enters the map once it has been re-observed in ``confirm_hits`` of its first
+    ``confirm_window`` scans and is dropped otherwise (:mod:`estimators.tentative`).
+
     Known-map mode (localisation only, the paper's known-landmarks case) is not a setting: it
     is chosen per run by passing a known map at reset (the env does so when the scenario sets
     ``estimator.known_map: true``).
@@ -80,6 +97,9 @@ class EkfSlamSettings:
     accel_bias_walk: float = 1e-3
     gate_probability: float = 0.99
     imu_noise_in_q: bool = True
+    association: str = "jcbb"
+    confirm_hits: int = 3
+    confirm_window: int = 5
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> EkfSlamSettings:
@@ -102,7 +122,27 @@ class EkfSlamSettings:
             raise ValueError(
                 f"estimator.params.gate_probability: got {prob!r}; allowed: 0 < p <= 1"
             )
+        method = params.get("association", "jcbb")
+        if method not in ASSOCIATION_METHODS:
+            raise ValueError(
+                f"estimator.params.association: got {method!r}; allowed: one of "
+                f"{list(ASSOCIATION_METHODS)}"
+            )
+        hits = params.get("confirm_hits", 3)
+        window = params.get("confirm_window", 5)
+        if isinstance(hits, bool) or not 1 <= hits <= 1000:
+            raise ValueError(
+                f"estimator.params.confirm_hits: got {hits!r}; allowed: an integer in [1, 1000]"
+            )
+        if isinstance(window, bool) or not hits <= window <= 1000:
+            raise ValueError(
+                f"estimator.params.confirm_window: got {window!r}; allowed: an integer in "
+                f"[confirm_hits = {hits}, 1000]"
+            )
         return cls(
+            association=method,
+            confirm_hits=int(hits),
+            confirm_window=int(window),
             process_noise=tuple(_check_nonneg("process_noise", e) for e in q),
             estimate_imu_bias=bool(params.get("estimate_imu_bias", False)),
             gyro_bias_sigma0=_check_nonneg(
