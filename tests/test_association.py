@@ -129,7 +129,7 @@ def test_jcbb_rejects_a_pairing_that_is_only_individually_compatible() -> None:
 @pytest.mark.parametrize("seed", range(20))
 def test_nearest_neighbour_is_the_greedy_assignment(seed: int) -> None:
     rng = np.random.default_rng(100 + seed)
-    nu, S, d2 = _case(rng, int(rng.integers(1, 7)), int(rng.integers(1, 7)), spread=2.0)
+    _, _, d2 = _case(rng, int(rng.integers(1, 7)), int(rng.integers(1, 7)), spread=2.0)
     gate = chi2_threshold(3, PROB)
     out = np.empty(d2.shape[0], dtype=np.int64)
     nearest_neighbour(d2, gate, out)

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
-from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.ekf.associate import associate_lanes
 from estimators.ekf.kernels import (
     D_NIS,
