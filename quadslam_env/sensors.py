@@ -532,7 +532,8 @@ class Lidar:
             out = self._batch.returns(*args)
             n = int(out.count[0])
             truth = out.truth[0, :n]
-            self.last_truth = np.where(truth >= 0, np.asarray(landmark_ids)[truth], -1)
+            ids = np.append(np.asarray(landmark_ids, dtype=np.int64), -1)  # [-1]: clutter
+            self.last_truth = ids[truth]
             return LidarScan(t=t, ids=None, meas=out.meas[0, :n].copy(), sigma=self.sigma)
         visible, meas = self._batch.scan(*args)
         mask = visible[0]
