@@ -33,6 +33,22 @@ FREE = -1
 
 
 @kernel
+def m_of_n(hits: int, age: int, confirm_hits: int, confirm_window: int) -> int:
+    """The M-of-N rule at the end of a scan for a tentative landmark with ``hits`` hits, now
+    in its scan number ``age`` (0: the scan that created it).
+
+    Returns:
+        1 to confirm (M = ``confirm_hits`` reached), -1 to drop (its N = ``confirm_window``
+        scans are over without), 0 to keep waiting.
+    """
+    if hits >= confirm_hits:
+        return 1
+    if age + 1 >= confirm_window:
+        return -1
+    return 0
+
+
+@kernel
 def observe_candidate(
     pos: FloatArray,
     cov: FloatArray,

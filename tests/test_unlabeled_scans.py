@@ -193,7 +193,7 @@ def test_ekf_with_unlabeled_returns_equals_the_labeled_filter_when_association_i
     from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
 
     rng = np.random.default_rng(4)
-    wide = {"gate_probability": 1.0 - 1e-12}
+    wide = {"gate_probability": 1.0 - 1e-12}  # the new-landmark gate takes the same
     labeled = EkfSlam(**wide)
     unlabeled = EkfSlam(**wide, association=method, confirm_hits=1, confirm_window=1)
     lms = np.array(AHEAD, dtype=float)

@@ -1,22 +1,30 @@
-"""Numba kernel of EKF-SLAM's data association front end (``lidar.association: unknown``).
+"""Numba kernels of EKF-SLAM's data association front end (``lidar.association: unknown``).
 
 For each scanning lane, :func:`associate_lanes` turns the unlabeled returns into the labeled
-scan that :func:`estimators.ekf.update.update_lanes` corrects with (seed 004 §5):
+scan that :func:`estimators.ekf.update.update_lanes` corrects with (seed 004 §5), and
+:func:`settle_tentative` then applies the M-of-N rule:
 
-1. every mapped (or known) landmark is predicted with the joint innovation covariance
-   ``S = H P Hᵀ + R`` of :func:`~estimators.ekf.update.innovation_covariance` (the same
-   model the update uses);
+1. every landmark in the state (confirmed or tentative) or in the known map is predicted
+   with the joint innovation covariance ``S = H P Hᵀ + R`` of
+   :func:`~estimators.ekf.update.innovation_covariance` (the update's own model);
 2. each (return, landmark) pair is gated on its individual 3-DOF NIS and the returns are
    associated by nearest neighbour or JCBB (:mod:`estimators.association`);
-3. a return that gates with *no* landmark feeds the lane's tentative landmarks
-   (:mod:`estimators.tentative`, the M-of-N rule); the return that confirms a candidate is
-   labeled with the next free map slot, so ``update_lanes`` registers it (eq. 44–53);
-4. a return that gates with some landmark but is left unpaired (an ambiguous return) is
-   dropped, as is every unpaired return of a known-map lane.
+3. a return outside a wider gate (``new_landmark_probability``) of every landmark starts a
+   **tentative** landmark (the wider gate keeps a true landmark's rare return outside the
+   association gate from starting a duplicate of it): it is registered
+   at once like any new landmark (eq. 44–53, so the map is anchored from the first sight,
+   as with known association) under the lowest free label, and flagged tentative;
+4. a return that is within the wider gate of some landmark but left unpaired, and every unpaired
+   return of a known-map lane, is dropped;
+5. after the update, a tentative landmark paired in ``confirm_hits`` (M) of its first
+   ``confirm_window`` (N) scans is confirmed; one whose N scans pass without is removed from
+   the state (:func:`remove_landmark`: deleting a landmark's rows and columns of x and P is
+   exact marginalisation, and a false return that no later return paired has given the pose
+   no information, so clutter leaves no trace).
 
-The labels of an unknown-map lane are its map slots in order of confirmation (they are the
-estimator's own names, unrelated to the simulator's landmark ids); a known-map lane labels
-returns with the known map's ids.
+Labels are the estimator's own names for landmarks (unrelated to the simulator's ids), reused
+after a removal; a known-map lane labels returns with the known map's ids. Tentative
+landmarks are not reported as mapped, and a return paired with one counts as unassociated.
 """
 
 from __future__ import annotations
@@ -24,11 +32,11 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.association import UNASSOCIATED, individual_nis, jcbb, nearest_neighbour
-from estimators.ekf.kernels import sync_lane
-from estimators.ekf.update import innovation, innovation_covariance, inverse_measurements
-from estimators.tentative import age_candidates, observe_candidate
+from estimators.ekf.kernels import D_N_MAPPED, sync_lane
+from estimators.ekf.update import innovation, innovation_covariance
+from estimators.tentative import m_of_n
 from quadslam_env.models.jit import kernel
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import FloatArray
 
 
 @kernel
@@ -47,15 +55,12 @@ def associate_lanes(
     returns: FloatArray,
     r_diag: FloatArray,
     gate: float,
+    new_gate: float,
     thresholds: FloatArray,
     use_jcbb: bool,
-    cand_pos: FloatArray,
-    cand_cov: FloatArray,
-    cand_hits: np.ndarray,
-    cand_age: np.ndarray,
-    cand_matched: np.ndarray,
-    confirm_hits: int,
-    confirm_window: int,
+    tentative: np.ndarray,
+    hits: np.ndarray,
+    age: np.ndarray,
     visible: np.ndarray,
     meas: FloatArray,
     assoc: np.ndarray,
@@ -70,19 +75,16 @@ def associate_lanes(
         returns: (B, R, 3) returns (α rad, β rad, δ m); rows ``≥ count[b]`` unused.
         r_diag: (3,) measurement noise variances.
         gate: Individual-compatibility threshold χ²₃(p).
+        new_gate: A return within this NIS (≥ ``gate``) of a landmark never starts a new one.
         thresholds: (≥ R + 1,) joint-compatibility thresholds χ²_{3k}(p) (JCBB).
         use_jcbb: JCBB when True, else nearest neighbour.
-        cand_pos, cand_cov, cand_hits, cand_age, cand_matched: (B, T, …) tentative
-            landmarks per lane (:mod:`estimators.tentative`).
-        confirm_hits, confirm_window: The M-of-N rule.
+        tentative, hits, age: (B, Lcap) per label: tentative flag, scans paired, scans since
+            creation; new tentative labels are written here.
         visible: (B, Lcap) bool, written for the scanning lanes: the labels returned.
         meas: (B, Lcap, 3), written: the return of each label.
         assoc: (B, R) int, written for the scanning lanes: each return's label or -1.
     """
     lmax = mapped.shape[1]
-    lm1 = np.empty((1, 3))
-    Plx = np.empty((3, POSE_DIM))
-    Pll = np.empty((3, 3))
     for b in lanes:
         xb, Pb, nb = x[b], P[b], n[b]
         if stale[b]:
@@ -120,28 +122,109 @@ def associate_lanes(
             individual_nis(nu, S, d2)
             for i in range(r):
                 for a in range(m):
-                    gated[i] = gated[i] or d2[i, a] <= gate
+                    gated[i] = gated[i] or d2[i, a] <= new_gate
             if use_jcbb:
                 jcbb(nu, S, d2, gate, thresholds, paired)
             else:
                 nearest_neighbour(d2, gate, paired)
-        n_new = 0
-        first_free = (nb - nv) // 3
+        free = 0
         for i in range(r):
             if paired[i] >= 0:
                 label = ids[paired[i]]
+                hits[b, label] += 1
             elif gated[i] or known[b]:
                 continue  # ambiguous, or not in a known map: dropped
-            else:
-                inverse_measurements(xb, Pb, POSE_DIM, returns[b, i : i + 1], r_diag, lm1, Plx, Pll)
-                if not observe_candidate(
-                    cand_pos[b], cand_cov[b], cand_hits[b], cand_age[b], cand_matched[b],
-                    lm1[0], Pll, gate, confirm_hits,
-                ):  # fmt: skip
-                    continue
-                label = first_free + n_new
-                n_new += 1
+            else:  # a new tentative landmark under the lowest free label
+                while free < lmax and (mapped[b, free] or visible[b, free]):
+                    free += 1
+                if free == lmax:
+                    continue  # no label left (the caller reserves enough)
+                label = free
+                tentative[b, label] = True
+                hits[b, label] = 1
+                age[b, label] = 0
             visible[b, label] = True
             meas[b, label] = returns[b, i]
             assoc[b, i] = label
-        age_candidates(cand_age[b], cand_matched[b], confirm_window)
+
+
+@kernel
+def remove_landmark(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    nv: int,
+    slot_of_id: np.ndarray,
+    id_of_slot: np.ndarray,
+    label: int,
+) -> None:
+    """Delete landmark ``label`` from one lane's state: its 3 entries of x and rows and
+    columns of P (marginalisation); later slots move down by one. The caller sets
+    ``n -= 3`` and unmaps the label."""
+    s = slot_of_id[label]
+    c = nv + 3 * s
+    m = nb - 3
+    for i in range(c, m):
+        xb[i] = xb[i + 3]
+        for j in range(nb):
+            Pb[i, j] = Pb[i + 3, j]
+    for i in range(m):
+        for j in range(c, m):
+            Pb[i, j] = Pb[i, j + 3]
+    for i in range(m, nb):
+        xb[i] = 0.0
+        for j in range(nb):
+            Pb[i, j] = 0.0
+            Pb[j, i] = 0.0
+    n_slots = (nb - nv) // 3
+    for t in range(s, n_slots - 1):
+        id_of_slot[t] = id_of_slot[t + 1]
+        slot_of_id[id_of_slot[t]] = t
+    id_of_slot[n_slots - 1] = -1
+    slot_of_id[label] = -1
+
+
+@kernel
+def settle_tentative(
+    x: FloatArray,
+    P: FloatArray,
+    n: np.ndarray,
+    nv: int,
+    slot_of_id: np.ndarray,
+    id_of_slot: np.ndarray,
+    mapped: np.ndarray,
+    tentative: np.ndarray,
+    hits: np.ndarray,
+    age: np.ndarray,
+    lanes: np.ndarray,
+    count: np.ndarray,
+    confirm_hits: int,
+    confirm_window: int,
+    diag: FloatArray,
+    assoc: np.ndarray,
+) -> None:
+    """After the scan's update: confirm, keep or remove each tentative landmark of the
+    scanning ``lanes`` (:func:`estimators.tentative.m_of_n`), then unpair the returns whose
+    label is not a confirmed landmark (a tentative one, or a registration that failed)."""
+    for b in lanes:
+        for label in range(mapped.shape[1]):
+            if not tentative[b, label]:
+                continue
+            if not mapped[b, label]:  # its registration failed
+                tentative[b, label] = False
+                continue
+            rule = m_of_n(hits[b, label], age[b, label], confirm_hits, confirm_window)
+            if rule > 0:
+                tentative[b, label] = False
+            elif rule < 0:
+                remove_landmark(x[b], P[b], n[b], nv, slot_of_id[b], id_of_slot[b], label)
+                n[b] -= 3
+                mapped[b, label] = False
+                tentative[b, label] = False
+            else:
+                age[b, label] += 1
+        diag[D_N_MAPPED, b] = (n[b] - nv) // 3
+        for i in range(count[b]):
+            label = assoc[b, i]
+            if label >= 0 and (tentative[b, label] or not mapped[b, label]):
+                assoc[b, i] = UNASSOCIATED

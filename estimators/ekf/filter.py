@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from estimators.association import UNASSOCIATED, joint_thresholds
+from estimators.association import UNASSOCIATED, chi2_threshold, joint_thresholds
 from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
-from estimators.ekf.associate import associate_lanes
+from estimators.ekf.associate import associate_lanes, settle_tentative
 from estimators.ekf.kernels import (
     D_NIS,
     DIAGNOSTIC_NAMES,
@@ -40,14 +40,10 @@ from estimators.ekf.kernels import (
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.ekf.update import first_nonfinite_lane, stacked_model, update_lanes
 from estimators.memory import check_ekf_map
-from estimators.tentative import Candidates
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import POSE_DIM, FloatArray
 
 _AR3 = np.arange(3)
-CANDIDATE_SLOTS = 64
-"""Tentative landmarks per lane (unknown association); a return finding all in use is
-dropped (clutter 10 per scan with a window of 5 scans uses about 50)."""
 
 
 @register_batch("ekf_slam")
@@ -94,7 +90,6 @@ class EkfSlamBatch:
         self._diag[D_NIS] = math.nan
         self._vel_inertial = np.zeros((b, 3))
         self._accel_bias = np.zeros((b, 3))
-        self._candidates = Candidates(b, CANDIDATE_SLOTS)
         self._assoc = np.zeros((b, 0), dtype=np.int64)
         self._thresholds = joint_thresholds(0, settings.gate_probability)
         self._allocate(max(int(landmark_capacity), 0))
@@ -128,6 +123,12 @@ class EkfSlamBatch:
         self._id_of_slot = fresh("_id_of_slot", (b, lmax), -1, np.int64)
         self._mapped = fresh("_mapped", (b, lmax), False, bool)
         self._known_pos = fresh("_known_pos", (b, lmax, 3), 0.0, float)
+        # Unknown association: tentative labels (in the state, not yet reported), their hits
+        # and age (estimators.ekf.associate), and the reported map (mapped, not tentative).
+        self._tentative = fresh("_tentative", (b, lmax), False, bool)
+        self._hits = fresh("_hits", (b, lmax), 0, np.int64)
+        self._age = fresh("_age", (b, lmax), 0, np.int64)
+        self._reported = np.zeros((b, lmax), dtype=bool)
         self._landmark_means = np.zeros((b, lmax, 3))
         self._batch_estimate: BatchEstimate | None = None
 
@@ -235,6 +236,7 @@ class EkfSlamBatch:
             self._slot_of_id[lane] = -1
             self._id_of_slot[lane] = -1
             self._mapped[lane] = False
+            self._tentative[lane] = False
             self._known_pos[lane] = 0.0
             self._assoc[lane] = UNASSOCIATED
             known = maps[j]
@@ -242,7 +244,6 @@ class EkfSlamBatch:
             if known is not None:
                 self._known_pos[lane, known[0]] = known[1]
                 self._mapped[lane, known[0]] = True
-        self._candidates.clear(lanes)
         self._fit_state_slots()
 
     @staticmethod
@@ -417,19 +418,20 @@ class EkfSlamBatch:
         visible = np.zeros((self.num_lanes, lcap), dtype=bool)
         meas = np.zeros((self.num_lanes, lcap, 3))
         r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
-        cand = self._candidates
+        cfg = self.settings
         associate_lanes(
             self._x, self._P, self._n, self.nv, self._stale, self._slot_of_id, self._mapped,
             self._known, self._known_pos, lanes, count, returns, r_diag, self.gate_threshold,
-            self._thresholds, self.settings.association == "jcbb", cand.pos, cand.cov,
-            cand.hits, cand.age, cand.matched, self.settings.confirm_hits,
-            self.settings.confirm_window, visible, meas, self._assoc,
+            chi2_threshold(3, cfg.new_landmark_probability), self._thresholds,
+            cfg.association == "jcbb", self._tentative, self._hits, self._age, visible, meas,
+            self._assoc,
         )  # fmt: skip
         self.update(t, lanes, visible, meas, sigma)
-        # A label whose registration failed (a diverged step) names no map entry.
-        rows = self._assoc[lanes]
-        mapped = np.take_along_axis(self._mapped[lanes], np.maximum(rows, 0), axis=1)
-        self._assoc[lanes] = np.where(mapped, rows, UNASSOCIATED)
+        settle_tentative(
+            self._x, self._P, self._n, self.nv, self._slot_of_id, self._id_of_slot,
+            self._mapped, self._tentative, self._hits, self._age, lanes, count,
+            cfg.confirm_hits, cfg.confirm_window, self._diag, self._assoc,
+        )  # fmt: skip
 
     @property
     def last_association(self) -> np.ndarray:
@@ -442,7 +444,7 @@ class EkfSlamBatch:
     @property
     def tentative_count(self) -> np.ndarray:
         """(B,) int tentative landmarks each lane holds (unknown association)."""
-        return self._candidates.active()
+        return self._tentative.sum(axis=1)
 
     # ------------------------------------------------------------------ output
     def estimate(self) -> BatchEstimate:
@@ -481,7 +483,7 @@ class EkfSlamBatch:
                 rates=self._rates,
                 pose_cov=self._P[:, :POSE_DIM, :POSE_DIM],
                 landmark_means=self._landmark_means,
-                landmark_mapped=self._mapped,
+                landmark_mapped=self._reported,
                 accel_bias=accel_bias,
                 gyro_bias=gyro_bias,
                 diagnostics={k: self._diag[i] for i, k in enumerate(DIAGNOSTIC_NAMES)},
@@ -489,6 +491,7 @@ class EkfSlamBatch:
             self._batch_estimate = out
         if self.estimate_imu_bias:
             self._accel_bias[:, 2] = x[:, 12]
+        np.logical_and(self._mapped, ~self._tentative, out=self._reported)
         return out
 
     def lane_estimate(self, lane: int) -> Estimate:
@@ -501,7 +504,7 @@ class EkfSlamBatch:
             diagnostics of :meth:`estimate` as floats.
         """
         x, P, nv = self._x[lane], self._P[lane], self.nv
-        lm_ids = np.flatnonzero(self._mapped[lane])
+        lm_ids = np.flatnonzero(self._mapped[lane] & ~self._tentative[lane])
         if self._known[lane]:
             lm_means = self._known_pos[lane, lm_ids]
             lm_covs = np.zeros((lm_ids.shape[0], 3, 3))

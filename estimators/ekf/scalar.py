@@ -194,9 +194,9 @@ class EkfSlam:
         if meas.shape != (k, 3) or not np.isfinite(meas).all():
             raise ValueError("update: scan.meas must be a finite (k, 3) array")
         self._filter.update_unlabeled(self._t, self._lane, np.array([k]), meas[None], scan.sigma)
-        for label in range(len(self._ids), int(self._filter.estimate().landmark_mapped[0].sum())):
-            self._index[label] = label
-            self._ids.append(label)
+        if not self.known_map:  # the filter's labels are the landmark ids
+            self._ids = list(range(self._filter.landmark_capacity))
+            self._index = {i: i for i in self._ids}
         self.last_association = np.array(
             [self._ids[c] if c >= 0 else -1 for c in self._filter.last_association[0, :k]],
             dtype=np.int64,

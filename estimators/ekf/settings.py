@@ -30,6 +30,7 @@ _TYPES: dict[str, type | tuple[type, ...]] = {
     "association": str,
     "confirm_hits": int,
     "confirm_window": int,
+    "new_landmark_probability": (float, int),
 }
 
 ASSOCIATION_METHODS = ("nn", "jcbb")
@@ -79,6 +80,12 @@ class EkfSlamSettings:
     compatibility branch and bound, both gated at ``gate_probability``
     (:mod:`estimators.association`).
 
+    ``new_landmark_probability`` (float in [gate_probability, 1), default the larger of
+    0.9999 and ``gate_probability``): a return
+    starts a new landmark only when it is outside this χ²₃ gate of every landmark; a return
+    between the two gates is dropped (so a true landmark's rare return outside the association
+    gate does not start a duplicate of it).
+
     ``confirm_hits`` (int ≥ 1, default 3) and ``confirm_window`` (int ≥ confirm_hits,
     default 5): a return that gates with no map landmark starts a tentative landmark, which
     enters the map once it has been re-observed in ``confirm_hits`` of its first
@@ -100,6 +107,7 @@ class EkfSlamSettings:
     association: str = "jcbb"
     confirm_hits: int = 3
     confirm_window: int = 5
+    new_landmark_probability: float = 0.9999
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> EkfSlamSettings:
@@ -139,7 +147,15 @@ class EkfSlamSettings:
                 f"estimator.params.confirm_window: got {window!r}; allowed: an integer in "
                 f"[confirm_hits = {hits}, 1000]"
             )
+        floor = prob if prob < 1.0 else 0.0  # no association gate: any p < 1
+        new_prob = float(params.get("new_landmark_probability", max(0.9999, floor)))
+        if not (floor <= new_prob < 1.0 and new_prob > 0.0):
+            raise ValueError(
+                f"estimator.params.new_landmark_probability: got {new_prob!r}; allowed: "
+                f"max(gate_probability = {prob} if < 1, 0) <= p < 1, p > 0"
+            )
         return cls(
+            new_landmark_probability=new_prob,
             association=method,
             confirm_hits=int(hits),
             confirm_window=int(window),
