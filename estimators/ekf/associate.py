@@ -29,11 +29,21 @@ landmarks are not reported as mapped, and a return paired with one counts as una
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from estimators.association import UNASSOCIATED, individual_nis, jcbb, nearest_neighbour
+from estimators.association import (
+    UNASSOCIATED,
+    chi2_threshold,
+    individual_nis,
+    jcbb,
+    joint_thresholds,
+    nearest_neighbour,
+)
 from estimators.ekf.kernels import D_N_MAPPED, sync_lane
-from estimators.ekf.update import innovation, innovation_covariance
+from estimators.ekf.settings import EkfSlamSettings
+from estimators.ekf.update import first_nonfinite_lane, innovation, innovation_covariance
 from estimators.tentative import m_of_n
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
@@ -228,3 +238,111 @@ def settle_tentative(
             label = assoc[b, i]
             if label >= 0 and (tentative[b, label] or not mapped[b, label]):
                 assoc[b, i] = UNASSOCIATED
+
+
+class UnlabeledScans:
+    """:class:`~estimators.ekf.filter.EkfSlamBatch`'s methods for unlabeled scans (a mixin:
+    the filter's buffers are declared here, allocated by the filter)."""
+
+    associates_unlabeled = True
+    num_lanes: int
+    nv: int
+    settings: EkfSlamSettings
+    gate_threshold: float
+    _x: FloatArray
+    _P: FloatArray
+    _n: np.ndarray
+    _stale: np.ndarray
+    _slot_of_id: np.ndarray
+    _id_of_slot: np.ndarray
+    _mapped: np.ndarray
+    _known: np.ndarray
+    _known_pos: FloatArray
+    _tentative: np.ndarray
+    _hits: np.ndarray
+    _age: np.ndarray
+    _diag: FloatArray
+    _assoc: np.ndarray
+    _thresholds: FloatArray
+
+    @property
+    def landmark_capacity(self) -> int:
+        raise NotImplementedError  # the filter's
+
+    def _ensure_ids(self, count: int) -> None:
+        raise NotImplementedError  # the filter's
+
+    def update(self, t: Any, lanes: Any, visible: Any, meas: Any, sigma: Any) -> None:
+        raise NotImplementedError  # the filter's
+
+    def update_unlabeled(
+        self,
+        t: FloatArray,
+        lanes: np.ndarray,
+        count: np.ndarray,
+        returns: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Associate ``lanes``' unlabeled returns, then correct as :meth:`update` does.
+
+        The association front end (:mod:`estimators.ekf.associate`: χ² gate, NN or JCBB,
+        tentative landmarks under the M-of-N rule) labels the returns with map slots (or the
+        known map's ids); :attr:`last_association` holds each return's label afterwards.
+
+        Args:
+            t: (B,) scan times in s (unused).
+            lanes: (k,) int, lanes that scan.
+            count: (B,) int returns per lane.
+            returns: (B, R, 3) returns (α rad, β rad, δ m), in any order; rows ``≥ count``
+                are not read.
+            sigma: (3,) measurement noise stds (σ_α rad, σ_β rad, σ_δ m).
+
+        Raises:
+            ValueError: On a non-finite return (nothing is changed then).
+        """
+        lanes = np.ascontiguousarray(lanes, dtype=np.int64).reshape(-1)
+        count = np.ascontiguousarray(count, dtype=np.int64)
+        returns = np.ascontiguousarray(returns, dtype=float)
+        width = returns.shape[1]
+        present = np.arange(width) < count[:, None]
+        bad = first_nonfinite_lane(lanes, present, returns)
+        if bad >= 0:
+            raise ValueError(f"update: lane {bad}: scan measurements must be finite")
+        if self._assoc.shape[1] < width:
+            self._assoc = np.full((self.num_lanes, width), UNASSOCIATED, dtype=np.int64)
+            self._thresholds = joint_thresholds(width, self.settings.gate_probability)
+        self._assoc[lanes] = UNASSOCIATED
+        if lanes.size == 0:
+            return
+        self._ensure_ids(int(((self._n[lanes] - self.nv) // 3 + count[lanes]).max()))
+        lcap = self.landmark_capacity
+        visible = np.zeros((self.num_lanes, lcap), dtype=bool)
+        meas = np.zeros((self.num_lanes, lcap, 3))
+        r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
+        cfg = self.settings
+        associate_lanes(
+            self._x, self._P, self._n, self.nv, self._stale, self._slot_of_id, self._mapped,
+            self._known, self._known_pos, lanes, count, returns, r_diag, self.gate_threshold,
+            chi2_threshold(3, cfg.new_landmark_probability), self._thresholds,
+            cfg.association == "jcbb", self._tentative, self._hits, self._age, visible, meas,
+            self._assoc,
+        )  # fmt: skip
+        self.update(t, lanes, visible, meas, sigma)
+        settle_tentative(
+            self._x, self._P, self._n, self.nv, self._slot_of_id, self._id_of_slot,
+            self._mapped, self._tentative, self._hits, self._age, lanes, count,
+            cfg.confirm_hits, cfg.confirm_window, self._diag, self._assoc,
+        )  # fmt: skip
+
+    @property
+    def last_association(self) -> np.ndarray:
+        """(B, R) int label of each return of the lanes' last unlabeled scans (-1: none):
+        map slots in SLAM lanes, known-map ids in known-map lanes (read only)."""
+        out = self._assoc.view()
+        out.flags.writeable = False
+        return out
+
+    @property
+    def tentative_count(self) -> np.ndarray:
+        """(B,) int tentative landmarks each lane holds (unknown association)."""
+        return self._tentative.sum(axis=1)

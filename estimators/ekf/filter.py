@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from estimators.association import UNASSOCIATED, chi2_threshold, joint_thresholds
+from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
-from estimators.ekf.associate import associate_lanes, settle_tentative
+from estimators.ekf.associate import UnlabeledScans
 from estimators.ekf.kernels import (
     D_NIS,
     DIAGNOSTIC_NAMES,
@@ -47,7 +47,7 @@ _AR3 = np.arange(3)
 
 
 @register_batch("ekf_slam")
-class EkfSlamBatch:
+class EkfSlamBatch(UnlabeledScans):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
     Implements :class:`estimators.batch.BatchEstimator`. Lane b behaves exactly like a scalar
@@ -373,78 +373,6 @@ class EkfSlamBatch:
             r_diag,
             self.gate_threshold,
         )
-
-    def update_unlabeled(
-        self,
-        t: FloatArray,
-        lanes: IntArray,
-        count: np.ndarray,
-        returns: FloatArray,
-        sigma: FloatArray,
-    ) -> None:
-        """Associate ``lanes``' unlabeled returns, then correct as :meth:`update` does.
-
-        The association front end (:mod:`estimators.ekf.associate`: χ² gate, NN or JCBB,
-        tentative landmarks under the M-of-N rule) labels the returns with map slots (or the
-        known map's ids); :attr:`last_association` holds each return's label afterwards.
-
-        Args:
-            t: (B,) scan times in s (unused).
-            lanes: (k,) int, lanes that scan.
-            count: (B,) int returns per lane.
-            returns: (B, R, 3) returns (α rad, β rad, δ m), in any order; rows ``≥ count``
-                are not read.
-            sigma: (3,) measurement noise stds (σ_α rad, σ_β rad, σ_δ m).
-
-        Raises:
-            ValueError: On a non-finite return (nothing is changed then).
-        """
-        lanes = np.ascontiguousarray(lanes, dtype=np.int64).reshape(-1)
-        count = np.ascontiguousarray(count, dtype=np.int64)
-        returns = np.ascontiguousarray(returns, dtype=float)
-        width = returns.shape[1]
-        present = np.arange(width) < count[:, None]
-        bad = first_nonfinite_lane(lanes, present, returns)
-        if bad >= 0:
-            raise ValueError(f"update: lane {bad}: scan measurements must be finite")
-        if self._assoc.shape[1] < width:
-            self._assoc = np.full((self.num_lanes, width), UNASSOCIATED, dtype=np.int64)
-            self._thresholds = joint_thresholds(width, self.settings.gate_probability)
-        self._assoc[lanes] = UNASSOCIATED
-        if lanes.size == 0:
-            return
-        self._ensure_ids(int(((self._n[lanes] - self.nv) // 3 + count[lanes]).max()))
-        lcap = self.landmark_capacity
-        visible = np.zeros((self.num_lanes, lcap), dtype=bool)
-        meas = np.zeros((self.num_lanes, lcap, 3))
-        r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
-        cfg = self.settings
-        associate_lanes(
-            self._x, self._P, self._n, self.nv, self._stale, self._slot_of_id, self._mapped,
-            self._known, self._known_pos, lanes, count, returns, r_diag, self.gate_threshold,
-            chi2_threshold(3, cfg.new_landmark_probability), self._thresholds,
-            cfg.association == "jcbb", self._tentative, self._hits, self._age, visible, meas,
-            self._assoc,
-        )  # fmt: skip
-        self.update(t, lanes, visible, meas, sigma)
-        settle_tentative(
-            self._x, self._P, self._n, self.nv, self._slot_of_id, self._id_of_slot,
-            self._mapped, self._tentative, self._hits, self._age, lanes, count,
-            cfg.confirm_hits, cfg.confirm_window, self._diag, self._assoc,
-        )  # fmt: skip
-
-    @property
-    def last_association(self) -> np.ndarray:
-        """(B, R) int label of each return of the lanes' last unlabeled scans (-1: none):
-        map slots in SLAM lanes, known-map ids in known-map lanes (read only)."""
-        out = self._assoc.view()
-        out.flags.writeable = False
-        return out
-
-    @property
-    def tentative_count(self) -> np.ndarray:
-        """(B,) int tentative landmarks each lane holds (unknown association)."""
-        return self._tentative.sum(axis=1)
 
     # ------------------------------------------------------------------ output
     def estimate(self) -> BatchEstimate:
