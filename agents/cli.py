@@ -337,6 +337,36 @@ def cmd_study_cost(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_study_association(args: argparse.Namespace) -> int:
+    """Known vs NN vs JCBB (EKF) and known vs ML (FastSLAM), and the clutter sweep."""
+    from agents.outputs import Saver, check_output_dir, check_output_file
+    from agents.study_association import format_study, plot_study, run_study, write_json
+
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.plots is not None:
+        check_output_dir(args.plots, "--plots")
+    seeds = args.seeds or (3 if args.quick else 20)
+    tic = time.perf_counter()
+    result = run_study(seeds, args.quick)
+    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    print(format_study(result))
+    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
+    saver = Saver()
+    if args.json is not None:
+        where = saver.produce(args.json, "--json", lambda target: write_json(result, target))
+        print(f"wrote {where}")
+    if args.plots is not None:
+        where = saver.produce(
+            args.plots / "association_clutter.png",
+            "--plots",
+            lambda target: _plot_to(plot_study, result, target),
+        )
+        print(f"wrote {where}")
+    saver.check()
+    return 0
+
+
 def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
     """Call ``plot(result, folder)`` (which writes one PNG into ``folder``) so that the PNG
     ends up at ``target`` (a temporary folder beside it holds the PNG until it is moved)."""
@@ -459,6 +489,16 @@ def build_parser() -> argparse.ArgumentParser:
     cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     cost.add_argument("--plots", type=Path, help="write the box plot (PNG) here")
     cost.set_defaults(func=cmd_study_cost)
+    assoc = studies.add_parser(
+        "association",
+        help="unknown data association: known vs NN vs JCBB (EKF-SLAM), known vs ML "
+        "(FastSLAM), a held-out closely spaced map, and RMSE/wrong rate against clutter",
+    )
+    assoc.add_argument("--quick", action="store_true", help="3 seeds of 10 s, 3 clutter rates")
+    assoc.add_argument("--seeds", type=_positive_int, help="episodes per row (default 20)")
+    assoc.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    assoc.add_argument("--plots", type=Path, help="write the clutter figure (PNG) here")
+    assoc.set_defaults(func=cmd_study_association)
     scn = sub.add_parser("scenarios", help="list the shipped scenarios with their descriptions")
     scn.set_defaults(func=cmd_scenarios)
     from agents.bench import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy

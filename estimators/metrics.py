@@ -225,7 +225,7 @@ def step_metrics(
 
 
 MATCH_RADIUS_M = 0.5
-"""A mapped landmark with no true landmark this close is spurious (unknown association)."""
+"""A mapped landmark with no true landmark this close (in the vehicle frame) is spurious."""
 
 ASSOCIATION_KEYS = (
     "assoc_n_returns",
@@ -237,35 +237,94 @@ ASSOCIATION_KEYS = (
 """Per-scan association counts (unknown association; 0 in lanes that did not scan)."""
 
 
+@kernel
+def _match_lanes(
+    means: FloatArray,
+    mapped: np.ndarray,
+    est_pose: FloatArray,
+    true_landmarks: FloatArray,
+    n_true: np.ndarray,
+    true_pose: FloatArray,
+    radius: float,
+    out: np.ndarray,
+) -> None:
+    """Fill ``out`` (B, Le) (see :func:`match_landmarks`); poses are (B, 6) (ρ, Λ)."""
+    d_est = np.empty(3)
+    d_true = np.empty((true_landmarks.shape[1], 3))
+    for b in range(mapped.shape[0]):
+        ce = dcm_from_trig(
+            math.cos(est_pose[b, 3]), math.sin(est_pose[b, 3]), math.cos(est_pose[b, 4]),
+            math.sin(est_pose[b, 4]), math.cos(est_pose[b, 5]), math.sin(est_pose[b, 5]),
+        )  # fmt: skip
+        ct = dcm_from_trig(
+            math.cos(true_pose[b, 3]), math.sin(true_pose[b, 3]), math.cos(true_pose[b, 4]),
+            math.sin(true_pose[b, 4]), math.cos(true_pose[b, 5]), math.sin(true_pose[b, 5]),
+        )  # fmt: skip
+        for j in range(n_true[b]):  # C_NBᵀ (l − ρ): the true map about the true pose
+            for r in range(3):
+                acc = 0.0
+                for c in range(3):
+                    acc += ct[3 * c + r] * (true_landmarks[b, j, c] - true_pose[b, c])
+                d_true[j, r] = acc
+        for i in range(mapped.shape[1]):
+            out[b, i] = -1
+            if not mapped[b, i]:
+                continue
+            for r in range(3):
+                acc = 0.0
+                for c in range(3):
+                    acc += ce[3 * c + r] * (means[b, i, c] - est_pose[b, c])
+                d_est[r] = acc
+            best = radius * radius
+            for j in range(n_true[b]):
+                d2 = 0.0
+                for r in range(3):
+                    d2 += (d_est[r] - d_true[j, r]) ** 2
+                if d2 <= best:
+                    best = d2
+                    out[b, i] = j
+
+
 def match_landmarks(
-    means: FloatArray, mapped: np.ndarray, true_landmarks: FloatArray, n_true: np.ndarray
+    means: FloatArray,
+    mapped: np.ndarray,
+    est_pose: FloatArray,
+    true_landmarks: FloatArray,
+    n_true: np.ndarray,
+    true_pose: FloatArray,
 ) -> np.ndarray:
     """Name each mapped landmark by its nearest true landmark within :data:`MATCH_RADIUS_M`.
 
     With unknown association an estimator names landmarks itself; this matching (the truth
-    the simulator alone knows) is what the map RMSE and the association metrics use.
+    the simulator alone knows) is what the map RMSE and the association metrics use. It is
+    done in the vehicle frame, as the sensor sees the map: ``C_NB(Λ̂)ᵀ (l̂ − ρ̂)`` against
+    ``C_NB(Λ)ᵀ (l − ρ)``, so a SLAM map that drifts together with its vehicle (an unobservable
+    offset) still matches.
 
     Args:
-        means: (B, Le, 3) estimated landmark positions by estimator label, m.
+        means: (B, Le, 3) estimated landmark positions by estimator label (N, m).
         mapped: (B, Le) bool, labels in the map.
-        true_landmarks: (B, L, 3) true positions by id, m; lane b uses the first
+        est_pose: (B, 6) estimated (ρ̂ m, Λ̂ rad).
+        true_landmarks: (B, L, 3) true positions by id (N, m); lane b uses the first
             ``n_true[b]`` rows.
         n_true: (B,) int.
+        true_pose: (B, 6) true (ρ m, Λ rad).
 
     Returns:
         (B, Le) int: the true id of each label, -1 for unmapped labels and spurious entries.
     """
-    b, le = mapped.shape
-    out = np.full((b, le), -1, dtype=np.int64)
-    if le == 0 or true_landmarks.shape[1] == 0:
-        return out
-    diff = means[:, :, None, :] - true_landmarks[:, None, :, :]
-    d2 = np.einsum("bijk,bijk->bij", diff, diff)
-    absent = np.arange(true_landmarks.shape[1]) >= n_true[:, None]  # (B, L)
-    d2 = np.where(absent[:, None, :], np.inf, d2)
-    nearest = d2.argmin(axis=2)
-    close = np.take_along_axis(d2, nearest[..., None], axis=2)[..., 0] <= MATCH_RADIUS_M**2
-    return np.where(mapped & close, nearest, -1)
+    out = np.empty(mapped.shape, dtype=np.int64)
+    _match_lanes(
+        np.ascontiguousarray(means, dtype=float),
+        np.ascontiguousarray(mapped, dtype=bool),
+        np.ascontiguousarray(est_pose, dtype=float),
+        np.ascontiguousarray(true_landmarks, dtype=float),
+        np.ascontiguousarray(n_true, dtype=np.int64),
+        np.ascontiguousarray(true_pose, dtype=float),
+        MATCH_RADIUS_M,
+        out,
+    )
+    return out
 
 
 def association_counts(
@@ -387,9 +446,9 @@ class EpisodeMetrics:
         sel = np.ones(b, dtype=bool) if lanes is None else lanes
         _accumulate(self._acc, values, sel, *NEES_POSE_BOUNDS_95)
         if self.association:
-            for j, key in enumerate(ASSOCIATION_KEYS):
-                self._assoc[sel, j] += np.nan_to_num(np.broadcast_to(info[key], (b,))[sel])
-            self._assoc[sel, -1] = np.broadcast_to(info["spurious_landmarks"], (b,))[sel]
+            for j, key in enumerate(ASSOCIATION_KEYS):  # counts: never NaN
+                np.add(self._assoc[:, j], info[key], out=self._assoc[:, j], where=sel)
+            np.copyto(self._assoc[:, -1], info["spurious_landmarks"], where=sel)
 
     def summary(self) -> dict[str, FloatArray]:
         """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds, each (B,)."""

@@ -357,9 +357,16 @@ class SimCore:
         (``rematch`` after a reset or scan: the map changes only then) and count the
         association outcomes of this step's ``returns`` (``None``: no lane scanned)."""
         if rematch or self._match.shape != est.landmark_mapped.shape:
+            state = self.vehicle.state
             self._match = match_landmarks(
-                est.landmark_means, est.landmark_mapped, self.landmarks, self.n_landmarks
+                est.landmark_means, est.landmark_mapped, np.hstack((est.position, est.euler)),
+                self.landmarks, self.n_landmarks, np.hstack((state[:, 0:3], state[:, 6:9])),
+            )  # fmt: skip
+            self._matched = self._match >= 0
+            self._match_truth = np.take_along_axis(
+                self.landmarks, np.maximum(self._match, 0)[..., None], axis=1
             )
+            self._spurious = (est.landmark_mapped & ~self._matched).sum(axis=1).astype(float)
         if returns is None:
             self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(self.num_lanes))
         else:
@@ -372,12 +379,11 @@ class SimCore:
         state = self.vehicle.state
         nan = np.full(self.num_lanes, math.nan)
         if self.unlabeled:  # the map RMSE over the entries matched to a true landmark
-            match = self._match
-            truth = np.take_along_axis(self.landmarks, np.maximum(match, 0)[..., None], axis=1)
-            matched = dataclasses.replace(est, landmark_mapped=match >= 0)
+            matched = dataclasses.replace(est, landmark_mapped=self._matched)
+            truth = self._match_truth
             info: dict[str, Any] = step_metrics(state, matched, truth, self.imu.total_bias)
             info["est_n_mapped"] = est.landmark_mapped.sum(axis=1).astype(float)
-            info["spurious_landmarks"] = (est.landmark_mapped & (match < 0)).sum(axis=1) * 1.0
+            info["spurious_landmarks"] = self._spurious.copy()
             counts = self._assoc_counts
             info.update(counts)
             with np.errstate(invalid="ignore", divide="ignore"):

@@ -139,9 +139,20 @@ def test_landmark_matching_and_association_counts_on_a_hand_case() -> None:
     # Labels: 0 ≈ landmark 1, 1 ≈ landmark 0, 2 spurious (1 m from everything), 3 unmapped.
     means = np.array([[[5.1, 0, 0], [0.0, 0.2, 0], [2.5, 1.0, 0], [10.0, 0, 0]]])
     mapped = np.array([[True, True, True, False]])
-    match = match_landmarks(means, mapped, true_lm, np.array([3]))
+    pose = np.zeros((1, 6))
+    match = match_landmarks(means, mapped, pose, true_lm, np.array([3]), pose)
     assert match.tolist() == [[1, 0, -1, -1]]
-    assert match_landmarks(means, mapped, true_lm, np.array([1])).tolist() == [[-1, 0, -1, -1]]
+    only_first = match_landmarks(means, mapped, pose, true_lm, np.array([1]), pose)
+    assert only_first.tolist() == [[-1, 0, -1, -1]]
+    # In the vehicle frame: a map that drifted with its vehicle (3 m and 40° of yaw) matches
+    # the same way; the same drifted map about the true pose does not.
+    yaw = np.radians(40.0)
+    rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    drifted = means @ rot.T + np.array([3.0, -1.0, 0.5])
+    est_pose = np.array([[3.0, -1.0, 0.5, 0.0, 0.0, yaw]])
+    again = match_landmarks(drifted, mapped, est_pose, true_lm, np.array([3]), pose)
+    assert again.tolist() == match.tolist()
+    assert match_landmarks(drifted, mapped, pose, true_lm, np.array([3]), pose).max() == -1
     # Returns: from landmark 1 → label 0 (right); from 0 → label 0 (wrong); clutter → label 2
     # (wrong); from 2 → none (missed); clutter → none; row 5 beyond the count.
     truth = np.array([[1, 0, -1, 2, -1, 0]])
