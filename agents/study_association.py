@@ -12,8 +12,8 @@ returns (``lidar.association: unknown``), 10% missed detections and 2 false retu
 
 and tabulates position and map RMSE, pose ANEES, the wrong and missed association rates,
 spurious landmarks (medians over the seeds) and the divergences (episodes ended early). A
-clutter sweep (0 to 10 false returns per scan on ``paper_ekf_figure8_unknown``, NN and JCBB)
-gives the figure of position RMSE and wrong-association rate against the clutter rate.
+clutter sweep (0 to 10 false returns per scan on both EKF scenarios, NN and JCBB) gives the
+figure of position RMSE and wrong-association rate against the clutter rate.
 ``--quick`` flies 3 seeds of 10 s and 3 clutter rates (a smoke run, not a result).
 """
 
@@ -34,6 +34,7 @@ from quadslam_env.config import available_scenarios
 KNOWN = {"lidar": {"association": "known", "clutter_rate": 0.0}}
 NN = {"estimator": {"params": {"association": "nn"}}}
 CLUTTER_RATES = (0.0, 1.0, 2.0, 5.0, 10.0)
+SWEEP_SCENARIOS = ("paper_ekf_figure8_unknown", "ekf_close_pairs_unknown")
 METRICS = (
     "est_pos_rmse_m",
     "map_rmse_m",
@@ -132,23 +133,27 @@ def run_study(seeds: int, quick: bool) -> dict[str, Any]:
             }
         )
     sweep = []
-    for rate in (0.0, 2.0, 10.0) if quick else CLUTTER_RATES:
-        for method in ("nn", "jcbb"):
-            over = {"lidar": {"clutter_rate": rate},
-                    "estimator": {"params": {"association": method}}}  # fmt: skip
-            episodes = _fly("paper_ekf_figure8_unknown", _merge(over, short), seed_list)
-            pos = [e["est_pos_rmse_m"] for e in episodes]
-            wrong = [e.get("assoc_wrong_rate") for e in episodes]
-            sweep.append(
-                {
-                    "clutter_rate": rate,
-                    "association": method,
-                    "summary": _summary(episodes),
-                    "est_pos_rmse_m": pos,
-                    "assoc_wrong_rate": wrong,
-                }
-            )
+    for scenario in SWEEP_SCENARIOS:
+        for rate in (0.0, 2.0, 10.0) if quick else CLUTTER_RATES:
+            for method in ("nn", "jcbb"):
+                over = {"lidar": {"clutter_rate": rate},
+                        "estimator": {"params": {"association": method}}}  # fmt: skip
+                episodes = _fly(scenario, _merge(over, short), seed_list)
+                sweep.append(_sweep_entry(scenario, rate, method, episodes))
     return {"settings": {"seeds": seeds, "quick": quick}, "rows": rows, "clutter": sweep}
+
+
+def _sweep_entry(
+    scenario: str, rate: float, method: str, episodes: list[dict[str, Any]]
+) -> dict[str, Any]:
+    return {
+        "scenario": scenario,
+        "clutter_rate": rate,
+        "association": method,
+        "summary": _summary(episodes),
+        "est_pos_rmse_m": [e["est_pos_rmse_m"] for e in episodes],
+        "assoc_wrong_rate": [e.get("assoc_wrong_rate") for e in episodes],
+    }
 
 
 def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
@@ -183,11 +188,15 @@ def format_study(result: dict[str, Any]) -> str:
             f"{cell(s['spurious_landmarks'], '{:5.0f}'):>5s} "
             f"{s['divergences']:>2d}/{s['episodes']:<2d}"
         )
-    lines += ["", f"{'clutter/scan':>12s} {'method':>6s} {'pos m':>7s} {'wrong':>7s} {'div.':>5s}"]
+    lines += [
+        "",
+        f"{'scenario':26s} {'clutter/scan':>12s} {'method':>6s} {'pos m':>7s} {'wrong':>7s} "
+        f"{'div.':>5s}",
+    ]
     for entry in result["clutter"]:
         s = entry["summary"]
         lines.append(
-            f"{entry['clutter_rate']:12.0f} {entry['association']:>6s} "
+            f"{entry['scenario']:26s} {entry['clutter_rate']:12.0f} {entry['association']:>6s} "
             f"{cell(s['est_pos_rmse_m'], '{:7.4f}')} {cell(s['assoc_wrong_rate'], '{:7.4f}')} "
             f"{s['divergences']:>2d}/{s['episodes']:<2d}"
         )
@@ -205,25 +214,32 @@ def plot_study(result: dict[str, Any], folder: Path) -> Path:
     interquartile range."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(9.0, 3.4), constrained_layout=True)
+    fig = Figure(figsize=(9.5, 3.6), constrained_layout=True)
     axes = fig.subplots(1, 2)
-    for method, marker in (("nn", "o"), ("jcbb", "s")):
-        entries = [e for e in result["clutter"] if e["association"] == method]
-        rates = [e["clutter_rate"] for e in entries]
-        for ax, key in zip(axes, ("est_pos_rmse_m", "assoc_wrong_rate"), strict=True):
-            vals = [np.array([v for v in e[key] if v is not None], dtype=float) for e in entries]
-            med = [np.median(v) if v.size else np.nan for v in vals]
-            lo = [np.percentile(v, 25) if v.size else np.nan for v in vals]
-            hi = [np.percentile(v, 75) if v.size else np.nan for v in vals]
-            ax.plot(rates, med, marker=marker, label=method.upper())
-            ax.fill_between(rates, lo, hi, alpha=0.2)
+    styles = {"nn": ("o", "tab:blue"), "jcbb": ("s", "tab:orange")}
+    for scenario, line in zip(SWEEP_SCENARIOS, ("-", "--"), strict=False):
+        for method, (marker, color) in styles.items():
+            entries = [
+                e for e in result["clutter"]
+                if e["association"] == method and e["scenario"] == scenario
+            ]  # fmt: skip
+            rates = [e["clutter_rate"] for e in entries]
+            for ax, key in zip(axes, ("est_pos_rmse_m", "assoc_wrong_rate"), strict=True):
+                vals = [np.array([v for v in e[key] if v is not None], float) for e in entries]
+                med = [np.median(v) if v.size else np.nan for v in vals]
+                lo = [np.percentile(v, 25) if v.size else np.nan for v in vals]
+                hi = [np.percentile(v, 75) if v.size else np.nan for v in vals]
+                ax.plot(rates, med, line, marker=marker, color=color,
+                        label=f"{method.upper()}, {scenario}")  # fmt: skip
+                ax.fill_between(rates, lo, hi, color=color, alpha=0.12)
     axes[0].set_ylabel("position RMSE [m]")
+    axes[0].set_yscale("log")
     axes[1].set_ylabel("wrong-association rate")
     for ax in axes:
         ax.set_xlabel("clutter rate [false returns per scan]")
         ax.grid(alpha=0.3)
-        ax.legend()
-    fig.suptitle("EKF-SLAM, paper figure-8, unlabeled returns, detection 0.9")
+    axes[1].legend(fontsize=7)
+    fig.suptitle("EKF-SLAM with unlabeled returns (detection 0.9): median and IQR over seeds")
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "association_clutter.png"
     fig.savefig(path, dpi=120)
