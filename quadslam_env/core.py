@@ -186,6 +186,9 @@ class SimCore:
         opts = options or {}
         lanes = np.asarray(lanes, dtype=np.int64)
         k = lanes.shape[0]
+        reserve = getattr(self.estimator, "reserve_landmarks", None)
+        if "landmarks" in opts and reserve is not None:
+            reserve(len(opts["landmarks"]))  # a larger map must fit before anything changes
         children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
         states0 = np.empty((k, STATE_DIM))
         mean0 = np.empty((k, STATE_DIM))

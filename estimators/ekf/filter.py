@@ -149,6 +149,16 @@ class EkfSlamBatch(UnlabeledScans):
         grown = max(count, doubled)
         self._allocate(grown, keep=True, slots=0 if self._known.all() else grown)
 
+    def reserve_landmarks(self, count: int) -> None:
+        """Make room for landmark ids ``0 … count-1`` now (the env calls it at reset, so that
+        a map brought by a reset option that cannot fit in memory fails there, not at the
+        first scan).
+
+        Raises:
+            ValueError: The map would not fit (see :mod:`estimators.memory`).
+        """
+        self._ensure_ids(count)
+
     @property
     def landmark_capacity(self) -> int:
         """Lmax: landmark ids (and map slots) currently allocated per lane."""
