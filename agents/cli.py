@@ -475,6 +475,7 @@ def build_parser() -> argparse.ArgumentParser:
     bound.add_argument("--seeds", type=_positive_int, default=10, help="number of seeds (10)")
     bound.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
     bound.add_argument("--duration", type=_positive_float, help="episode length in s")
+    bound.add_argument("--estimator", metavar="NAME", help="replace the scenario's estimator")
     bound.add_argument(
         "--set",
         action="append",

@@ -10,14 +10,12 @@ localisation bound with a known map), and the study puts the bound's RMSE-equiva
 to the estimator's RMSE over the same steps, for the whole episode and its steady state (the
 second half, ``t > T/2``).
 
-**The bound's model.** For EKF-SLAM scenarios it is the filter's own settings (extra Q, bias
-states, their priors and random walks). For other estimators (FastSLAM) it is EKF-SLAM's
-strapdown model with the scenario's pose prior and, when the IMU has a bias or drift, bias
-states with the estimator's bias prior (``hypot(bias σ, drift σ)``) and the random walk of the
-Gauss–Markov drift's short-term growth (``σ_drift √(2/τ)``), as the dynamics-based FastSLAM
-does for its own inertia identification. That is a bound for estimators that use the IMU as
-input; one that also uses the applied control through the vehicle's dynamics (the
-dynamics-based FastSLAM) has more information and is not bound by it.
+**The bound's model** is the truth's data model in EKF-SLAM's strapdown form
+(:func:`bound_model`): the IMU's white noise as the only process noise (the estimator's extra
+Q is a tuning, not part of the simulated world), bias states when the IMU is biased, the
+scenario's pose prior and map. It bounds estimators that use the IMU as their input; one that
+also uses the applied control through the vehicle's dynamics (the dynamics-based FastSLAM) has
+more information and is not bound by it.
 
 **Reading the numbers.** The PCRB bounds the mean-square error over the prior and the noise, so
 compare it with the error pooled over seeds, ``√(mean over seeds of MSE)`` (``pooled``); a
@@ -126,40 +124,33 @@ class TruthRecorder:
 
 
 def bound_model(core: Any) -> BoundModel:
-    """The data model of the bound for a scenario's core (module docstring)."""
+    """The data model of the bound for a scenario's core: the truth's (module docstring).
+
+    Process noise: the IMU's white noise only (the simulated truth has no other), whatever
+    extra Q the estimator is tuned with. Biases: when the IMU has a constant bias or a drift,
+    bias states ``(b_ω, b_az)`` with prior std ``hypot(max |b0|, σ_drift)`` and the random
+    walk ``σ_drift √(2/τ)`` of the Gauss–Markov drift's short-term growth. Pose prior: the
+    scenario's P0 when the initial error is drawn from it; zero when the estimate starts at
+    the true pose (an estimator handed x0 is bound with a zero prior; its P0 is then only its
+    belief). Map: known or unknown as in the scenario.
+    """
     cfg = core.scenario
+    imu = cfg.imu
+    b0_accel = max(abs(b) for b in imu.accel_bias)
+    b0_gyro = max(abs(b) for b in imu.gyro_bias)
+    biased = max(b0_accel, b0_gyro, imu.accel_drift_sigma, imu.gyro_drift_sigma) > 0.0
+    walk = math.sqrt(2.0 / imu.drift_tau_s)
+    settings = EkfSlamSettings.from_params(
+        {
+            "process_noise": [0.0] * POSE_DIM,
+            "estimate_imu_bias": bool(biased),
+            "gyro_bias_sigma0": math.hypot(b0_gyro, imu.gyro_drift_sigma),
+            "accel_bias_sigma0": math.hypot(b0_accel, imu.accel_drift_sigma),
+            "gyro_bias_walk": imu.gyro_drift_sigma * walk,
+            "accel_bias_walk": imu.accel_drift_sigma * walk,
+        }
+    )
     est_cfg = cfg.estimator
-    if est_cfg.name == "ekf_slam":
-        settings = EkfSlamSettings.from_params(dict(est_cfg.params))
-    else:
-        imu = cfg.imu
-        biased = any(imu.accel_bias) or any(imu.gyro_bias)
-        biased = biased or imu.accel_drift_sigma > 0 or imu.gyro_drift_sigma > 0
-        filt = getattr(core.estimator, "lanes", [None])[0]
-
-        def prior(name: str, default: float) -> float:
-            return float(getattr(filt, name, default))
-
-        tau = prior("bias_tau_s", imu.drift_tau_s)
-        acc_drift = prior("accel_drift_sigma", imu.accel_drift_sigma)
-        gyro_drift = prior("gyro_drift_sigma", imu.gyro_drift_sigma)
-        settings = EkfSlamSettings.from_params(
-            {
-                "process_noise": [0.0] * POSE_DIM,
-                "estimate_imu_bias": bool(biased),
-                "gyro_bias_sigma0": math.hypot(
-                    prior("gyro_bias_sigma", max(map(abs, imu.gyro_bias))), gyro_drift
-                ),
-                "accel_bias_sigma0": math.hypot(
-                    prior("accel_bias_sigma", max(map(abs, imu.accel_bias))), acc_drift
-                ),
-                "gyro_bias_walk": gyro_drift * math.sqrt(2.0 / tau),
-                "accel_bias_walk": acc_drift * math.sqrt(2.0 / tau),
-            }
-        )
-    # The prior of the bound is what the estimator's initial error is drawn from; a scenario
-    # that starts the estimate at the true pose hands the estimator x0, and an estimator
-    # that knows x0 is bound with a zero prior covariance (its P0 is then only its belief).
     cov0 = np.diag(est_cfg.initial_cov_diag)[:POSE_DIM, :POSE_DIM]
     if not est_cfg.sample_initial_error:
         cov0 = np.zeros_like(cov0)
@@ -241,7 +232,7 @@ def _stats(values: list[float], pooled: bool) -> dict[str, float | None]:
     arr = np.array(values, dtype=float)
     arr = arr[np.isfinite(arr)]
     if not arr.size:
-        return {"median": None, "min": None, "max": None}
+        return {"median": None, "min": None, "max": None, **({"pooled": None} if pooled else {})}
     out: dict[str, float | None] = {
         "median": float(np.median(arr)),
         "min": float(arr.min()),
@@ -257,6 +248,7 @@ def run_bound_study(
     seeds: list[int],
     duration_s: float | None = None,
     overrides: dict[str, Any] | None = None,
+    estimator: str | None = None,
 ) -> tuple[dict[str, Any], list[SeedBound]]:
     """Fly the scenario's seeds, compute the bound along each, return ``(result, series)``.
 
@@ -273,6 +265,8 @@ def run_bound_study(
 
     kwargs: dict[str, Any] = dict(overrides or {})
     kwargs["scenario"] = scenario
+    if estimator is not None:
+        kwargs["estimator_name"] = estimator
     if duration_s is not None:
         kwargs = deep_merge(kwargs, {"episode": {"duration_s": float(duration_s)}})
     env = gym.make("QuadSLAM-v0", **kwargs)
@@ -283,7 +277,7 @@ def run_bound_study(
         episodes = run_episodes(env, DFLQRPolicy.from_env(env), seeds, observer=recorder)
         model = bound_model(recorder.core)
         duration = float(base.scenario.episode.duration_s)
-        name, estimator = base.scenario.name, base.scenario.estimator.name
+        name, est_name = base.scenario.name, base.scenario.estimator.name
     finally:
         env.close()
     print("computing the bound along each true trajectory ...", file=sys.stderr)
@@ -297,14 +291,15 @@ def run_bound_study(
     s = model.settings
     result = {
         "scenario": name,
-        "estimator": estimator,
+        "estimator": est_name,
         "settings": {
+            "estimator_override": estimator,
             "seeds": seeds,
             "duration_s": duration,
             "steady_state": f"t > {steady_from:g} s (the second half)",
             "bound_model": {
-                "process": "EKF-SLAM strapdown (seed 001 eq. 24), IMU noise mapped through ∂f/∂λ",
-                "extra_process_noise": list(s.process_noise),
+                "process": "EKF-SLAM strapdown (seed 001 eq. 24); process noise: the IMU white "
+                "noise mapped through ∂f/∂λ",
                 "bias_states": s.estimate_imu_bias,
                 "bias_sigma0": [s.gyro_bias_sigma0, s.accel_bias_sigma0]
                 if s.estimate_imu_bias
@@ -397,8 +392,9 @@ def bound_figure(result: dict[str, Any], series: list[SeedBound]) -> Any:
             ax.plot(t, e, color="0.75", lw=0.5)
         ax.plot(t, np.sqrt(np.mean(errs**2, axis=0)), color="k", lw=1.2, label="RMS over seeds")
         bound = np.array([s.bound[trace_keys[j]][:length] for s in series])
-        ax.plot(t, scale * np.sqrt(bound.mean(axis=0)), color="tab:red", lw=1.5,
-                label="PCRB √trace (mean over seeds)")  # fmt: skip
+        line = scale * np.sqrt(bound.mean(axis=0))
+        ax.plot(t, line, color="tab:red", lw=1.5, label="PCRB √trace (mean over seeds)")
+        ax.set_ylim(bottom=0.1 * float(np.median(line)))  # the zero prior's start: off scale
         ax.set_ylabel(labels[j][1])
         ax.set_yscale("log")
         ax.legend(loc="upper right", fontsize=7)
@@ -411,6 +407,13 @@ def bound_figure(result: dict[str, Any], series: list[SeedBound]) -> Any:
         f"(left: seed {first.seed}; right: {n} seed(s), grey = each seed)"
     )
     return fig
+
+
+def figure_name(result: dict[str, Any]) -> str:
+    """``bound_<scenario>.png``, or ``bound_<scenario>_<estimator>.png`` for an estimator
+    other than the scenario's."""
+    suffix = f"_{result['estimator']}" if result["settings"].get("estimator_override") else ""
+    return f"bound_{result['scenario']}{suffix}.png"
 
 
 def _clean(value: Any) -> Any:
@@ -436,14 +439,16 @@ def cli_bound(args: Any) -> int:
     if args.plots is not None:
         check_output_dir(args.plots, "--plots")
     seeds = list(range(args.seed, args.seed + args.seeds))
-    result, series = run_bound_study(args.scenario, seeds, args.duration, parse_overrides(args.set))
+    result, series = run_bound_study(
+        args.scenario, seeds, args.duration, parse_overrides(args.set), args.estimator
+    )
     print(format_bound(result))
     saver = Saver()
     if args.json is not None:
         print(f"json: {saver.write_json(args.json, _clean(result), '--json')}")
     if args.plots is not None:
         fig = bound_figure(result, series)
-        path = args.plots / f"bound_{result['scenario']}.png"
+        path = args.plots / figure_name(result)
         print(f"figure: {saver.save_figure(fig, path, '--plots')}")
     saver.check()
     return 0

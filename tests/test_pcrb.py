@@ -11,7 +11,9 @@ and the error transforms vs finite differences.
 
 from __future__ import annotations
 
+import ast
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -297,3 +299,18 @@ def test_error_transforms_vs_finite_differences() -> None:
     b = error_bounds(_STATE[None], P)
     assert b["att_rad2"][0] == pytest.approx(np.trace(T_a @ P[0, 6:9, 6:9] @ T_a.T))
     assert math.isclose(b["pos_m2"][0], 0.0)
+
+
+def test_no_estimator_imports_the_bound() -> None:
+    """The bound evaluates models at the truth: estimators must never use it (DESIGN §1)."""
+    root = Path(__file__).resolve().parent.parent / "estimators"
+    for path in root.rglob("*.py"):
+        if path.name == "pcrb.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = []
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            assert not any(n.startswith("estimators.pcrb") for n in names), path

@@ -14,7 +14,7 @@ import quadslam_env  # noqa: F401  (registers the ids)
 from agents import cli
 from agents.dflqr import DFLQRPolicy
 from agents.evaluation import run_episodes
-from agents.study_bound import TruthRecorder, run_bound_study
+from agents.study_bound import TruthRecorder, figure_name, run_bound_study
 
 SCENARIO = "paper_ekf_figure8_known"
 
@@ -88,3 +88,10 @@ def test_cli_rejects_a_bad_output_path_before_flying(tmp_path: Path) -> None:
     blocker.write_text("x")
     code = cli.main(["study", "bound", "--seeds", "1", "--json", str(blocker / "b.json")])
     assert code == 2
+
+
+def test_figure_name_names_a_replaced_estimator() -> None:
+    result = {"scenario": "s", "estimator": "fastslam", "settings": {"estimator_override": None}}
+    assert figure_name(result) == "bound_s.png"
+    result["settings"]["estimator_override"] = "fastslam"
+    assert figure_name(result) == "bound_s_fastslam.png"
