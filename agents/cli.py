@@ -367,6 +367,13 @@ def cmd_study_association(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_study_bound(args: argparse.Namespace) -> int:
+    """The posterior Cramér–Rao bound of a scenario next to its estimator's errors."""
+    from agents.study_bound import cli_bound
+
+    return cli_bound(args)
+
+
 def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
     """Call ``plot(result, folder)`` (which writes one PNG into ``folder``) so that the PNG
     ends up at ``target`` (a temporary folder beside it holds the PNG until it is moved)."""
@@ -499,6 +506,26 @@ def build_parser() -> argparse.ArgumentParser:
     assoc.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     assoc.add_argument("--plots", type=Path, help="write the clutter figure (PNG) here")
     assoc.set_defaults(func=cmd_study_association)
+    bound = studies.add_parser(
+        "bound",
+        help="posterior Cramér–Rao bound along each seed's true trajectory vs the "
+        "scenario's estimator (position, velocity, attitude)",
+    )
+    bound.add_argument("--scenario", default="paper_ekf_figure8", help="scenario name or path")
+    bound.add_argument("--seeds", type=_positive_int, default=10, help="number of seeds (10)")
+    bound.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    bound.add_argument("--duration", type=_positive_float, help="episode length in s")
+    bound.add_argument("--estimator", metavar="NAME", help="replace the scenario's estimator")
+    bound.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a scenario setting (repeatable)",
+    )
+    bound.add_argument("--json", type=Path, help="write the per-seed values and summary as JSON")
+    bound.add_argument("--plots", type=Path, help="write the error-vs-bound figure (PNG) here")
+    bound.set_defaults(func=cmd_study_bound)
     scn = sub.add_parser("scenarios", help="list the shipped scenarios with their descriptions")
     scn.set_defaults(func=cmd_scenarios)
     from agents.bench import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy

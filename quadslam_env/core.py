@@ -119,6 +119,8 @@ class SimCore:
         last_scan: ``(lanes (k,), visible (B, Lmax) bool, meas (B, Lmax, 3))`` of the scan
             taken in the last step (see :meth:`LidarBatch.scan`), or ``None`` when no lane
             scanned then; references, not copies (for the renderer).
+        last_rates: (B, 3) true body rates in rad/s averaged over the last step (the IMU's
+            noise-free gyro input), for analyses along the truth (``estimators.pcrb``).
     """
 
     def __init__(self, scenario: ScenarioConfig, num_lanes: int) -> None:
@@ -162,6 +164,7 @@ class SimCore:
             ]
         )
         self.last_scan: tuple[np.ndarray, np.ndarray, FloatArray] | None = None
+        self.last_rates: FloatArray = np.zeros((b, 3))
         self.est: BatchEstimate = self._snapshot()
 
     # ------------------------------------------------------------------ reset
@@ -262,6 +265,7 @@ class SimCore:
         thrust, torque = self.action_map.inputs(act, self.est.rates)
         vehicle = self.vehicle
         mean_rates = vehicle.step(thrust, torque, self.dt, active)
+        self.last_rates = mean_rates
         self.steps += active
         self.t = (self.steps * self.dt).astype(np.float64, copy=False)
         state = vehicle.state
