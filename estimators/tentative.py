@@ -169,6 +169,25 @@ class Candidates:
         self.hits[maps] = 0
         self.matched[maps] = False
 
+    def at_least(self, slots: int) -> Candidates:
+        """These candidates, or a copy with room for ``slots`` per map (the new ones free)."""
+        have = self.age.shape[1]
+        if have >= slots:
+            return self
+        wider = Candidates(self.age.shape[0], slots)
+        for name in ("pos", "cov", "hits", "age", "matched"):
+            getattr(wider, name)[:, :have] = getattr(self, name)
+        return wider
+
+    def take(self, maps: np.ndarray) -> None:
+        """Keep the candidates of ``maps`` (B,) int, map b taking those of ``maps[b]`` (copies;
+        FastSLAM's resampling)."""
+        self.pos = self.pos[maps]
+        self.cov = self.cov[maps]
+        self.hits = self.hits[maps]
+        self.age = self.age[maps]
+        self.matched = self.matched[maps]
+
     def active(self) -> np.ndarray:
         """(B,) int candidates in use per map."""
         return (self.age != FREE).sum(axis=1)
