@@ -10,6 +10,7 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from estimators.base import check_kwargs
+from estimators.tentative import check_confirm_rule
 from quadslam_env.types import POSE_DIM, FloatArray
 
 BIAS_DIM = 4
@@ -80,16 +81,18 @@ class EkfSlamSettings:
     compatibility branch and bound, both gated at ``gate_probability``
     (:mod:`estimators.association`).
 
-    ``new_landmark_probability`` (float in [gate_probability, 1), default the larger of
-    0.9999 and ``gate_probability``): a return
-    starts a new landmark only when it is outside this χ²₃ gate of every landmark; a return
-    between the two gates is dropped (so a true landmark's rare return outside the association
-    gate does not start a duplicate of it).
+    ``new_landmark_probability`` (float ≥ gate_probability and < 1, default 0.9999 or
+    gate_probability if larger): a return starts a new landmark only when it is outside this
+    χ²₃ gate of every landmark; a return between the two gates is dropped (so a true
+    landmark's rare return outside the association gate does not start a duplicate of it).
 
-    ``confirm_hits`` (int ≥ 1, default 3) and ``confirm_window`` (int ≥ confirm_hits,
-    default 5): a return that gates with no map landmark starts a tentative landmark, which
-    enters the map once it has been re-observed in ``confirm_hits`` of its first
-    ``confirm_window`` scans and is dropped otherwise (:mod:`estimators.tentative`).
+    ``confirm_hits`` (int in [1, 1000], default 3): a return that gates with no map landmark
+    starts a tentative landmark, which enters the map once it has been observed in
+    ``confirm_hits`` of its first ``confirm_window`` scans and is dropped otherwise
+    (:mod:`estimators.tentative`).
+
+    ``confirm_window`` (int in [confirm_hits, 1000], default 5): the scans a tentative
+    landmark has to reach ``confirm_hits``.
 
     Known-map mode (localisation only, the paper's known-landmarks case) is not a setting: it
     is chosen per run by passing a known map at reset (the env does so when the scenario sets
@@ -136,17 +139,9 @@ class EkfSlamSettings:
                 f"estimator.params.association: got {method!r}; allowed: one of "
                 f"{list(ASSOCIATION_METHODS)}"
             )
-        hits = params.get("confirm_hits", 3)
-        window = params.get("confirm_window", 5)
-        if isinstance(hits, bool) or not 1 <= hits <= 1000:
-            raise ValueError(
-                f"estimator.params.confirm_hits: got {hits!r}; allowed: an integer in [1, 1000]"
-            )
-        if isinstance(window, bool) or not hits <= window <= 1000:
-            raise ValueError(
-                f"estimator.params.confirm_window: got {window!r}; allowed: an integer in "
-                f"[confirm_hits = {hits}, 1000]"
-            )
+        hits, window = check_confirm_rule(
+            params.get("confirm_hits", 3), params.get("confirm_window", 5)
+        )
         floor = prob if prob < 1.0 else 0.0  # no association gate: any p < 1
         new_prob = float(params.get("new_landmark_probability", max(0.9999, floor)))
         if not (floor <= new_prob < 1.0 and new_prob > 0.0):
@@ -157,8 +152,8 @@ class EkfSlamSettings:
         return cls(
             new_landmark_probability=new_prob,
             association=method,
-            confirm_hits=int(hits),
-            confirm_window=int(window),
+            confirm_hits=hits,
+            confirm_window=window,
             process_noise=tuple(_check_nonneg("process_noise", e) for e in q),
             estimate_imu_bias=bool(params.get("estimate_imu_bias", False)),
             gyro_bias_sigma0=_check_nonneg(
