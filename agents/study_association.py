@@ -5,7 +5,7 @@ returns (``lidar.association: unknown``), 10% missed detections and 2 false retu
 
 - ``paper_ekf_figure8_unknown``: EKF-SLAM with known association (the same misses, no
   clutter: the baseline), nearest neighbour and JCBB;
-- ``paper_fastslam_helix_unknown``: FastSLAM with known association and per-particle maximum
+- ``fastslam_helix_unknown``: FastSLAM with known association and per-particle maximum
   likelihood (when the FastSLAM estimator associates unlabeled returns);
 - ``ekf_close_pairs_unknown`` (held out: 20 landmark pairs 0.6 m apart, a 5 Hz LiDAR): known,
   NN and JCBB, where joint compatibility must beat nearest neighbour;
@@ -58,8 +58,8 @@ ROWS = (
     Row("EKF-SLAM, known association", "paper_ekf_figure8_unknown", KNOWN),
     Row("EKF-SLAM, nearest neighbour", "paper_ekf_figure8_unknown", NN),
     Row("EKF-SLAM, JCBB", "paper_ekf_figure8_unknown"),
-    Row("FastSLAM, known association", "paper_fastslam_helix_unknown", KNOWN),
-    Row("FastSLAM, maximum likelihood", "paper_fastslam_helix_unknown"),
+    Row("FastSLAM, known association", "fastslam_helix_unknown", KNOWN),
+    Row("FastSLAM, maximum likelihood", "fastslam_helix_unknown"),
     Row("held-out pairs: EKF known", "ekf_close_pairs_unknown", KNOWN),
     Row("held-out pairs: EKF NN", "ekf_close_pairs_unknown", NN),
     Row("held-out pairs: EKF JCBB", "ekf_close_pairs_unknown"),
