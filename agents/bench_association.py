@@ -12,13 +12,12 @@ Each entry records the mean number of returns per scan (landmarks and clutter) i
 
 from __future__ import annotations
 
-from functools import partial
 from typing import Any
 
 import numpy as np
 
 from agents.bench import Plan, Results
-from agents.bench_envs import _env_rate, _note, _observations, lane_rates, make_vector
+from agents.bench_envs import _env_rate, _note, vector_rates
 
 SCENARIO = "paper_ekf_figure8_unknown"
 WIDE = {"lidar": {"azimuth_fov_deg": 90.0}}  # about 10 landmarks in view of 40
@@ -79,18 +78,14 @@ def bench_association(results: Results, plan: Plan) -> None:
         env.close()
     for label, method in METHODS[:2]:
         for b in plan.vec_batches:
-            vec = make_vector("QuadSLAM-v0", b, scenario=SCENARIO, **method)
-            policy = DFLQRPolicy.from_env(vec)
-            obs, _ = vec.reset(seed=0)
-            rates = lane_rates(partial(_observations, vec), obs, policy, b, plan)
+            rates, dt, _ = vector_rates("QuadSLAM-v0", b, plan, scenario=SCENARIO, **method)
             results.add(
                 "association",
                 f"env_steps_per_s/vector/{label}",
                 rates,
                 "env-steps/s",
-                note=_note(plan, vec.dt),
+                note=_note(plan, dt),
                 scenario=SCENARIO,
                 association=label,
                 num_envs=b,
             )
-            vec.close()

@@ -308,7 +308,7 @@ def _report_run(run_dir: Path) -> int:
 
 def cmd_study_cost(args: argparse.Namespace) -> int:
     """Train and evaluate the cost-of-estimation configurations; print the table."""
-    from agents.outputs import Saver, check_output_dir, check_output_file
+    from agents.outputs import check_output_dir, check_output_file
     from agents.study_cost import format_study, plot_study, run_study, write_json
 
     out = args.out or Path("runs") / f"study_cost{'_quick' if args.quick else ''}"
@@ -322,15 +322,23 @@ def cmd_study_cost(args: argparse.Namespace) -> int:
     result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
     print(format_study(result))
     print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
+    return _save_study(args, result, write_json, plot_study, "cost_of_estimation.png")
+
+
+def _save_study(
+    args: argparse.Namespace, result: dict[str, Any], write_json: Any, plot: Any, png: str
+) -> int:
+    """Write a study's ``--json`` and ``--plots`` outputs (a failed write is saved elsewhere
+    and reported by :meth:`Saver.check`)."""
+    from agents.outputs import Saver
+
     saver = Saver()
     if args.json is not None:
         where = saver.produce(args.json, "--json", lambda target: write_json(result, target))
         print(f"wrote {where}")
     if args.plots is not None:
         where = saver.produce(
-            args.plots / "cost_of_estimation.png",
-            "--plots",
-            lambda target: _plot_to(plot_study, result, target),
+            args.plots / png, "--plots", lambda target: _plot_to(plot, result, target)
         )
         print(f"wrote {where}")
     saver.check()
@@ -339,7 +347,7 @@ def cmd_study_cost(args: argparse.Namespace) -> int:
 
 def cmd_study_association(args: argparse.Namespace) -> int:
     """Known vs NN vs JCBB (EKF) and known vs ML (FastSLAM), and the clutter sweep."""
-    from agents.outputs import Saver, check_output_dir, check_output_file
+    from agents.outputs import check_output_dir, check_output_file
     from agents.study_association import format_study, plot_study, run_study, write_json
 
     if args.json is not None:
@@ -352,19 +360,7 @@ def cmd_study_association(args: argparse.Namespace) -> int:
     result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
     print(format_study(result))
     print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
-    saver = Saver()
-    if args.json is not None:
-        where = saver.produce(args.json, "--json", lambda target: write_json(result, target))
-        print(f"wrote {where}")
-    if args.plots is not None:
-        where = saver.produce(
-            args.plots / "association_clutter.png",
-            "--plots",
-            lambda target: _plot_to(plot_study, result, target),
-        )
-        print(f"wrote {where}")
-    saver.check()
-    return 0
+    return _save_study(args, result, write_json, plot_study, "association_clutter.png")
 
 
 def cmd_study_bound(args: argparse.Namespace) -> int:
