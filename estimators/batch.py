@@ -193,6 +193,9 @@ class LaneLoop:
     def __init__(self, estimators: Sequence[Estimator], landmark_capacity: int) -> None:
         self.lanes = list(estimators)
         self.num_lanes = len(self.lanes)
+        check_memory = getattr(self.lanes[0], "check_memory", None)
+        if check_memory is not None:  # the filters of the whole batch, before they grow
+            check_memory(self.num_lanes, landmark_capacity)
         self.uses_truth = bool(getattr(self.lanes[0], "uses_truth", False))
         b = self.num_lanes
         self._estimates: list[Estimate | None] = [None] * b

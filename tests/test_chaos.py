@@ -483,3 +483,19 @@ def test_ekf_map_growing_beyond_memory_is_rejected_at_reset(
     monkeypatch.delenv("QUADSLAM_MEMORY_LIMIT_BYTES")
     env.step(env.action_space.sample() * 0.0)  # the failed reset changed nothing
     assert env.unwrapped.core.n_landmarks[0] == 30
+
+
+def test_fastslam_map_that_cannot_fit_is_rejected_with_its_size(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """FastSLAM's landmark filters (N particles × L landmarks × 96 B per lane) are checked
+    when the env is built, for every lane of a vector env."""
+    monkeypatch.setenv("QUADSLAM_MEMORY_LIMIT_BYTES", str(2 * 96 * 500 * 40 * 4))
+    kwargs = {"estimator": {"params": {"n_particles": 500}},
+              "landmarks": {"layout": "rauniyar2023", "count": 40}}  # fmt: skip
+    gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                 **kwargs)  # fmt: skip
+    with pytest.raises(ValueError, match=r"with FastSLAM, 500 particles, on 5 lane\(s\)") as info:
+        gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=5, vectorization_mode="vector_entry_point",
+                     **kwargs)  # fmt: skip
+    assert "96 × 5 × 500 × 40" in str(info.value) and "at most 32 landmarks" in str(info.value)

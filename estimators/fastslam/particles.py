@@ -30,6 +30,7 @@ from estimators.fastslam.settings import (
     parse_process_noise,
     positive,
 )
+from estimators.memory import check_fastslam_map
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.linalg import psd_sqrt
@@ -104,6 +105,16 @@ class FastSLAMBase:
         self._alloc()
 
     # ---------------------------------------------------------------- state
+    def check_memory(self, num_lanes: int, landmark_capacity: int) -> None:
+        """Reject, before anything is allocated, a map whose landmark filters for
+        ``landmark_capacity`` landmarks in ``num_lanes`` such filters would not fit in memory
+        (:func:`estimators.memory.check_fastslam_map`).
+
+        Raises:
+            ValueError: Names the sizes and what would fit.
+        """
+        check_fastslam_map(num_lanes, self.n_particles, landmark_capacity)
+
     def _alloc(self) -> None:
         n = self.n_particles
         self.x = np.zeros((n, STATE_DIM))
