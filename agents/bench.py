@@ -9,6 +9,8 @@ unit, as one JSON entry. The sections (``--only``):
   factor, zero action and DF-LQR;
 * ``vector``, ``workers`` (:mod:`agents.bench_envs`): native vector env throughput in
   env-steps/s vs lanes B, in one process and split over 2 worker processes;
+* ``association`` (:mod:`agents.bench_association`): unknown data association (JCBB, NN)
+  against known association, scalar and vector env;
 * ``memory``, ``compile`` (:mod:`agents.bench_process`): peak RSS vs B and numba compile time,
   each measured in fresh subprocesses;
 * ``render`` (:mod:`agents.bench_render`): ``rgb_array`` frames/s and the time to record a
@@ -31,7 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-SECTION_NAMES = ("ekf", "fastslam", "env", "vector", "workers", "memory", "compile", "render")
+SECTION_NAMES = (
+    "ekf", "fastslam", "env", "vector", "association", "workers", "memory", "compile", "render"
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -288,6 +292,7 @@ def _fmt(value: float) -> str:
 
 def sections() -> dict[str, Callable[[Results, Plan], None]]:
     """Section name → function (imported here: the section modules import this one)."""
+    from agents.bench_association import bench_association
     from agents.bench_envs import bench_env, bench_vector, bench_workers
     from agents.bench_estimators import bench_ekf, bench_fastslam
     from agents.bench_process import bench_compile, bench_memory
@@ -298,6 +303,7 @@ def sections() -> dict[str, Callable[[Results, Plan], None]]:
         "fastslam": bench_fastslam,
         "env": bench_env,
         "vector": bench_vector,
+        "association": bench_association,
         "workers": bench_workers,
         "memory": bench_memory,
         "compile": bench_compile,

@@ -152,30 +152,45 @@ def _note(plan: Plan, dt: float, extra: str = "") -> str:
     )
 
 
-def bench_vector(results: Results, plan: Plan) -> None:
-    """Native vector env env-steps/s vs lanes B, one process, for each scenario."""
+def vector_rates(
+    env_id: str, num_envs: int, plan: Plan, **kwargs: Any
+) -> tuple[list[float], float, str]:
+    """Env-steps/s samples of the native vector env of ``env_id`` (``kwargs`` as for
+    ``gymnasium.make``) with B = ``num_envs`` lanes and the batched DF-LQR in the loop.
+
+    Returns:
+        ``(samples, control period dt in s, scenario name)``.
+    """
     from agents.dflqr import DFLQRPolicy
 
+    vec = make_vector(env_id, num_envs, **kwargs)
+    try:
+        policy = DFLQRPolicy.from_env(vec)
+        obs, _ = vec.reset(seed=0)
+        rates = lane_rates(partial(_observations, vec), obs, policy, num_envs, plan)
+        return rates, vec.dt, vec.scenario.name
+    finally:
+        vec.close()
+
+
+def bench_vector(results: Results, plan: Plan) -> None:
+    """Native vector env env-steps/s vs lanes B, one process, for each scenario."""
     for label, env_id, kwargs in VECTOR_SCENARIOS:
         for b in plan.vec_batches:
-            vec = make_vector(env_id, b, **kwargs)
-            policy = DFLQRPolicy.from_env(vec)
-            obs, _ = vec.reset(seed=0)
-            rates = lane_rates(partial(_observations, vec), obs, policy, b, plan)
+            rates, dt, scenario = vector_rates(env_id, b, plan, **kwargs)
             results.add(
                 "vector",
                 f"env_steps_per_s/{label}",
                 rates,
                 "env-steps/s",
-                note=_note(plan, vec.dt),
+                note=_note(plan, dt),
                 env_id=env_id,
-                scenario=vec.scenario.name,
+                scenario=scenario,
                 num_envs=b,
                 workers=1,
                 steps=steps_per_sample(plan, b),
                 warmup_steps=plan.vec_warmup,
             )
-            vec.close()
 
 
 def _observations(vec: Any, actions: np.ndarray) -> np.ndarray:

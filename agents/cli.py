@@ -308,7 +308,7 @@ def _report_run(run_dir: Path) -> int:
 
 def cmd_study_cost(args: argparse.Namespace) -> int:
     """Train and evaluate the cost-of-estimation configurations; print the table."""
-    from agents.outputs import Saver, check_output_dir, check_output_file
+    from agents.outputs import check_output_dir, check_output_file
     from agents.study_cost import format_study, plot_study, run_study, write_json
 
     out = args.out or Path("runs") / f"study_cost{'_quick' if args.quick else ''}"
@@ -322,19 +322,52 @@ def cmd_study_cost(args: argparse.Namespace) -> int:
     result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
     print(format_study(result))
     print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
+    return _save_study(args, result, write_json, plot_study, "cost_of_estimation.png")
+
+
+def _save_study(
+    args: argparse.Namespace, result: dict[str, Any], write_json: Any, plot: Any, png: str
+) -> int:
+    """Write a study's ``--json`` and ``--plots`` outputs (a failed write is saved elsewhere
+    and reported by :meth:`Saver.check`)."""
+    from agents.outputs import Saver
+
     saver = Saver()
     if args.json is not None:
         where = saver.produce(args.json, "--json", lambda target: write_json(result, target))
         print(f"wrote {where}")
     if args.plots is not None:
         where = saver.produce(
-            args.plots / "cost_of_estimation.png",
-            "--plots",
-            lambda target: _plot_to(plot_study, result, target),
+            args.plots / png, "--plots", lambda target: _plot_to(plot, result, target)
         )
         print(f"wrote {where}")
     saver.check()
     return 0
+
+
+def cmd_study_association(args: argparse.Namespace) -> int:
+    """Known vs NN vs JCBB (EKF) and known vs ML (FastSLAM), and the clutter sweep."""
+    from agents.outputs import check_output_dir, check_output_file
+    from agents.study_association import format_study, plot_study, run_study, write_json
+
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.plots is not None:
+        check_output_dir(args.plots, "--plots")
+    seeds = args.seeds or (3 if args.quick else 20)
+    tic = time.perf_counter()
+    result = run_study(seeds, args.quick)
+    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    print(format_study(result))
+    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
+    return _save_study(args, result, write_json, plot_study, "association_clutter.png")
+
+
+def cmd_study_bound(args: argparse.Namespace) -> int:
+    """The posterior Cramér–Rao bound of a scenario next to its estimator's errors."""
+    from agents.study_bound import cli_bound
+
+    return cli_bound(args)
 
 
 def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
@@ -459,6 +492,36 @@ def build_parser() -> argparse.ArgumentParser:
     cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     cost.add_argument("--plots", type=Path, help="write the box plot (PNG) here")
     cost.set_defaults(func=cmd_study_cost)
+    assoc = studies.add_parser(
+        "association",
+        help="unknown data association: known vs NN vs JCBB (EKF-SLAM), known vs ML "
+        "(FastSLAM), a held-out closely spaced map, and RMSE/wrong rate against clutter",
+    )
+    assoc.add_argument("--quick", action="store_true", help="3 seeds of 10 s, 3 clutter rates")
+    assoc.add_argument("--seeds", type=_positive_int, help="episodes per row (default 20)")
+    assoc.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    assoc.add_argument("--plots", type=Path, help="write the clutter figure (PNG) here")
+    assoc.set_defaults(func=cmd_study_association)
+    bound = studies.add_parser(
+        "bound",
+        help="posterior Cramér–Rao bound along each seed's true trajectory vs the "
+        "scenario's estimator (position, velocity, attitude)",
+    )
+    bound.add_argument("--scenario", default="paper_ekf_figure8", help="scenario name or path")
+    bound.add_argument("--seeds", type=_positive_int, default=10, help="number of seeds (10)")
+    bound.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    bound.add_argument("--duration", type=_positive_float, help="episode length in s")
+    bound.add_argument("--estimator", metavar="NAME", help="replace the scenario's estimator")
+    bound.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a scenario setting (repeatable)",
+    )
+    bound.add_argument("--json", type=Path, help="write the per-seed values and summary as JSON")
+    bound.add_argument("--plots", type=Path, help="write the error-vs-bound figure (PNG) here")
+    bound.set_defaults(func=cmd_study_bound)
     from agents.sweep import add_sweep_parser  # light: Ray is imported when a sweep runs
 
     add_sweep_parser(sub, _positive_int)

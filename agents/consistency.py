@@ -33,6 +33,7 @@ class ConsistencyResult:
         share_inside: Fraction of time steps with the ANEES inside the interval.
         pos_rmse_m: (n_runs,) position RMSE of each run.
         terminated: Number of runs that ended early.
+        nees_pos: (n_runs, K) position NEES of each run (3 DOF).
     """
 
     t: np.ndarray
@@ -42,6 +43,17 @@ class ConsistencyResult:
     share_inside: float
     pos_rmse_m: np.ndarray
     terminated: int
+    nees_pos: np.ndarray | None = None
+
+    def block_consistency(self, which: str = "pos") -> tuple[float, tuple[float, float], float]:
+        """``(pooled ANEES, 95% interval of the n-run ANEES, share of steps inside it)`` of
+        the pose (9 DOF, ``which="pose"``) or position (3 DOF, ``"pos"``) NEES."""
+        nees, dof = (self.nees, 9) if which == "pose" else (self.nees_pos, 3)
+        if nees is None:
+            raise ValueError("no position NEES recorded")
+        anees = nees.mean(axis=0)
+        lo, hi = anees_bounds(dof, nees.shape[0])
+        return float(anees.mean()), (lo, hi), float(np.mean((anees >= lo) & (anees <= hi)))
 
 
 def truth_observation(env: Any, oracle: OracleEstimator) -> np.ndarray:
@@ -58,20 +70,22 @@ def run_consistency(
     env = gym.make(env_id, **env_kwargs)
     policy = DFLQRPolicy.from_env(env)
     oracle = OracleEstimator()
-    runs, rmses, terminated = [], [], 0
+    runs, runs_pos, rmses, terminated = [], [], [], 0
     for i in range(n_runs):
         env.reset(seed=seed0 + i)
-        nees, pos_sq, t = [], [], []
+        nees, nees_pos, pos_sq, t = [], [], [], []
         while True:
             action, _ = policy.predict(truth_observation(env, oracle))
             _, _, term, trunc, info = env.step(action)
             nees.append(info.get("est_nees_pose", np.nan))
+            nees_pos.append(info.get("est_nees_pos", np.nan))
             pos_sq.append(info["est_pos_err_m"] ** 2)
             t.append(info["t"])
             if term or trunc:
                 terminated += int(term)
                 break
         runs.append(nees)
+        runs_pos.append(nees_pos)
         rmses.append(float(np.sqrt(np.mean(pos_sq))))
     env.close()
     length = min(len(r) for r in runs)
@@ -87,4 +101,5 @@ def run_consistency(
         share_inside=inside,
         pos_rmse_m=np.array(rmses),
         terminated=terminated,
+        nees_pos=np.array([r[:length] for r in runs_pos]),
     )

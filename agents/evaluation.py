@@ -54,7 +54,15 @@ _FROM_INFO = {
     "accel_bias_rel_err": "episode_accel_bias_rel_err",
     "gyro_bias_rel_err": "episode_gyro_bias_rel_err",
 }
+# Unknown data association (``lidar.association: unknown``) adds these to the record.
+_ASSOCIATION_FROM_INFO = {
+    "assoc_wrong_rate": "episode_assoc_wrong_rate",
+    "assoc_missed_rate": "episode_assoc_missed_rate",
+    "spurious_landmarks": "episode_spurious_landmarks",
+}
 MAX_LANES = 64  # episodes flown at once by run_episodes
+Observer = Callable[[Any, np.ndarray], None]
+"""``observer(core, stepped)`` of :func:`run_episodes`."""
 
 
 @dataclass
@@ -124,10 +132,15 @@ def run_episode(
     trace: Trace | None = None,
     on_step: Callable[[], None] | None = None,
     video: Any | None = None,
+    observer: Observer | None = None,
 ) -> dict[str, Any]:
     """Fly one episode and return its JSON record (keys :data:`EPISODE_KEYS`); ``video``
-    (an :class:`agents.video.LaneVideo`) records its frames."""
+    (an :class:`agents.video.LaneVideo`) records its frames, ``observer`` sees the env's
+    one-lane core after the reset and after every step (see :func:`run_episodes`)."""
     obs, info = env.reset(seed=seed)
+    lane0 = np.array([True])
+    if observer is not None:
+        observer(env.unwrapped.core, lane0)  # type: ignore[attr-defined]
     if trace is not None:
         trace.record(env)
     if video is not None:
@@ -141,6 +154,8 @@ def run_episode(
         start = np.array([False])
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
+        if observer is not None:
+            observer(env.unwrapped.core, lane0)  # type: ignore[attr-defined]
         if trace is not None:
             trace.record(env)
         if video is not None:
@@ -167,6 +182,9 @@ def episode_record(
     }
     for key, src in _FROM_INFO.items():
         record[key] = json_float(info.get(src, math.nan))
+    for key, src in _ASSOCIATION_FROM_INFO.items():
+        if src in info:
+            record[key] = json_float(info[src])
     record["steps_per_s"] = steps / wall_s if wall_s > 0 else math.nan
     return record
 
@@ -179,6 +197,7 @@ def run_episodes(
     on_step: Callable[[int], None] | None = None,
     max_lanes: int = MAX_LANES,
     video: Any | None = None,
+    observer: Observer | None = None,
 ) -> list[dict[str, Any]]:
     """Fly one episode per seed, as lanes of the native vector env of ``env``'s id and kwargs.
 
@@ -199,6 +218,12 @@ def run_episodes(
             ``max_steps × N`` (a progress bar's total).
         max_lanes: Most lanes in one vector env.
         video: An :class:`agents.video.LaneVideo` that records the first seed's episode.
+        observer: Called as ``observer(core, stepped)`` after the reset and after every
+            batch step, with the :class:`~quadslam_env.core.SimCore` of the lanes and the
+            (B,) bool mask of the lanes that were reset or just stepped (lane i flies
+            ``seeds[first + i]`` of its chunk of ``max_lanes``; one lane per episode on the
+            one-by-one path). It may read anything of the core, truth included (analyses
+            such as :mod:`agents.study_bound`), and must not change it.
 
     Returns:
         One record per seed, in the order of ``seeds``.
@@ -214,7 +239,13 @@ def run_episodes(
             tick = None if on_step is None else (lambda: on_step(1))
             is_first = i == 0
             rec = run_episode(
-                env, policy, seed, trace if is_first else None, tick, video if is_first else None
+                env,
+                policy,
+                seed,
+                trace if is_first else None,
+                tick,
+                video if is_first else None,
+                observer,
             )
             if on_step is not None:
                 on_step(max_steps - round(rec["duration_s"] / scalar.dt))
@@ -229,7 +260,7 @@ def run_episodes(
         try:
             records += _run_lanes(
                 vec, policy, chunk, trace if first == 0 else None, on_step,
-                video if first == 0 else None,
+                video if first == 0 else None, observer,
             )  # fmt: skip
         finally:
             vec.close()
@@ -243,11 +274,14 @@ def _run_lanes(
     trace: Trace | None,
     on_step: Callable[[int], None] | None,
     video: Any | None = None,
+    observer: Observer | None = None,
 ) -> list[dict[str, Any]]:
     """Fly lane i of ``vec`` with seed ``seeds[i]`` until its first episode ends."""
     core = vec.unwrapped.core
     n = len(seeds)
     obs, info = vec.reset(seed=seeds)
+    if observer is not None:
+        observer(core, np.ones(n, dtype=bool))
     if trace is not None:
         trace.record_lane(core, 0)
     if video is not None:
@@ -262,6 +296,8 @@ def _run_lanes(
         start = np.zeros(n, dtype=bool)
         obs, _, terminated, truncated, info = core.step(validate_actions(action, n), active)
         steps += 1
+        if observer is not None:
+            observer(core, active.copy())
         if trace is not None and active[0]:
             trace.record_lane(core, 0)
         if video is not None and active[0]:
@@ -282,7 +318,8 @@ def _run_lanes(
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
     """Median, min and max over episodes of each numeric key (NaNs ignored; None if all NaN)."""
     out: dict[str, dict[str, float | None]] = {}
-    for key in SUMMARY_KEYS:
+    extra = [k for k in _ASSOCIATION_FROM_INFO if episodes and k in episodes[0]]
+    for key in (*SUMMARY_KEYS, *extra):
         vals = np.array([np.nan if e[key] is None else e[key] for e in episodes], dtype=float)
         vals = vals[np.isfinite(vals)]
         out[key] = (
@@ -308,6 +345,12 @@ def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) ->
         ("steps/s", "steps_per_s", "{:.0f}"),
         ("end", "termination_reason", "{}"),
     ]
+    if episodes and "assoc_wrong_rate" in episodes[0]:
+        cols[-2:-2] = [
+            ("wrong", "assoc_wrong_rate", "{:.3f}"),
+            ("missed", "assoc_missed_rate", "{:.3f}"),
+            ("spurious", "spurious_landmarks", "{:.0f}"),
+        ]
 
     def cell(fmt: str, value: Any) -> str:
         if value is None or (isinstance(value, float) and not math.isfinite(value)):

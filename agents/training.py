@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import contextlib
 import json
+import signal
 import sys
+import threading
 import time
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -406,23 +409,45 @@ def _learn(
                         file=sys.stderr,
                     )
             learn_s = time.perf_counter() - learn_tic
-            model.save(run_dir / "model.zip")
-            if norm is not None:
-                model.get_vec_normalize_env().save(str(run_dir / "vecnormalize.pkl"))
-            if interrupted:
-                (run_dir / "INTERRUPTED").write_text(f"{model.num_timesteps}\n")
+            with _sigint_deferred():  # a second Ctrl-C must not leave a half-written folder
+                model.save(run_dir / "model.zip")
+                if norm is not None:
+                    model.get_vec_normalize_env().save(str(run_dir / "vecnormalize.pkl"))
+                if interrupted:
+                    (run_dir / "INTERRUPTED").write_text(f"{model.num_timesteps}\n")
         finally:
             for vec in (venv, eval_venv):
                 # Workers may already be gone after Ctrl-C (they exit on KeyboardInterrupt).
                 with contextlib.suppress(EOFError, BrokenPipeError, ConnectionError):
                     if vec is not None:
                         vec.close()
-    plot_learning_curve(run_dir)
-    timing = {
-        "timesteps": int(model.num_timesteps),
-        "learn_s": round(learn_s, 2),  # model.learn: stepping, updates, evaluations
-        "wall_s": round(time.perf_counter() - tic, 2),  # all of train(), from config to plot
-        "steps_per_s": round(model.num_timesteps / max(learn_s, 1e-9), 1),
-    }
-    (run_dir / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
+    with _sigint_deferred():
+        plot_learning_curve(run_dir)
+        timing = {
+            "timesteps": int(model.num_timesteps),
+            "learn_s": round(learn_s, 2),  # model.learn: stepping, updates, evaluations
+            "wall_s": round(time.perf_counter() - tic, 2),  # all of train(), config to plot
+            "steps_per_s": round(model.num_timesteps / max(learn_s, 1e-9), 1),
+        }
+        (run_dir / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
     return run_dir
+
+
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Hold Ctrl-C while the model, its statistics, the learning curve and ``timing.json`` are
+    written: an interrupt then only prints a note, so the run folder is never left half-written
+    (a second Ctrl-C after the one that stopped training used to end in a traceback and no
+    learning curve). Outside the main thread signals cannot be handled and nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def note(signum: int, frame: Any) -> None:
+        print("quadslam train: saving the run folder, please wait", file=sys.stderr)
+
+    previous = signal.signal(signal.SIGINT, note)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

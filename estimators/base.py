@@ -160,6 +160,22 @@ def _load(name: str) -> None:
     _REGISTRY.setdefault(name, obj)
 
 
+def associates_unlabeled(name: str) -> bool:
+    """Whether the estimator ``name`` accepts unlabeled scans (``lidar.association: unknown``).
+
+    Its class says so with ``associates_unlabeled = True``; it then takes a
+    :class:`~quadslam_env.measurements.LidarScan` with ``ids=None`` and sets
+    ``last_association`` (k,), the landmark id each return was paired with (-1: none).
+    Estimators that use the truth (the oracle) need no association and accept them too.
+
+    Raises:
+        ValueError: A plug-in that cannot be loaded.
+    """
+    _load(name)
+    cls = _REGISTRY.get(name)
+    return bool(getattr(cls, "associates_unlabeled", False) or getattr(cls, "uses_truth", False))
+
+
 def make(name: str, **cfg: Any) -> Estimator:
     """Build an estimator by name.
 

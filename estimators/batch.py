@@ -117,6 +117,13 @@ class BatchEstimator(Protocol):
         """Correct ``lanes`` (k,) with their scans: ``visible`` (B, Lmax) bool marks the
         returned landmark ids, ``meas`` (B, Lmax, 3) their (α rad, β rad, δ m); ``sigma`` (3,)."""
 
+    # Estimators that set ``associates_unlabeled = True`` (``lidar.association: unknown``)
+    # also implement ``update_unlabeled(t, lanes, count (B,), returns (B, R, 3), sigma)``:
+    # the returns of lane b are ``returns[b, :count[b]]``, unlabeled and in any order; and
+    # ``last_association`` (B, R) int: the label (index into ``landmark_means``) each return
+    # was paired with, -1 for none. A scalar :class:`~estimators.base.Estimator` gets a
+    # :class:`LidarScan` with ``ids=None`` and exposes ``last_association`` (k,).
+
     def estimate(self) -> BatchEstimate:
         """The belief of every lane."""
 
@@ -186,10 +193,15 @@ class LaneLoop:
     def __init__(self, estimators: Sequence[Estimator], landmark_capacity: int) -> None:
         self.lanes = list(estimators)
         self.num_lanes = len(self.lanes)
+        check_memory = getattr(self.lanes[0], "check_memory", None)
+        if check_memory is not None:  # the filters of the whole batch, before they grow
+            check_memory(self.num_lanes, landmark_capacity)
         self.uses_truth = bool(getattr(self.lanes[0], "uses_truth", False))
         b = self.num_lanes
         self._estimates: list[Estimate | None] = [None] * b
         self._out = _empty_batch(b, max(landmark_capacity, 0))
+        self.last_association = np.zeros((b, 0), dtype=np.int64)
+        """(B, R) int the scalar estimators' labels of their last unlabeled scans' returns."""
 
     def reset_lanes(
         self,
@@ -243,6 +255,33 @@ class LaneLoop:
             ids = np.flatnonzero(visible[lane])
             scan = LidarScan(t=float(t[lane]), ids=ids, meas=meas[lane, ids], sigma=sigma)
             self.lanes[lane].update(scan)
+            self._estimates[lane] = None
+
+    @property
+    def associates_unlabeled(self) -> bool:
+        """Whether the scalar estimators accept unlabeled scans (unknown association)."""
+        return bool(getattr(self.lanes[0], "associates_unlabeled", False))
+
+    def update_unlabeled(
+        self,
+        t: FloatArray,
+        lanes: IntArray,
+        count: np.ndarray,
+        returns: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Call each listed lane's ``update`` with an unlabeled :class:`LidarScan`
+        (``ids=None``) and collect its ``last_association`` (k,) into :attr:`last_association`."""
+        width = returns.shape[1]
+        if self.last_association.shape[1] < width:
+            self.last_association = np.full((self.num_lanes, width), -1, dtype=np.int64)
+        for lane in np.asarray(lanes).tolist():
+            k = int(count[lane])
+            scan = LidarScan(t=float(t[lane]), ids=None, meas=returns[lane, :k].copy(), sigma=sigma)
+            est = self.lanes[lane]
+            est.update(scan)
+            self.last_association[lane] = -1
+            self.last_association[lane, :k] = getattr(est, "last_association", -1)
             self._estimates[lane] = None
 
     def set_truth(self, states: FloatArray, landmarks: FloatArray, counts: np.ndarray) -> None:

@@ -120,3 +120,41 @@ def check_ekf_map(num_lanes: int, nv: int, slots: int) -> None:
         f"the covariance P (8 bytes × B × (nv + 3 L)² = 8 × {num_lanes} × {n}²)",
         allowed,
     )
+
+
+FASTSLAM_BYTES_PER_LANDMARK = 8 * (3 + 9)
+"""Bytes of one landmark in one particle: its mean (3) and covariance (3×3), float64."""
+
+
+def check_fastslam_map(num_lanes: int, n_particles: int, landmarks: int) -> None:
+    """Reject a FastSLAM map whose per-particle landmark filters would not fit in memory.
+
+    Every particle carries a 3-D EKF per landmark it has seen; the bound is all ``landmarks``
+    of the layout seen by every particle of every lane.
+
+    Args:
+        num_lanes: B.
+        n_particles: N per lane.
+        landmarks: Landmarks the layout makes (the map's size bound).
+
+    Raises:
+        ValueError: Names the particle and landmark counts, the bytes needed, the formula and
+            the largest map that fits.
+    """
+    per_landmark = FASTSLAM_BYTES_PER_LANDMARK * n_particles * num_lanes
+
+    def allowed(avail: int) -> str:
+        return (
+            f"at most {avail // per_landmark} landmarks with {n_particles} particles on "
+            f"{num_lanes} lane(s) (landmarks.count or the layout's positions), or fewer "
+            "particles (estimator.params.n_particles) or lanes"
+        )
+
+    check_fits(
+        per_landmark * landmarks,
+        f"landmarks: a map of {landmarks} landmarks with FastSLAM, {n_particles} particles, "
+        f"on {num_lanes} lane(s)",
+        f"the landmark filters (8 bytes × (3 + 9) × B × N × L = 96 × {num_lanes} × "
+        f"{n_particles} × {landmarks})",
+        allowed,
+    )

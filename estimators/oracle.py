@@ -87,6 +87,13 @@ class OracleBatch:
     def update(self, *args: Any, **kwargs: Any) -> None:
         """Nothing to do: the truth arrives through :meth:`set_truth`."""
 
+    update_unlabeled = update
+
+    @property
+    def last_association(self) -> np.ndarray:
+        """(B, 0): the oracle pairs no return (its map is the truth, labeled by id)."""
+        return np.zeros((self.num_lanes, 0), dtype=np.int64)
+
     def estimate(self) -> BatchEstimate:
         """The truth of every lane, with no covariance."""
         return self._out
@@ -141,6 +148,9 @@ class OracleEstimator:
 
     def predict(self, imu: ImuSample, control: Control, dt: float) -> None:
         """Nothing to do: the truth arrives through :meth:`set_truth`."""
+
+    last_association = np.zeros(0, dtype=np.int64)
+    """The oracle pairs no return (its map is the truth)."""
 
     def update(self, scan: LidarScan) -> None:
         """Nothing to do: the truth arrives through :meth:`set_truth`."""

@@ -72,6 +72,8 @@ class ComplementaryFilter:
 
     def update(self, scan: LidarScan) -> None:
         """Blend the mean position fix of the scan's landmarks into position and velocity."""
+        if scan.ids is None:  # the env refuses unknown association for this filter
+            raise ValueError("ComplementaryFilter needs labeled scans (lidar.association: known)")
         if scan.count == 0:
             return
         dcm = dcm_from_euler(self.x[6:9])

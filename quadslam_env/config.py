@@ -337,6 +337,20 @@ class ScenarioConfig:
             description=description,
             **sections,
         )
+        if scenario.lidar.association == "unknown":
+            from estimators.base import associates_unlabeled
+
+            try:
+                ok = associates_unlabeled(scenario.estimator.name)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from exc
+            if not ok:
+                raise ConfigError(
+                    f"lidar.association: got 'unknown' with estimator.name = "
+                    f"{scenario.estimator.name!r}, which cannot associate unlabeled returns; "
+                    "allowed: 'known', or an estimator that associates (ekf_slam, fastslam, "
+                    "fastslam_kinematic, oracle, or a plug-in with associates_unlabeled = True)"
+                )
         ratio = scenario.episode.control_hz / scenario.lidar.rate_hz
         if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise ConfigError(

@@ -272,10 +272,33 @@ class LidarConfig(Section):
         hi=1000.0,
         doc="scan rate in Hz (must divide episode.control_hz)",
     )
+    association: str = _spec(
+        "known",
+        kind="str",
+        choices=("known", "unknown"),
+        doc="known: each return carries its landmark id (the papers); unknown: returns are "
+        "unlabeled and shuffled, the estimator associates them (the truth pairing reaches "
+        "only the metrics)",
+    )
+    detection_prob: float = _spec(
+        1.0, lo=0.0, hi=1.0, doc="probability that a landmark in the FOV and range is returned"
+    )
+    clutter_rate: float = _spec(
+        0.0,
+        lo=0.0,
+        hi=1000.0,
+        doc="mean number of false returns per scan (Poisson), uniform over the FOV volume "
+        "within range; needs association: unknown",
+    )
 
     def validate(self) -> None:
         if self.range_max_m <= self.range_min_m:
             raise ConfigError(
                 f"lidar.range_max_m: got {self.range_max_m}; allowed: > "
                 f"lidar.range_min_m = {self.range_min_m}"
+            )
+        if self.clutter_rate > 0.0 and self.association == "known":
+            raise ConfigError(
+                f"lidar.clutter_rate: got {self.clutter_rate}; allowed: 0 with association: "
+                "known (a false return has no landmark id), or set lidar.association: unknown"
             )

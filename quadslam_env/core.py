@@ -13,6 +13,7 @@ as the scalar env always has.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -21,9 +22,16 @@ from typing import Any
 import numpy as np
 
 from estimators.batch import BatchEstimate, BatchEstimator, health_codes, make_batch
-from estimators.metrics import EpisodeMetrics, step_metrics
+from estimators.metrics import (
+    ASSOCIATION_KEYS,
+    EpisodeMetrics,
+    association_counts,
+    match_landmarks,
+    step_metrics,
+)
 from quadslam_env.actions import ActionMap
 from quadslam_env.config import ConfigError, LandmarksConfig, ScenarioConfig
+from quadslam_env.measurements import ScanReturns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.observation import ObservationBuilder
 from quadslam_env.reward import reward_terms
@@ -111,6 +119,8 @@ class SimCore:
         last_scan: ``(lanes (k,), visible (B, Lmax) bool, meas (B, Lmax, 3))`` of the scan
             taken in the last step (see :meth:`LidarBatch.scan`), or ``None`` when no lane
             scanned then; references, not copies (for the renderer).
+        last_rates: (B, 3) true body rates in rad/s averaged over the last step (the IMU's
+            noise-free gyro input), for analyses along the truth (``estimators.pcrb``).
     """
 
     def __init__(self, scenario: ScenarioConfig, num_lanes: int) -> None:
@@ -137,7 +147,10 @@ class SimCore:
         self.steps = np.zeros(b, dtype=np.int64)
         self.t: FloatArray = np.zeros(b)
         self.n_visible = np.zeros(b, dtype=np.int64)
-        self.episode = EpisodeMetrics(b)
+        self.unlabeled = cfg.lidar.association == "unknown"
+        self.episode = EpisodeMetrics(b, association=self.unlabeled)
+        self._match = np.full((b, 0), -1, dtype=np.int64)  # true id of each estimator label
+        self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(b))
         self.termination = Termination(cfg.episode, self.dt, b)
         trace = cfg.episode.max_cov_trace
         self._max_cov_trace = math.inf if trace is None else trace
@@ -151,6 +164,7 @@ class SimCore:
             ]
         )
         self.last_scan: tuple[np.ndarray, np.ndarray, FloatArray] | None = None
+        self.last_rates: FloatArray = np.zeros((b, 3))
         self.est: BatchEstimate = self._snapshot()
 
     # ------------------------------------------------------------------ reset
@@ -175,6 +189,9 @@ class SimCore:
         opts = options or {}
         lanes = np.asarray(lanes, dtype=np.int64)
         k = lanes.shape[0]
+        reserve = getattr(self.estimator, "reserve_landmarks", None)
+        if "landmarks" in opts and reserve is not None:
+            reserve(len(opts["landmarks"]))  # a larger map must fit before anything changes
         children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
         states0 = np.empty((k, STATE_DIM))
         mean0 = np.empty((k, STATE_DIM))
@@ -208,6 +225,8 @@ class SimCore:
         self.termination.reset(lanes)
         self.episode.reset(lanes)
         est = self._snapshot()
+        if self.unlabeled:
+            self._associated(est, None, rematch=True)
         ref = self.trajectory.batch(self.t)
         info = self._metrics(est, ref)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
@@ -246,6 +265,7 @@ class SimCore:
         thrust, torque = self.action_map.inputs(act, self.est.rates)
         vehicle = self.vehicle
         mean_rates = vehicle.step(thrust, torque, self.dt, active)
+        self.last_rates = mean_rates
         self.steps += active
         self.t = (self.steps * self.dt).astype(np.float64, copy=False)
         state = vehicle.state
@@ -253,15 +273,18 @@ class SimCore:
             self.t, state[:, 3:6], mean_rates, vehicle.applied_thrust, active
         )
         scanning = np.flatnonzero(active & (self.steps % self.scenario.lidar_every == 0))
+        self.last_scan = None
         if scanning.size:
             dcm = dcm_from_euler_batch(state[:, 6:9])
-            visible, meas = self.lidar.scan(
-                state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning
-            )
+            where = (state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning)
+            if self.unlabeled:
+                returns = self.lidar.returns(*where)
+                visible = np.arange(returns.meas.shape[1]) < returns.count[:, None]
+                meas = returns.meas
+            else:
+                visible, meas = self.lidar.scan(*where)
             self.n_visible[scanning] = visible[scanning].sum(axis=1)
             self.last_scan = (scanning, visible, meas)
-        else:
-            self.last_scan = None
         timed = self.scenario.episode.report_step_time
         tic = time.perf_counter() if timed else 0.0
         imu = self.imu
@@ -276,9 +299,15 @@ class SimCore:
             self.dt,
             active,
         )
-        if scanning.size:
+        if scanning.size and self.unlabeled:
+            self.estimator.update_unlabeled(  # type: ignore[attr-defined]
+                self.t, scanning, returns.count, returns.meas, self.lidar.sigma
+            )
+        elif scanning.size:
             self.estimator.update(self.t, scanning, visible, meas, self.lidar.sigma)
         est = self._snapshot()
+        if self.unlabeled:
+            self._associated(est, returns if scanning.size else None, bool(scanning.size))
         toc = time.perf_counter() if timed else 0.0
         ref = self.trajectory.batch(self.t)
         info: dict[str, Any] = self._metrics(est, ref)
@@ -330,10 +359,45 @@ class SimCore:
         t = self.t if lanes is None else self.t[np.asarray(lanes)]
         return self.trajectory.batch(t)
 
+    def _associated(self, est: BatchEstimate, returns: ScanReturns | None, rematch: bool) -> None:
+        """Unknown association: name the estimator's map entries by their true landmarks
+        (``rematch`` after a reset or scan: the map changes only then) and count the
+        association outcomes of this step's ``returns`` (``None``: no lane scanned)."""
+        if rematch or self._match.shape != est.landmark_mapped.shape:
+            state = self.vehicle.state
+            self._match = match_landmarks(
+                est.landmark_means, est.landmark_mapped, np.hstack((est.position, est.euler)),
+                self.landmarks, self.n_landmarks, np.hstack((state[:, 0:3], state[:, 6:9])),
+            )  # fmt: skip
+            self._matched = self._match >= 0
+            self._match_truth = np.take_along_axis(
+                self.landmarks, np.maximum(self._match, 0)[..., None], axis=1
+            )
+            self._spurious = (est.landmark_mapped & ~self._matched).sum(axis=1).astype(float)
+        if returns is None:
+            self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(self.num_lanes))
+        else:
+            labels = self.estimator.last_association  # type: ignore[attr-defined]
+            self._assoc_counts = association_counts(
+                returns.truth, labels, returns.count, self._match
+            )
+
     def _metrics(self, est: BatchEstimate, ref: FlatOutputs) -> dict[str, Any]:
         state = self.vehicle.state
         nan = np.full(self.num_lanes, math.nan)
-        info: dict[str, Any] = step_metrics(state, est, self.landmarks, self.imu.total_bias)
+        if self.unlabeled:  # the map RMSE over the entries matched to a true landmark
+            matched = dataclasses.replace(est, landmark_mapped=self._matched)
+            truth = self._match_truth
+            info: dict[str, Any] = step_metrics(state, matched, truth, self.imu.total_bias)
+            info["est_n_mapped"] = est.landmark_mapped.sum(axis=1).astype(float)
+            info["spurious_landmarks"] = self._spurious.copy()
+            counts = self._assoc_counts
+            info.update(counts)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                info["assoc_wrong_rate"] = counts["assoc_n_wrong"] / counts["assoc_n_associated"]
+                info["assoc_missed_rate"] = counts["assoc_n_missed"] / counts["assoc_n_true"]
+        else:
+            info = step_metrics(state, est, self.landmarks, self.imu.total_bias)
         # Copies: the estimator reuses its buffers, and an info dict must outlive the step.
         info["est_nis"] = np.array(est.diagnostics.get("nis", nan))
         info["est_ess"] = np.array(est.diagnostics.get("ess", nan))

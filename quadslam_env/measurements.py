@@ -46,21 +46,45 @@ class Control:
 
 @dataclass(frozen=True)
 class LidarScan:
-    """One LiDAR scan with known data association.
+    """One LiDAR scan, with known or unknown data association.
 
     Attributes:
         t: Scan time in s.
-        ids: (k,) int landmark identities, sorted ascending.
+        ids: (k,) int landmark identities, sorted ascending; ``None`` when the association is
+            unknown (``lidar.association: unknown``): the returns are then unlabeled, in random
+            order, and may include false returns (clutter).
         meas: (k, 3) measurements (azimuth α rad, elevation β rad, range δ m).
         sigma: (3,) noise standard deviations (σ_α rad, σ_β rad, σ_δ m).
     """
 
     t: float
-    ids: np.ndarray
+    ids: np.ndarray | None
     meas: FloatArray
     sigma: FloatArray
 
     @property
     def count(self) -> int:
-        """Number of landmarks in the scan."""
-        return int(self.ids.shape[0])
+        """Number of returns in the scan."""
+        return int(self.meas.shape[0])
+
+    @property
+    def labeled(self) -> bool:
+        """Whether the returns carry landmark ids (known data association)."""
+        return self.ids is not None
+
+
+@dataclass
+class ScanReturns:
+    """Unlabeled LiDAR returns of B lanes (``lidar.association: unknown``).
+
+    Attributes:
+        count: (B,) int returns per lane (0 for lanes that did not scan).
+        meas: (B, R, 3) returns (α rad, β rad, δ m), rows ``≥ count[b]`` unused; R grows with
+            the largest scan seen.
+        truth: (B, R) int true landmark id of each return, -1 for a false return. The
+            simulator keeps it for the association metrics; estimators never receive it.
+    """
+
+    count: np.ndarray
+    meas: FloatArray
+    truth: np.ndarray

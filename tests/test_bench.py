@@ -53,7 +53,9 @@ def test_document_is_wellformed(tiny_run) -> None:
     assert tuple(doc["sections"]) == SECTION_NAMES
     assert {"cpu", "cores", "python", "numpy", "numba", "load_average"} <= set(doc["machine"])
     groups = {e["group"] for e in doc["results"]}
-    assert groups == {"ekf_slam", "fastslam", "env", "vector", "memory", "compile", "render"}
+    assert groups == {
+        "ekf_slam", "fastslam", "env", "vector", "association", "memory", "compile", "render"
+    }  # fmt: skip
     for entry in doc["results"]:
         assert {"group", "name", "params", "unit", "median", "min", "max", "n"} <= set(entry)
         assert entry["n"] >= 1 and entry["unit"]
@@ -64,6 +66,22 @@ def test_document_is_wellformed(tiny_run) -> None:
     for label in ("oracle", "ekf_slam", f"fastslam_N{TINY.fast_env_particles[0]}"):
         assert f"steps_per_s/{label}/dflqr" in names
         assert f"real_time_factor/{label}/dflqr" in names
+
+
+def test_association_entries(tiny_run) -> None:
+    """Scalar known/NN/JCBB and vector known/NN at every B, each with its returns per scan."""
+    doc, _, _, _ = tiny_run
+    assoc = _by_name(doc, "association")
+    assert set(assoc) == {
+        "steps_per_s/scalar/known", "steps_per_s/scalar/nn", "steps_per_s/scalar/jcbb",
+        "env_steps_per_s/vector/known", "env_steps_per_s/vector/nn",
+    }  # fmt: skip
+    assert len(assoc["env_steps_per_s/vector/nn"]) == len(TINY.vec_batches)
+    scalar = assoc["steps_per_s/scalar/jcbb"][0]["params"]
+    assert (
+        scalar["returns_per_scan"]
+        > assoc["steps_per_s/scalar/known"][0]["params"]["returns_per_scan"]
+    )  # the unknown runs carry the false returns too
 
 
 def _by_name(doc: dict, group: str) -> dict[str, list[dict]]:

@@ -469,16 +469,33 @@ def test_ekf_memory_limit_counts_the_lanes(monkeypatch: pytest.MonkeyPatch) -> N
         gym.make_vec("QuadSLAM-EKF-v0", num_envs=9, vectorization_mode="vector_entry_point")
 
 
-def test_ekf_map_growing_beyond_memory_is_rejected_at_the_first_scan(
+def test_ekf_map_growing_beyond_memory_is_rejected_at_reset(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A reset option with more landmarks than the scenario's grows the map when the first
-    scan brings the new ids: the growth is checked like the first allocation."""
+    """A reset option with more landmarks than the scenario's grows the map: the growth is
+    checked at that reset, like the first allocation, before any step."""
     env = gym.make("QuadSLAM-EKF-v0", landmarks={"count": 10})
+    env.reset(seed=0, options={"landmarks": [[5.0 + 0.01 * i, 0.0, -2.0] for i in range(30)]})
     monkeypatch.setenv("QUADSLAM_MEMORY_LIMIT_BYTES", "1000000")
     points = [[5.0 + 0.01 * i, 0.0, -2.0] for i in range(200)]  # in front of the vehicle
-    env.reset(seed=0, options={"landmarks": points})
-    action = env.action_space.sample() * 0.0
     with pytest.raises(ValueError, match=r"a map of \d+ landmarks with EKF-SLAM"):
-        for _ in range(10):  # the LiDAR scans every 10th control step
-            env.step(action)
+        env.reset(seed=0, options={"landmarks": points})
+    monkeypatch.delenv("QUADSLAM_MEMORY_LIMIT_BYTES")
+    env.step(env.action_space.sample() * 0.0)  # the failed reset changed nothing
+    assert env.unwrapped.core.n_landmarks[0] == 30
+
+
+def test_fastslam_map_that_cannot_fit_is_rejected_with_its_size(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """FastSLAM's landmark filters (N particles × L landmarks × 96 B per lane) are checked
+    when the env is built, for every lane of a vector env."""
+    monkeypatch.setenv("QUADSLAM_MEMORY_LIMIT_BYTES", str(2 * 96 * 500 * 40 * 4))
+    kwargs = {"estimator": {"params": {"n_particles": 500}},
+              "landmarks": {"layout": "rauniyar2023", "count": 40}}  # fmt: skip
+    gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                 **kwargs)  # fmt: skip
+    with pytest.raises(ValueError, match=r"with FastSLAM, 500 particles, on 5 lane\(s\)") as info:
+        gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=5, vectorization_mode="vector_entry_point",
+                     **kwargs)  # fmt: skip
+    assert "96 × 5 × 500 × 40" in str(info.value) and "at most 32 landmarks" in str(info.value)

@@ -385,6 +385,41 @@ def test_interrupted_training_exits_130(
     assert code == 130 and "partial" in capsys.readouterr().err
 
 
+def test_a_second_interrupt_while_saving_leaves_a_complete_run_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Ctrl-C stops training; a second Ctrl-C during the learning-curve plot is held until the
+    run folder is complete: status 130, the model, INTERRUPTED, the curve and timing.json."""
+    import os
+    import signal
+
+    from stable_baselines3 import PPO
+
+    import agents.training
+
+    def interrupted_learn(self: Any, *args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    plot = agents.training.plot_learning_curve
+
+    def plot_with_second_interrupt(run_dir: Path) -> None:
+        os.kill(os.getpid(), signal.SIGINT)  # delivered here, in the main thread
+        plot(run_dir)
+
+    monkeypatch.setattr(PPO, "learn", interrupted_learn)
+    monkeypatch.setattr(agents.training, "plot_learning_curve", plot_with_second_interrupt)
+    out = tmp_path / "runs"
+    args = ["train", "--algo", "ppo", "--env", main_env(), "--timesteps", "128", "--n-envs", "1"]
+    args += ["--out", str(out), "--no-progress", "--hyperparams", "n_steps=64", "batch_size=32"]
+    args += ["env_kwargs.episode.duration_s=1.0", "eval_freq=0", "checkpoint_freq=0"]
+    assert cli.main(args) == 130
+    (run_dir,) = out.glob("ppo_*")
+    for name in ("model.zip", "INTERRUPTED", "timing.json", "config.yaml"):
+        assert (run_dir / name).exists(), name
+    assert "please wait" in capsys.readouterr().err
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
 def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
     # The actions the env received inside the training pipeline (VecNormalize + residual on
     # the lanes + model) must equal TrainedPolicy.predict on the raw env.

@@ -23,13 +23,23 @@ CASES = {
     "QuadSLAM-EKF-v0": SHORT,
     "QuadSLAM-EKF-v0-known": {**SHORT, "scenario": "paper_ekf_figure8_known"},
     "QuadSLAM-FastSLAM-v0": FAST_FASTSLAM,
+    "QuadSLAM-EKF-v0-unknown": {
+        "episode": {"duration_s": 0.45},
+        "lidar": {"association": "unknown", "clutter_rate": 3.0, "detection_prob": 0.9},
+        "estimator": {"params": {"confirm_hits": 2, "confirm_window": 3}},
+    },
 }
+
+
+def _id(case: str) -> str:
+    """The registered id of a test case (``QuadSLAM-EKF-v0-known`` → ``QuadSLAM-EKF-v0``)."""
+    return case[: case.index("-v0") + 3]
 
 
 def lane_actions(env_id: str, lanes: int, steps: int) -> np.ndarray:
     """DF-LQR-like hover actions with per-lane noise; lane 1 crashes early (tilt)."""
     rng = np.random.default_rng(7)
-    single = gym.make(env_id.removesuffix("-known"), **_kwargs(env_id))
+    single = gym.make(_id(env_id), **_kwargs(env_id))
     hover = single.unwrapped.hover_action
     single.close()
     acts = hover + 0.05 * rng.standard_normal((steps, lanes, 4))
@@ -45,7 +55,7 @@ def _kwargs(env_id: str) -> dict:
 def scalar_rollout(env_id: str, seed: int, actions: np.ndarray) -> tuple[list[tuple], int]:
     """What a lane must produce, from the scalar env (reset the step after an episode ends),
     and how many times it was reset after an episode end."""
-    env = gym.make(env_id.removesuffix("-known"), **_kwargs(env_id))
+    env = gym.make(_id(env_id), **_kwargs(env_id))
     obs, info = env.reset(seed=seed)
     out = [(obs, 0.0, False, False, info)]
     done = False
@@ -69,7 +79,7 @@ def test_lane_i_equals_the_scalar_env_seeded_s_plus_i_through_autoresets(env_id)
     lanes, steps, seed = 3, 80, 100
     acts = lane_actions(env_id, lanes, steps)
     vec = gym.make_vec(
-        env_id.removesuffix("-known"),
+        _id(env_id),
         num_envs=lanes,
         vectorization_mode="vector_entry_point",
         **_kwargs(env_id),

@@ -26,8 +26,10 @@ from typing import Any
 
 import numpy as np
 
+from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
+from estimators.ekf.associate import UnlabeledScans
 from estimators.ekf.kernels import (
     D_NIS,
     DIAGNOSTIC_NAMES,
@@ -45,7 +47,7 @@ _AR3 = np.arange(3)
 
 
 @register_batch("ekf_slam")
-class EkfSlamBatch:
+class EkfSlamBatch(UnlabeledScans):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
     Implements :class:`estimators.batch.BatchEstimator`. Lane b behaves exactly like a scalar
@@ -66,6 +68,7 @@ class EkfSlamBatch:
     """
 
     uses_truth = False
+    associates_unlabeled = True
 
     def __init__(
         self, num_lanes: int, landmark_capacity: int, vehicle: Any = None, **params: Any
@@ -87,6 +90,8 @@ class EkfSlamBatch:
         self._diag[D_NIS] = math.nan
         self._vel_inertial = np.zeros((b, 3))
         self._accel_bias = np.zeros((b, 3))
+        self._assoc = np.zeros((b, 0), dtype=np.int64)
+        self._thresholds = joint_thresholds(0, settings.gate_probability)
         self._allocate(max(int(landmark_capacity), 0))
 
     def __getstate__(self) -> dict[str, Any]:
@@ -118,6 +123,12 @@ class EkfSlamBatch:
         self._id_of_slot = fresh("_id_of_slot", (b, lmax), -1, np.int64)
         self._mapped = fresh("_mapped", (b, lmax), False, bool)
         self._known_pos = fresh("_known_pos", (b, lmax, 3), 0.0, float)
+        # Unknown association: tentative labels (in the state, not yet reported), their hits
+        # and age (estimators.ekf.associate), and the reported map (mapped, not tentative).
+        self._tentative = fresh("_tentative", (b, lmax), False, bool)
+        self._hits = fresh("_hits", (b, lmax), 0, np.int64)
+        self._age = fresh("_age", (b, lmax), 0, np.int64)
+        self._reported = np.zeros((b, lmax), dtype=bool)
         self._landmark_means = np.zeros((b, lmax, 3))
         self._batch_estimate: BatchEstimate | None = None
 
@@ -137,6 +148,16 @@ class EkfSlamBatch:
         doubled = -(-(2 * (self.nv + 3 * lmax) - self.nv) // 3)  # ceil
         grown = max(count, doubled)
         self._allocate(grown, keep=True, slots=0 if self._known.all() else grown)
+
+    def reserve_landmarks(self, count: int) -> None:
+        """Make room for landmark ids ``0 … count-1`` now (the env calls it at reset, so that
+        a map brought by a reset option that cannot fit in memory fails there, not at the
+        first scan).
+
+        Raises:
+            ValueError: The map would not fit (see :mod:`estimators.memory`).
+        """
+        self._ensure_ids(count)
 
     @property
     def landmark_capacity(self) -> int:
@@ -225,7 +246,9 @@ class EkfSlamBatch:
             self._slot_of_id[lane] = -1
             self._id_of_slot[lane] = -1
             self._mapped[lane] = False
+            self._tentative[lane] = False
             self._known_pos[lane] = 0.0
+            self._assoc[lane] = UNASSOCIATED
             known = maps[j]
             self._known[lane] = known is not None
             if known is not None:
@@ -398,7 +421,7 @@ class EkfSlamBatch:
                 rates=self._rates,
                 pose_cov=self._P[:, :POSE_DIM, :POSE_DIM],
                 landmark_means=self._landmark_means,
-                landmark_mapped=self._mapped,
+                landmark_mapped=self._reported,
                 accel_bias=accel_bias,
                 gyro_bias=gyro_bias,
                 diagnostics={k: self._diag[i] for i, k in enumerate(DIAGNOSTIC_NAMES)},
@@ -406,6 +429,7 @@ class EkfSlamBatch:
             self._batch_estimate = out
         if self.estimate_imu_bias:
             self._accel_bias[:, 2] = x[:, 12]
+        np.logical_and(self._mapped, ~self._tentative, out=self._reported)
         return out
 
     def lane_estimate(self, lane: int) -> Estimate:
@@ -418,7 +442,7 @@ class EkfSlamBatch:
             diagnostics of :meth:`estimate` as floats.
         """
         x, P, nv = self._x[lane], self._P[lane], self.nv
-        lm_ids = np.flatnonzero(self._mapped[lane])
+        lm_ids = np.flatnonzero(self._mapped[lane] & ~self._tentative[lane])
         if self._known[lane]:
             lm_means = self._known_pos[lane, lm_ids]
             lm_covs = np.zeros((lm_ids.shape[0], 3, 3))

@@ -37,6 +37,147 @@ MAX_PITCH = math.radians(89.0)
 
 
 @kernel
+def transition_matrices(
+    xb: FloatArray,
+    nv: int,
+    p: float,
+    q: float,
+    r: float,
+    sa: float,
+    sg: float,
+    dt: float,
+    F: FloatArray,
+    G: FloatArray,
+    A: FloatArray,
+    M: FloatArray,
+    Phi: FloatArray,
+    Gam: FloatArray,
+) -> None:
+    """Discrete transition ``Φ`` and noise input ``Γ`` of one IMU sample (seed 001 eq. 27–28).
+
+    ``A = F dt`` over ``(s, b)`` (the biases enter through ``λ = λ̃ - b``, so ``∂f/∂b = -G``),
+    ``M = I + ½A``, ``Φ = I + A M = I + A + ½A²`` (eq. 27 to second order) and
+    ``Γ = M G diag(σ_a, σ_ω, σ_ω, σ_ω) dt``: the IMU white noise (per-sample std held over the
+    sample) mapped into the state, so that ``Q_d = Γ Γᵀ + Q dt``
+    (:func:`propagate_covariance`). The EKF evaluates this at its estimate; the posterior
+    Cramér–Rao bound (:mod:`estimators.pcrb`) at the true state.
+
+    Args:
+        xb: (≥nv,) state whose first 9 entries are the linearisation point s.
+        nv: Vehicle-state size (9, or 13 with biases).
+        p, q, r: Bias-corrected body rates in rad/s.
+        sa: Accelerometer white-noise std times dt (0: no IMU noise in Q_d).
+        sg: Gyro white-noise std times dt (0 likewise).
+        dt: Sample period in s.
+        F: (9, 9) receives ``∂f_s/∂s``; G: (9, 4) receives ``∂f_s/∂λ``.
+        A, M, Phi: (nv, nv) receive ``F dt`` (bias columns included), ``I + ½A`` and ``Φ``.
+        Gam: (nv, 4) receives ``Γ``.
+    """
+    strapdown_jacobians(xb, p, q, r, F, G)
+    A[:, :] = 0.0
+    for i in range(POSE_DIM):
+        for j in range(POSE_DIM):
+            A[i, j] = F[i, j] * dt
+        if nv > POSE_DIM:
+            A[i, 9], A[i, 10], A[i, 11], A[i, 12] = (
+                -G[i, 1] * dt,
+                -G[i, 2] * dt,
+                -G[i, 3] * dt,
+                -G[i, 0] * dt,
+            )
+    # The products run with the output index innermost (independent sums, same k order) and
+    # skip the many exact zeros of A.
+    for i in range(nv):
+        for j in range(nv):
+            M[i, j] = 0.5 * A[i, j] + (1.0 if i == j else 0.0)
+    for i in range(nv):
+        Phi[i, :] = 0.0
+        Gam[i, :] = 0.0
+        for k in range(nv):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(nv):
+                    Phi[i, j] += a * M[k, j]
+        Phi[i, i] += 1.0
+        for k in range(POSE_DIM):  # the bias rows of σG are zero
+            a = M[i, k]
+            if a != 0.0:
+                Gam[i, 0] += a * (G[k, 0] * sa)
+                for j in range(1, 4):
+                    Gam[i, j] += a * (G[k, j] * sg)
+
+
+@kernel
+def propagate_covariance(
+    Pb: FloatArray,
+    nb: int,
+    nv: int,
+    Phi: FloatArray,
+    Gam: FloatArray,
+    qc: FloatArray,
+    dt: float,
+    T: FloatArray,
+    Pvv: FloatArray,
+) -> bool:
+    """Covariance prediction of eq. 27/29 into scratch, without touching ``Pb``.
+
+    ``T = Φ P[:nv, :n]`` (the rows of the vehicle block and its cross-covariances, eq. 29) and
+    ``P_vv = ½(X + Xᵀ) + Γ Γᵀ + Q dt`` with ``X = T[:, :nv] Φᵀ = Φ P_vv Φᵀ`` (eq. 27);
+    :func:`store_rows` writes them back. Returns False if a result is not finite.
+
+    Args:
+        Pb: (≥n, ≥n) covariance whose rows ``:nv`` and the block ``[:nv, :nv]`` are current.
+        nb: State size n.
+        nv: Vehicle-state size.
+        Phi: (nv, nv) transition; Gam: (nv, 4) noise input (:func:`transition_matrices`).
+        qc: (nv,) diagonal of the continuous process-noise density.
+        dt: Sample period in s.
+        T: (nv, ≥n) receives ``Φ P[:nv, :n]``.
+        Pvv: (nv, nv) receives the predicted vehicle block.
+    """
+    # Φ is sparse (∂f/∂ρ = 0, Λ̇ does not depend on v); skipping its zeros is exact because
+    # P is always finite (every write is checked).
+    finite = True
+    for i in range(nv):
+        Ti = T[i]
+        Ti[:nb] = 0.0
+        for k in range(nv):
+            a = Phi[i, k]
+            if a != 0.0:
+                Pk = Pb[k]
+                for j in range(nb):
+                    Ti[j] += a * Pk[j]
+        for j in range(nb):
+            finite &= Ti[j] * 0.0 == 0.0  # exact test, and unlike a sum it vectorises
+    for i in range(nv):
+        for j in range(i + 1):
+            xij = 0.0
+            xji = 0.0
+            for k in range(nv):
+                xij += T[i, k] * Phi[j, k]
+                xji += T[j, k] * Phi[i, k]
+            gg = 0.0
+            for k in range(4):
+                gg += Gam[i, k] * Gam[j, k]
+            v = (xij + xji) * 0.5 + gg
+            if i == j:
+                v += qc[i] * dt
+            Pvv[i, j] = v
+            Pvv[j, i] = v
+            finite &= v * 0.0 == 0.0
+    return finite
+
+
+@kernel
+def store_rows(Pb: FloatArray, nb: int, nv: int, T: FloatArray, Pvv: FloatArray) -> None:
+    """Write the prediction of :func:`propagate_covariance` into the rows ``P[:nv, :n]``; the
+    mirrored columns ``P[nv:n, :nv]`` become stale (:func:`sync_lane` rebuilds them)."""
+    for i in range(nv):  # slice copies: measured 25% faster than element loops here
+        Pb[i, :nv] = Pvv[i]
+        Pb[i, nv:nb] = T[i, nv:nb]
+
+
+@kernel
 def _predict_lane(
     xb: FloatArray,
     Pb: FloatArray,
@@ -62,80 +203,14 @@ def _predict_lane(
     y[9], y[10], y[11] = p, q, r
     strapdown_rk4(y, az, dt, stages)
     s_new = y[:POSE_DIM]
-    strapdown_jacobians(xb, p, q, r, F, G)
-    # A = F dt over (s, b): the biases enter through λ = λ̃ - b, so ∂f/∂b = -G.
-    A[:, :] = 0.0
-    for i in range(POSE_DIM):
-        for j in range(POSE_DIM):
-            A[i, j] = F[i, j] * dt
-        if nv > POSE_DIM:
-            A[i, 9], A[i, 10], A[i, 11], A[i, 12] = (
-                -G[i, 1] * dt,
-                -G[i, 2] * dt,
-                -G[i, 3] * dt,
-                -G[i, 0] * dt,
-            )
-    # M = I + ½A, Φ = I + A M = I + A + ½A² (eq. 27 to second order), Γ = M G σ dt with the
-    # IMU white noise (σ held over the sample) as the input noise. The products run with
-    # the output index innermost (independent sums, same k order) and skip the many exact
-    # zeros of A.
-    for i in range(nv):
-        for j in range(nv):
-            M[i, j] = 0.5 * A[i, j] + (1.0 if i == j else 0.0)
-    for i in range(nv):
-        Phi[i, :] = 0.0
-        Gam[i, :] = 0.0
-        for k in range(nv):
-            a = A[i, k]
-            if a != 0.0:
-                for j in range(nv):
-                    Phi[i, j] += a * M[k, j]
-        Phi[i, i] += 1.0
-        for k in range(POSE_DIM):  # the bias rows of σG are zero
-            a = M[i, k]
-            if a != 0.0:
-                Gam[i, 0] += a * (G[k, 0] * sa)
-                for j in range(1, 4):
-                    Gam[i, j] += a * (G[k, j] * sg)
-    # T = Φ P[:nv, :n]: the rows of the pose–bias block and its cross-covariances (eq. 29).
-    # Φ is sparse (∂f/∂ρ = 0, Λ̇ does not depend on v); skipping its zeros is exact because
-    # P is always finite (every write is checked).
-    finite = True
-    for i in range(nv):
-        Ti = T[i]
-        Ti[:nb] = 0.0
-        for k in range(nv):
-            a = Phi[i, k]
-            if a != 0.0:
-                Pk = Pb[k]
-                for j in range(nb):
-                    Ti[j] += a * Pk[j]
-        for j in range(nb):
-            finite &= Ti[j] * 0.0 == 0.0  # exact test, and unlike a sum it vectorises
-    # P_vv = ½(X + Xᵀ) + Γ Γᵀ + Q dt with X = T[:, :nv] Φᵀ = Φ P_vv Φᵀ (eq. 27).
-    for i in range(nv):
-        for j in range(i + 1):
-            xij = 0.0
-            xji = 0.0
-            for k in range(nv):
-                xij += T[i, k] * Phi[j, k]
-                xji += T[j, k] * Phi[i, k]
-            gg = 0.0
-            for k in range(4):
-                gg += Gam[i, k] * Gam[j, k]
-            v = (xij + xji) * 0.5 + gg
-            if i == j:
-                v += qc[i] * dt
-            Pvv[i, j] = v
-            Pvv[j, i] = v
-            finite &= v * 0.0 == 0.0
+    # Covariance: Jacobians at the prior mean, P_vv ← Φ P_vv Φᵀ + Q_d, P_vm ← Φ P_vm.
+    transition_matrices(xb, nv, p, q, r, sa, sg, dt, F, G, A, M, Phi, Gam)
+    finite = propagate_covariance(Pb, nb, nv, Phi, Gam, qc, dt, T, Pvv)
     for i in range(POSE_DIM):
         finite &= s_new[i] * 0.0 == 0.0
     if not (finite and abs(s_new[7]) < MAX_PITCH):
         return False
-    for i in range(nv):  # slice copies: measured 25% faster than element loops here
-        Pb[i, :nv] = Pvv[i]
-        Pb[i, nv:nb] = T[i, nv:nb]
+    store_rows(Pb, nb, nv, T, Pvv)
     s_new[6] = wrap_pi(s_new[6])
     s_new[8] = wrap_pi(s_new[8])
     xb[:POSE_DIM] = s_new

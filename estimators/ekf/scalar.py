@@ -39,8 +39,12 @@ class EkfSlam:
             the value and what is allowed).
     """
 
+    associates_unlabeled = True
+
     def __init__(self, vehicle: Any = None, **params: Any) -> None:
         self._filter = EkfSlamBatch(1, _INITIAL_LANDMARK_CAPACITY, vehicle, **params)
+        self.last_association = np.zeros(0, dtype=np.int64)
+        """(k,) landmark id each return of the last unlabeled scan was paired with (-1)."""
         self.vehicle = vehicle
         self._index: dict[int, int] = {}  # landmark id → filter id
         self._ids: list[int] = []  # filter id → landmark id
@@ -154,6 +158,9 @@ class EkfSlam:
         Raises:
             ValueError: If the measurements are not a finite (k, 3) array.
         """
+        if scan.ids is None:
+            self._update_unlabeled(scan)
+            return
         ids = [int(i) for i in np.asarray(scan.ids).reshape(-1).tolist()]
         k = len(ids)
         if k == 0:
@@ -178,6 +185,22 @@ class EkfSlam:
         meas_by_id = np.zeros((1, width, 3))
         meas_by_id[0, cols] = meas[rows]
         self._filter.update(self._t, self._lane, visible, meas_by_id, scan.sigma)
+
+    def _update_unlabeled(self, scan: LidarScan) -> None:
+        """Unlabeled scan (unknown association): see :meth:`EkfSlamBatch.update_unlabeled`.
+        New map entries are named by their filter label."""
+        meas = np.asarray(scan.meas, dtype=float)
+        k = meas.shape[0] if meas.ndim == 2 else -1
+        if meas.shape != (k, 3) or not np.isfinite(meas).all():
+            raise ValueError("update: scan.meas must be a finite (k, 3) array")
+        self._filter.update_unlabeled(self._t, self._lane, np.array([k]), meas[None], scan.sigma)
+        if not self.known_map:  # the filter's labels are the landmark ids
+            self._ids = list(range(self._filter.landmark_capacity))
+            self._index = {i: i for i in self._ids}
+        self.last_association = np.array(
+            [self._ids[c] if c >= 0 else -1 for c in self._filter.last_association[0, :k]],
+            dtype=np.int64,
+        )
 
     def estimate(self) -> Estimate:
         """Snapshot of the belief (copies), landmarks sorted by id.

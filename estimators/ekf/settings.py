@@ -10,6 +10,7 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from estimators.base import check_kwargs
+from estimators.tentative import check_confirm_rule
 from quadslam_env.types import POSE_DIM, FloatArray
 
 BIAS_DIM = 4
@@ -27,7 +28,14 @@ _TYPES: dict[str, type | tuple[type, ...]] = {
     "accel_bias_walk": (float, int),
     "gate_probability": (float, int),
     "imu_noise_in_q": bool,
+    "association": str,
+    "confirm_hits": int,
+    "confirm_window": int,
+    "new_landmark_probability": (float, int),
 }
+
+ASSOCIATION_METHODS = ("nn", "jcbb")
+"""``estimator.params.association`` choices: nearest neighbour, joint compatibility B&B."""
 
 
 def _check_nonneg(key: str, value: float) -> float:
@@ -67,6 +75,25 @@ class EkfSlamSettings:
     to the discrete process noise (needed for consistency; False reproduces the paper, which
     only uses Q).
 
+    With ``lidar.association: unknown`` (unlabeled returns, :mod:`estimators.ekf.associate`):
+
+    ``association`` (``nn`` | ``jcbb``, default ``jcbb``): nearest neighbour or joint
+    compatibility branch and bound, both gated at ``gate_probability``
+    (:mod:`estimators.association`).
+
+    ``new_landmark_probability`` (float ≥ gate_probability and < 1, default 0.9999 or
+    gate_probability if larger): a return starts a new landmark only when it is outside this
+    χ²₃ gate of every landmark; a return between the two gates is dropped (so a true
+    landmark's rare return outside the association gate does not start a duplicate of it).
+
+    ``confirm_hits`` (int in [1, 1000], default 3): a return that gates with no map landmark
+    starts a tentative landmark, which enters the map once it has been observed in
+    ``confirm_hits`` of its first ``confirm_window`` scans and is dropped otherwise
+    (:mod:`estimators.tentative`).
+
+    ``confirm_window`` (int in [confirm_hits, 1000], default 5): the scans a tentative
+    landmark has to reach ``confirm_hits``.
+
     Known-map mode (localisation only, the paper's known-landmarks case) is not a setting: it
     is chosen per run by passing a known map at reset (the env does so when the scenario sets
     ``estimator.known_map: true``).
@@ -80,6 +107,10 @@ class EkfSlamSettings:
     accel_bias_walk: float = 1e-3
     gate_probability: float = 0.99
     imu_noise_in_q: bool = True
+    association: str = "jcbb"
+    confirm_hits: int = 3
+    confirm_window: int = 5
+    new_landmark_probability: float = 0.9999
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> EkfSlamSettings:
@@ -102,7 +133,27 @@ class EkfSlamSettings:
             raise ValueError(
                 f"estimator.params.gate_probability: got {prob!r}; allowed: 0 < p <= 1"
             )
+        method = params.get("association", "jcbb")
+        if method not in ASSOCIATION_METHODS:
+            raise ValueError(
+                f"estimator.params.association: got {method!r}; allowed: one of "
+                f"{list(ASSOCIATION_METHODS)}"
+            )
+        hits, window = check_confirm_rule(
+            params.get("confirm_hits", 3), params.get("confirm_window", 5)
+        )
+        floor = prob if prob < 1.0 else 0.0  # no association gate: any p < 1
+        new_prob = float(params.get("new_landmark_probability", max(0.9999, floor)))
+        if not (floor <= new_prob < 1.0 and new_prob > 0.0):
+            raise ValueError(
+                f"estimator.params.new_landmark_probability: got {new_prob!r}; allowed: "
+                f"max(gate_probability = {prob} if < 1, 0) <= p < 1, p > 0"
+            )
         return cls(
+            new_landmark_probability=new_prob,
+            association=method,
+            confirm_hits=hits,
+            confirm_window=window,
             process_noise=tuple(_check_nonneg("process_noise", e) for e in q),
             estimate_imu_bias=bool(params.get("estimate_imu_bias", False)),
             gyro_bias_sigma0=_check_nonneg(

@@ -21,6 +21,7 @@ import math
 
 import numpy as np
 
+from estimators.association import solve3_nis
 from estimators.ekf.kernels import (
     D_DIVERGED,
     D_N_MAPPED,
@@ -78,36 +79,6 @@ def stacked_model(
         for i in range(k):
             H[i, :, POSE_DIM + 3 * i : POSE_DIM + 3 * i + 3] = blocks[i, :, 6:9]
     return cols, h.ravel(), H.reshape(3 * k, -1)
-
-
-@kernel
-def _solve3_nis(S: FloatArray, o: int, nu: FloatArray) -> float:
-    """``νᵀ S_oo⁻¹ ν`` for the 3×3 block at offset ``o`` (LU with partial pivoting, as
-    LAPACK's ``gesv``); NaN if the block is exactly singular."""
-    a = S[o : o + 3, o : o + 3].copy()
-    z = nu[o : o + 3].copy()
-    for c in range(3):
-        piv = c
-        for i in range(c + 1, 3):
-            if abs(a[i, c]) > abs(a[piv, c]):
-                piv = i
-        if a[piv, c] == 0.0:
-            return math.nan
-        if piv != c:
-            for j in range(3):
-                a[c, j], a[piv, j] = a[piv, j], a[c, j]
-            z[c], z[piv] = z[piv], z[c]
-        for i in range(c + 1, 3):
-            f = a[i, c] / a[c, c]
-            for j in range(c + 1, 3):
-                a[i, j] -= f * a[c, j]
-            z[i] -= f * z[c]
-    for c in range(2, -1, -1):
-        acc = z[c]
-        for j in range(c + 1, 3):
-            acc -= a[c, j] * z[j]
-        z[c] = acc / a[c, c]
-    return nu[o] * z[0] + nu[o + 1] * z[1] + nu[o + 2] * z[2]
 
 
 @kernel
@@ -180,6 +151,50 @@ def _subtract_outer(Pb: FloatArray, Wt: FloatArray, nb: int) -> None:
 
 
 @kernel
+def innovation(y: FloatArray, h: FloatArray, out: FloatArray) -> None:
+    """``out = y − h`` (3,) for measurements (α, β, δ), the angles wrapped to (−π, π]."""
+    out[0] = wrap_pi(y[0] - h[0])
+    out[1] = wrap_pi(y[1] - h[1])
+    out[2] = y[2] - h[2]
+
+
+@kernel
+def innovation_covariance(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    lms: FloatArray,
+    cols: np.ndarray,
+    r_diag: FloatArray,
+    h: FloatArray,
+    U: FloatArray,
+    S: FloatArray,
+) -> None:
+    """Predictions and joint innovation covariance of k landmarks seen from one lane's pose.
+
+    Writes ``h`` (k, 3) the predicted (α, β, δ) (eq. 34), ``U`` (3k, n) = ``H P[:n, :n]``
+    and ``S`` (3k, 3k) = ``H P Hᵀ + R`` (eq. 38) for the landmarks ``lms`` (k, 3) whose state
+    columns start at ``cols`` (k,) (-1: known landmarks, not in the state).
+    """
+    k = lms.shape[0]
+    H = np.empty((k, 3, 9))
+    predicted_measurements(xb, lms, h, H)
+    _stacked_rows(Pb, nb, H, cols, U)
+    for a in range(3 * k):
+        Ua = U[a]
+        for i in range(k):
+            c = cols[i]
+            for r in range(3):
+                acc = 0.0
+                for t in range(3):
+                    acc += Ua[t] * H[i, r, t] + Ua[6 + t] * H[i, r, 3 + t]
+                    if c >= 0:
+                        acc += Ua[c + t] * H[i, r, 6 + t]
+                S[a, 3 * i + r] = acc
+        S[a, a] += r_diag[a % 3]
+
+
+@kernel
 def _update_mapped(
     xb: FloatArray,
     Pb: FloatArray,
@@ -195,33 +210,17 @@ def _update_mapped(
     """Gated stacked update of one lane with landmarks ``lms`` (k, 3) observed as ``y``."""
     k = lms.shape[0]
     h = np.empty((k, 3))
-    H = np.empty((k, 3, 9))
-    predicted_measurements(xb, lms, h, H)
+    U = np.empty((3 * k, nb))
+    S = np.empty((3 * k, 3 * k))
+    innovation_covariance(xb, Pb, nb, lms, cols, r_diag, h, U, S)
     nu = np.empty(3 * k)
     for i in range(k):
-        nu[3 * i] = wrap_pi(y[i, 0] - h[i, 0])
-        nu[3 * i + 1] = wrap_pi(y[i, 1] - h[i, 1])
-        nu[3 * i + 2] = y[i, 2] - h[i, 2]
-    U = np.empty((3 * k, nb))
-    _stacked_rows(Pb, nb, H, cols, U)
-    S = np.empty((3 * k, 3 * k))
-    for a in range(3 * k):
-        Ua = U[a]
-        for i in range(k):
-            c = cols[i]
-            for r in range(3):
-                acc = 0.0
-                for t in range(3):
-                    acc += Ua[t] * H[i, r, t] + Ua[6 + t] * H[i, r, 3 + t]
-                    if c >= 0:
-                        acc += Ua[c + t] * H[i, r, 6 + t]
-                S[a, 3 * i + r] = acc
-        S[a, a] += r_diag[a % 3]
+        innovation(y[i], h[i], nu[3 * i : 3 * i + 3])
     # Per-landmark χ² gate on the 3×3 diagonal blocks of S.
     keep = np.empty(k, dtype=np.bool_)
     n_keep = 0
     for i in range(k):
-        nis_i = _solve3_nis(S, 3 * i, nu)
+        nis_i = solve3_nis(S, 3 * i, nu[3 * i : 3 * i + 3])
         if not math.isfinite(nis_i):
             diag[D_DIVERGED, b] = 1.0
             return
@@ -301,29 +300,29 @@ def _update_mapped(
 
 
 @kernel
-def _register(
+def inverse_measurements(
     xb: FloatArray,
     Pb: FloatArray,
     nb: int,
     y: FloatArray,
     r_diag: FloatArray,
-) -> bool:
-    """Augment one lane's x and P with the landmarks observed as ``y`` (kn, 3) (eq. 44–53).
+    lms: FloatArray,
+    Plx: FloatArray,
+    Pll: FloatArray,
+) -> None:
+    """Landmarks observed as ``y`` (kn, 3) from one lane's pose, with their covariances.
 
-    ``l = g(ŝ⁺, y) = ρ + C_NB ϱ(y)``, ``P_ll = G_s P_ss G_sᵀ + G_y R G_yᵀ``,
-    ``P_lx = G_s [P_ss P_sm]`` with ``G_s = [I, 0, ∂g/∂Λ]``. All new landmarks of the scan go
-    in as one block; this equals registering them one at a time (eq. 46–53), since
-    registration leaves ŝ unchanged and the cross-covariance of two new landmarks is
-    ``G_si P_ss G_sjᵀ`` either way. Returns False (nothing written) on a non-finite result.
+    ``lms`` (kn, 3) = ``g(ŝ, y) = ρ + C_NB ϱ(y)`` (eq. 44), ``Plx`` (3kn, nb) =
+    ``G_s P[s, :nb]`` (eq. 50) and ``Pll`` (3kn, 3kn) = ``G_s P_ss G_sᵀ + G_y R G_yᵀ`` (eq. 48,
+    exactly symmetric), with ``G_s = [I, 0, ∂g/∂Λ]``. With ``nb = 9`` this is the pose-only
+    part (what a landmark candidate outside the state needs).
     """
     kn = y.shape[0]
     C = np.empty((3, 3))
     dC = np.empty((3, 3, 3))
     dcm_and_partials(xb[6], xb[7], xb[8], C, dC)
-    lms = np.empty((kn, 3))
     G_eul = np.empty((kn, 3, 3))
     G_y = np.empty((kn, 3, 3))
-    Plx = np.empty((3 * kn, nb))  # eq. 50
     P6, P7, P8 = Pb[6], Pb[7], Pb[8]
     lidar_inverse_models(xb[0:3], C, dC, y, lms, G_eul, G_y)
     for i in range(kn):
@@ -333,7 +332,6 @@ def _register(
             for j in range(nb):
                 row[j] = Pr[j] + (g0 * P6[j] + g1 * P7[j] + g2 * P8[j])
     ml = 3 * kn
-    Pll = np.empty((ml, ml))
     for a in range(ml):
         for i in range(kn):
             for r in range(3):
@@ -353,6 +351,30 @@ def _register(
             v = 0.5 * (Pll[a, c] + Pll[c, a])
             Pll[a, c] = v
             Pll[c, a] = v
+
+
+@kernel
+def _register(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    y: FloatArray,
+    r_diag: FloatArray,
+) -> bool:
+    """Augment one lane's x and P with the landmarks observed as ``y`` (kn, 3) (eq. 44–53).
+
+    ``l = g(ŝ⁺, y) = ρ + C_NB ϱ(y)``, ``P_ll = G_s P_ss G_sᵀ + G_y R G_yᵀ``,
+    ``P_lx = G_s [P_ss P_sm]`` with ``G_s = [I, 0, ∂g/∂Λ]``. All new landmarks of the scan go
+    in as one block; this equals registering them one at a time (eq. 46–53), since
+    registration leaves ŝ unchanged and the cross-covariance of two new landmarks is
+    ``G_si P_ss G_sjᵀ`` either way. Returns False (nothing written) on a non-finite result.
+    """
+    kn = y.shape[0]
+    ml = 3 * kn
+    lms = np.empty((kn, 3))
+    Plx = np.empty((ml, nb))  # eq. 50
+    Pll = np.empty((ml, ml))
+    inverse_measurements(xb, Pb, nb, y, r_diag, lms, Plx, Pll)
     if not (np.isfinite(lms).all() and np.isfinite(Pll).all() and np.isfinite(Plx).all()):
         return False
     if nb + ml > xb.shape[0]:

@@ -23,8 +23,12 @@ per-particle loops are numba kernels, DESIGN.md §9):
 * ``x``      (N, 12) particle states ``x^D``;
 * ``logw``   (N,) normalised log-weights;
 * ``mu``     (N, L, 3) landmark means ``μ_j^i`` in N, m; ``sigma`` (N, L, 3, 3) their
-  covariances ``Σ_j^i`` in m². L grows when a landmark id is seen for the first time; the
-  id → slot map is shared by all particles (data association is known, DESIGN.md §3).
+  covariances ``Σ_j^i`` in m². With known association L grows when a landmark id is seen for
+  the first time and the id → slot map is shared by all particles (DESIGN.md §3). With
+  unknown association (unlabeled scans, :mod:`.associate`) every particle associates by
+  maximum likelihood and owns its map: particle i's landmarks are slots ``0 … n_i − 1``
+  (``ParticleMaps.size``), L is a capacity, and the estimate reports the map of the
+  highest-weight particle.
 * dynamic filter only: ``xb`` (N, 12) bias-KF means and ONE shared (12, 12) covariance ``P``.
   The bias subsystem is linear with the same ``A, H, Q, R`` for every particle (seed 000
   eq. 11–12); the particles only differ in the innovation ``z̄ = z^I − h^d(x^{D,i})``, which
@@ -63,8 +67,9 @@ Choices not fixed by the papers (documented here and in the parameter table):
 
 Modules: :mod:`.particles` (the shared particle machinery), :mod:`.dynamic` and
 :mod:`.kinematic` (the two filters), :mod:`.process` (motion models, process noise),
-:mod:`.bias_kf`, :mod:`.landmarks`, :mod:`.resampling`, :mod:`.moments` (the estimate's
-weighted moments), :mod:`.settings` (parameter validation).
+:mod:`.bias_kf`, :mod:`.landmarks`, :mod:`.associate` (per-particle data association),
+:mod:`.resampling`, :mod:`.moments` (the estimate's weighted moments), :mod:`.settings`
+(parameter validation).
 
 Kernels (``quadslam_env.models.jit.kernel``, no ``fastmath``) loop over the particles for the hot
 paths: process noise and angle wrapping (:func:`.process.perturb_particles`), the IMU step

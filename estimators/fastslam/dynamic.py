@@ -66,7 +66,18 @@ class DynamicFastSLAM(FastSLAMBase):
     ``nis_divergence``         1000.0          per-DOF NIS of the best 10 % of particles above
                                                which lock is considered lost; 0 = off
     ``nis_divergence_s``       2.0             ... for this long (s): ``diverged`` = 1, sticky
+    ``gate_probability``       0.99            unknown association: p of the χ²₃ gate on
+                                               ``νᵀ(λS)⁻¹ν`` (0 < p ≤ 1; 1 = no gate)
+    ``new_landmark_likelihood`` 0.001          p0 per rad²·m: a return is paired only if
+                                               ``N(ν; 0, λS) ≥ p0``; unpaired returns weigh p0
+    ``confirm_hits``           3               M of the M-of-N rule for tentative landmarks
+    ``confirm_window``         5               N (scans), an integer in [M, 1000]
     =========================  ==============  ================================================
+
+    Unknown data association (``lidar.association: unknown``, :mod:`.associate`): every
+    particle associates the unlabeled returns with its own landmarks by maximum likelihood
+    and keeps its own map; returns no landmark explains become tentative landmarks, mapped
+    after M sightings in N scans.
 
     Robustness tuning (paper_fastslam_helix, DF-LQR on the estimate, 4 poles, VLP-16 noise
     3 cm / 0.1°, N = 500, seeds 0–9, 30 s): with the raw FastSLAM 1.0 weight the LiDAR

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from quadslam_env.models.frames import dcm_from_trig, wrap_pi
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.lidar import (
     body_from_measure,
     measure_inverse_jacobian,
@@ -103,9 +103,66 @@ def _t(A: Mat3) -> Mat3:
 
 
 @kernel
-def _rows(M: FloatArray) -> Mat3:
+def rows_of(M: FloatArray) -> Mat3:
     """Rows of a (3, 3) array as tuples."""
     return (M[0, 0], M[0, 1], M[0, 2]), (M[1, 0], M[1, 1], M[1, 2]), (M[2, 0], M[2, 1], M[2, 2])
+
+
+@inline_kernel
+def landmark_prediction(
+    mu: FloatArray, sigma: FloatArray, pos: FloatArray, C: Mat3, R: Mat3
+) -> tuple[Vec3, Mat3, Mat3, float]:
+    """Predicted measurement of one landmark EKF from one pose (seed 000 Table 3).
+
+    ``c = C_NBᵀ (μ − ρ)``, ``h = h(c)``, ``H = (∂h/∂c) C_NBᵀ``, ``S = H Σ Hᵀ + R``; the LiDAR
+    model is :mod:`quadslam_env.models.lidar`'s. Used by the EKF update
+    (:func:`landmark_ekf_one`) and by the per-particle data association
+    (:mod:`estimators.fastslam.associate`).
+
+    Args:
+        mu: (3,) landmark mean in N, m. sigma: (3, 3) its covariance in m².
+        pos: (3,) vehicle position in N, m. C: Rows of ``C_NB``.
+        R: Rows of the measurement noise covariance.
+
+    Returns:
+        ``(h, HΣ, S⁻¹, det S)``: ``h`` (α rad, β rad, δ m), ``H Σ`` and ``S⁻¹`` as rows.
+    """
+    d = (mu[0] - pos[0], mu[1] - pos[1], mu[2] - pos[2])
+    Ct = _t(C)
+    c1, c2, c3 = _dot(Ct[0], d), _dot(Ct[1], d), _dot(Ct[2], d)
+    h = spherical_from_body(c1, c2, c3)
+    H = _mul_bt(spherical_jacobian(c1, c2, c3), C)  # ∂h/∂c · C_NBᵀ
+    HS = _mul_bt(H, _t(rows_of(sigma)))  # H Σ
+    HHS = _mul_bt(H, HS)  # H Σ Hᵀ (Σ symmetric)
+    S = (
+        (HHS[0][0] + R[0][0], HHS[0][1] + R[0][1], HHS[0][2] + R[0][2]),
+        (HHS[1][0] + R[1][0], HHS[1][1] + R[1][1], HHS[1][2] + R[1][2]),
+        (HHS[2][0] + R[2][0], HHS[2][1] + R[2][1], HHS[2][2] + R[2][2]),
+    )
+    S_inv, det = inv3_sym_one(S)
+    return h, HS, S_inv, det
+
+
+@inline_kernel
+def innovation_loglik(
+    meas: FloatArray, h: Vec3, S_inv: Mat3, log_det: float
+) -> tuple[Vec3, float, float]:
+    """Innovation of one measurement against one prediction and its Gaussian likelihood.
+
+    ``ν = z − h`` (angles wrapped to (−π, π]), ``q = νᵀ S⁻¹ ν`` and
+    ``log N(ν; 0, S) = −½ (q + log det S + 3 log 2π)``.
+
+    Args:
+        meas: (3,) measurement (α rad, β rad, δ m). h: The prediction.
+        S_inv: Rows of ``S⁻¹``. log_det: ``log det S``.
+
+    Returns:
+        ``(ν, q, log N(ν; 0, S))``.
+    """
+    nu = (wrap_pi(meas[0] - h[0]), wrap_pi(meas[1] - h[1]), meas[2] - h[2])
+    nis = _dot(nu, (_dot(S_inv[0], nu), _dot(S_inv[1], nu), _dot(S_inv[2], nu)))
+    loglik = -0.5 * (nis + log_det + MEAS_DIM * LOG_2PI)
+    return nu, nis, loglik
 
 
 @kernel
@@ -119,9 +176,8 @@ def landmark_ekf_one(
 ) -> tuple[float, float]:
     """EKF update of one landmark from one pose in place (seed 000 Table 3, EKF-update).
 
-    ``c = C_NBᵀ (μ − ρ)``, ``ν = z − h(c)`` (angles wrapped), ``H = (∂h/∂c) C_NBᵀ``,
-    ``S = H Σ Hᵀ + R``, ``K = Σ Hᵀ S⁻¹``, ``μ ← μ + K ν``, ``Σ ← Σ − K H Σ`` (symmetrised);
-    the LiDAR model is :mod:`quadslam_env.models.lidar`'s. If the likelihood is not finite
+    :func:`landmark_prediction` and :func:`innovation_loglik`, then ``K = Σ Hᵀ S⁻¹``,
+    ``μ ← μ + K ν``, ``Σ ← Σ − K H Σ`` (symmetrised). If the likelihood is not finite
     (a numerically broken S, det ≤ 0), μ and Σ keep their prior.
 
     Args:
@@ -132,22 +188,8 @@ def landmark_ekf_one(
     Returns:
         ``(log N(ν; 0, S), νᵀ S⁻¹ ν)``.
     """
-    d = (mu[0] - pos[0], mu[1] - pos[1], mu[2] - pos[2])
-    Ct = _t(C)
-    c1, c2, c3 = _dot(Ct[0], d), _dot(Ct[1], d), _dot(Ct[2], d)
-    h = spherical_from_body(c1, c2, c3)
-    nu = (wrap_pi(meas[0] - h[0]), wrap_pi(meas[1] - h[1]), meas[2] - h[2])
-    H = _mul_bt(spherical_jacobian(c1, c2, c3), C)  # ∂h/∂c · C_NBᵀ
-    HS = _mul_bt(H, _t(_rows(sigma)))  # H Σ
-    HHS = _mul_bt(H, HS)  # H Σ Hᵀ (Σ symmetric)
-    S = (
-        (HHS[0][0] + R[0][0], HHS[0][1] + R[0][1], HHS[0][2] + R[0][2]),
-        (HHS[1][0] + R[1][0], HHS[1][1] + R[1][1], HHS[1][2] + R[1][2]),
-        (HHS[2][0] + R[2][0], HHS[2][1] + R[2][1], HHS[2][2] + R[2][2]),
-    )
-    S_inv, det = inv3_sym_one(S)
-    nis = _dot(nu, (_dot(S_inv[0], nu), _dot(S_inv[1], nu), _dot(S_inv[2], nu)))
-    loglik = -0.5 * (nis + math.log(det) + MEAS_DIM * LOG_2PI)
+    h, HS, S_inv, det = landmark_prediction(mu, sigma, pos, C, R)
+    nu, nis, loglik = innovation_loglik(meas, h, S_inv, math.log(det))
     if not math.isfinite(loglik):
         return loglik, nis
     HSt = _t(HS)  # Σ Hᵀ
@@ -164,6 +206,20 @@ def landmark_ekf_one(
 
 
 @kernel
+def particle_dcm(state: FloatArray) -> Mat3:
+    """Rows of ``C_NB(Λ)`` of one particle state (12,) ``(ρ, v_B, Λ, ω)``."""
+    c = dcm_from_trig(
+        math.cos(state[6]),
+        math.sin(state[6]),
+        math.cos(state[7]),
+        math.sin(state[7]),
+        math.cos(state[8]),
+        math.sin(state[8]),
+    )
+    return (c[0], c[1], c[2]), (c[3], c[4], c[5]), (c[6], c[7], c[8])
+
+
+@kernel
 def _landmark_ekf_pairs(
     mu: FloatArray,
     sigma: FloatArray,
@@ -175,9 +231,11 @@ def _landmark_ekf_pairs(
     nis: FloatArray,
 ) -> None:
     """:func:`landmark_ekf_one` for M independent (pose, landmark, measurement) triples."""
-    noise = _rows(R)
+    noise = rows_of(R)
     for i in range(mu.shape[0]):
-        loglik[i], nis[i] = landmark_ekf_one(mu[i], sigma[i], pos[i], _rows(dcm[i]), meas[i], noise)
+        loglik[i], nis[i] = landmark_ekf_one(
+            mu[i], sigma[i], pos[i], rows_of(dcm[i]), meas[i], noise
+        )
 
 
 @kernel
@@ -204,17 +262,9 @@ def landmark_ekf_particles(
         loglik: (N,) receives each particle's ``Σ_j log N(ν_j; 0, S_j)``.
         nis: (N,) receives each particle's ``Σ_j ν_jᵀ S_j⁻¹ ν_j``.
     """
-    noise = _rows(R)
+    noise = rows_of(R)
     for i in range(x.shape[0]):
-        c = dcm_from_trig(
-            math.cos(x[i, 6]),
-            math.sin(x[i, 6]),
-            math.cos(x[i, 7]),
-            math.sin(x[i, 7]),
-            math.cos(x[i, 8]),
-            math.sin(x[i, 8]),
-        )
-        C = (c[0], c[1], c[2]), (c[3], c[4], c[5]), (c[6], c[7], c[8])
+        C = particle_dcm(x[i])
         ll_sum, nis_sum = 0.0, 0.0
         for j in range(slots.shape[0]):
             s = slots[j]

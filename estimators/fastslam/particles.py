@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from estimators.base import Estimate, check_kwargs
+from estimators.fastslam.associate import ParticleMaps
 from estimators.fastslam.landmarks import landmark_ekf_particles, landmark_init
 from estimators.fastslam.moments import landmark_mixture, state_moments
 from estimators.fastslam.process import perturb_particles, wrap_euler_rows
@@ -24,10 +25,12 @@ from estimators.fastslam.settings import (
     OWNER,
     SIGMA_FLOOR,
     VECTOR,
+    AssociationSettings,
     fail,
     parse_process_noise,
     positive,
 )
+from estimators.memory import check_fastslam_map
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.linalg import psd_sqrt
@@ -39,7 +42,12 @@ class FastSLAMBase:
 
     Subclasses implement :meth:`_propagate` (motion model) and may override the hooks
     :meth:`_imu_step`, :meth:`_post_predict`, :meth:`_post_update`, :meth:`_resample_extra`.
+
+    Unlabeled scans (``lidar.association: unknown``, ``scan.ids is None``) are associated per
+    particle by maximum likelihood (:mod:`.associate`); each particle then has its own map.
     """
+
+    associates_unlabeled: ClassVar[bool] = True
 
     _COMMON: ClassVar[dict[str, type | tuple[type, ...]]] = {
         "n_particles": int,
@@ -51,6 +59,10 @@ class FastSLAMBase:
         "roughening": FLOAT,
         "nis_divergence": FLOAT,
         "nis_divergence_s": FLOAT,
+        "gate_probability": FLOAT,
+        "new_landmark_likelihood": FLOAT,
+        "confirm_hits": int,
+        "confirm_window": int,
     }
     _DEFAULT_NOISE: ClassVar[tuple[float, float, float, float]] = (0.0, 0.0, 0.0, 0.0)
     _DEFAULT_INFLATION: ClassVar[float] = 1.0
@@ -88,10 +100,21 @@ class FastSLAMBase:
         self.nis_divergence_s = positive(
             "nis_divergence_s", params.get("nis_divergence_s", 2.0), strict=False
         )
+        self.association = AssociationSettings.from_params(params)
         self._rng = np.random.default_rng(0)
         self._alloc()
 
     # ---------------------------------------------------------------- state
+    def check_memory(self, num_lanes: int, landmark_capacity: int) -> None:
+        """Reject, before anything is allocated, a map whose landmark filters for
+        ``landmark_capacity`` landmarks in ``num_lanes`` such filters would not fit in memory
+        (:func:`estimators.memory.check_fastslam_map`).
+
+        Raises:
+            ValueError: Names the sizes and what would fit.
+        """
+        check_fastslam_map(num_lanes, self.n_particles, landmark_capacity)
+
     def _alloc(self) -> None:
         n = self.n_particles
         self.x = np.zeros((n, STATE_DIM))
@@ -118,6 +141,10 @@ class FastSLAMBase:
         self._nis_high_since: float | None = None
         self._lost = False
         self._best_nis = math.nan
+        self._known_map = False
+        self._maps: ParticleMaps | None = None  # per-particle maps (unlabeled scans)
+        self.last_association = np.zeros(0, dtype=np.int64)
+        """(k,) label of each return of the last unlabeled scan in the reported map (-1)."""
 
     def reset(
         self,
@@ -147,6 +174,7 @@ class FastSLAMBase:
             raise ValueError(f"reset: cov0 must be a finite (12, 12) array, got shape {cov.shape}")
         self._rng = rng
         self._alloc()
+        self._known_map = known_landmarks is not None
         n = self.n_particles
         self.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
         wrap_euler_rows(self.x)
@@ -238,6 +266,8 @@ class FastSLAMBase:
             wrap_euler_rows(self.x)
         self.mu = self.mu[idx]
         self.sigma = self.sigma[idx]
+        if self._maps is not None:
+            self._maps.resample(idx, self._w)
         self._resample_extra(idx)
         self.logw = np.full(self.n_particles, -math.log(self.n_particles))
         self.n_resamples += 1
@@ -300,10 +330,22 @@ class FastSLAMBase:
     def update(self, scan: LidarScan) -> None:
         """Weight with the LiDAR likelihood, update/initialise landmark EKFs, resample.
 
-        Table 2 steps 3, 5, 6 (and the stage-2 hook) for one scan; an empty scan is a no-op.
+        Table 2 steps 3, 5, 6 (and the stage-2 hook) for one scan; an empty labeled scan is
+        a no-op. An unlabeled scan (``scan.ids is None``) goes to :meth:`_update_unlabeled`;
+        a run takes labeled or unlabeled scans, not both (known-map runs excepted).
+
+        Raises:
+            ValueError: A malformed unlabeled scan, or labeled and unlabeled scans mixed.
         """
+        if scan.ids is None:
+            self._update_unlabeled(scan)
+            return
         if scan.count == 0:
             return
+        if self._maps is not None and not self._known_map:
+            raise ValueError(
+                "update: a labeled scan after unlabeled ones; a FastSLAM run takes one kind"
+            )
         scan_ids = np.asarray(scan.ids).astype(int).ravel()
         meas = np.asarray(scan.meas, dtype=float).reshape(-1, 3)
         if np.unique(scan_ids).size != scan_ids.size:  # repeated id: keep its first return
@@ -339,6 +381,45 @@ class FastSLAMBase:
         self._maybe_resample()
         if idx.size:
             self._post_update(idx, meas[old], R)
+
+    def _update_unlabeled(self, scan: LidarScan) -> None:
+        """Per-particle ML association (:mod:`.associate`) of an unlabeled scan, then weights.
+
+        Each weight is multiplied by the likelihood of the particle's own association
+        (innovation covariance λS, λ = ``likelihood_inflation``; p0 per unpaired return).
+        :attr:`last_association` is the reported particle's, labeled as in :meth:`estimate`.
+        Stage 2's ρ regeneration is not applied (it needs one pairing in all particles).
+
+        Raises:
+            ValueError: Malformed returns, or unlabeled scans after labeled ones in SLAM.
+        """
+        meas = np.asarray(scan.meas, dtype=float)
+        k = meas.shape[0] if meas.ndim == 2 else -1
+        if meas.shape != (k, 3) or not np.all(np.isfinite(meas)):
+            raise ValueError("update: scan.meas must be a finite (k, 3) array")
+        if self._maps is None:
+            if self._slot_ids and not self._known_map:
+                raise ValueError(
+                    "update: an unlabeled scan after labeled ones; a FastSLAM run takes one kind"
+                )
+            known = np.array(self._slot_ids, dtype=np.int64) if self._known_map else None
+            self._maps = ParticleMaps(self.n_particles, known)
+        maps, nis = self._maps, self._nis_sum
+        sig = np.maximum(np.asarray(scan.sigma, dtype=float).reshape(3), SIGMA_FLOOR)
+        self.mu, self.sigma = maps.associate(
+            self.x, self.mu, self.sigma, meas, np.diag(sig * sig), self.association,
+            self.likelihood_inflation, self._loglik, nis,
+        )  # fmt: skip
+        dof = MEAS_DIM * maps.n_paired
+        if k:
+            if dof.any():
+                self._check_lock(np.where(dof > 0, nis / np.maximum(dof, 1), np.nan))
+            self._apply_loglik(self._loglik)
+        maps.report = best = int(np.argmax(self._w))
+        self._nis = float(nis[best]) if dof[best] else math.nan
+        self._nis_dof = int(dof[best])
+        self.last_association = maps.labels(best, k)
+        self._maybe_resample()
 
     def _post_update(self, idx: np.ndarray, meas: FloatArray, R: FloatArray) -> None:
         """Hook run after resampling in :meth:`update` with the mapped observations."""
@@ -378,19 +459,28 @@ class FastSLAMBase:
         return {}
 
     def estimate(self) -> Estimate:
-        """Weighted particle mean and covariance, and the mixture map (frozen snapshot).
+        """Weighted particle mean and covariance, and the map (frozen snapshot).
 
         Euler angles use the weighted circular mean; the (9, 9) pose covariance of
-        ``(ρ, v_B, Λ)`` uses wrapped angle deviations. Landmark covariances are the mixture
-        covariances ``Σ_i w_i (Σ^i + (μ^i − μ̄)(μ^i − μ̄)ᵀ)``.
+        ``(ρ, v_B, Λ)`` uses wrapped angle deviations. With labels shared by all particles
+        (known association, or a known map) the map is the mixture over the particles, with
+        covariances ``Σ_i w_i (Σ^i + (μ^i − μ̄)(μ^i − μ̄)ᵀ)``; under unknown association in
+        SLAM every particle has its own map, and the map of the reported particle (the
+        highest-weight one after the last scan) is given, labeled by its slots ``0, 1, …``.
         """
         w = self._w
         mean, vel_inertial = np.empty(STATE_DIM), np.empty(3)
         pose_cov = np.empty((POSE_DIM, POSE_DIM))
         state_moments(self.x, w, mean, pose_cov, vel_inertial)
+        ids = self._ids_sorted
         n_lm = len(self._slot_ids)
         lm_mean, lm_cov = np.empty((n_lm, 3)), np.empty((n_lm, 3, 3))
-        if n_lm:
+        if self._maps is not None and not self._known_map:
+            best = self._maps.report
+            n_lm = int(self._maps.size[best])
+            ids = np.arange(n_lm)
+            lm_mean, lm_cov = self.mu[best, :n_lm].copy(), self.sigma[best, :n_lm].copy()
+        elif n_lm:
             landmark_mixture(self.mu, self.sigma, w, self._order, lm_mean, lm_cov)
         accel_bias, gyro_bias = self._bias_estimate(w)
         diagnostics = {
@@ -410,7 +500,7 @@ class FastSLAMBase:
             euler=mean[6:9],
             rates=mean[9:12],
             pose_cov=pose_cov,
-            landmark_ids=self._ids_sorted.copy(),
+            landmark_ids=ids.copy(),
             landmark_means=lm_mean,
             landmark_covs=lm_cov,
             accel_bias=accel_bias,

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from quadslam_env.types import STATE_DIM, FloatArray
+from estimators.association import chi2_threshold
+from estimators.tentative import check_confirm_rule
+from quadslam_env.types import MEAS_DIM, STATE_DIM, FloatArray
 
 OWNER = "estimator.params"
 FLOAT = (float, int)
@@ -46,3 +49,47 @@ def parse_process_noise(key: str, value: Any) -> FloatArray:
     if not np.all(np.isfinite(arr)) or np.any(arr < 0.0):
         raise fail(key, value, allowed)
     return arr
+
+
+@dataclass(frozen=True)
+class AssociationSettings:
+    """Per-particle data association settings (``lidar.association: unknown``).
+
+    Attributes:
+        gate_probability: p of the individual χ²₃ gate on ``νᵀ S⁻¹ ν``, in (0, 1] (1: no gate).
+        new_landmark_likelihood: p0 > 0, the likelihood density (per rad²·m of measurement
+            space) of a return under the new-landmark/clutter hypothesis.
+        confirm_hits: M of the M-of-N rule for tentative landmarks.
+        confirm_window: N of the M-of-N rule.
+    """
+
+    gate_probability: float = 0.99
+    new_landmark_likelihood: float = 1e-3
+    confirm_hits: int = 3
+    confirm_window: int = 5
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> AssociationSettings:
+        """Read and validate the four keys from ``params`` (the others are ignored).
+
+        Raises:
+            ValueError: Naming the key, the value and what is allowed.
+        """
+        prob = params.get("gate_probability", cls.gate_probability)
+        if not 0.0 < float(prob) <= 1.0:
+            raise fail("gate_probability", prob, "a number p with 0 < p <= 1")
+        p0 = positive(
+            "new_landmark_likelihood",
+            params.get("new_landmark_likelihood", cls.new_landmark_likelihood),
+        )
+        hits, window = check_confirm_rule(
+            params.get("confirm_hits", cls.confirm_hits),
+            params.get("confirm_window", cls.confirm_window),
+            OWNER,
+        )
+        return cls(float(prob), p0, hits, window)
+
+    @property
+    def gate(self) -> float:
+        """The χ²₃ quantile of :attr:`gate_probability` (inf when it is 1)."""
+        return chi2_threshold(MEAS_DIM, self.gate_probability)

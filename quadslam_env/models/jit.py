@@ -53,6 +53,22 @@ def kernel(func: F) -> F:
     return _compile(func, njit)
 
 
+def inline_kernel(func: F) -> F:
+    """:func:`kernel` inlined into its callers at numba IR level (``inline="always"``).
+
+    For small pieces of a hot kernel that are also called on their own (e.g. a landmark
+    EKF's prediction, shared by the update and the data association): a separately compiled
+    callee returning nested tuples can cost a fifth of the caller's time, the inlined one
+    nothing.
+    """
+    return _compile(func, _njit_inline)
+
+
+def _njit_inline(**options: Any) -> Any:
+    """``numba.njit(inline="always", **options)``."""
+    return njit(inline="always", **options)
+
+
 def elementwise(signature: str) -> Callable[[Callable[..., Any]], Any]:
     """``numba.vectorize([signature], cache=True)``: a NumPy ufunc from a scalar kernel.
 

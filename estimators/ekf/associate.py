@@ -1,0 +1,348 @@
+"""Numba kernels of EKF-SLAM's data association front end (``lidar.association: unknown``).
+
+For each scanning lane, :func:`associate_lanes` turns the unlabeled returns into the labeled
+scan that :func:`estimators.ekf.update.update_lanes` corrects with (seed 004 §5), and
+:func:`settle_tentative` then applies the M-of-N rule:
+
+1. every landmark in the state (confirmed or tentative) or in the known map is predicted
+   with the joint innovation covariance ``S = H P Hᵀ + R`` of
+   :func:`~estimators.ekf.update.innovation_covariance` (the update's own model);
+2. each (return, landmark) pair is gated on its individual 3-DOF NIS and the returns are
+   associated by nearest neighbour or JCBB (:mod:`estimators.association`);
+3. a return outside a wider gate (``new_landmark_probability``) of every landmark starts a
+   **tentative** landmark (the wider gate keeps a true landmark's rare return outside the
+   association gate from starting a duplicate of it): it is registered
+   at once like any new landmark (eq. 44–53, so the map is anchored from the first sight,
+   as with known association) under the lowest free label, and flagged tentative;
+4. a return that is within the wider gate of some landmark but left unpaired, and every unpaired
+   return of a known-map lane, is dropped;
+5. after the update, a tentative landmark paired in ``confirm_hits`` (M) of its first
+   ``confirm_window`` (N) scans is confirmed; one whose N scans pass without is removed from
+   the state (:func:`remove_landmark`: deleting a landmark's rows and columns of x and P is
+   exact marginalisation, and a false return that no later return paired has given the pose
+   no information, so clutter leaves no trace).
+
+Labels are the estimator's own names for landmarks (unrelated to the simulator's ids), reused
+after a removal; a known-map lane labels returns with the known map's ids. Tentative
+landmarks are not reported as mapped, and a return paired with one counts as unassociated.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from estimators.association import (
+    UNASSOCIATED,
+    chi2_threshold,
+    individual_nis,
+    jcbb,
+    joint_thresholds,
+    nearest_neighbour,
+)
+from estimators.ekf.kernels import D_N_MAPPED, sync_lane
+from estimators.ekf.settings import EkfSlamSettings
+from estimators.ekf.update import first_nonfinite_lane, innovation, innovation_covariance
+from estimators.tentative import m_of_n
+from quadslam_env.models.jit import kernel
+from quadslam_env.types import FloatArray
+
+
+@kernel
+def associate_lanes(
+    x: FloatArray,
+    P: FloatArray,
+    n: np.ndarray,
+    nv: int,
+    stale: np.ndarray,
+    slot_of_id: np.ndarray,
+    mapped: np.ndarray,
+    known: np.ndarray,
+    known_pos: FloatArray,
+    lanes: np.ndarray,
+    count: np.ndarray,
+    returns: FloatArray,
+    r_diag: FloatArray,
+    gate: float,
+    new_gate: float,
+    thresholds: FloatArray,
+    use_jcbb: bool,
+    tentative: np.ndarray,
+    hits: np.ndarray,
+    age: np.ndarray,
+    visible: np.ndarray,
+    meas: FloatArray,
+    assoc: np.ndarray,
+) -> None:
+    """Associate each scanning lane's returns; write the labeled scan and the association.
+
+    Args:
+        x, P, n, nv, stale, slot_of_id, mapped, known, known_pos: The filter's buffers (see
+            :func:`estimators.ekf.update.update_lanes`); stale lanes are synchronised here.
+        lanes: (k,) int, the scanning lanes.
+        count: (B,) int returns per lane.
+        returns: (B, R, 3) returns (α rad, β rad, δ m); rows ``≥ count[b]`` unused.
+        r_diag: (3,) measurement noise variances.
+        gate: Individual-compatibility threshold χ²₃(p).
+        new_gate: A return within this NIS (≥ ``gate``) of a landmark never starts a new one.
+        thresholds: (≥ R + 1,) joint-compatibility thresholds χ²_{3k}(p) (JCBB).
+        use_jcbb: JCBB when True, else nearest neighbour.
+        tentative, hits, age: (B, Lcap) per label: tentative flag, scans paired, scans since
+            creation; new tentative labels are written here.
+        visible: (B, Lcap) bool, written for the scanning lanes: the labels returned.
+        meas: (B, Lcap, 3), written: the return of each label.
+        assoc: (B, R) int, written for the scanning lanes: each return's label or -1.
+    """
+    lmax = mapped.shape[1]
+    for b in lanes:
+        xb, Pb, nb = x[b], P[b], n[b]
+        if stale[b]:
+            sync_lane(Pb, nb, nv)
+            stale[b] = False
+        visible[b, :] = False
+        assoc[b, :] = UNASSOCIATED
+        r = count[b]
+        ids = np.empty(lmax, dtype=np.int64)
+        m = 0
+        for j in range(lmax):
+            if mapped[b, j]:
+                ids[m] = j
+                m += 1
+        paired = np.full(r, UNASSOCIATED, dtype=np.int64)
+        gated = np.zeros(r, dtype=np.bool_)
+        if m and r:
+            lms = np.empty((m, 3))
+            cols = np.full(m, -1, dtype=np.int64)
+            for a in range(m):
+                if known[b]:
+                    lms[a] = known_pos[b, ids[a]]
+                else:
+                    cols[a] = nv + 3 * slot_of_id[b, ids[a]]
+                    lms[a] = xb[cols[a] : cols[a] + 3]
+            h = np.empty((m, 3))
+            U = np.empty((3 * m, nb))
+            S = np.empty((3 * m, 3 * m))
+            innovation_covariance(xb, Pb, nb, lms, cols, r_diag, h, U, S)
+            nu = np.empty((r, m, 3))
+            for i in range(r):
+                for a in range(m):
+                    innovation(returns[b, i], h[a], nu[i, a])
+            d2 = np.empty((r, m))
+            individual_nis(nu, S, d2)
+            for i in range(r):
+                for a in range(m):
+                    gated[i] = gated[i] or d2[i, a] <= new_gate
+            if use_jcbb:
+                jcbb(nu, S, d2, gate, thresholds, paired)
+            else:
+                nearest_neighbour(d2, gate, paired)
+        free = 0
+        for i in range(r):
+            if paired[i] >= 0:
+                label = ids[paired[i]]
+                hits[b, label] += 1
+            elif gated[i] or known[b]:
+                continue  # ambiguous, or not in a known map: dropped
+            else:  # a new tentative landmark under the lowest free label
+                while free < lmax and (mapped[b, free] or visible[b, free]):
+                    free += 1
+                if free == lmax:
+                    continue  # no label left (the caller reserves enough)
+                label = free
+                tentative[b, label] = True
+                hits[b, label] = 1
+                age[b, label] = 0
+            visible[b, label] = True
+            meas[b, label] = returns[b, i]
+            assoc[b, i] = label
+
+
+@kernel
+def remove_landmark(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    nv: int,
+    slot_of_id: np.ndarray,
+    id_of_slot: np.ndarray,
+    label: int,
+) -> None:
+    """Delete landmark ``label`` from one lane's state: its 3 entries of x and rows and
+    columns of P (marginalisation); later slots move down by one. The caller sets
+    ``n -= 3`` and unmaps the label."""
+    s = slot_of_id[label]
+    c = nv + 3 * s
+    m = nb - 3
+    for i in range(c, m):
+        xb[i] = xb[i + 3]
+        for j in range(nb):
+            Pb[i, j] = Pb[i + 3, j]
+    for i in range(m):
+        for j in range(c, m):
+            Pb[i, j] = Pb[i, j + 3]
+    for i in range(m, nb):
+        xb[i] = 0.0
+        for j in range(nb):
+            Pb[i, j] = 0.0
+            Pb[j, i] = 0.0
+    n_slots = (nb - nv) // 3
+    for t in range(s, n_slots - 1):
+        id_of_slot[t] = id_of_slot[t + 1]
+        slot_of_id[id_of_slot[t]] = t
+    id_of_slot[n_slots - 1] = -1
+    slot_of_id[label] = -1
+
+
+@kernel
+def settle_tentative(
+    x: FloatArray,
+    P: FloatArray,
+    n: np.ndarray,
+    nv: int,
+    slot_of_id: np.ndarray,
+    id_of_slot: np.ndarray,
+    mapped: np.ndarray,
+    tentative: np.ndarray,
+    hits: np.ndarray,
+    age: np.ndarray,
+    lanes: np.ndarray,
+    count: np.ndarray,
+    confirm_hits: int,
+    confirm_window: int,
+    diag: FloatArray,
+    assoc: np.ndarray,
+) -> None:
+    """After the scan's update: confirm, keep or remove each tentative landmark of the
+    scanning ``lanes`` (:func:`estimators.tentative.m_of_n`), then unpair the returns whose
+    label is not a confirmed landmark (a tentative one, or a registration that failed)."""
+    for b in lanes:
+        for label in range(mapped.shape[1]):
+            if not tentative[b, label]:
+                continue
+            if not mapped[b, label]:  # its registration failed
+                tentative[b, label] = False
+                continue
+            rule = m_of_n(hits[b, label], age[b, label], confirm_hits, confirm_window)
+            if rule > 0:
+                tentative[b, label] = False
+            elif rule < 0:
+                remove_landmark(x[b], P[b], n[b], nv, slot_of_id[b], id_of_slot[b], label)
+                n[b] -= 3
+                mapped[b, label] = False
+                tentative[b, label] = False
+            else:
+                age[b, label] += 1
+        diag[D_N_MAPPED, b] = (n[b] - nv) // 3
+        for i in range(count[b]):
+            label = assoc[b, i]
+            if label >= 0 and (tentative[b, label] or not mapped[b, label]):
+                assoc[b, i] = UNASSOCIATED
+
+
+class UnlabeledScans:
+    """:class:`~estimators.ekf.filter.EkfSlamBatch`'s methods for unlabeled scans (a mixin:
+    the filter's buffers are declared here, allocated by the filter)."""
+
+    associates_unlabeled = True
+    num_lanes: int
+    nv: int
+    settings: EkfSlamSettings
+    gate_threshold: float
+    _x: FloatArray
+    _P: FloatArray
+    _n: np.ndarray
+    _stale: np.ndarray
+    _slot_of_id: np.ndarray
+    _id_of_slot: np.ndarray
+    _mapped: np.ndarray
+    _known: np.ndarray
+    _known_pos: FloatArray
+    _tentative: np.ndarray
+    _hits: np.ndarray
+    _age: np.ndarray
+    _diag: FloatArray
+    _assoc: np.ndarray
+    _thresholds: FloatArray
+
+    @property
+    def landmark_capacity(self) -> int:
+        raise NotImplementedError  # the filter's
+
+    def _ensure_ids(self, count: int) -> None:
+        raise NotImplementedError  # the filter's
+
+    def update(self, t: Any, lanes: Any, visible: Any, meas: Any, sigma: Any) -> None:
+        raise NotImplementedError  # the filter's
+
+    def update_unlabeled(
+        self,
+        t: FloatArray,
+        lanes: np.ndarray,
+        count: np.ndarray,
+        returns: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Associate ``lanes``' unlabeled returns, then correct as :meth:`update` does.
+
+        The association front end (:mod:`estimators.ekf.associate`: χ² gate, NN or JCBB,
+        tentative landmarks under the M-of-N rule) labels the returns with map slots (or the
+        known map's ids); :attr:`last_association` holds each return's label afterwards.
+
+        Args:
+            t: (B,) scan times in s (unused).
+            lanes: (k,) int, lanes that scan.
+            count: (B,) int returns per lane.
+            returns: (B, R, 3) returns (α rad, β rad, δ m), in any order; rows ``≥ count``
+                are not read.
+            sigma: (3,) measurement noise stds (σ_α rad, σ_β rad, σ_δ m).
+
+        Raises:
+            ValueError: On a non-finite return (nothing is changed then).
+        """
+        lanes = np.ascontiguousarray(lanes, dtype=np.int64).reshape(-1)
+        count = np.ascontiguousarray(count, dtype=np.int64)
+        returns = np.ascontiguousarray(returns, dtype=float)
+        width = returns.shape[1]
+        present = np.arange(width) < count[:, None]
+        bad = first_nonfinite_lane(lanes, present, returns)
+        if bad >= 0:
+            raise ValueError(f"update: lane {bad}: scan measurements must be finite")
+        if self._assoc.shape[1] < width:
+            self._assoc = np.full((self.num_lanes, width), UNASSOCIATED, dtype=np.int64)
+            self._thresholds = joint_thresholds(width, self.settings.gate_probability)
+        self._assoc[lanes] = UNASSOCIATED
+        if lanes.size == 0:
+            return
+        self._ensure_ids(int(((self._n[lanes] - self.nv) // 3 + count[lanes]).max()))
+        lcap = self.landmark_capacity
+        visible = np.zeros((self.num_lanes, lcap), dtype=bool)
+        meas = np.zeros((self.num_lanes, lcap, 3))
+        r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
+        cfg = self.settings
+        associate_lanes(
+            self._x, self._P, self._n, self.nv, self._stale, self._slot_of_id, self._mapped,
+            self._known, self._known_pos, lanes, count, returns, r_diag, self.gate_threshold,
+            chi2_threshold(3, cfg.new_landmark_probability), self._thresholds,
+            cfg.association == "jcbb", self._tentative, self._hits, self._age, visible, meas,
+            self._assoc,
+        )  # fmt: skip
+        self.update(t, lanes, visible, meas, sigma)
+        settle_tentative(
+            self._x, self._P, self._n, self.nv, self._slot_of_id, self._id_of_slot,
+            self._mapped, self._tentative, self._hits, self._age, lanes, count,
+            cfg.confirm_hits, cfg.confirm_window, self._diag, self._assoc,
+        )  # fmt: skip
+
+    @property
+    def last_association(self) -> np.ndarray:
+        """(B, R) int label of each return of the lanes' last unlabeled scans (-1: none):
+        map slots in SLAM lanes, known-map ids in known-map lanes (read only)."""
+        out = self._assoc.view()
+        out.flags.writeable = False
+        return out
+
+    @property
+    def tentative_count(self) -> np.ndarray:
+        """(B,) int tentative landmarks each lane holds (unknown association)."""
+        return self._tentative.sum(axis=1)
