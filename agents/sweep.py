@@ -147,8 +147,28 @@ def connect(ray: Any, address: str | None, workers: int | None) -> bool:
                 "'ray start --head', or omit --address for a local sweep"
             ) from None
         message = " ".join(str(exc).split()) or type(exc).__name__
-        raise SweepError(f"--address {address}: cannot join the Ray cluster ({message})") from None
+        raise SweepError(
+            f"--address {address}: cannot join the Ray cluster ({message}); a cluster with "
+            "token authentication also needs its token here (~/.ray/auth_token or "
+            "RAY_AUTH_TOKEN)"
+        ) from None
     return True
+
+
+def use_cluster_token() -> None:
+    """Ask Ray for token authentication when joining a cluster with a token at hand.
+
+    Ray (2.60) turns token authentication on by itself only for a cluster it starts; a
+    driver joining a ``ray start`` cluster must set ``RAY_AUTH_MODE=token`` before Ray is
+    imported, or the head node refuses it. This does so when ``RAY_AUTH_MODE`` is unset and a
+    token is available (``RAY_AUTH_TOKEN``, ``RAY_AUTH_TOKEN_PATH`` or ``~/.ray/auth_token``);
+    a token-mode driver also joins a cluster without authentication.
+    """
+    if "RAY_AUTH_MODE" in os.environ or "ray" in sys.modules:
+        return
+    have = os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH")
+    if have or (Path.home() / ".ray" / "auth_token").is_file():
+        os.environ["RAY_AUTH_MODE"] = "token"
 
 
 def job_folder(out: Path, job: Job) -> Path:
@@ -281,6 +301,8 @@ def run_sweep(
     tic = time.perf_counter()
     path = spec_path(spec)
     jobs = load_spec(path)
+    if address is not None:
+        use_cluster_token()  # before Ray is imported
     import_ray()  # also pandas / pyarrow for the table
     if address is not None:
         check_address(address)  # at once, before any folder is made

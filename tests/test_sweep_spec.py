@@ -7,6 +7,7 @@ the key, the value and what is allowed; no output folder is created. None of thi
 
 from __future__ import annotations
 
+import os
 import socket
 import sys
 from pathlib import Path
@@ -268,3 +269,24 @@ def test_malformed_address(capsys, tmp_path):
     code = main(["sweep", str(spec), "--out", str(tmp_path / "out"), "--address", "nowhere"])
     line = capsys.readouterr().err.strip()
     assert code == 2 and "'nowhere'" in line and "HOST:PORT" in line
+
+
+def test_joining_a_cluster_uses_the_token_at_hand(tmp_path, monkeypatch):
+    """Ray 2.60 refuses a driver without RAY_AUTH_MODE=token on a `ray start` cluster."""
+    from agents.sweep import use_cluster_token
+
+    monkeypatch.setenv("RAY_AUTH_MODE", "placeholder")  # restored after the test
+    monkeypatch.delenv("RAY_AUTH_MODE")
+    monkeypatch.delenv("RAY_AUTH_TOKEN", raising=False)
+    monkeypatch.delenv("RAY_AUTH_TOKEN_PATH", raising=False)
+    monkeypatch.delitem(sys.modules, "ray", raising=False)  # as before Ray is imported
+    monkeypatch.setattr(Path, "home", lambda: tmp_path)
+    use_cluster_token()
+    assert "RAY_AUTH_MODE" not in os.environ  # no token: nothing to ask for
+    (tmp_path / ".ray").mkdir()
+    (tmp_path / ".ray" / "auth_token").write_text("secret")
+    use_cluster_token()
+    assert os.environ["RAY_AUTH_MODE"] == "token"
+    monkeypatch.setenv("RAY_AUTH_MODE", "disabled")
+    use_cluster_token()
+    assert os.environ["RAY_AUTH_MODE"] == "disabled"  # the user's choice stays
