@@ -294,8 +294,8 @@ class EkfSlamBatch(UnlabeledScans):
             t: (B,) sample times in s (unused).
             accel: (B, 3) measured specific force [m/s², B]; only the z column is used (eq. 25).
             gyro: (B, 3) measured body rates [rad/s, B].
-            accel_sigma: Accelerometer white-noise std per sample in m/s².
-            gyro_sigma: Gyro white-noise std per sample in rad/s.
+            accel_sigma: Accelerometer white-noise std per step of ``dt`` (ND/√dt) in m/s².
+            gyro_sigma: Gyro white-noise std per step of ``dt`` in rad/s.
             thrust: (B,) applied thrust in N (unused: the process is driven by the IMU).
             torque: (B, 3) applied torque in N·m (unused).
             dt: Sample period in s (> 0).
