@@ -39,7 +39,7 @@ from estimators.metrics import (
     step_metrics,
 )
 from quadslam_env.actions import ActionMap
-from quadslam_env.config import ConfigError, LandmarksConfig, ScenarioConfig
+from quadslam_env.config import LandmarksConfig, ScenarioConfig
 from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
 from quadslam_env.measurements import ScanReturns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
@@ -53,8 +53,6 @@ from quadslam_env.types import STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
 from quadslam_env.world import make_landmarks
 
-RESET_OPTIONS = ("initial_state", "landmarks")
-
 
 def landmark_capacity(cfg: LandmarksConfig) -> int:
     """Number of landmarks the layout makes (the map's size bound Lmax)."""
@@ -63,55 +61,6 @@ def landmark_capacity(cfg: LandmarksConfig) -> int:
     if cfg.layout == "poles4":
         return 4
     return len(cfg.positions)
-
-
-def parse_reset_options(options: dict[str, Any] | None) -> dict[str, FloatArray]:
-    """Validate ``reset`` options: ``initial_state`` (12,), ``landmarks`` (L, 3).
-
-    Raises:
-        ConfigError: Not a dict, an unknown key, or a value of the wrong shape or range.
-    """
-    if options is None:
-        return {}
-    if not isinstance(options, dict):
-        raise ConfigError(
-            f"reset options: got {options!r}; allowed: a dict with keys {list(RESET_OPTIONS)}"
-        )
-    out: dict[str, FloatArray] = {}
-    for key, value in options.items():
-        if key not in RESET_OPTIONS:
-            raise ConfigError(f"reset options.{key}: unknown key; allowed: {list(RESET_OPTIONS)}")
-        arr = _as_float_array(value)
-        if key == "initial_state":
-            if arr is None or arr.shape != (STATE_DIM,) or not np.all(np.isfinite(arr)):
-                raise ConfigError(
-                    f"reset options.initial_state: got {value!r}; allowed: 12 "
-                    "finite numbers (ρ [m], v_B [m/s], Λ [rad], ω [rad/s])"
-                )
-            if abs(arr[7]) >= math.radians(89.0):
-                raise ConfigError(
-                    f"reset options.initial_state[7] (pitch): got {arr[7]}; allowed: |θ| < 89°"
-                )
-        if key == "landmarks" and (
-            arr is None
-            or arr.ndim != 2
-            or arr.shape[1] != 3
-            or arr.shape[0] == 0
-            or not np.all(np.isfinite(arr))
-        ):
-            raise ConfigError(
-                f"reset options.landmarks: got {value!r}; allowed: a non-empty "
-                "(L, 3) list of finite NED positions in m"
-            )
-        out[key] = arr  # type: ignore[assignment]
-    return out
-
-
-def _as_float_array(value: Any) -> FloatArray | None:
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return None
 
 
 class SimCore:
@@ -164,7 +113,7 @@ class SimCore:
         # A slower IMU: the filter at IMU instants, replayed when a sample arrives.
         self._replay: ImuReplay | None = None
         if self._steps_per_imu > 1:
-            self._replay = ImuReplay(self.estimator, self._steps_per_imu, self.dt)
+            self._replay = self._new_replay()
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
         self.observer = ObservationBuilder(cfg.observation, self.trajectory)
         self.steps = np.zeros(b, dtype=np.int64)
@@ -214,7 +163,7 @@ class SimCore:
         k = lanes.shape[0]
         replay = self._replay
         if replay is not None and replay.output is not self.estimator:  # a user swapped it
-            replay = self._replay = ImuReplay(self.estimator, self._steps_per_imu, self.dt)
+            replay = self._replay = self._new_replay()
         reserve = getattr(self.estimator, "reserve_landmarks", None)
         if "landmarks" in opts and reserve is not None:
             reserve(len(opts["landmarks"]))  # a larger map must fit before anything changes
@@ -370,6 +319,16 @@ class SimCore:
         return obs, reward, terminated, truncated, info  # type: ignore[return-value]
 
     # ------------------------------------------------------------------ IMU
+    def _new_replay(self) -> ImuReplay:
+        """The slow-IMU filter for the current estimator. Over a lane's first IMU period the
+        output's input error is taken as uniform over what the actuators can reach: the
+        specific force over [0, f_max/m], the rates over ±T max(τ_max/J) (variance span²/3)."""
+        p, period = self.vehicle_params, 1.0 / self.scenario.imu_rate_hz
+        reach_g = period * float(np.max(np.asarray(p.max_torque) / np.diag(p.inertia)))
+        reach_a = p.max_thrust / p.mass
+        var0 = (reach_a**2 / 3.0, reach_g**2 / 3.0)
+        return ImuReplay(self.estimator, self._steps_per_imu, self.dt, var0)
+
     def _imu_sample(self, active: np.ndarray) -> tuple[FloatArray, ...]:
         """The IMU input of this control period (IMU at or below the control rate).
 

@@ -147,9 +147,13 @@ def test_slow_imu_noise_at_its_rate_held_and_replayed() -> None:
     # a sample covers, replayed at its instant.
     assert len(calls) == (steps - steps // m) + steps
     assert {c[4] for c in calls} == {0.01}
-    assert {(c[2], c[3]) for c in calls} == {
-        (cfg.accel_noise_density * 10.0, cfg.gyro_noise_density * 10.0)  # ND √f_control
-    }
+    # The filter's input noise per period is ND √f_control; the output's is wider by the
+    # held sample's error (here the change between two noisy samples of the same hover).
+    nd_a, nd_g = cfg.accel_noise_density * 10.0, cfg.gyro_noise_density * 10.0
+    assert min(c[2] for c in calls) == pytest.approx(nd_a, rel=1e-12)
+    assert min(c[3] for c in calls) == pytest.approx(nd_g, rel=1e-12)
+    replayed = [c for c in calls if (c[2], c[3]) == (nd_a, nd_g)]
+    assert len(replayed) == steps
     # The IMU's own samples: σ = ND √f_IMU, each held over m periods (one at reset).
     assert core.imu.accel_sigma == pytest.approx(cfg.accel_noise_density * math.sqrt(10.0))
     accel = np.array([c[0] for c in calls])
