@@ -382,6 +382,8 @@ class EkfSlamBatch(UnlabeledScans):
             meas,
             r_diag,
             self.gate_threshold,
+            self.settings.relinearise_tolerance,
+            self.settings.max_iterations,
         )
 
     # ------------------------------------------------------------------ output
