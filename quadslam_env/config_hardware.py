@@ -216,9 +216,10 @@ class ImuConfig(Section):
         hi=100000.0,
         optional=True,
         doc="IMU sample rate in Hz; null = episode.control_hz. Either rate must be an integer "
-        "multiple of the other (seed 001 Table 5: 10 Hz under a 100 Hz controller); the "
-        "estimator holds a slower IMU's last sample over each control period and gets every "
-        "sample of a faster one",
+        "multiple of the other (Rauniyar et al. 2023, Table 5: 10 Hz under a 100 Hz "
+        "controller). The estimator predicts once per sample of a faster IMU; with a slower "
+        "one it runs at the IMU instants and its output is carried forward at the control "
+        "rate (docs/env.md, IMU rate)",
     )
 
 
