@@ -1,4 +1,6 @@
-# Two entry points: `make demo` and `make test`. Both create .venv if missing and install the package.
+# Two entry points: `make demo` and `make test`. Both create .venv if missing and install the package
+# (with the `ray` extra, so the sweep tests run). `make test-rllib` runs the RLlib test in its own
+# venv, .venv-rllib: ray[rllib] pins gymnasium 1.2.2, and .venv keeps the newest gymnasium.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -9,8 +11,10 @@ export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
 DOCS_STAMP := $(VENV)/.docs-installed
+RLLIB_VENV  := .venv-rllib
+RLLIB_STAMP := $(RLLIB_VENV)/.installed
 
-.PHONY: demo test lint bench install docs wheel-smoke clean
+.PHONY: demo test test-rllib lint bench install docs wheel-smoke clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -18,13 +22,13 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python pyproject.toml constraints.txt
 	$(BIN)/pip install --quiet -c constraints.txt torch==2.13.0
-	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev]"
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray]"
 	touch $(STAMP)
 
 install: $(STAMP)
 
 $(DOCS_STAMP): $(STAMP)
-	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,docs]"
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray,docs]"
 	touch $(DOCS_STAMP)
 
 # The documentation site (MkDocs + Material + mkdocstrings) into site/; warnings are errors.
@@ -36,6 +40,17 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	MPLBACKEND=Agg $(BIN)/python -m pytest -q
+
+$(RLLIB_STAMP): pyproject.toml constraints.txt
+	$(PYTHON) -m venv $(RLLIB_VENV)
+	$(RLLIB_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(RLLIB_VENV)/bin/pip install --quiet -c constraints.txt torch==2.13.0
+	$(RLLIB_VENV)/bin/pip install --quiet -c constraints.txt -e ".[test,rllib]"
+	touch $(RLLIB_STAMP)
+
+# RLlib's PPO on the env ids (tests/test_rllib.py), in .venv-rllib.
+test-rllib: $(RLLIB_STAMP)
+	MPLBACKEND=Agg $(RLLIB_VENV)/bin/python -m pytest -q tests/test_rllib.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
@@ -50,4 +65,4 @@ bench: $(STAMP)
 	$(BIN)/quadslam bench
 
 clean:
-	rm -rf $(VENV) build dist site *.egg-info .pytest_cache .mypy_cache
+	rm -rf $(VENV) $(RLLIB_VENV) build dist site *.egg-info .pytest_cache .mypy_cache

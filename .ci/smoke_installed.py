@@ -2,7 +2,8 @@
 
 Checks what the README promises a user of ``pip install quadslam``: the env ids make, reset and
 step; ``quadslam --version``, ``scenarios``, ``run``, ``train`` and ``evaluate`` work; a run
-folder evaluates from its own ``config.yaml`` without any scenario file.
+folder evaluates from its own ``config.yaml`` without any scenario file; the sweep specs ship
+and ``quadslam sweep`` without the ``ray`` extra says how to get it.
 """
 
 from __future__ import annotations
@@ -82,6 +83,21 @@ def main() -> None:
     evaluated = json.loads((here / "eval.json").read_text())
     assert evaluated["scenario"] == "ekf_figure8_biased_imu", evaluated["scenario"]
     assert abs(evaluated["episodes"][0]["duration_s"] - 0.5) < 1e-6, evaluated["episodes"]
+    # The example sweep specs are package data; without the `ray` extra, `quadslam sweep`
+    # checks the spec and then says in one line how to get Ray.
+    from agents.sweep_spec import load_spec
+
+    assert len(load_spec("rauniyar2023_table")) == 20
+    done = subprocess.run(
+        [str(BIN / "quadslam"), "sweep", "rauniyar2023_table", "--out", "sweep"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 2 and len(lines) == 1, (done.returncode, done.stderr)
+    assert "pip install 'quadslam[ray]'" in lines[0], lines
+    print(f"quadslam sweep without ray: {lines[0]}")
     print("installed wheel: all checks passed")
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from agents import cli
+from agents import cli, cli_study
 from agents.study_cost import TRAINED, run_study, write_json
 
 
@@ -65,4 +65,4 @@ def test_cli_parses_the_study_command() -> None:
     args = cli.build_parser().parse_args(
         ["study", "cost-of-estimation", "--quick", "--json", "x.json"]
     )
-    assert args.func is cli.cmd_study_cost and args.quick and args.json == Path("x.json")
+    assert args.func is cli_study.cmd_study_cost and args.quick and args.json == Path("x.json")
