@@ -38,6 +38,19 @@ Q_TILDE = np.diag([0.01] * 6 + [0.04])
 R_TILDE = np.diag([0.2, 0.2, 0.32, 0.1])
 ATTITUDE_NATURAL_FREQ = np.array([20.0, 20.0, 10.0])  # rad/s for roll, pitch, yaw
 ATTITUDE_DAMPING = 0.7
+RATE_FEEDBACK_BANDWIDTH = 0.4
+"""Largest attitude-loop natural frequency per Hz of IMU rate, rad/s/Hz. The loop's damping
+feeds back the estimated rates, which a slow IMU refreshes only every T = 1/f_IMU (and as an
+average over the period before): a delay of about T, whose phase lag ω_c T at the crossover
+ω_c ≈ 2ζω_n must stay below ~0.6 rad to keep ~30° of the PD loop's phase margin, so
+ω_n ≤ 0.6 / (1.4 T) ≈ 0.4 f_IMU. At 100 Hz that is 40 rad/s (the defaults stand); at the
+paper's 10 Hz IMU it is 4 rad/s (with 20 rad/s the vehicle tips over within a second)."""
+
+
+def attitude_natural_freq(imu_rate_hz: float) -> FloatArray:
+    """(3,) attitude-loop natural frequencies in rad/s for rate feedback at ``imu_rate_hz``:
+    :data:`ATTITUDE_NATURAL_FREQ`, capped at :data:`RATE_FEEDBACK_BANDWIDTH` × f_IMU."""
+    return np.minimum(ATTITUDE_NATURAL_FREQ, RATE_FEEDBACK_BANDWIDTH * float(imu_rate_hz))
 
 
 def flat_system() -> tuple[FloatArray, FloatArray]:
@@ -158,11 +171,17 @@ class DFLQRPolicy:
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> DFLQRPolicy:
-        """Build from a (possibly wrapped) ``QuadSLAMEnv``; requires the ``thrust_torque`` mode."""
+        """Build from a (possibly wrapped) ``QuadSLAMEnv``; requires the ``thrust_torque`` mode.
+
+        Without a ``natural_freq`` argument the attitude loop is capped for the scenario's IMU
+        rate (:func:`attitude_natural_freq`; unchanged at the default 100 Hz).
+        """
         base = env.unwrapped
         mode = base.scenario.action.mode
         if mode != "thrust_torque":
             raise ValueError(f"action.mode: got {mode!r}; DFLQRPolicy needs 'thrust_torque'")
+        if "natural_freq" not in kwargs:
+            kwargs["natural_freq"] = attitude_natural_freq(base.scenario.imu_rate_hz)
         return cls(base.vehicle_params, **kwargs)
 
     def command(self, obs: FloatArray) -> tuple[FloatArray, FloatArray]:

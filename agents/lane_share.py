@@ -17,8 +17,8 @@ import gymnasium as gym
 import numpy as np
 
 from agents.wrappers import ResidualDFLQR, parse_wrapper_spec
-from quadslam_env.core import parse_reset_options
 from quadslam_env.env import lane_info
+from quadslam_env.reset_options import parse_reset_options
 from quadslam_env.vector_env import QuadSLAMVectorEnv
 
 # Keys of the dict observation with privileged=True (agents.asymmetric reads them).

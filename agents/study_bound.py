@@ -36,6 +36,7 @@ from estimators.ekf.settings import EkfSlamSettings
 from estimators.metrics import step_metrics
 from estimators.pcrb import BoundModel, TruthRecord, error_bounds, slam_bound
 from quadslam_env.models.frames import dcm_from_euler, wrap_angle
+from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.types import POSE_DIM, FloatArray
 
 BLOCKS = (("pos", "m", 1.0), ("vel", "mps", 1.0), ("att", "deg", math.degrees(1.0)))
@@ -132,7 +133,9 @@ def bound_model(core: Any) -> BoundModel:
     walk ``σ_drift √(2/τ)`` of the Gauss–Markov drift's short-term growth. Pose prior: the
     scenario's P0 when the initial error is drawn from it; zero when the estimate starts at
     the true pose (an estimator handed x0 is bound with a zero prior; its P0 is then only its
-    belief). Map: known or unknown as in the scenario.
+    belief). Map: known or unknown as in the scenario. The IMU noise enters as white noise of
+    density ND per control period, also for an IMU slower than the control (whose held samples
+    the bound does not model).
     """
     cfg = core.scenario
     imu = cfg.imu
@@ -156,8 +159,10 @@ def bound_model(core: Any) -> BoundModel:
         cov0 = np.zeros_like(cov0)
     return BoundModel(
         settings=settings,
-        accel_sigma=float(core.imu.accel_sigma),
-        gyro_sigma=float(core.imu.gyro_sigma),
+        # The IMU noise per control period (the bound's step): ND √f_control, whatever the
+        # IMU rate (a faster IMU's m samples per period carry the same information).
+        accel_sigma=white_noise_sigma(imu.accel_noise_density, cfg.episode.control_hz),
+        gyro_sigma=white_noise_sigma(imu.gyro_noise_density, cfg.episode.control_hz),
         lidar_sigma=np.array(core.lidar.sigma, dtype=float),
         cov0=cov0,
         known_map=bool(est_cfg.known_map),

@@ -103,7 +103,11 @@ class BatchEstimator(Protocol):
         """Propagate the ``active`` (B,) lanes over ``dt`` s with one IMU sample each.
 
         ``t`` (B,) sample times in s; ``accel``/``gyro`` (B, 3) measured specific force (m/s²)
-        and rates (rad/s) in B; ``thrust`` (B,) N and ``torque`` (B, 3) N·m applied.
+        and rates (rad/s) in B, held over ``dt``; ``accel_sigma``/``gyro_sigma`` the white-noise
+        std of that input per step of ``dt``, ``ND/√dt`` (the per-sample std when the IMU
+        samples every ``dt``; with an IMU slower than the control, the held sample's std
+        scaled so that the steps between two samples add up its variance:
+        :mod:`quadslam_env.imu_replay`); ``thrust`` (B,) N and ``torque`` (B, 3) N·m applied.
         """
 
     def update(

@@ -313,6 +313,22 @@ class ScenarioConfig:
         return round(self.episode.control_hz / self.lidar.rate_hz)
 
     @property
+    def imu_rate_hz(self) -> float:
+        """IMU sample rate f_IMU in Hz (``imu.rate_hz``, or the control rate when null)."""
+        rate = self.imu.rate_hz
+        return self.episode.control_hz if rate is None else rate
+
+    @property
+    def imu_per_step(self) -> int:
+        """IMU samples per control step (≥ 1; > 1 when the IMU is faster than the control)."""
+        return max(1, round(self.imu_rate_hz / self.episode.control_hz))
+
+    @property
+    def steps_per_imu(self) -> int:
+        """Control steps per IMU sample (≥ 1; > 1 when the IMU is slower than the control)."""
+        return max(1, round(self.episode.control_hz / self.imu_rate_hz))
+
+    @property
     def max_steps(self) -> int:
         """Control steps in one episode."""
         return math.ceil(self.episode.duration_s * self.episode.control_hz - 1e-9)
@@ -357,6 +373,7 @@ class ScenarioConfig:
                 f"lidar.rate_hz: got {scenario.lidar.rate_hz}; allowed: a rate that divides "
                 f"episode.control_hz = {scenario.episode.control_hz} (integer ratio >= 1)"
             )
+        check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
         return scenario
 
     def to_dict(self) -> dict[str, Any]:
@@ -368,6 +385,26 @@ class ScenarioConfig:
             sec = getattr(self, key)
             out[key] = {f.name: _plain(getattr(sec, f.name)) for f in fields(sec)}
         return out
+
+
+def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
+    """``imu.rate_hz`` must be null, an integer multiple of ``episode.control_hz`` or an
+    integer fraction of it (the IMU samples on a grid that the control grid refines or is
+    refined by: DESIGN.md §3, docs/env.md "IMU rate").
+
+    Raises:
+        ConfigError: Naming the key, the value and what is allowed.
+    """
+    if rate_hz is None:
+        return
+    ratio = rate_hz / control_hz
+    whole = ratio if ratio >= 1.0 else 1.0 / ratio
+    if abs(whole - round(whole)) > 1e-9 * whole:
+        raise ConfigError(
+            f"imu.rate_hz: got {rate_hz}; allowed: null (= episode.control_hz), or a rate "
+            f"that is an integer multiple or an integer fraction of episode.control_hz = "
+            f"{control_hz} (e.g. {control_hz / 10:g} or {control_hz * 10:g})"
+        )
 
 
 def _plain(value: Any) -> Any:

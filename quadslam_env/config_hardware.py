@@ -209,6 +209,18 @@ class ImuConfig(Section):
         optional=True,
         doc="gyro full scale ±range per axis in deg/s, readings saturate there; null = unlimited",
     )
+    rate_hz: float | None = _spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        hi=100000.0,
+        optional=True,
+        doc="IMU sample rate in Hz; null = episode.control_hz. Either rate must be an integer "
+        "multiple of the other (Rauniyar et al. 2023, Table 5: 10 Hz under a 100 Hz "
+        "controller). The estimator predicts once per sample of a faster IMU; with a slower "
+        "one it runs at the IMU instants and its output is carried forward at the control "
+        "rate (docs/env.md, IMU rate)",
+    )
 
 
 @dataclass(frozen=True)

@@ -9,10 +9,19 @@ seeded with s + i is the scalar env seeded with s + i.
 Randomness: each lane has its own generator (the scalar env's ``np_random``), which spawns five
 children at every reset — landmarks, IMU, LiDAR, estimator, initial estimation error — exactly
 as the scalar env always has.
+
+IMU rate (``imu.rate_hz``, docs/env.md "IMU rate"): each IMU sample is the average of its
+inputs over its own period, and each prediction gets the input's white-noise std per step h,
+``σ = ND/√h`` (:attr:`SimCore.imu_input_sigma`). At the control rate (the default): one sample
+and one prediction over dt per step. An IMU m times faster: the vehicle is integrated over m
+sub-periods (command held), the IMU samples after each, and the estimator predicts m times over
+dt/m. An IMU m times slower: it samples every m-th step and the estimator runs as a filter at
+the IMU instants plus an output predicted at the control rate (:mod:`quadslam_env.imu_replay`).
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -30,9 +39,11 @@ from estimators.metrics import (
     step_metrics,
 )
 from quadslam_env.actions import ActionMap
-from quadslam_env.config import ConfigError, LandmarksConfig, ScenarioConfig
+from quadslam_env.config import LandmarksConfig, ScenarioConfig
+from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
 from quadslam_env.measurements import ScanReturns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
+from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.observation import ObservationBuilder
 from quadslam_env.reward import reward_terms
 from quadslam_env.sensors import ImuBatch, LidarBatch
@@ -42,8 +53,6 @@ from quadslam_env.types import STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
 from quadslam_env.world import make_landmarks
 
-RESET_OPTIONS = ("initial_state", "landmarks")
-
 
 def landmark_capacity(cfg: LandmarksConfig) -> int:
     """Number of landmarks the layout makes (the map's size bound Lmax)."""
@@ -52,55 +61,6 @@ def landmark_capacity(cfg: LandmarksConfig) -> int:
     if cfg.layout == "poles4":
         return 4
     return len(cfg.positions)
-
-
-def parse_reset_options(options: dict[str, Any] | None) -> dict[str, FloatArray]:
-    """Validate ``reset`` options: ``initial_state`` (12,), ``landmarks`` (L, 3).
-
-    Raises:
-        ConfigError: Not a dict, an unknown key, or a value of the wrong shape or range.
-    """
-    if options is None:
-        return {}
-    if not isinstance(options, dict):
-        raise ConfigError(
-            f"reset options: got {options!r}; allowed: a dict with keys {list(RESET_OPTIONS)}"
-        )
-    out: dict[str, FloatArray] = {}
-    for key, value in options.items():
-        if key not in RESET_OPTIONS:
-            raise ConfigError(f"reset options.{key}: unknown key; allowed: {list(RESET_OPTIONS)}")
-        arr = _as_float_array(value)
-        if key == "initial_state":
-            if arr is None or arr.shape != (STATE_DIM,) or not np.all(np.isfinite(arr)):
-                raise ConfigError(
-                    f"reset options.initial_state: got {value!r}; allowed: 12 "
-                    "finite numbers (ρ [m], v_B [m/s], Λ [rad], ω [rad/s])"
-                )
-            if abs(arr[7]) >= math.radians(89.0):
-                raise ConfigError(
-                    f"reset options.initial_state[7] (pitch): got {arr[7]}; allowed: |θ| < 89°"
-                )
-        if key == "landmarks" and (
-            arr is None
-            or arr.ndim != 2
-            or arr.shape[1] != 3
-            or arr.shape[0] == 0
-            or not np.all(np.isfinite(arr))
-        ):
-            raise ConfigError(
-                f"reset options.landmarks: got {value!r}; allowed: a non-empty "
-                "(L, 3) list of finite NED positions in m"
-            )
-        out[key] = arr  # type: ignore[assignment]
-    return out
-
-
-def _as_float_array(value: Any) -> FloatArray | None:
-    try:
-        return np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return None
 
 
 class SimCore:
@@ -132,7 +92,15 @@ class SimCore:
         self.max_steps = cfg.max_steps
         self.vehicle_params = cfg.vehicle.params()
         self.vehicle = VehicleBatch(self.vehicle_params, cfg.vehicle.physics_dt_s, b)
-        self.imu = ImuBatch(cfg.imu, self.vehicle_params, cfg.episode.control_hz, b)
+        self.imu = ImuBatch(cfg.imu, self.vehicle_params, cfg.imu_rate_hz, b)
+        self._imu_per_step, self._steps_per_imu = cfg.imu_per_step, cfg.steps_per_imu
+        prop_hz = max(cfg.imu_rate_hz, cfg.episode.control_hz)  # 1/h, the prediction rate
+        self.imu_input_sigma = (
+            white_noise_sigma(cfg.imu.accel_noise_density, prop_hz),
+            white_noise_sigma(cfg.imu.gyro_noise_density, prop_hz),
+        )
+        """White-noise std (accelerometer m/s², gyro rad/s) of the IMU input per prediction
+        step: ``ND √(1/h)`` for the step h = min(dt, T_IMU) (module docstring)."""
         self.lidar = LidarBatch(cfg.lidar, b)
         self.trajectory = Trajectory(cfg.trajectory)
         capacity = landmark_capacity(cfg.landmarks)
@@ -142,6 +110,10 @@ class SimCore:
             cfg.estimator.name, b, capacity, vehicle=self.vehicle_params, **cfg.estimator.params
         )
         self._truth: BatchEstimator | None = None  # privileged observations, built on demand
+        # A slower IMU: the filter at IMU instants, replayed when a sample arrives.
+        self._replay: ImuReplay | None = None
+        if self._steps_per_imu > 1:
+            self._replay = self._new_replay()
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
         self.observer = ObservationBuilder(cfg.observation, self.trajectory)
         self.steps = np.zeros(b, dtype=np.int64)
@@ -189,9 +161,14 @@ class SimCore:
         opts = options or {}
         lanes = np.asarray(lanes, dtype=np.int64)
         k = lanes.shape[0]
+        replay = self._replay
+        if replay is not None and replay.output is not self.estimator:  # a user swapped it
+            replay = self._replay = self._new_replay()
         reserve = getattr(self.estimator, "reserve_landmarks", None)
         if "landmarks" in opts and reserve is not None:
             reserve(len(opts["landmarks"]))  # a larger map must fit before anything changes
+            if replay is not None:
+                replay.reserve_landmarks(len(opts["landmarks"]))
         children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
         states0 = np.empty((k, STATE_DIM))
         mean0 = np.empty((k, STATE_DIM))
@@ -210,6 +187,8 @@ class SimCore:
         mean0[:, 6:9] = wrap_angle(mean0[:, 6:9])
         self.vehicle.reset(lanes, states0)
         self.imu.reset(lanes, [c[1] for c in children])
+        if self._steps_per_imu > 1:  # a slower IMU's first sample, held until the next
+            self.imu.prime(lanes, states0, self.vehicle.applied_thrust[lanes])
         self.lidar.reset(lanes, [c[2] for c in children])
         known = None
         if cfg.estimator.known_map:
@@ -218,7 +197,10 @@ class SimCore:
                 for i in lanes.tolist()
             ]
         cov0 = np.broadcast_to(self._cov0, (k, STATE_DIM, STATE_DIM)).copy()
-        self.estimator.reset_lanes(lanes, mean0, cov0, [c[3] for c in children], known)
+        est_rngs = [c[3] for c in children]
+        if replay is not None:  # copies taken before the output's reset draws from them
+            replay.reset_lanes(lanes, mean0, cov0, copy.deepcopy(est_rngs), known)
+        self.estimator.reset_lanes(lanes, mean0, cov0, est_rngs, known)
         self.steps[lanes] = 0
         self.t[lanes] = 0.0
         self.n_visible[lanes] = 0
@@ -226,7 +208,7 @@ class SimCore:
         self.episode.reset(lanes)
         est = self._snapshot()
         if self.unlabeled:
-            self._associated(est, None, rematch=True)
+            self._associated(est, None, np.isin(np.arange(self.num_lanes), lanes))
         ref = self.trajectory.batch(self.t)
         info = self._metrics(est, ref)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
@@ -264,16 +246,19 @@ class SimCore:
         active = np.ones(b, dtype=bool) if active is None else active
         thrust, torque = self.action_map.inputs(act, self.est.rates)
         vehicle = self.vehicle
-        mean_rates = vehicle.step(thrust, torque, self.dt, active)
-        self.last_rates = mean_rates
-        self.steps += active
-        self.t = (self.steps * self.dt).astype(np.float64, copy=False)
+        if self._imu_per_step == 1:
+            self.last_rates = vehicle.step(thrust, torque, self.dt, active)
+            self.steps += active
+            self.t = (self.steps * self.dt).astype(np.float64, copy=False)
+            samples = [self._imu_sample(active)]
+        else:
+            samples = self._fast_imu_samples(thrust, torque, active)
+            self.steps += active
+            self.t = (self.steps * self.dt).astype(np.float64, copy=False)
         state = vehicle.state
-        accel, gyro = self.imu.sample(
-            self.t, state[:, 3:6], mean_rates, vehicle.applied_thrust, active
-        )
         scanning = np.flatnonzero(active & (self.steps % self.scenario.lidar_every == 0))
         self.last_scan = None
+        scan: Scan | None = None
         if scanning.size:
             dcm = dcm_from_euler_batch(state[:, 6:9])
             where = (state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning)
@@ -285,29 +270,30 @@ class SimCore:
                 visible, meas = self.lidar.scan(*where)
             self.n_visible[scanning] = visible[scanning].sum(axis=1)
             self.last_scan = (scanning, visible, meas)
+            labels = returns.count if self.unlabeled else visible
+            scan = (self.unlabeled, scanning, labels, meas)
         timed = self.scenario.episode.report_step_time
         tic = time.perf_counter() if timed else 0.0
-        imu = self.imu
-        self.estimator.predict(
-            self.t,
-            accel,
-            gyro,
-            imu.accel_sigma,
-            imu.gyro_sigma,
-            vehicle.applied_thrust,
-            vehicle.applied_torque,
-            self.dt,
-            active,
-        )
-        if scanning.size and self.unlabeled:
-            self.estimator.update_unlabeled(  # type: ignore[attr-defined]
-                self.t, scanning, returns.count, returns.meas, self.lidar.sigma
-            )
-        elif scanning.size:
-            self.estimator.update(self.t, scanning, visible, meas, self.lidar.sigma)
+        sigma_a, sigma_g = self.imu_input_sigma
+        if self._replay is None:
+            h = self.dt / self._imu_per_step
+            for t_imu, accel, gyro, f_t, tau in samples:
+                self.estimator.predict(t_imu, accel, gyro, sigma_a, sigma_g, f_t, tau, h, active)
+            if scan is not None:
+                apply_scan(self.estimator, self.t, scan, self.lidar.sigma)
+        else:
+            _, accel, gyro, f_t, tau = samples[0]
+            self.estimator = self._replay.step(
+                self.estimator, self.steps, active, self.t, (accel, gyro),
+                self.imu_input_sigma, (f_t, tau), scan, self.lidar.sigma,
+            )  # fmt: skip
         est = self._snapshot()
         if self.unlabeled:
-            self._associated(est, returns if scanning.size else None, bool(scanning.size))
+            rematch = np.zeros(b, dtype=bool)
+            rematch[scanning] = True
+            if self._replay is not None:
+                rematch |= self._replay.last_due
+            self._associated(est, returns if scan is not None else None, rematch)
         toc = time.perf_counter() if timed else 0.0
         ref = self.trajectory.batch(self.t)
         info: dict[str, Any] = self._metrics(est, ref)
@@ -331,6 +317,61 @@ class SimCore:
         info["termination_reason"] = reasons
         obs = self.observer.build(est, ref, self.t, self.n_visible)
         return obs, reward, terminated, truncated, info  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ IMU
+    def _new_replay(self) -> ImuReplay:
+        """The slow-IMU filter for the current estimator. Over a lane's first IMU period the
+        output's input error is taken as uniform over what the actuators can reach: the
+        specific force over [0, f_max/m], the rates over ±T max(τ_max/J) (variance span²/3)."""
+        p, period = self.vehicle_params, 1.0 / self.scenario.imu_rate_hz
+        reach_g = period * float(np.max(np.asarray(p.max_torque) / np.diag(p.inertia)))
+        reach_a = p.max_thrust / p.mass
+        var0 = (reach_a**2 / 3.0, reach_g**2 / 3.0)
+        return ImuReplay(self.estimator, self._steps_per_imu, self.dt, var0)
+
+    def _imu_sample(self, active: np.ndarray) -> tuple[FloatArray, ...]:
+        """The IMU input of this control period (IMU at or below the control rate).
+
+        Returns:
+            ``(t (B,), accel (B, 3), gyro (B, 3), thrust (B,), torque (B, 3))``: the sample
+            taken now, or (slower IMU) the latest one held.
+        """
+        vehicle, imu = self.vehicle, self.imu
+        vel = vehicle.state[:, 3:6]
+        if self._steps_per_imu == 1:
+            accel, gyro = imu.sample(self.t, vel, self.last_rates, vehicle.applied_thrust, active)
+        else:
+            imu.accumulate(vel, self.last_rates, vehicle.applied_thrust, active)
+            due = active & (self.steps % self._steps_per_imu == 0)
+            if due.any():
+                imu.sample_held(self.t, due)
+            accel, gyro = imu.held_accel, imu.held_gyro
+        return self.t, accel, gyro, vehicle.applied_thrust, vehicle.applied_torque
+
+    def _fast_imu_samples(
+        self, thrust: FloatArray, torque: FloatArray, active: np.ndarray
+    ) -> list[tuple[FloatArray, ...]]:
+        """Integrate the vehicle over the m sub-periods of the control period (command held)
+        with an IMU sample after each (an IMU m times faster than the control); sets
+        :attr:`last_rates` to the rates averaged over the whole period.
+
+        Returns:
+            m tuples ``(t (B,), accel (B, 3), gyro (B, 3), thrust (B,), torque (B, 3))``.
+        """
+        vehicle, imu, m = self.vehicle, self.imu, self._imu_per_step
+        h = self.dt / m
+        rates = np.zeros((self.num_lanes, 3))
+        samples: list[tuple[FloatArray, ...]] = []
+        for i in range(m):
+            sub_rates = vehicle.step(thrust, torque, h, active)
+            rates += sub_rates
+            t_imu = self.t + (i + 1) * h
+            vel = vehicle.state[:, 3:6]
+            accel, gyro = imu.sample(t_imu, vel, sub_rates, vehicle.applied_thrust, active)
+            f_t, tau = vehicle.applied_thrust.copy(), vehicle.applied_torque.copy()
+            samples.append((t_imu, accel, gyro, f_t, tau))
+        self.last_rates = rates / m
+        return samples
 
     # ------------------------------------------------------------------ helpers
     def _snapshot(self) -> BatchEstimate:
@@ -359,16 +400,23 @@ class SimCore:
         t = self.t if lanes is None else self.t[np.asarray(lanes)]
         return self.trajectory.batch(t)
 
-    def _associated(self, est: BatchEstimate, returns: ScanReturns | None, rematch: bool) -> None:
-        """Unknown association: name the estimator's map entries by their true landmarks
-        (``rematch`` after a reset or scan: the map changes only then) and count the
-        association outcomes of this step's ``returns`` (``None``: no lane scanned)."""
-        if rematch or self._match.shape != est.landmark_mapped.shape:
+    def _associated(
+        self, est: BatchEstimate, returns: ScanReturns | None, rematch: np.ndarray
+    ) -> None:
+        """Unknown association: name the estimator's map entries by their true landmarks in
+        the ``rematch`` (B,) lanes (reset, scanned, or given the slow-IMU filter's copy: a
+        lane's map changes only then, and naming a lane at other times would make it depend
+        on the other lanes) and count the association outcomes of this step's ``returns``
+        (``None``: no lane scanned)."""
+        if rematch.any() or self._match.shape != est.landmark_mapped.shape:
             state = self.vehicle.state
-            self._match = match_landmarks(
+            match = match_landmarks(
                 est.landmark_means, est.landmark_mapped, np.hstack((est.position, est.euler)),
                 self.landmarks, self.n_landmarks, np.hstack((state[:, 0:3], state[:, 6:9])),
             )  # fmt: skip
+            if self._match.shape == match.shape:
+                match = np.where(rematch[:, None], match, self._match)
+            self._match = match
             self._matched = self._match >= 0
             self._match_truth = np.take_along_axis(
                 self.landmarks, np.maximum(self._match, 0)[..., None], axis=1

@@ -18,7 +18,8 @@ from estimators.base import Estimate
 from estimators.batch import BatchEstimator, batch_from_estimates
 from quadslam_env.actions import ActionError, validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
-from quadslam_env.core import SimCore, parse_reset_options
+from quadslam_env.core import SimCore
+from quadslam_env.reset_options import parse_reset_options
 from quadslam_env.trajectories import FlatOutputs
 from quadslam_env.types import FloatArray
 

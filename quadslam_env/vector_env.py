@@ -24,8 +24,9 @@ from gymnasium.vector.utils import batch_space
 
 from quadslam_env.actions import validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
-from quadslam_env.core import SimCore, parse_reset_options
+from quadslam_env.core import SimCore
 from quadslam_env.env import step_rate
+from quadslam_env.reset_options import parse_reset_options
 
 if TYPE_CHECKING:
     from quadslam_env.render import LaneRenderer

@@ -28,6 +28,17 @@ CASES = {
         "lidar": {"association": "unknown", "clutter_rate": 3.0, "detection_prob": 0.9},
         "estimator": {"params": {"confirm_hits": 2, "confirm_window": 3}},
     },
+    # imu.rate_hz: a slower IMU (filter replayed at its instants, lanes out of phase after
+    # the autoresets; at 5 Hz the 10 Hz scans fall between instants) and a faster one.
+    "QuadSLAM-EKF-v0-imu10": {**SHORT, "imu": {"rate_hz": 10.0}},
+    "QuadSLAM-EKF-v0-imu1000": {**SHORT, "imu": {"rate_hz": 1000.0}},
+    "QuadSLAM-FastSLAM-v0-imu10": {**FAST_FASTSLAM, "imu": {"rate_hz": 10.0}},
+    "QuadSLAM-EKF-v0-unknown-imu5": {
+        "episode": {"duration_s": 0.45},
+        "imu": {"rate_hz": 5.0},
+        "lidar": {"association": "unknown", "clutter_rate": 3.0, "detection_prob": 0.9},
+        "estimator": {"params": {"confirm_hits": 2, "confirm_window": 3}},
+    },
 }
 
 

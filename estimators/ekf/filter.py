@@ -30,15 +30,15 @@ from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
 from estimators.ekf.associate import UnlabeledScans
+from estimators.ekf.inspection import FilterInspection
 from estimators.ekf.kernels import (
     D_NIS,
     DIAGNOSTIC_NAMES,
     fill_outputs,
     predict_lanes,
-    sync_lane,
 )
 from estimators.ekf.settings import EkfSlamSettings
-from estimators.ekf.update import first_nonfinite_lane, stacked_model, update_lanes
+from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.memory import check_ekf_map
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import POSE_DIM, FloatArray
@@ -47,7 +47,7 @@ _AR3 = np.arange(3)
 
 
 @register_batch("ekf_slam")
-class EkfSlamBatch(UnlabeledScans):
+class EkfSlamBatch(UnlabeledScans, FilterInspection):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
     Implements :class:`estimators.batch.BatchEstimator`. Lane b behaves exactly like a scalar
@@ -81,6 +81,7 @@ class EkfSlamBatch(UnlabeledScans):
         self.gate_threshold = settings.gate_threshold
         self.nv = settings.nv
         self._qc = settings.continuous_noise()
+        self._relinearise = settings.relinearise_tolerance
         self.num_lanes = b = int(num_lanes)
         self._n = np.full(b, self.nv, dtype=np.int64)
         self._stale = np.zeros(b, dtype=bool)
@@ -294,8 +295,8 @@ class EkfSlamBatch(UnlabeledScans):
             t: (B,) sample times in s (unused).
             accel: (B, 3) measured specific force [m/s², B]; only the z column is used (eq. 25).
             gyro: (B, 3) measured body rates [rad/s, B].
-            accel_sigma: Accelerometer white-noise std per sample in m/s².
-            gyro_sigma: Gyro white-noise std per sample in rad/s.
+            accel_sigma: Accelerometer white-noise std per step of ``dt`` (ND/√dt) in m/s².
+            gyro_sigma: Gyro white-noise std per step of ``dt`` in rad/s.
             thrust: (B,) applied thrust in N (unused: the process is driven by the IMU).
             torque: (B, 3) applied torque in N·m (unused).
             dt: Sample period in s (> 0).
@@ -382,7 +383,19 @@ class EkfSlamBatch(UnlabeledScans):
             meas,
             r_diag,
             self.gate_threshold,
+            self._relinearise,
+            self.settings.max_iterations,
         )
+
+    def update_unlabeled(self, *args: Any) -> None:
+        """:meth:`UnlabeledScans.update_unlabeled` with first-order updates only: when the
+        pairing is itself a guess, a large linearisation error is as often a wrong pairing,
+        which the iterated update would follow all the way (docs/estimators.md)."""
+        self._relinearise = math.inf
+        try:
+            super().update_unlabeled(*args)
+        finally:
+            self._relinearise = self.settings.relinearise_tolerance
 
     # ------------------------------------------------------------------ output
     def estimate(self) -> BatchEstimate:
@@ -468,68 +481,3 @@ class EkfSlamBatch(UnlabeledScans):
             gyro_bias=gyro_bias,
             diagnostics={k: float(self._diag[i, lane]) for i, k in enumerate(DIAGNOSTIC_NAMES)},
         )
-
-    # ------------------------------------------------------------------ testing/debugging
-    def full_state(self, lane: int = 0) -> tuple[FloatArray, FloatArray, np.ndarray]:
-        """Copies of one lane's total mean x (n,), covariance P (n, n) and the mapped ids in
-        slot order (landmark slot j occupies ``x[nv + 3j : nv + 3j + 3]``)."""
-        n = int(self._n[lane])
-        self._sync(lane)
-        n_mapped = (n - self.nv) // 3
-        return (
-            self._x[lane, :n].copy(),
-            self._P[lane, :n, :n].copy(),
-            self._id_of_slot[lane, :n_mapped].copy(),
-        )
-
-    def set_full_state(self, x: FloatArray, P: FloatArray, lane: int = 0) -> None:
-        """Overwrite one lane's total mean and covariance (same size n as the current state).
-
-        Raises:
-            ValueError: On a shape mismatch or non-finite values.
-        """
-        n = int(self._n[lane])
-        x = np.asarray(x, dtype=float)
-        P = np.asarray(P, dtype=float)
-        if x.shape != (n,) or P.shape != (n, n):
-            raise ValueError(f"set_full_state: expected x ({n},) and P ({n}, {n})")
-        if not (np.isfinite(x).all() and np.isfinite(P).all()):
-            raise ValueError("set_full_state: x and P must be finite")
-        self._x[lane, :n] = x
-        self._P[lane, :n, :n] = P
-        self._stale[lane] = False
-
-    def stacked_measurement(
-        self, ids: np.ndarray, lane: int = 0
-    ) -> tuple[np.ndarray, FloatArray, FloatArray]:
-        """Stacked observation model of one lane's mapped/known landmarks ``ids`` (eq. 34, 40).
-
-        Args:
-            ids: (k,) landmark ids; all must be mapped (or in the known map).
-            lane: Lane index.
-
-        Returns:
-            ``(cols, h, H)``: ``cols`` (d,) the columns of x the model depends on
-            (``[s, m_κ]``, d = 9 + 3k; only s in known-map mode), ``h`` (3k,) the predicted
-            measurements (α, β, δ per landmark) and ``H`` (3k, d) = ``∂h/∂x[cols]``.
-
-        Raises:
-            KeyError: If an id is not mapped (or known).
-        """
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        for i in ids.tolist():
-            if not (0 <= i < self.landmark_capacity and self._mapped[lane, i]):
-                raise KeyError(i)
-        x = self._x[lane]
-        if self._known[lane]:
-            lms, lm_cols = self._known_pos[lane, ids], None
-        else:
-            lm_cols = (self.nv + 3 * self._slot_of_id[lane, ids][:, None] + _AR3).ravel()
-            lms = x[lm_cols].reshape(-1, 3)
-        return stacked_model(x, lms, lm_cols)
-
-    def _sync(self, lane: int) -> None:
-        """Make one lane's P fully symmetric again (see :func:`predict_lanes`)."""
-        if self._stale[lane]:
-            sync_lane(self._P[lane], int(self._n[lane]), self.nv)
-            self._stale[lane] = False

@@ -32,6 +32,8 @@ _TYPES: dict[str, type | tuple[type, ...]] = {
     "confirm_hits": int,
     "confirm_window": int,
     "new_landmark_probability": (float, int),
+    "relinearise_tolerance": (float, int),
+    "max_iterations": int,
 }
 
 ASSOCIATION_METHODS = ("nn", "jcbb")
@@ -94,6 +96,14 @@ class EkfSlamSettings:
     ``confirm_window`` (int in [confirm_hits, 1000], default 5): the scans a tentative
     landmark has to reach ``confirm_hits``.
 
+    ``relinearise_tolerance`` (float > 0, default 2.0; ``.inf`` turns it off): iterate an
+    update (Gauss–Newton relinearisation, :mod:`estimators.ekf.correction`) when the
+    first-order update's linearisation error exceeds this many measurement noise stds on some
+    channel — after a long gap without landmarks, when the returning scan corrects metres. An
+    ordinary update is far below it and is the first-order update bit for bit.
+
+    ``max_iterations`` (int in [1, 100], default 10): most iterations of such an update.
+
     Known-map mode (localisation only, the paper's known-landmarks case) is not a setting: it
     is chosen per run by passing a known map at reset (the env does so when the scenario sets
     ``estimator.known_map: true``).
@@ -111,6 +121,8 @@ class EkfSlamSettings:
     confirm_hits: int = 3
     confirm_window: int = 5
     new_landmark_probability: float = 0.9999
+    relinearise_tolerance: float = 2.0
+    max_iterations: int = 10
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> EkfSlamSettings:
@@ -149,7 +161,20 @@ class EkfSlamSettings:
                 f"estimator.params.new_landmark_probability: got {new_prob!r}; allowed: "
                 f"max(gate_probability = {prob} if < 1, 0) <= p < 1, p > 0"
             )
+        tol = float(params.get("relinearise_tolerance", 2.0))
+        if not tol > 0.0:
+            raise ValueError(
+                f"estimator.params.relinearise_tolerance: got {tol!r}; allowed: a number > 0 "
+                "(.inf: no iteration)"
+            )
+        iters = params.get("max_iterations", 10)
+        if not 1 <= iters <= 100:
+            raise ValueError(
+                f"estimator.params.max_iterations: got {iters!r}; allowed: an integer in [1, 100]"
+            )
         return cls(
+            relinearise_tolerance=tol,
+            max_iterations=int(iters),
             new_landmark_probability=new_prob,
             association=method,
             confirm_hits=hits,
