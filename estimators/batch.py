@@ -402,10 +402,16 @@ variance: a variance below ``-tol·scale`` or a 2×2 minor ``P_ij² − P_ii P_j
 ``tol·P_ii P_jj + (tol·scale)²`` is not round-off."""
 
 
+_NO_COV = np.zeros((1, 1, 1))
+
+
 @kernel
 def _health_codes(
     diverged: FloatArray,
-    mean: FloatArray,
+    position: FloatArray,
+    vel_body: FloatArray,
+    euler: FloatArray,
+    rates: FloatArray,
     lm_means: FloatArray,
     lm_mapped: np.ndarray,
     cov: FloatArray,
@@ -417,9 +423,18 @@ def _health_codes(
     tol = PSD_TOLERANCE
     for b in range(out.shape[0]):
         code = 1 if diverged[b] > 0.0 else 0
-        for i in range(12):  # position, vel_body, euler, rates: 3 columns each
-            if code == 0 and not math.isfinite(mean[b, i]):
-                code = 2 + i // 3
+        for i in range(3):  # codes 2-5: position, vel_body, euler, rates (first failure wins)
+            if code == 0 and not math.isfinite(position[b, i]):
+                code = 2
+        for i in range(3):
+            if code == 0 and not math.isfinite(vel_body[b, i]):
+                code = 3
+        for i in range(3):
+            if code == 0 and not math.isfinite(euler[b, i]):
+                code = 4
+        for i in range(3):
+            if code == 0 and not math.isfinite(rates[b, i]):
+                code = 5
         for j in range(lm_mapped.shape[1]):
             for i in range(3):
                 if code == 0 and lm_mapped[b, j] and not math.isfinite(lm_means[b, j, i]):
@@ -473,13 +488,17 @@ def health_codes(est: BatchEstimate, max_cov_trace: float = math.inf) -> np.ndar
     b = est.position.shape[0]
     out = np.zeros(b, dtype=np.int64)
     diverged = est.diagnostics.get("diverged")
+    cov = est.pose_cov
     _health_codes(
         np.zeros(b) if diverged is None else np.asarray(diverged, dtype=float),
-        np.hstack((est.position, est.vel_body, est.euler, est.rates)),
+        est.position,
+        est.vel_body,
+        est.euler,
+        est.rates,
         est.landmark_means,
         est.landmark_mapped,
-        est.pose_cov if est.pose_cov is not None else np.zeros((b, 1, 1)),
-        est.pose_cov is not None,
+        _NO_COV if cov is None else cov,
+        cov is not None,
         float(max_cov_trace),
         out,
     )

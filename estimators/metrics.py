@@ -112,7 +112,7 @@ def _metrics_lanes(
     has_bias: tuple,
     out: FloatArray,
 ) -> None:
-    """Fill ``out`` (B, len(METRIC_KEYS)) with the terms of :func:`step_metrics`."""
+    """Fill ``out`` (≥ len(METRIC_KEYS), B) with the terms of :func:`step_metrics`, one row each."""
     nan = math.nan
     err = np.empty(POSE_DIM)
     L = np.empty((POSE_DIM, POSE_DIM))
@@ -124,7 +124,7 @@ def _metrics_lanes(
             err[i] = pos[b, i] - x[i]
             err[3 + i] = vel_body[b, i] - x[3 + i]
             err[6 + i] = wrap_pi(euler[b, i] - x[6 + i])
-        out[b, 0] = math.sqrt(err[0] ** 2 + err[1] ** 2 + err[2] ** 2)
+        out[0, b] = math.sqrt(err[0] ** 2 + err[1] ** 2 + err[2] ** 2)
         # True C_NB, the inertial velocity error, and the attitude error as the rotation angle
         # θ of C_trueᵀ C_est (no Euler parametrisation, no wrap-around). ‖C_true − C_est‖_F² =
         # 2(3 − tr C_trueᵀC_est) = 8 sin²(θ/2), so θ = 2 asin(‖ΔC‖_F / √8): unlike acos of the
@@ -144,12 +144,12 @@ def _metrics_lanes(
             sq += (vel_inertial[b, r] - v_true) ** 2
             for c in range(3):
                 dc2 += (ct[3 * r + c] - ce[3 * r + c]) ** 2
-        out[b, 1] = math.sqrt(sq)
-        out[b, 2] = math.degrees(2.0 * math.asin(min(1.0, math.sqrt(dc2 / 8.0))))
+        out[1, b] = math.sqrt(sq)
+        out[2, b] = math.degrees(2.0 * math.asin(min(1.0, math.sqrt(dc2 / 8.0))))
         if has_cov:
-            out[b, 4], out[b, 5] = cholesky_nees(cov[b], err, L, y)
+            out[4, b], out[5, b] = cholesky_nees(cov[b], err, L, y)
         else:
-            out[b, 4] = out[b, 5] = nan
+            out[4, b] = out[5, b] = nan
         n_mapped = 0
         sq = 0.0
         for j in range(lm_mapped.shape[1]):
@@ -158,20 +158,74 @@ def _metrics_lanes(
                 if j < width:
                     for i in range(3):
                         sq += (lm_means[b, j, i] - true_lm[b, j, i]) ** 2
-        out[b, 3] = n_mapped
-        out[b, 6] = math.sqrt(sq / n_mapped) if n_mapped > 0 else nan
+        out[3, b] = n_mapped
+        out[6, b] = math.sqrt(sq / n_mapped) if n_mapped > 0 else nan
         for k in range(2):  # accelerometer, gyro
             col = 7 + 2 * k
             if not has_bias[k]:
-                out[b, col] = out[b, col + 1] = nan
+                out[col, b] = out[col + 1, b] = nan
                 continue
             e2 = t2 = 0.0
             for i in range(3):
                 e2 += (biases[k, b, i] - true_bias[b, 3 * k + i]) ** 2
                 t2 += true_bias[b, 3 * k + i] ** 2
-            out[b, col] = math.sqrt(e2)
+            out[col, b] = math.sqrt(e2)
             # ‖b̂ − b‖ / ‖b‖: the "within 20% of the true value" criterion of seed 000.
-            out[b, col + 1] = math.sqrt(e2) / math.sqrt(t2) if t2 > 0.0 else nan
+            out[col + 1, b] = math.sqrt(e2) / math.sqrt(t2) if t2 > 0.0 else nan
+
+
+def _metric_keys(has_bias: tuple[bool, bool]) -> tuple[tuple[str, int], ...]:
+    """(key, row) of the :data:`METRIC_KEYS` that apply given which biases are estimated."""
+    skip = {f"est_{name}_{kind}" for name, has in zip(("accel", "gyro"), has_bias, strict=True)
+            if not has for kind in ("bias_err", "bias_rel_err")}  # fmt: skip
+    return tuple((key, j) for j, key in enumerate(METRIC_KEYS) if key not in skip)
+
+
+_KEYS_BY_BIAS = {(a, g): _metric_keys((a, g)) for a in (False, True) for g in (False, True)}
+_NO_COV = np.zeros((1, POSE_DIM, POSE_DIM))
+
+
+def metric_columns(
+    true_state: FloatArray,
+    est: BatchEstimate,
+    true_landmarks: FloatArray,
+    true_bias: FloatArray,
+    out: FloatArray,
+) -> tuple[tuple[str, int], ...]:
+    """Write the ``est_*`` terms of one step of B lanes into the rows of ``out``.
+
+    Args: as :func:`step_metrics`, and ``out`` (≥ len(METRIC_KEYS), B), whose first rows
+    receive the terms in :data:`METRIC_KEYS` order (the leading rows of a larger array).
+
+    Returns:
+        ``(key, row)`` of the terms that apply (the bias terms only where estimated).
+    """
+    b = true_state.shape[0]
+    accel_bias, gyro_bias = est.accel_bias, est.gyro_bias
+    has_bias = (accel_bias is not None, gyro_bias is not None)
+    biases = np.zeros((2, b, 3))
+    if accel_bias is not None:
+        biases[0] = accel_bias
+    if gyro_bias is not None:
+        biases[1] = gyro_bias
+    cov = est.pose_cov
+    _metrics_lanes(
+        true_state,
+        est.position,
+        est.vel_body,
+        est.vel_inertial,
+        est.euler,
+        _NO_COV if cov is None else cov,
+        cov is not None,
+        est.landmark_means,
+        est.landmark_mapped,
+        true_landmarks,
+        true_bias,
+        biases,
+        has_bias,
+        out,
+    )
+    return _KEYS_BY_BIAS[has_bias]
 
 
 def step_metrics(
@@ -196,32 +250,9 @@ def step_metrics(
         nothing mapped, no bias estimate, zero true bias); bias terms are left out entirely
         when the estimator estimates no biases.
     """
-    b = true_state.shape[0]
-    has_bias = (est.accel_bias is not None, est.gyro_bias is not None)
-    biases = np.zeros((2, b, 3))
-    for k, value in enumerate((est.accel_bias, est.gyro_bias)):
-        if value is not None:
-            biases[k] = value
-    out = np.empty((b, len(METRIC_KEYS)))
-    _metrics_lanes(
-        true_state,
-        est.position,
-        est.vel_body,
-        est.vel_inertial,
-        est.euler,
-        est.pose_cov if est.pose_cov is not None else np.zeros((1, POSE_DIM, POSE_DIM)),
-        est.pose_cov is not None,
-        est.landmark_means,
-        est.landmark_mapped,
-        true_landmarks,
-        true_bias,
-        biases,
-        has_bias,
-        out,
-    )
-    skip = {f"est_{name}_{kind}" for name, has in zip(("accel", "gyro"), has_bias, strict=True)
-            if not has for kind in ("bias_err", "bias_rel_err")}  # fmt: skip
-    return {key: out[:, j] for j, key in enumerate(METRIC_KEYS) if key not in skip}
+    out = np.empty((len(METRIC_KEYS), true_state.shape[0]))
+    keys = metric_columns(true_state, est, true_landmarks, true_bias, out)
+    return {key: out[j] for key, j in keys}
 
 
 MATCH_RADIUS_M = 0.5
@@ -379,23 +410,36 @@ _N_RMS, _N_LAST = len(_RMS), len(_LAST)
 # Accumulator columns: steps, RMS sums, last values, then NEES pose (sum, count, inside the 95%
 # bounds) and NEES position (sum, count).
 _COLS = 1 + _N_RMS + _N_LAST + 5
+_ALL_INPUT_COLS = np.arange(len(_INPUT_KEYS))
+
+
+def input_columns(rows: dict[str, int]) -> np.ndarray:
+    """The row of each episode input key in an array whose rows are named by ``rows``
+    (key → index), -1 for a key it lacks: the ``cols`` of :meth:`EpisodeMetrics.add_columns`."""
+    return np.array([rows.get(key, -1) for key in _INPUT_KEYS], dtype=np.int64)
 
 
 @kernel
-def _accumulate(acc: FloatArray, values: FloatArray, sel: np.ndarray, lo: float, hi: float) -> None:
-    """Add one step's ``values`` (B, len(_INPUT_KEYS)) to the lanes selected by ``sel``."""
+def _accumulate(
+    acc: FloatArray, values: FloatArray, cols: np.ndarray, sel: np.ndarray, lo: float, hi: float
+) -> None:
+    """Add one step's terms to the lanes selected by ``sel`` (B,): term j of
+    :data:`_INPUT_KEYS` is the (B,) row ``values[cols[j]]`` (NaN where ``cols[j]`` < 0)."""
     n_rms, n_last = len(_RMS), len(_LAST)
     nees_col = 1 + n_rms + n_last
+    nan = math.nan
     for b in range(acc.shape[0]):
         if not sel[b]:
             continue
         acc[b, 0] += 1.0
         for j in range(n_rms):
-            acc[b, 1 + j] += values[b, j] ** 2
+            acc[b, 1 + j] += (values[cols[j], b] if cols[j] >= 0 else nan) ** 2
         for j in range(n_last):
-            acc[b, 1 + n_rms + j] = values[b, n_rms + j]
+            c = cols[n_rms + j]
+            acc[b, 1 + n_rms + j] = values[c, b] if c >= 0 else nan
         for k in range(2):  # pose, position; NaN/inf NEES values stay out of the ANEES
-            v = values[b, n_rms + n_last + k]
+            c = cols[n_rms + n_last + k]
+            v = values[c, b] if c >= 0 else nan
             if math.isfinite(v):
                 col = nees_col + 3 * k
                 acc[b, col] += v
@@ -425,6 +469,7 @@ class EpisodeMetrics:
         self.association = association
         self._acc = np.zeros((num_lanes, _COLS))
         self._assoc = np.zeros((num_lanes, len(ASSOCIATION_KEYS) + 1))  # sums, last spurious
+        self._all = np.ones(num_lanes, dtype=bool)
         self.reset(np.arange(num_lanes))
 
     def reset(self, lanes: np.ndarray) -> None:
@@ -439,12 +484,30 @@ class EpisodeMetrics:
         Values are (B,) arrays (or numbers, broadcast to every lane). NaN/inf NEES values are
         left out of the ANEES; a missing key counts as NaN.
         """
-        b = self.num_lanes
-        values = np.empty((b, len(_INPUT_KEYS)))
+        values = np.empty((len(_INPUT_KEYS), self.num_lanes))
         for j, key in enumerate(_INPUT_KEYS):
-            values[:, j] = info.get(key, math.nan)
-        sel = np.ones(b, dtype=bool) if lanes is None else lanes
-        _accumulate(self._acc, values, sel, *NEES_POSE_BOUNDS_95)
+            values[j] = info.get(key, math.nan)
+        self.add_columns(values, _ALL_INPUT_COLS, lanes)
+        if self.association:
+            self.add_association(info, lanes)
+
+    def add_columns(
+        self, values: FloatArray, cols: np.ndarray, lanes: np.ndarray | None = None
+    ) -> None:
+        """Record one step's terms from the rows of one array (no association terms).
+
+        Args:
+            values: (K, B) terms of the lanes, one row per term.
+            cols: (len(_INPUT_KEYS),) int, the row of each input key (-1: absent, NaN);
+                see :func:`input_columns`.
+            lanes: (B,) bool lanes to record (default: all).
+        """
+        sel = self._all if lanes is None else lanes
+        _accumulate(self._acc, values, cols, sel, *NEES_POSE_BOUNDS_95)
+
+    def add_association(self, info: dict[str, FloatArray], lanes: np.ndarray | None) -> None:
+        """Record one step's :data:`ASSOCIATION_KEYS` counts and ``spurious_landmarks``."""
+        sel = self._all if lanes is None else lanes
         if self.association:
             for j, key in enumerate(ASSOCIATION_KEYS):  # counts: never NaN
                 np.add(self._assoc[:, j], info[key], out=self._assoc[:, j], where=sel)

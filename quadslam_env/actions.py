@@ -8,15 +8,44 @@ bias for EKF-SLAM). Works on B lanes at once.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from quadslam_env.config import ActionConfig
+from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import FloatArray
 
 ACTION_DIM = 4
+_FAST_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
+
+
+@kernel
+def _clip_lanes(action: np.ndarray, out: FloatArray) -> bool:
+    """``out`` (B, 4) = ``action`` (B, 4) as float64 clipped to [-1, 1]; False (``out``
+    incomplete) at the first non-finite entry."""
+    for i in range(action.shape[0]):
+        for j in range(action.shape[1]):
+            v = float(action[i, j])
+            if not math.isfinite(v):
+                return False
+            out[i, j] = min(max(v, -1.0), 1.0)
+    return True
+
+
+@kernel
+def _thrust_torque(
+    action: FloatArray, max_thrust: float, max_torque: FloatArray, thrust: FloatArray,
+    torque: FloatArray,
+) -> None:  # fmt: skip
+    """``thrust_torque``: thrust (B,) ``(a0 + 1)/2 · max_thrust``, torque (B, 3) ``a1..3 ·
+    max_torque``."""
+    for i in range(action.shape[0]):
+        thrust[i] = 0.5 * (action[i, 0] + 1.0) * max_thrust
+        for j in range(3):
+            torque[i, j] = action[i, j + 1] * max_torque[j]
 
 
 class ActionError(ValueError):
@@ -38,8 +67,17 @@ def validate_actions(action: Any, num_lanes: int | None) -> FloatArray:
         ActionError: Wrong type or shape, or non-finite entries (naming the lanes).
     """
     single = num_lanes is None
-    name = "action" if single else "actions"
     want = (ACTION_DIM,) if single else (num_lanes, ACTION_DIM)
+    if (
+        type(action) is np.ndarray
+        and action.dtype in _FAST_DTYPES
+        and action.shape == want
+        and action.flags.c_contiguous
+    ):  # the common case in one pass; anything else (or a non-finite entry) below
+        out = np.empty((action.size // ACTION_DIM, ACTION_DIM))
+        if _clip_lanes(action.reshape(-1, ACTION_DIM), out):
+            return out
+    name = "action" if single else "actions"
     allowed = "4 finite numbers in [-1, 1]" if single else f"shape {want}, finite, in [-1, 1]"
     try:
         arr = np.asarray(action)
@@ -75,6 +113,8 @@ class ActionMap:
         self.params = params
         self.max_rate = np.radians(cfg.max_rate_dps)
         self.rate_gain = np.array(cfg.rate_gain_per_s)
+        self._max_thrust = float(params.max_thrust)
+        self._max_torque = np.array(params.max_torque, dtype=float)
         self.hover_action = np.array(
             [2.0 * params.hover_thrust / params.max_thrust - 1.0, 0.0, 0.0, 0.0]
         )
@@ -82,8 +122,12 @@ class ActionMap:
     def inputs(self, action: FloatArray, rates_hat: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Thrust (B,) N and torque (B, 3) N·m for actions (B, 4) and estimated rates (B, 3)."""
         p = self.params
-        thrust = 0.5 * (action[:, 0] + 1.0) * p.max_thrust
         if self.mode == "thrust_torque":
-            return thrust, action[:, 1:] * p.max_torque
+            b = action.shape[0]
+            thrust, torque = np.empty(b), np.empty((b, 3))
+            act = np.ascontiguousarray(action, dtype=float)
+            _thrust_torque(act, self._max_thrust, self._max_torque, thrust, torque)
+            return thrust, torque
+        thrust = 0.5 * (action[:, 0] + 1.0) * p.max_thrust
         rates_cmd = action[:, 1:] * self.max_rate
         return thrust, (self.rate_gain * (rates_cmd - rates_hat)) @ p.inertia.T

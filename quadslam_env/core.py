@@ -33,10 +33,12 @@ import numpy as np
 from estimators.batch import BatchEstimate, BatchEstimator, health_codes, make_batch
 from estimators.metrics import (
     ASSOCIATION_KEYS,
+    METRIC_KEYS,
     EpisodeMetrics,
     association_counts,
+    input_columns,
     match_landmarks,
-    step_metrics,
+    metric_columns,
 )
 from quadslam_env.actions import ActionMap
 from quadslam_env.config import LandmarksConfig, ScenarioConfig
@@ -45,13 +47,25 @@ from quadslam_env.measurements import ScanReturns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.observation import ObservationBuilder
-from quadslam_env.reward import reward_terms
+from quadslam_env.reward import REWARD_KEYS, Reward, tracking_errors
 from quadslam_env.sensors import ImuBatch, LidarBatch
 from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
 from quadslam_env.types import STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
 from quadslam_env.world import make_landmarks
+
+# The rows of a step's (K, B) array of per-lane terms: the metrics, then the terms the core
+# adds, then the reward terms and the reward. ``info`` maps each key to its row (a contiguous
+# (B,) array), and the episode sums read the same rows.
+_CORE_KEYS = ("est_nis", "est_ess", "est_n_visible", "track_pos_err_m", "t")
+_ROWS = {key: j for j, key in enumerate((*METRIC_KEYS, *_CORE_KEYS, *REWARD_KEYS, "reward"))}
+_NIS, _ESS, _N_VISIBLE, _TRACK, _T = (_ROWS[key] for key in _CORE_KEYS)
+_N_MAPPED, _NEES_POSE = _ROWS["est_n_mapped"], _ROWS["est_nees_pose"]
+_REWARD0, _REWARD = _ROWS[REWARD_KEYS[0]], _ROWS["reward"]
+_CORE_ROWS = tuple((key, _ROWS[key]) for key in _CORE_KEYS)
+_REWARD_ROWS = tuple((key, _ROWS[key]) for key in REWARD_KEYS)
+_EPISODE_ROWS = input_columns(_ROWS)
 
 
 def landmark_capacity(cfg: LandmarksConfig) -> int:
@@ -115,15 +129,17 @@ class SimCore:
         if self._steps_per_imu > 1:
             self._replay = self._new_replay()
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
+        self.reward = Reward(cfg.reward, self.action_map.hover_action)
         self.observer = ObservationBuilder(cfg.observation, self.trajectory)
         self.steps = np.zeros(b, dtype=np.int64)
+        self._all_lanes = np.ones(b, dtype=bool)
         self.t: FloatArray = np.zeros(b)
         self.n_visible = np.zeros(b, dtype=np.int64)
         self.unlabeled = cfg.lidar.association == "unknown"
         self.episode = EpisodeMetrics(b, association=self.unlabeled)
         self._match = np.full((b, 0), -1, dtype=np.int64)  # true id of each estimator label
         self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(b))
-        self.termination = Termination(cfg.episode, self.dt, b)
+        self.termination = Termination(cfg.episode, self.dt, b, self.max_steps)
         trace = cfg.episode.max_cov_trace
         self._max_cov_trace = math.inf if trace is None else trace
         self._cov0 = np.diag(cfg.estimator.initial_cov_diag)
@@ -210,7 +226,7 @@ class SimCore:
         if self.unlabeled:
             self._associated(est, None, np.isin(np.arange(self.num_lanes), lanes))
         ref = self.trajectory.batch(self.t)
-        info = self._metrics(est, ref)
+        _, info = self._metrics(est, ref)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
         return obs[lanes], {key: value[lanes] for key, value in info.items()}
 
@@ -243,7 +259,7 @@ class SimCore:
         """
         b = self.num_lanes
         act = action if active is None else np.where(active[:, None], action, 0.0)
-        active = np.ones(b, dtype=bool) if active is None else active
+        active = self._all_lanes if active is None else active
         thrust, torque = self.action_map.inputs(act, self.est.rates)
         vehicle = self.vehicle
         if self._imu_per_step == 1:
@@ -256,7 +272,7 @@ class SimCore:
             self.steps += active
             self.t = (self.steps * self.dt).astype(np.float64, copy=False)
         state = vehicle.state
-        scanning = np.flatnonzero(active & (self.steps % self.scenario.lidar_every == 0))
+        scanning = (active & (self.steps % self.scenario.lidar_every == 0)).nonzero()[0]
         self.last_scan = None
         scan: Scan | None = None
         if scanning.size:
@@ -296,27 +312,27 @@ class SimCore:
             self._associated(est, returns if scan is not None else None, rematch)
         toc = time.perf_counter() if timed else 0.0
         ref = self.trajectory.batch(self.t)
-        info: dict[str, Any] = self._metrics(est, ref)
+        values, info = self._metrics(est, ref)
         if timed:  # the batch's estimator time per lane stepped
             info["est_step_time_ms"] = np.full(b, 1e3 * (toc - tic) / max(1, int(active.sum())))
-        terminated, reasons = self.termination.check(
-            state, info["track_pos_err_m"], info["est_nees_pose"],
-            health_codes(est, self._max_cov_trace), active,
+        terminated, truncated, reasons, ended = self.termination.check(
+            state, values[_TRACK], values[_NEES_POSE],
+            health_codes(est, self._max_cov_trace), active, self.steps,
         )  # fmt: skip
-        truncated = ~terminated & (self.steps >= self.max_steps) & active
-        terms = reward_terms(
-            self.scenario.reward, state, ref, act, self.action_map.hover_action, terminated
-        )
-        info.update(terms)
-        reward = sum(terms.values())
-        self.episode.add(info, active)
-        done = terminated | truncated
-        if done.any():
+        self.reward.terms(state, ref, act, terminated, values[_REWARD0 : _REWARD + 1])
+        for key, row in _REWARD_ROWS:
+            info[key] = values[row]
+        reward = values[_REWARD]
+        self.episode.add_columns(values, _EPISODE_ROWS, active)
+        if self.unlabeled:
+            self.episode.add_association(info, active)
+        if ended:
+            done = terminated | truncated
             for key, value in self.episode.summary().items():
                 info[key] = np.where(done, value, math.nan)
         info["termination_reason"] = reasons
         obs = self.observer.build(est, ref, self.t, self.n_visible)
-        return obs, reward, terminated, truncated, info  # type: ignore[return-value]
+        return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ IMU
     def _new_replay(self) -> ImuReplay:
@@ -430,27 +446,33 @@ class SimCore:
                 returns.truth, labels, returns.count, self._match
             )
 
-    def _metrics(self, est: BatchEstimate, ref: FlatOutputs) -> dict[str, Any]:
+    def _metrics(self, est: BatchEstimate, ref: FlatOutputs) -> tuple[FloatArray, dict[str, Any]]:
+        """The step's per-lane terms: ``(values (K, B), info)``, with the rows of ``values``
+        named by ``_ROWS`` (the reward rows left to fill) and ``info`` mapping the terms that
+        apply to their rows (plus the association terms with unknown association). A new
+        array per step: an info dict must outlive the step."""
         state = self.vehicle.state
-        nan = np.full(self.num_lanes, math.nan)
+        values = np.empty((len(_ROWS), self.num_lanes))
         if self.unlabeled:  # the map RMSE over the entries matched to a true landmark
             matched = dataclasses.replace(est, landmark_mapped=self._matched)
-            truth = self._match_truth
-            info: dict[str, Any] = step_metrics(state, matched, truth, self.imu.total_bias)
-            info["est_n_mapped"] = est.landmark_mapped.sum(axis=1).astype(float)
+            keys = metric_columns(state, matched, self._match_truth, self.imu.total_bias, values)
+            values[_N_MAPPED] = est.landmark_mapped.sum(axis=1)
+        else:
+            keys = metric_columns(state, est, self.landmarks, self.imu.total_bias, values)
+        diagnostics = est.diagnostics
+        values[_NIS] = diagnostics.get("nis", math.nan)
+        values[_ESS] = diagnostics.get("ess", math.nan)
+        values[_N_VISIBLE] = self.n_visible
+        tracking_errors(state, ref.pos, values[_TRACK])
+        values[_T] = self.t
+        info: dict[str, Any] = {key: values[row] for key, row in keys}
+        for key, row in _CORE_ROWS:
+            info[key] = values[row]
+        if self.unlabeled:
             info["spurious_landmarks"] = self._spurious.copy()
             counts = self._assoc_counts
             info.update(counts)
             with np.errstate(invalid="ignore", divide="ignore"):
                 info["assoc_wrong_rate"] = counts["assoc_n_wrong"] / counts["assoc_n_associated"]
                 info["assoc_missed_rate"] = counts["assoc_n_missed"] / counts["assoc_n_true"]
-        else:
-            info = step_metrics(state, est, self.landmarks, self.imu.total_bias)
-        # Copies: the estimator reuses its buffers, and an info dict must outlive the step.
-        info["est_nis"] = np.array(est.diagnostics.get("nis", nan))
-        info["est_ess"] = np.array(est.diagnostics.get("ess", nan))
-        info["est_n_visible"] = self.n_visible.astype(float)
-        dp = state[:, 0:3] - ref.pos
-        info["track_pos_err_m"] = np.sqrt(np.einsum("ij,ij->i", dp, dp))
-        info["t"] = self.t.copy()
-        return info
+        return values, info

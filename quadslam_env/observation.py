@@ -75,6 +75,19 @@ def _base_block(
             out[i, 18] = math.sqrt(max(pos_cov[i, 2, 2], 0.0))
 
 
+@kernel
+def _finish(obs: FloatArray, clip: float, out: np.ndarray) -> None:
+    """``out`` (B, n) float32 = ``obs`` (B, n) clipped to ±``clip``, non-finite entries 0.
+
+    A non-finite estimate ends the episode ("estimator_diverged"); the observation itself must
+    still be finite, so such entries are zeroed.
+    """
+    for i in range(obs.shape[0]):
+        for j in range(obs.shape[1]):
+            v = obs[i, j]
+            out[i, j] = min(max(v, -clip), clip) if math.isfinite(v) else 0.0
+
+
 class ObservationBuilder:
     """Builds the float32 observations of B lanes and the single-lane ``Box`` space.
 
@@ -143,8 +156,6 @@ class ObservationBuilder:
                 obs[:, i + 1] = -s * d[:, 0] + c * d[:, 1]
                 obs[:, i + 2] = d[:, 2]
                 i += 3
-        if not np.isfinite(obs).all():
-            # A non-finite estimate ends the episode ("estimator_diverged"); the observation
-            # itself must still be finite, so such entries are zeroed.
-            obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
-        return np.clip(obs, -self.cfg.clip, self.cfg.clip).astype(np.float32)
+        out = np.empty((b, self.size), dtype=np.float32)
+        _finish(obs, float(self.cfg.clip), out)
+        return out

@@ -18,14 +18,64 @@ from numpy.typing import ArrayLike
 from quadslam_env.config import LidarConfig
 from quadslam_env.imu import Imu, ImuBatch
 from quadslam_env.measurements import LidarScan, ScanReturns
-from quadslam_env.models.frames import wrap_angle
-from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.frames import wrap_pi
+from quadslam_env.models.jit import kernel
+from quadslam_env.models.lidar import measure_landmark
 from quadslam_env.sensor_lanes import LANE0 as _LANE0
 from quadslam_env.sensor_lanes import lane_generators as _generators
 from quadslam_env.sensor_lanes import lane_indices as _lanes
 from quadslam_env.types import DEG, MEAS_DIM, FloatArray
 
 __all__ = ["Imu", "ImuBatch", "Lidar", "LidarBatch"]
+
+
+@kernel
+def _in_view_lanes(
+    pos: FloatArray,
+    dcm: FloatArray,
+    landmarks: FloatArray,
+    n_landmarks: np.ndarray,
+    idx: np.ndarray,
+    limits: FloatArray,
+    true: FloatArray,
+    mask: np.ndarray,
+) -> None:
+    """Noise-free measurements ``true`` (k, Lmax, 3) of the present landmarks of the lanes
+    ``idx`` (k,) and which are in view, ``mask`` (k, Lmax) (absent slots: False, 0).
+
+    ``limits`` = (α_max, β_max, δ_min, δ_max): in view iff ``|α| ≤ α_max``, ``|β| ≤ β_max``
+    and ``δ_min ≤ δ ≤ δ_max``.
+    """
+    for j in range(idx.shape[0]):
+        lane = idx[j]
+        for m in range(landmarks.shape[1]):
+            if m >= n_landmarks[lane]:
+                mask[j, m] = False
+                true[j, m, 0] = true[j, m, 1] = true[j, m, 2] = 0.0
+                continue
+            a, e, d = measure_landmark(pos[lane], dcm[lane], landmarks[lane, m])
+            true[j, m, 0], true[j, m, 1], true[j, m, 2] = a, e, d
+            mask[j, m] = (
+                abs(a) <= limits[0] and abs(e) <= limits[1] and d >= limits[2] and d <= limits[3]
+            )
+
+
+@kernel
+def _add_noise(
+    true: FloatArray, mask: np.ndarray, noise: FloatArray, sigma: FloatArray, out: FloatArray
+) -> None:
+    """``out[mask]`` (k, Lmax, 3) = ``true[mask] + sigma · noise`` with the azimuth wrapped,
+    taking the rows of ``noise`` (Σ mask, 3) in lane-major, ascending-id order; other slots 0."""
+    r = 0
+    for j in range(mask.shape[0]):
+        for m in range(mask.shape[1]):
+            if not mask[j, m]:
+                out[j, m, 0] = out[j, m, 1] = out[j, m, 2] = 0.0
+                continue
+            for i in range(3):
+                out[j, m, i] = true[j, m, i] + sigma[i] * noise[r, i]
+            out[j, m, 0] = wrap_pi(out[j, m, 0])
+            r += 1
 
 
 class LidarBatch:
@@ -60,6 +110,7 @@ class LidarBatch:
         )
         self._az_max = cfg.azimuth_fov_deg * DEG
         self._el_max = cfg.elevation_fov_deg * DEG
+        self._limits = np.array([self._az_max, self._el_max, cfg.range_min_m, cfg.range_max_m])
         self._rngs: list[np.random.Generator | None] = [None] * self.num_lanes
         self._returns = ScanReturns(
             count=np.zeros(self.num_lanes, dtype=np.int64),
@@ -72,15 +123,6 @@ class LidarBatch:
         for lane, rng in zip(_lanes(lanes).tolist(), rngs, strict=True):
             self._rngs[lane] = rng
 
-    def visible(self, meas: FloatArray) -> np.ndarray:
-        """Boolean mask (...) of noise-free measurements (..., 3) inside the FOV and range."""
-        return (
-            (np.abs(meas[..., 0]) <= self._az_max)
-            & (np.abs(meas[..., 1]) <= self._el_max)
-            & (meas[..., 2] >= self.cfg.range_min_m)
-            & (meas[..., 2] <= self.cfg.range_max_m)
-        )
-
     def _in_view(
         self,
         pos: FloatArray,
@@ -88,27 +130,26 @@ class LidarBatch:
         landmarks: FloatArray,
         n_landmarks: np.ndarray,
         idx: np.ndarray,
-    ) -> tuple[np.ndarray, list[FloatArray], list[np.random.Generator]]:
+    ) -> tuple[np.ndarray, FloatArray, list[np.random.Generator]]:
         """Noisy measurements of the landmarks in view of each lane of ``idx`` (k,).
 
         Returns:
-            ``(mask (k, Lmax) bool, rows, gens)``: which landmarks are in view, per lane the
-            (kᵢ, 3) noisy measurements of those landmarks in ascending id order, and the
-            lanes' generators (positioned after the noise draw).
+            ``(mask (k, Lmax) bool, meas (k, Lmax, 3), gens)``: which landmarks are in view,
+            their noisy measurements (0 elsewhere), and the lanes' generators (positioned
+            after the noise draw, one ``standard_normal((kᵢ, 3))`` per lane in id order).
         """
-        lmax = landmarks.shape[1]
-        true = lidar_measure(pos[idx, None, :], dcm[idx, None], landmarks[idx])  # (k, Lmax, 3)
-        present = np.arange(lmax) < np.asarray(n_landmarks)[idx, None]
-        mask = self.visible(true) & present
+        k, lmax = idx.shape[0], landmarks.shape[1]
+        true = np.empty((k, lmax, MEAS_DIM))
+        mask = np.empty((k, lmax), dtype=bool)
+        _in_view_lanes(pos, dcm, landmarks, np.asarray(n_landmarks), idx, self._limits, true,
+                       mask)  # fmt: skip
         counts = mask.sum(axis=1).tolist()
         gens = _generators(self._rngs, idx, "LidarBatch")
-        noise = np.concatenate(
-            [rng.standard_normal((k, MEAS_DIM)) for rng, k in zip(gens, counts, strict=True)]
-        )
-        noisy = true[mask] + self.sigma * noise  # rows in lane-major, ascending-id order
-        noisy[:, 0] = wrap_angle(noisy[:, 0])
-        rows = np.split(noisy, np.cumsum(counts)[:-1])
-        return mask, rows, gens
+        draws = [rng.standard_normal((n, MEAS_DIM)) for rng, n in zip(gens, counts, strict=True)]
+        noise = draws[0] if k == 1 else np.concatenate(draws)
+        meas = np.empty((k, lmax, MEAS_DIM))
+        _add_noise(true, mask, noise, self.sigma, meas)
+        return mask, meas, gens
 
     def _detected(self, rng: np.random.Generator, k: int) -> np.ndarray | None:
         """(k,) bool detections of k landmarks in view, or ``None`` when all are returned."""
@@ -163,15 +204,16 @@ class LidarBatch:
         meas = np.zeros((b, lmax, MEAS_DIM))
         if idx.size == 0 or lmax == 0:
             return visible, meas
-        mask, rows, gens = self._in_view(pos, dcm, landmarks, n_landmarks, idx)
-        out = np.zeros((idx.size, lmax, MEAS_DIM))
-        out[mask] = np.concatenate(rows)
-        for j, rng in enumerate(gens):
-            detected = self._detected(rng, rows[j].shape[0])
-            if detected is not None:
-                mask[j, np.flatnonzero(mask[j])[~detected]] = False
+        mask, out, gens = self._in_view(pos, dcm, landmarks, n_landmarks, idx)
+        if self.cfg.detection_prob < 1.0:
+            for j, rng in enumerate(gens):
+                seen = np.flatnonzero(mask[j])
+                detected = self._detected(rng, seen.shape[0])
+                if detected is not None:
+                    mask[j, seen[~detected]] = False
+            out[~mask] = 0.0
         visible[idx] = mask
-        meas[idx] = np.where(mask[..., None], out, 0.0)
+        meas[idx] = out
         return visible, meas
 
     def returns(
@@ -196,14 +238,15 @@ class LidarBatch:
         if idx.size == 0:
             return out
         if landmarks.shape[1]:
-            mask, rows, gens = self._in_view(pos, dcm, landmarks, n_landmarks, idx)
+            mask, noisy, gens = self._in_view(pos, dcm, landmarks, n_landmarks, idx)
         else:
             mask = np.zeros((idx.size, 0), dtype=bool)
-            rows = [np.zeros((0, MEAS_DIM))] * idx.size
+            noisy = np.zeros((idx.size, 0, MEAS_DIM))
             gens = _generators(self._rngs, idx, "LidarBatch")
         scans = []
         for j, rng in enumerate(gens):
-            meas, ids = rows[j], np.flatnonzero(mask[j])
+            ids = np.flatnonzero(mask[j])
+            meas = noisy[j, ids]
             detected = self._detected(rng, ids.shape[0])
             if detected is not None:
                 meas, ids = meas[detected], ids[detected]
@@ -243,10 +286,6 @@ class Lidar:
     def reset(self, rng: np.random.Generator) -> None:
         """Take the generator for this episode."""
         self._batch.reset(_LANE0, [rng])
-
-    def visible(self, meas: FloatArray) -> np.ndarray:
-        """Boolean mask (k,) of noise-free measurements (k, 3) inside the FOV and range limits."""
-        return self._batch.visible(meas)
 
     def scan(
         self,

@@ -1,5 +1,7 @@
 """Why an episode ends (DESIGN.md §4), for B lanes in one kernel.
 
+``truncated`` when a lane that did not terminate reaches the episode's step limit.
+
 ``terminated`` on a non-finite true state, tilt beyond ``max_tilt_deg``, tracking error beyond
 ``max_pos_err_m``, ground contact (``ground_z_m``), or estimator divergence: the estimator's
 health check (:func:`estimators.batch.health_codes`: non-finite values, a pose covariance that
@@ -43,13 +45,21 @@ def _codes(
     limits: FloatArray,
     nees_run: np.ndarray,
     window: int,
+    steps: np.ndarray,
+    max_steps: int,
     out: np.ndarray,
-) -> None:
-    """Fill ``out`` (B,) with reason codes; ``limits`` = (max tilt rad, max position error m,
-    ground z m or NaN, NEES threshold or NaN). Updates the NEES run counters of active lanes."""
+    terminated: np.ndarray,
+    truncated: np.ndarray,
+) -> int:
+    """Fill ``out`` (B,) with reason codes, ``terminated`` (B,) with ``out != 0`` and
+    ``truncated`` (B,) with the active lanes that go on but reached ``max_steps``; ``limits``
+    = (max tilt rad, max position error m, ground z m or NaN, NEES threshold or NaN). Updates
+    the NEES run counters of active lanes. Returns the number of lanes that ended."""
     max_tilt, max_err, ground_z, nees_limit = limits[0], limits[1], limits[2], limits[3]
+    ended = 0
     for b in range(out.shape[0]):
         out[b] = 0
+        terminated[b] = truncated[b] = False
         if not active[b]:
             continue
         over = nees_limit == nees_limit and nees[b] > nees_limit  # NaN limit: no check
@@ -72,6 +82,11 @@ def _codes(
             out[b] = 6
         elif nees_run[b] >= window:
             out[b] = 7
+        terminated[b] = out[b] != 0
+        truncated[b] = out[b] == 0 and steps[b] >= max_steps
+        if terminated[b] or truncated[b]:
+            ended += 1
+    return ended
 
 
 class Termination:
@@ -81,10 +96,12 @@ class Termination:
         cfg: Episode settings (limits, ground, NEES threshold and window).
         dt: Control period in s (the NEES window counts steps).
         num_lanes: B.
+        max_steps: Steps after which a lane that goes on is truncated.
     """
 
-    def __init__(self, cfg: EpisodeConfig, dt: float, num_lanes: int) -> None:
+    def __init__(self, cfg: EpisodeConfig, dt: float, num_lanes: int, max_steps: int) -> None:
         nan = math.nan
+        self._max_steps = int(max_steps)
         self._limits = np.array(
             [
                 math.radians(cfg.max_tilt_deg),
@@ -107,7 +124,8 @@ class Termination:
         nees: FloatArray,
         health: np.ndarray,
         active: np.ndarray,
-    ) -> tuple[np.ndarray, list[str]]:
+        steps: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, list[str], bool]:
         """Which active lanes end now, and why.
 
         Args:
@@ -115,15 +133,22 @@ class Termination:
             track_err: (B,) true tracking error in m.
             nees: (B,) pose NEES (NaN without a covariance, inf when not PSD).
             health: (B,) :func:`estimators.batch.health_codes` of the estimate.
-            active: (B,) bool, lanes stepped now (the others are never terminated).
+            active: (B,) bool, lanes stepped now (the others never end).
+            steps: (B,) steps since each lane's reset.
 
         Returns:
-            ``(terminated (B,) bool, reasons)``: B strings, empty where the lane goes on.
+            ``(terminated (B,) bool, truncated (B,) bool, reasons, any_ended)``: reasons are B
+            strings, empty where the lane did not fail.
         """
-        codes = np.empty(state.shape[0], dtype=np.int64)
-        _codes(state, track_err, nees, health, active, self._limits, self._nees_run,
-               self._window, codes)  # fmt: skip
-        reasons = [""] * state.shape[0]
-        for lane in np.flatnonzero(codes).tolist():  # only the (rare) failing lanes
-            reasons[lane] = REASONS[codes[lane]].format(health=HEALTH_PROBLEMS[health[lane]])
-        return codes != 0, reasons
+        b = state.shape[0]
+        codes = np.empty(b, dtype=np.int64)
+        terminated, truncated = np.empty(b, dtype=bool), np.empty(b, dtype=bool)
+        ended = _codes(
+            state, track_err, nees, health, active, self._limits, self._nees_run,
+            self._window, steps, self._max_steps, codes, terminated, truncated,
+        )  # fmt: skip
+        reasons = [""] * b
+        if ended:
+            for lane in np.flatnonzero(codes).tolist():  # only the (rare) failing lanes
+                reasons[lane] = REASONS[codes[lane]].format(health=HEALTH_PROBLEMS[health[lane]])
+        return terminated, truncated, reasons, ended > 0

@@ -114,6 +114,14 @@ def _to_inertial(
 
 
 @kernel
+def measure_landmark(pos: FloatArray, C: FloatArray, lm: FloatArray) -> Vec3:
+    """Noise-free measurement (α rad, β rad, δ m) of one landmark ``lm`` (3,) in N, m from a
+    vehicle at ``pos`` (3,) with ``C_NB`` = ``C`` (3, 3) (seed 001 eq. 30–31)."""
+    c1, c2, c3 = _to_body(C, lm[0] - pos[0], lm[1] - pos[1], lm[2] - pos[2])
+    return spherical_from_body(c1, c2, c3)
+
+
+@kernel
 def observe_landmark(
     pos: FloatArray, C: FloatArray, lm: FloatArray, h: FloatArray, H_lm: FloatArray
 ) -> tuple[Vec3, Mat3]:
@@ -243,8 +251,7 @@ def _measure_from_body(c: FloatArray, out: FloatArray) -> None:
 
 @generalized("void(f8[:], f8[:, :], f8[:], f8[:])", _POSE_LM + "->(n)")
 def _lidar_measure(pos: FloatArray, C: FloatArray, lm: FloatArray, out: FloatArray) -> None:
-    c1, c2, c3 = _to_body(C, lm[0] - pos[0], lm[1] - pos[1], lm[2] - pos[2])
-    out[0], out[1], out[2] = spherical_from_body(c1, c2, c3)
+    out[0], out[1], out[2] = measure_landmark(pos, C, lm)
 
 
 @generalized("void(f8[:], f8[:, :], f8[:], f8[:], f8[:, :])", _POSE_LM + "->(n),(n,n)")
