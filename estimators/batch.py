@@ -345,14 +345,27 @@ def fill_batch(out: BatchEstimate, snaps: Sequence[Estimate]) -> None:
     the biases become ``None`` when the first lane has none; a diagnostic missing in a lane is
     NaN there.
     """
+    b = len(snaps)
     if snaps[0].pose_cov is None:
         out.pose_cov = None
     elif out.pose_cov is None:
-        out.pose_cov = np.zeros((len(snaps), POSE_DIM, POSE_DIM))
-    out.accel_bias = np.zeros((len(snaps), 3)) if snaps[0].accel_bias is not None else None
-    out.gyro_bias = np.zeros((len(snaps), 3)) if snaps[0].gyro_bias is not None else None
-    keys = sorted({k for s in snaps for k in s.diagnostics})
-    out.diagnostics = {k: np.full(len(snaps), np.nan) for k in keys}
+        out.pose_cov = np.zeros((b, POSE_DIM, POSE_DIM))
+    # Reused between calls (the batch is a view: read, don't keep); zeroed like new arrays.
+    for name in ("accel_bias", "gyro_bias"):
+        if getattr(snaps[0], name) is None:
+            setattr(out, name, None)
+        elif getattr(out, name) is None:
+            setattr(out, name, np.zeros((b, 3)))
+        else:
+            getattr(out, name)[:] = 0.0
+    keys = list(snaps[0].diagnostics)
+    if b > 1:
+        keys = sorted({k for s in snaps for k in s.diagnostics})
+    if list(out.diagnostics) != keys:
+        out.diagnostics = {k: np.full(b, np.nan) for k in keys}
+    elif b > 1:
+        for v in out.diagnostics.values():
+            v[:] = np.nan
     out.landmark_mapped[:] = False
     for lane, s in enumerate(snaps):
         out.position[lane] = s.position
@@ -369,8 +382,9 @@ def fill_batch(out: BatchEstimate, snaps: Sequence[Estimate]) -> None:
         if s.landmark_ids.size:
             out.landmark_means[lane, s.landmark_ids] = s.landmark_means
             out.landmark_mapped[lane, s.landmark_ids] = True
+        diagnostics = out.diagnostics
         for k, v in s.diagnostics.items():
-            out.diagnostics[k][lane] = v
+            diagnostics[k][lane] = v
 
 
 def batch_from_estimates(snaps: Sequence[Estimate]) -> BatchEstimate:

@@ -325,9 +325,7 @@ def fill_outputs(
         for a in range(3):
             vel_inertial[b, a] = C[a, 0] * xb[3] + C[a, 1] * xb[4] + C[a, 2] * xb[5]
         for j in range(mapped.shape[1]):
-            if mapped[b, j]:
-                if known[b]:
-                    landmark_means[b, j] = known_pos[b, j]
-                else:
-                    c = nv + 3 * slot_of_id[b, j]
-                    landmark_means[b, j] = xb[c : c + 3]
+            if mapped[b, j]:  # element by element: a slice assignment would compile numba's
+                c = nv + 3 * slot_of_id[b, j]  # shape-mismatch message (seconds of compile)
+                for i in range(3):
+                    landmark_means[b, j, i] = known_pos[b, j, i] if known[b] else xb[c + i]
