@@ -29,6 +29,7 @@ import numpy as np
 from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.base import Estimate
 from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
+from estimators.ekf import warmup
 from estimators.ekf.associate import UnlabeledScans
 from estimators.ekf.inspection import FilterInspection
 from estimators.ekf.kernels import (
@@ -94,6 +95,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         self._assoc = np.zeros((b, 0), dtype=np.int64)
         self._thresholds = joint_thresholds(0, settings.gate_probability)
         self._allocate(max(int(landmark_capacity), 0))
+        warmup.start()  # a cold cache: compile the update in parallel (estimators.ekf.warmup)
 
     def __getstate__(self) -> dict[str, Any]:
         # The cached BatchEstimate holds views into the buffers: a copy builds its own.
@@ -366,6 +368,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             raise ValueError(f"update: lane {bad}: scan measurements must be finite")
         self._ensure_ids(visible.shape[1])
         r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
+        warmup.wait()
         update_lanes(
             self._x,
             self._P,
