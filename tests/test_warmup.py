@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import ClassVar
 
 import pytest
 
@@ -53,7 +54,7 @@ def test_env_loads_the_update_the_warmup_process_compiled(tmp_path: Path) -> Non
 
 
 class _FakePopen:
-    calls: list[list[str]] = []
+    calls: ClassVar[list[list[str]]] = []
 
     def __init__(self, args: list[str], **_: object) -> None:
         _FakePopen.calls.append(args)
