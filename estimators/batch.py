@@ -364,8 +364,8 @@ def fill_batch(out: BatchEstimate, snaps: Sequence[Estimate]) -> None:
     if list(out.diagnostics) != keys:
         out.diagnostics = {k: np.full(b, np.nan) for k in keys}
     elif b > 1:
-        for v in out.diagnostics.values():
-            v[:] = np.nan
+        for column in out.diagnostics.values():
+            column[:] = np.nan
     out.landmark_mapped[:] = False
     for lane, s in enumerate(snaps):
         out.position[lane] = s.position
