@@ -420,6 +420,41 @@ _NO_COV = np.zeros((1, 1, 1))
 
 
 @kernel
+def _covariance_code(P: FloatArray, tol: float, max_trace: float) -> int:
+    """Codes 7–11 (0: healthy) of one pose covariance (n, n), in one pass over its entries.
+
+    The first failed check in :data:`HEALTH_PROBLEMS` order wins: non-finite, asymmetric,
+    negative variance, correlation beyond ±1 (a 2×2 minor beyond round-off), trace too large.
+    """
+    n = P.shape[0]
+    scale = 1e-12
+    trace = 0.0
+    for i in range(n):
+        scale = max(scale, abs(P[i, i]))
+        trace += P[i, i]
+    nonfinite = asymmetric = negative = correlated = False
+    for i in range(n):
+        pii = P[i, i]
+        nonfinite = nonfinite or not math.isfinite(pii)
+        negative = negative or pii < -tol * scale
+        for j in range(i):
+            pij, pji = P[i, j], P[j, i]
+            nonfinite = nonfinite or not (math.isfinite(pij) and math.isfinite(pji))
+            asymmetric = asymmetric or abs(pij - pji) > 1e-6 * scale
+            prod = max(pii, 0.0) * max(P[j, j], 0.0)
+            correlated = correlated or pij * pij - prod > tol * prod + (tol * scale) ** 2
+    if nonfinite:
+        return 7
+    if asymmetric:
+        return 8
+    if negative:
+        return 9
+    if correlated:
+        return 10
+    return 11 if trace > max_trace else 0
+
+
+@kernel
 def _health_codes(
     diverged: FloatArray,
     position: FloatArray,
@@ -454,33 +489,7 @@ def _health_codes(
                 if code == 0 and lm_mapped[b, j] and not math.isfinite(lm_means[b, j, i]):
                     code = 6
         if code == 0 and has_cov:
-            n = cov.shape[1]
-            scale = 1e-12
-            trace = 0.0
-            finite = True
-            for i in range(n):
-                scale = max(scale, abs(cov[b, i, i]))
-                trace += cov[b, i, i]
-                for j in range(n):
-                    finite = finite and math.isfinite(cov[b, i, j])
-            if not finite:
-                code = 7
-            else:
-                for i in range(n):
-                    for j in range(i):
-                        if code == 0 and abs(cov[b, i, j] - cov[b, j, i]) > 1e-6 * scale:
-                            code = 8
-                for i in range(n):
-                    if code == 0 and cov[b, i, i] < -tol * scale:
-                        code = 9
-                for i in range(n):
-                    for j in range(i):
-                        prod = max(cov[b, i, i], 0.0) * max(cov[b, j, j], 0.0)
-                        excess = cov[b, i, j] * cov[b, i, j] - prod
-                        if code == 0 and excess > tol * prod + (tol * scale) ** 2:
-                            code = 10
-                if code == 0 and trace > max_trace:
-                    code = 11
+            code = _covariance_code(cov[b], tol, max_trace)
         out[b] = code
 
 
