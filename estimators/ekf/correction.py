@@ -122,8 +122,10 @@ def stacked_gain(
         return False
     # Forward substitution, so that K = W L⁻¹ and K ν = W z.
     for a in range(m):
-        Wa = Wt[a]
-        Wa[:] = U[idx[a]]
+        Wa, Ua = Wt[a], U[idx[a]]
+        for k in range(Wa.shape[0]):  # unsigned index: a vectorised copy (kernels.store_rows)
+            j = np.uint64(k)
+            Wa[j] = Ua[j]
         za = nu[idx[a]]
         a4 = a - a % 4
         # Four rows per pass over Wa (same operation order as one at a time): fewer
@@ -279,9 +281,13 @@ def relinearise(
             finite = finite and math.isfinite(dn[j])
         if not finite:
             return done
-        dx[:nb] = dn
-        Wt[:, :] = Wn
-        z[:] = zn
+        for j in range(nb):  # element by element: see estimators.ekf.update
+            dx[j] = dn[j]
+        for a in range(Wt.shape[0]):
+            for j in range(Wt.shape[1]):
+                Wt[a, j] = Wn[a, j]
+        for a in range(z.shape[0]):
+            z[a] = zn[a]
         done = it
         for j in range(nb):
             xi[j] = xb[j] + dn[j]

@@ -371,19 +371,21 @@ def update_lanes(
             lms = np.empty((k_obs, 3))
             cols = np.full(k_obs, -1, dtype=np.int64)
             y = np.empty((k_obs, 3))
+            # Element by element throughout this module's kernels: an array assignment
+            # compiles numba's shape-mismatch message (~2 s of first-use compile).
             for i in range(k_obs):
                 j = obs[i]
-                y[i] = meas[b, j]
-                if known[b]:
-                    lms[i] = known_pos[b, j]
-                else:
+                if not known[b]:
                     cols[i] = nv + 3 * slot_of_id[b, j]
-                    lms[i] = xb[cols[i] : cols[i] + 3]
+                for r in range(3):
+                    y[i, r] = meas[b, j, r]
+                    lms[i, r] = known_pos[b, j, r] if known[b] else xb[cols[i] + r]
             _update_mapped(xb, Pb, nb, lms, cols, y, r_diag, gate, tol, max_iter, diag, b)
         if k_new:
             y = np.empty((k_new, 3))
             for i in range(k_new):
-                y[i] = meas[b, new[i]]
+                for r in range(3):
+                    y[i, r] = meas[b, new[i], r]
             if _register(xb, Pb, nb, y, r_diag):
                 nm = (nb - nv) // 3
                 for i in range(k_new):
