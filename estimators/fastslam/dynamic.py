@@ -63,6 +63,14 @@ class DynamicFastSLAM(FastSLAMBase):
                                                the weights only; EKFs use the true R)
     ``roughening``             0.0             K of Gordon et al. roughening after resampling
                                                (σ_j = K·std_j·N^{−1/12}); 0 = off
+    ``regularisation``         0.0             c: after resampling, move the copies by the
+                                               regularised-PF kernel, bandwidth c·h_opt on the
+                                               full particle covariance (Musso et al. 2001);
+                                               0 = off
+    ``anchor_gauge``           True            SLAM (no known map): keep the initial position
+                                               and yaw uncertainty (the unobservable gauge)
+                                               out of the particles and add it analytically
+                                               to the reported covariances (:mod:`.gauge`)
     ``nis_divergence``         1000.0          per-DOF NIS of the best 10 % of particles above
                                                which lock is considered lost; 0 = off
     ``nis_divergence_s``       2.0             ... for this long (s): ``diverged`` = 1, sticky

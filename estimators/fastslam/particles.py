@@ -16,10 +16,23 @@ import numpy as np
 
 from estimators.base import Estimate, check_kwargs
 from estimators.fastslam.associate import ParticleMaps
+from estimators.fastslam.gauge import (
+    gauge_split,
+    landmark_gauge_cov,
+    pin_gauge,
+    pose_gauge_cov,
+)
 from estimators.fastslam.landmarks import landmark_ekf_particles, landmark_init
 from estimators.fastslam.moments import landmark_mixture, state_moments
 from estimators.fastslam.process import perturb_particles, wrap_euler_rows
-from estimators.fastslam.resampling import apply_log_likelihood, ess_of, systematic_resample
+from estimators.fastslam.progressive import progressive_correction
+from estimators.fastslam.resampling import (
+    apply_log_likelihood,
+    ess_of,
+    regularisation_bandwidth,
+    regularise_pose,
+    systematic_resample,
+)
 from estimators.fastslam.settings import (
     FLOAT,
     OWNER,
@@ -57,6 +70,9 @@ class FastSLAMBase:
         "known_map_sigma": FLOAT,
         "likelihood_inflation": FLOAT,
         "roughening": FLOAT,
+        "anchor_gauge": bool,
+        "regularisation": FLOAT,
+        "progressive_ess": FLOAT,
         "nis_divergence": FLOAT,
         "nis_divergence_s": FLOAT,
         "gate_probability": FLOAT,
@@ -94,6 +110,13 @@ class FastSLAMBase:
         self.roughening = positive(
             "roughening", params.get("roughening", self._DEFAULT_ROUGHENING), strict=False
         )
+        self.anchor_gauge = bool(params.get("anchor_gauge", True))
+        self.regularisation = positive(
+            "regularisation", params.get("regularisation", 0.0), strict=False
+        )
+        self.progressive_ess = float(params.get("progressive_ess", 0.1))
+        if not 0.0 <= self.progressive_ess <= 1.0:
+            raise fail("progressive_ess", params["progressive_ess"], "a number in [0, 1]")
         self.nis_divergence = positive(
             "nis_divergence", params.get("nis_divergence", 1000.0), strict=False
         )
@@ -133,6 +156,9 @@ class FastSLAMBase:
         self._ids_sorted = np.zeros(0, dtype=int)
         self._order = np.zeros(0, dtype=int)
         self.n_resamples = 0
+        self.n_progressive_stages = 0
+        self.lineage = np.arange(n)
+        """(N,) index of each particle's ancestor among the particles drawn at reset."""
         self.n_divergences = 0
         self._diverged = False
         self._nis = math.nan
@@ -143,6 +169,7 @@ class FastSLAMBase:
         self._best_nis = math.nan
         self._known_map = False
         self._maps: ParticleMaps | None = None  # per-particle maps (unlabeled scans)
+        self._gauge: tuple[FloatArray, FloatArray] | None = None  # (G (4, 4), anchor ρ_a (3,))
         self.last_association = np.zeros(0, dtype=np.int64)
         """(k,) label of each return of the last unlabeled scan in the reported map (-1)."""
 
@@ -176,6 +203,11 @@ class FastSLAMBase:
         self._alloc()
         self._known_map = known_landmarks is not None
         n = self.n_particles
+        if self.anchor_gauge and known_landmarks is None:
+            # SLAM: the initial position and yaw are the gauge (:mod:`.gauge`), kept
+            # analytically; the particles start from the prior given the gauge.
+            gauge_cov, cov = gauge_split(cov)
+            self._gauge = (gauge_cov, mean[0:3].copy())
         self.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
         wrap_euler_rows(self.x)
         if known_landmarks is not None:
@@ -252,6 +284,12 @@ class FastSLAMBase:
         ``σ_j = K E_j N^{−1/d}``, ``E_j`` the weighted standard deviation of state j *before*
         resampling and d = 12. The jitter scales with the current spread, so it re-diversifies
         the duplicates without adding a fixed noise floor; landmark EKFs are not jittered.
+
+        With ``regularisation = c > 0`` the poses ``(ρ, v_B, Λ)`` of the copies are moved by the
+        shrunk Gaussian kernel of :func:`.resampling.regularise_pose` (bandwidth
+        ``min(1, c·h_opt)``, d = 9), which keeps the cloud's mean and covariance.
+        ω and the bias means are not moved: the gyro bias is identified from ω against the
+        dynamics, which a kernel on ω would blur.
         """
         if self.roughening > 0.0:
             w = self._w
@@ -260,7 +298,11 @@ class FastSLAMBase:
             dev[:, 6:9] = wrap_angle(dev[:, 6:9])
             spread = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
             scale = self.roughening * spread * self.n_particles ** (-1.0 / STATE_DIM)
-        self.x = self.x[idx]
+        if self.regularisation > 0.0:
+            h = min(1.0, self.regularisation * regularisation_bandwidth(self.n_particles, POSE_DIM))
+            self.x = regularise_pose(self.x, idx, self._w, h, self._rng)
+        else:
+            self.x = self.x[idx]
         if self.roughening > 0.0:
             self.x = self.x + self._rng.standard_normal(self.x.shape) * scale
             wrap_euler_rows(self.x)
@@ -269,6 +311,7 @@ class FastSLAMBase:
         if self._maps is not None:
             self._maps.resample(idx, self._w)
         self._resample_extra(idx)
+        self.lineage = self.lineage[idx]
         self.logw = np.full(self.n_particles, -math.log(self.n_particles))
         self.n_resamples += 1
 
@@ -360,6 +403,11 @@ class FastSLAMBase:
             # Each observed landmark's EKF in every particle, in place; a landmark whose
             # update broke down keeps its prior.
             nis = self._nis_sum
+            remaining = 1.0
+            if self.progressive_ess > 0.0:  # a scan far narrower than the cloud: in stages
+                remaining = progressive_correction(
+                    self, idx, meas[old], R, self.likelihood_inflation
+                )
             landmark_ekf_particles(
                 self.x, self.mu, self.sigma, idx, meas[old], R, self._loglik, nis
             )
@@ -369,8 +417,10 @@ class FastSLAMBase:
             # Tempering (likelihood inflation λ): the weights use p(z | x)^{1/λ}, i.e. the
             # Gaussian with covariance λ·S up to a particle-independent constant; the EKFs
             # above use the true R.
-            self._apply_loglik(self._loglik, self.likelihood_inflation)
+            self._apply_loglik(self._loglik, self.likelihood_inflation / remaining)
         if not np.all(old):
+            if self._gauge is not None and not self._slot_ids:  # the map is born: pin
+                self._gauge = pin_gauge(self.x, self._w, *self._gauge)
             new_ids = scan_ids[~old]
             pos = self.x[:, 0:3]
             dcm = dcm_from_euler_batch(self.x[:, 6:9])
@@ -482,10 +532,16 @@ class FastSLAMBase:
             lm_mean, lm_cov = self.mu[best, :n_lm].copy(), self.sigma[best, :n_lm].copy()
         elif n_lm:
             landmark_mixture(self.mu, self.sigma, w, self._order, lm_mean, lm_cov)
+        if self._gauge is not None:
+            gauge_cov, anchor = self._gauge
+            pose_cov += pose_gauge_cov(mean[0:3], anchor, gauge_cov)
+            if n_lm:
+                lm_cov += landmark_gauge_cov(lm_mean, anchor, gauge_cov)
         accel_bias, gyro_bias = self._bias_estimate(w)
         diagnostics = {
             "ess": self._ess,
             "n_resamples": float(self.n_resamples),
+            "n_progressive_stages": float(self.n_progressive_stages),
             "nis": self._nis,
             "nis_dof": float(self._nis_dof),
             "diverged": 1.0 if (self._diverged or self._lost) else 0.0,
