@@ -116,6 +116,26 @@ def landmark_gauge_cov(means: FloatArray, anchor: FloatArray, G: FloatArray) -> 
     return np.einsum("lij,jk,lmk->lim", J, G, J)
 
 
+def add_gauge_cov(
+    gauge: tuple[FloatArray, FloatArray],
+    position: FloatArray,
+    pose_cov: FloatArray,
+    lm_means: FloatArray,
+    lm_covs: FloatArray,
+) -> None:
+    """Add the gauge's share to a pose covariance and landmark covariances, in place.
+
+    Args:
+        gauge: ``(G (4, 4), anchor ρ_a (3,))``. position: (3,) position mean ρ̄ in N, m.
+        pose_cov: (9, 9) pose covariance. lm_means: (L, 3) landmark means, m.
+        lm_covs: (L, 3, 3) landmark covariances, m².
+    """
+    G, anchor = gauge
+    pose_cov += pose_gauge_cov(position, anchor, G)
+    if lm_means.shape[0]:
+        lm_covs += landmark_gauge_cov(lm_means, anchor, G)
+
+
 def move_anchor(G: FloatArray, old: FloatArray, new: FloatArray) -> FloatArray:
     """The gauge covariance about rotation centre ``old`` re-expressed about ``new`` (4, 4).
 

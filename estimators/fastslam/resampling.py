@@ -191,7 +191,8 @@ def regularise_pose(
     regularised particle filter (Musso et al. 2001) with the shrinkage of Liu and West
     (*Combined parameter and state estimation in simulation-based filtering*, 2001, §3.3), which
     keeps the cloud's mean and covariance (``a² Σ + h² Σ = Σ``) instead of inflating it by
-    ``1 + h²`` at every resampling. The other states are copied unchanged.
+    ``1 + h²`` at every resampling. The other states (ω) are copied unchanged: the dynamic
+    filter identifies the gyro bias from ω against the dynamics, which a kernel on ω would blur.
 
     Args:
         x: (N, 12) particles before resampling. idx: (N,) selected indices. w: (N,) their
