@@ -433,7 +433,7 @@ def test_kinematic_rejects_dynamic_only_keys() -> None:
 
 
 def test_roughening_jitters_resampled_duplicates_in_proportion_to_the_spread() -> None:
-    est = _mapped_filter(anchor_gauge=False)  # position spread in the particles
+    est = _mapped_filter(anchor_gauge=False, regularisation=0.0)  # roughening alone
     est.roughening = 0.5
     idx = np.full(est.n_particles, 7)  # every particle a copy of particle 7
     spread = np.std(est.x, axis=0)

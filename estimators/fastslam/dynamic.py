@@ -63,10 +63,13 @@ class DynamicFastSLAM(FastSLAMBase):
                                                the weights only; EKFs use the true R)
     ``roughening``             0.0             K of Gordon et al. roughening after resampling
                                                (σ_j = K·std_j·N^{−1/12}); 0 = off
-    ``regularisation``         0.0             c: after resampling, move the copies by the
-                                               regularised-PF kernel, bandwidth c·h_opt on the
-                                               full particle covariance (Musso et al. 2001);
-                                               0 = off
+    ``regularisation``         1.0             c: after resampling, move the copies' poses
+                                               (ρ, v, Λ) by the regularised-PF kernel with
+                                               Liu-West shrinkage, bandwidth min(1, c·h_opt)
+                                               (Musso et al. 2001); 0 = plain copies
+    ``progressive_ess``        0.1             a labeled scan that would leave fewer effective
+                                               particles than this share of N is applied in
+                                               tempered stages with kernel moves; 0 = off
     ``anchor_gauge``           True            SLAM (no known map): keep the initial position
                                                and yaw uncertainty (the unobservable gauge)
                                                out of the particles and add it analytically
