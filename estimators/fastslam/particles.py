@@ -17,11 +17,11 @@ import numpy as np
 from estimators.base import Estimate, check_kwargs
 from estimators.fastslam.associate import ParticleMaps, update_unlabeled
 from estimators.fastslam.gauge import add_gauge_cov, gauge_split, pin_gauge
-from estimators.fastslam.landmarks import landmark_ekf_particles, landmark_init
+from estimators.fastslam.landmarks import landmark_init
 from estimators.fastslam.lock import check_lock
 from estimators.fastslam.moments import landmark_mixture, state_moments
 from estimators.fastslam.process import perturb_particles, wrap_euler_rows
-from estimators.fastslam.progressive import progressive_correction
+from estimators.fastslam.progressive import scan_update
 from estimators.fastslam.resampling import (
     apply_log_likelihood,
     ess_of,
@@ -392,17 +392,10 @@ class FastSLAMBase:
         old = slots >= 0
         idx = slots[old]
         if idx.size:
-            # Each observed landmark's EKF in every particle, in place; a landmark whose
-            # update broke down keeps its prior.
+            # Each observed landmark's EKF in every particle, in place (a landmark whose update
+            # broke down keeps its prior); a scan far narrower than the cloud first in stages.
             nis = self._nis_sum
-            remaining = 1.0
-            if self.progressive_ess > 0.0:  # a scan far narrower than the cloud: in stages
-                remaining = progressive_correction(
-                    self, idx, meas[old], R, self.likelihood_inflation
-                )
-            landmark_ekf_particles(
-                self.x, self.mu, self.sigma, idx, meas[old], R, self._loglik, nis
-            )
+            remaining = scan_update(self, idx, meas[old], R)
             self._nis = float(self._w @ nis)
             self._nis_dof = MEAS_DIM * int(idx.size)
             self._check_lock(nis / self._nis_dof)

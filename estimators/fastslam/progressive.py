@@ -112,8 +112,43 @@ def pose_covariance(x: FloatArray, w: FloatArray) -> FloatArray:
     return (dev * w[:, None]).T @ dev
 
 
+def scan_update(filt: Any, slots: np.ndarray, meas: FloatArray, R: FloatArray) -> float:
+    """The landmark EKF update of a labeled scan, after progressive correction if it is needed.
+
+    Fills ``filt._loglik`` and ``filt._nis_sum`` (N,) and updates the observed landmark EKFs of
+    every particle (:func:`.landmarks.landmark_ekf_particles`). With ``progressive_ess > 0`` the
+    update is first computed on copies of the observed landmarks; if the scan keeps enough
+    effective particles those copies are the result (no second pass), otherwise
+    :func:`progressive_correction` runs and the update is made at the moved particles.
+
+    Args:
+        filt: The filter. slots: (k,) observed slots. meas: (k, 3) measurements. R: (3, 3).
+
+    Returns:
+        The share of the tempered log-likelihood still to apply to the weights, in (0, 1].
+    """
+    loglik, nis = filt._loglik, filt._nis_sum
+    if filt.progressive_ess > 0.0:
+        mu, sigma = filt.mu[:, slots].copy(), filt.sigma[:, slots].copy()
+        landmark_ekf_particles(filt.x, mu, sigma, np.arange(slots.shape[0]), meas, R, loglik, nis)
+        ll = loglik / filt.likelihood_inflation
+        if ess_after(filt.logw, ll, 1.0) >= filt.progressive_ess * filt.n_particles:
+            filt.mu[:, slots], filt.sigma[:, slots] = mu, sigma
+            return 1.0
+        remaining = progressive_correction(filt, slots, meas, R, filt.likelihood_inflation, ll)
+    else:
+        remaining = 1.0
+    landmark_ekf_particles(filt.x, filt.mu, filt.sigma, slots, meas, R, loglik, nis)
+    return remaining
+
+
 def progressive_correction(
-    filt: Any, slots: np.ndarray, meas: FloatArray, R: FloatArray, scale: float
+    filt: Any,
+    slots: np.ndarray,
+    meas: FloatArray,
+    R: FloatArray,
+    scale: float,
+    first: FloatArray | None = None,
 ) -> float:
     """Apply a degenerate scan's likelihood in stages, moving the particles in between.
 
@@ -123,6 +158,7 @@ def progressive_correction(
     Args:
         filt: The filter. slots: (k,) observed landmark slots. meas: (k, 3) measurements.
         R: (3, 3) measurement noise. scale: Tempering λ of the LiDAR weight.
+        first: (N,) the tempered log-likelihood at the current particles, if already computed.
 
     Returns:
         The share of the (tempered) log-likelihood still to apply, in (0, 1]; 1 if no stage ran.
@@ -133,8 +169,11 @@ def progressive_correction(
     remaining = 1.0
     h = regularisation_bandwidth(n, POSE_DIM)
     for stage in range(MAX_STAGES):
-        scan_loglik(filt.x, filt.mu, filt.sigma, slots, meas, R, loglik, nis)
-        ll = loglik / scale
+        if stage == 0 and first is not None:
+            ll = first
+        else:
+            scan_loglik(filt.x, filt.mu, filt.sigma, slots, meas, R, loglik, nis)
+            ll = loglik / scale
         if stage == 0 and ess_after(filt.logw, ll, 1.0) >= filt.progressive_ess * n:
             return 1.0
         alpha = stage_exponent(filt.logw, ll, remaining, target)
