@@ -36,6 +36,7 @@ is the particle's label of that landmark.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -49,12 +50,13 @@ from estimators.fastslam.landmarks import (
     particle_dcm,
     rows_of,
 )
-from estimators.fastslam.settings import AssociationSettings
+from estimators.fastslam.settings import SIGMA_FLOOR, AssociationSettings
 from estimators.tentative import Candidates, age_candidates, observe_candidate
+from quadslam_env.measurements import LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import body_from_measure
-from quadslam_env.types import FloatArray
+from quadslam_env.types import MEAS_DIM, FloatArray
 
 
 @kernel
@@ -398,3 +400,46 @@ class ParticleMaps:
                 self.report = int(copies[0])
                 return
         self.report = 0
+
+
+def update_unlabeled(filt: Any, scan: LidarScan) -> None:
+    """Per-particle ML association of an unlabeled scan, then weights (FastSLAM's ``update``).
+
+    ``filt`` is a :class:`~estimators.fastslam.particles.FastSLAMBase`; its maps, landmark
+    arrays, weights and association labels are updated in place.
+
+    Each weight is multiplied by the likelihood of the particle's own association
+    (innovation covariance λS, λ = ``likelihood_inflation``; p0 per unpaired return).
+    :attr:`last_association` is the reported particle's, labeled as in ``estimate``.
+    Stage 2's ρ regeneration is not applied (it needs one pairing in all particles).
+
+    Raises:
+        ValueError: Malformed returns, or unlabeled scans after labeled ones in SLAM.
+    """
+    meas = np.asarray(scan.meas, dtype=float)
+    k = meas.shape[0] if meas.ndim == 2 else -1
+    if meas.shape != (k, 3) or not np.all(np.isfinite(meas)):
+        raise ValueError("update: scan.meas must be a finite (k, 3) array")
+    if filt._maps is None:
+        if filt._slot_ids and not filt._known_map:
+            raise ValueError(
+                "update: an unlabeled scan after labeled ones; a FastSLAM run takes one kind"
+            )
+        known = np.array(filt._slot_ids, dtype=np.int64) if filt._known_map else None
+        filt._maps = ParticleMaps(filt.n_particles, known)
+    maps, nis = filt._maps, filt._nis_sum
+    sig = np.maximum(np.asarray(scan.sigma, dtype=float).reshape(3), SIGMA_FLOOR)
+    filt.mu, filt.sigma = maps.associate(
+        filt.x, filt.mu, filt.sigma, meas, np.diag(sig * sig), filt.association,
+        filt.likelihood_inflation, filt._loglik, nis,
+    )  # fmt: skip
+    dof = MEAS_DIM * maps.n_paired
+    if k:
+        if dof.any():
+            filt._check_lock(np.where(dof > 0, nis / np.maximum(dof, 1), np.nan))
+        filt._apply_loglik(filt._loglik)
+    maps.report = best = int(np.argmax(filt._w))
+    filt._nis = float(nis[best]) if dof[best] else math.nan
+    filt._nis_dof = int(dof[best])
+    filt.last_association = maps.labels(best, k)
+    filt._maybe_resample()

@@ -29,7 +29,9 @@ class KinematicFastSLAM(FastSLAMBase):
     the input), ``integrator`` (``"rk4"``), ``imu_noise_scale`` (1.0, factor on the IMU sample
     σ used as input noise), ``known_map_sigma`` (0.001 m), and the robustness settings shared
     with ``fastslam`` (``likelihood_inflation`` default 1.0 here — the unmodified FastSLAM 1.0
-    baseline —, ``roughening`` 0.0, ``nis_divergence`` 1000.0, ``nis_divergence_s`` 2.0) and
+    baseline —, ``roughening`` 0.0, ``regularisation`` 1.0, ``progressive_ess`` 0.1,
+    ``anchor_gauge`` True,
+    ``nis_divergence`` 1000.0, ``nis_divergence_s`` 2.0) and
     its unknown-association settings (``gate_probability`` 0.99, ``new_landmark_likelihood``
     0.001, ``confirm_hits`` 3, ``confirm_window`` 5).
 

@@ -15,11 +15,20 @@ from typing import Any, ClassVar
 import numpy as np
 
 from estimators.base import Estimate, check_kwargs
-from estimators.fastslam.associate import ParticleMaps
-from estimators.fastslam.landmarks import landmark_ekf_particles, landmark_init
+from estimators.fastslam.associate import ParticleMaps, update_unlabeled
+from estimators.fastslam.gauge import add_gauge_cov, gauge_split, pin_gauge
+from estimators.fastslam.landmarks import landmark_init
+from estimators.fastslam.lock import check_lock
 from estimators.fastslam.moments import landmark_mixture, state_moments
 from estimators.fastslam.process import perturb_particles, wrap_euler_rows
-from estimators.fastslam.resampling import apply_log_likelihood, ess_of, systematic_resample
+from estimators.fastslam.progressive import scan_update
+from estimators.fastslam.resampling import (
+    apply_log_likelihood,
+    ess_of,
+    regularisation_bandwidth,
+    regularise_pose,
+    systematic_resample,
+)
 from estimators.fastslam.settings import (
     FLOAT,
     OWNER,
@@ -27,6 +36,7 @@ from estimators.fastslam.settings import (
     VECTOR,
     AssociationSettings,
     fail,
+    fraction,
     parse_process_noise,
     positive,
 )
@@ -57,6 +67,9 @@ class FastSLAMBase:
         "known_map_sigma": FLOAT,
         "likelihood_inflation": FLOAT,
         "roughening": FLOAT,
+        "anchor_gauge": bool,
+        "regularisation": FLOAT,
+        "progressive_ess": FLOAT,
         "nis_divergence": FLOAT,
         "nis_divergence_s": FLOAT,
         "gate_probability": FLOAT,
@@ -74,9 +87,9 @@ class FastSLAMBase:
         self.n_particles = int(params.get("n_particles", 500))
         if self.n_particles < 1:
             raise fail("n_particles", self.n_particles, "an int >= 1")
-        self.resample_threshold = float(params.get("resample_threshold", 0.5))
-        if not 0.0 <= self.resample_threshold <= 1.0:
-            raise fail("resample_threshold", params["resample_threshold"], "a number in [0, 1]")
+        self.resample_threshold = fraction(
+            "resample_threshold", params.get("resample_threshold", 0.5)
+        )
         self.process_noise = parse_process_noise(
             "process_noise", params.get("process_noise", self._DEFAULT_NOISE)
         )
@@ -94,6 +107,11 @@ class FastSLAMBase:
         self.roughening = positive(
             "roughening", params.get("roughening", self._DEFAULT_ROUGHENING), strict=False
         )
+        self.anchor_gauge = bool(params.get("anchor_gauge", True))
+        self.regularisation = positive(
+            "regularisation", params.get("regularisation", 1.0), strict=False
+        )
+        self.progressive_ess = fraction("progressive_ess", params.get("progressive_ess", 0.1))
         self.nis_divergence = positive(
             "nis_divergence", params.get("nis_divergence", 1000.0), strict=False
         )
@@ -133,6 +151,9 @@ class FastSLAMBase:
         self._ids_sorted = np.zeros(0, dtype=int)
         self._order = np.zeros(0, dtype=int)
         self.n_resamples = 0
+        self.n_progressive_stages = 0
+        self.lineage = np.arange(n)
+        """(N,) index of each particle's ancestor among the particles drawn at reset."""
         self.n_divergences = 0
         self._diverged = False
         self._nis = math.nan
@@ -143,6 +164,7 @@ class FastSLAMBase:
         self._best_nis = math.nan
         self._known_map = False
         self._maps: ParticleMaps | None = None  # per-particle maps (unlabeled scans)
+        self._gauge: tuple[FloatArray, FloatArray] | None = None  # (G (4, 4), anchor ρ_a (3,))
         self.last_association = np.zeros(0, dtype=np.int64)
         """(k,) label of each return of the last unlabeled scan in the reported map (-1)."""
 
@@ -176,6 +198,11 @@ class FastSLAMBase:
         self._alloc()
         self._known_map = known_landmarks is not None
         n = self.n_particles
+        if self.anchor_gauge and known_landmarks is None:
+            # SLAM: the initial position and yaw are the gauge (:mod:`.gauge`), kept
+            # analytically; the particles start from the prior given the gauge.
+            gauge_cov, cov = gauge_split(cov)
+            self._gauge = (gauge_cov, mean[0:3].copy())
         self.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
         wrap_euler_rows(self.x)
         if known_landmarks is not None:
@@ -252,6 +279,9 @@ class FastSLAMBase:
         ``σ_j = K E_j N^{−1/d}``, ``E_j`` the weighted standard deviation of state j *before*
         resampling and d = 12. The jitter scales with the current spread, so it re-diversifies
         the duplicates without adding a fixed noise floor; landmark EKFs are not jittered.
+
+        With ``regularisation = c > 0`` the copies' poses ``(ρ, v_B, Λ)`` are moved by the shrunk
+        kernel of :func:`.resampling.regularise_pose` (bandwidth ``min(1, c·h_opt)``, d = 9).
         """
         if self.roughening > 0.0:
             w = self._w
@@ -260,7 +290,11 @@ class FastSLAMBase:
             dev[:, 6:9] = wrap_angle(dev[:, 6:9])
             spread = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
             scale = self.roughening * spread * self.n_particles ** (-1.0 / STATE_DIM)
-        self.x = self.x[idx]
+        if self.regularisation > 0.0:
+            h = min(1.0, self.regularisation * regularisation_bandwidth(self.n_particles, POSE_DIM))
+            self.x = regularise_pose(self.x, idx, self._w, h, self._rng)
+        else:
+            self.x = self.x[idx]
         if self.roughening > 0.0:
             self.x = self.x + self._rng.standard_normal(self.x.shape) * scale
             wrap_euler_rows(self.x)
@@ -269,6 +303,7 @@ class FastSLAMBase:
         if self._maps is not None:
             self._maps.resample(idx, self._w)
         self._resample_extra(idx)
+        self.lineage = self.lineage[idx]
         self.logw = np.full(self.n_particles, -math.log(self.n_particles))
         self.n_resamples += 1
 
@@ -357,20 +392,20 @@ class FastSLAMBase:
         old = slots >= 0
         idx = slots[old]
         if idx.size:
-            # Each observed landmark's EKF in every particle, in place; a landmark whose
-            # update broke down keeps its prior.
+            # Each observed landmark's EKF in every particle, in place (a landmark whose update
+            # broke down keeps its prior); a scan far narrower than the cloud first in stages.
             nis = self._nis_sum
-            landmark_ekf_particles(
-                self.x, self.mu, self.sigma, idx, meas[old], R, self._loglik, nis
-            )
+            remaining = scan_update(self, idx, meas[old], R)
             self._nis = float(self._w @ nis)
             self._nis_dof = MEAS_DIM * int(idx.size)
             self._check_lock(nis / self._nis_dof)
             # Tempering (likelihood inflation λ): the weights use p(z | x)^{1/λ}, i.e. the
             # Gaussian with covariance λ·S up to a particle-independent constant; the EKFs
             # above use the true R.
-            self._apply_loglik(self._loglik, self.likelihood_inflation)
+            self._apply_loglik(self._loglik, self.likelihood_inflation / remaining)
         if not np.all(old):
+            if self._gauge is not None and not self._slot_ids:  # the map is born: pin
+                self._gauge = pin_gauge(self.x, self._w, *self._gauge)
             new_ids = scan_ids[~old]
             pos = self.x[:, 0:3]
             dcm = dcm_from_euler_batch(self.x[:, 6:9])
@@ -383,72 +418,15 @@ class FastSLAMBase:
             self._post_update(idx, meas[old], R)
 
     def _update_unlabeled(self, scan: LidarScan) -> None:
-        """Per-particle ML association (:mod:`.associate`) of an unlabeled scan, then weights.
-
-        Each weight is multiplied by the likelihood of the particle's own association
-        (innovation covariance λS, λ = ``likelihood_inflation``; p0 per unpaired return).
-        :attr:`last_association` is the reported particle's, labeled as in :meth:`estimate`.
-        Stage 2's ρ regeneration is not applied (it needs one pairing in all particles).
-
-        Raises:
-            ValueError: Malformed returns, or unlabeled scans after labeled ones in SLAM.
-        """
-        meas = np.asarray(scan.meas, dtype=float)
-        k = meas.shape[0] if meas.ndim == 2 else -1
-        if meas.shape != (k, 3) or not np.all(np.isfinite(meas)):
-            raise ValueError("update: scan.meas must be a finite (k, 3) array")
-        if self._maps is None:
-            if self._slot_ids and not self._known_map:
-                raise ValueError(
-                    "update: an unlabeled scan after labeled ones; a FastSLAM run takes one kind"
-                )
-            known = np.array(self._slot_ids, dtype=np.int64) if self._known_map else None
-            self._maps = ParticleMaps(self.n_particles, known)
-        maps, nis = self._maps, self._nis_sum
-        sig = np.maximum(np.asarray(scan.sigma, dtype=float).reshape(3), SIGMA_FLOOR)
-        self.mu, self.sigma = maps.associate(
-            self.x, self.mu, self.sigma, meas, np.diag(sig * sig), self.association,
-            self.likelihood_inflation, self._loglik, nis,
-        )  # fmt: skip
-        dof = MEAS_DIM * maps.n_paired
-        if k:
-            if dof.any():
-                self._check_lock(np.where(dof > 0, nis / np.maximum(dof, 1), np.nan))
-            self._apply_loglik(self._loglik)
-        maps.report = best = int(np.argmax(self._w))
-        self._nis = float(nis[best]) if dof[best] else math.nan
-        self._nis_dof = int(dof[best])
-        self.last_association = maps.labels(best, k)
-        self._maybe_resample()
+        """An unlabeled scan: :func:`.associate.update_unlabeled`."""
+        update_unlabeled(self, scan)
 
     def _post_update(self, idx: np.ndarray, meas: FloatArray, R: FloatArray) -> None:
         """Hook run after resampling in :meth:`update` with the mapped observations."""
 
     def _check_lock(self, nis_per_dof: FloatArray) -> None:
-        """NIS-based loss-of-lock flag (sticky until :meth:`reset`).
-
-        ``nis_per_dof`` (N,) is each particle's LiDAR NIS per degree of freedom. The mean over
-        the best 10 % of particles (lowest NIS) is ≈ 1 while the filter is locked; if it stays
-        above ``nis_divergence`` for ``nis_divergence_s`` seconds of filter time no particle
-        explains the scans any more (the weights are then only relative and the estimate is
-        silently wrong), so ``diagnostics["diverged"]`` is set. ``nis_divergence = 0`` disables
-        the check.
-        """
-        k = max(1, self.n_particles // 10)
-        best = float(np.mean(np.partition(nis_per_dof, k - 1)[:k]))
-        self._best_nis = best
-        if self.nis_divergence <= 0.0:
-            return
-        if not best > self.nis_divergence:  # also catches NaN as "not high"
-            self._nis_high_since = None
-            return
-        if self._nis_high_since is None:
-            self._nis_high_since = self._time
-        if self._time - self._nis_high_since >= self.nis_divergence_s:
-            if not self._lost:
-                self.n_divergences += 1
-            self._lost = True
-            self._diverged = True
+        """The NIS loss-of-lock flag: :func:`.lock.check_lock`."""
+        check_lock(self, nis_per_dof)
 
     # ---------------------------------------------------------------- estimate
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
@@ -482,10 +460,13 @@ class FastSLAMBase:
             lm_mean, lm_cov = self.mu[best, :n_lm].copy(), self.sigma[best, :n_lm].copy()
         elif n_lm:
             landmark_mixture(self.mu, self.sigma, w, self._order, lm_mean, lm_cov)
+        if self._gauge is not None:  # the SLAM gauge's share (:mod:`.gauge`)
+            add_gauge_cov(self._gauge, mean[0:3], pose_cov, lm_mean, lm_cov)
         accel_bias, gyro_bias = self._bias_estimate(w)
         diagnostics = {
             "ess": self._ess,
             "n_resamples": float(self.n_resamples),
+            "n_progressive_stages": float(self.n_progressive_stages),
             "nis": self._nis,
             "nis_dof": float(self._nis_dof),
             "diverged": 1.0 if (self._diverged or self._lost) else 0.0,

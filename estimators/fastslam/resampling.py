@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from quadslam_env.models.jit import kernel
+from quadslam_env.models.linalg import psd_sqrt
 from quadslam_env.types import FloatArray
 
 
@@ -121,3 +122,90 @@ def systematic_resample(weights: FloatArray, rng: np.random.Generator) -> np.nda
     pointers = (rng.random() + np.arange(n)) / n
     idx = np.searchsorted(cdf, pointers, side="right")
     return np.minimum(idx, n - 1)
+
+
+def regularisation_bandwidth(n: int, dim: int) -> float:
+    """Optimal bandwidth of the Gaussian kernel of a regularised particle filter.
+
+    ``h_opt = A N^{−1/(d+4)}`` with ``A = (4 / (d + 2))^{1/(d+4)}`` (Musso, Oudjane and Le Gland,
+    *Improving regularised particle filters*, in Doucet, de Freitas and Gordon (eds.), Sequential
+    Monte Carlo Methods in Practice, 2001, §12.2.2): the kernel width that minimises the mean
+    integrated squared error of the kernel density estimate for a Gaussian density.
+
+    Args:
+        n: Number of particles N ≥ 1. dim: State dimension d ≥ 1.
+
+    Returns:
+        ``h_opt`` (dimensionless, a factor on the particle covariance's square root).
+    """
+    return (4.0 / (dim + 2.0)) ** (1.0 / (dim + 4.0)) * n ** (-1.0 / (dim + 4.0))
+
+
+def regularisation_jitter(
+    cov: FloatArray, h: float, n: int, rng: np.random.Generator
+) -> FloatArray:
+    """Draws of the post-resampling kernel of a regularised particle filter.
+
+    After resampling, each particle is moved by ``h D ε``, ``ε ~ N(0, I)``, with ``D Dᵀ`` the
+    weighted particle covariance before resampling (Musso et al. 2001, Algorithm 12.2): the new
+    particles are a sample of the Gaussian kernel density estimate of the posterior instead of
+    copies of the old ones.
+
+    Args:
+        cov: (d, d) weighted particle covariance (symmetric PSD; singular allowed).
+        h: Bandwidth (:func:`regularisation_bandwidth` times a user factor).
+        n: Number of draws. rng: Random generator.
+
+    Returns:
+        (n, d) jitter with covariance ``h² cov``.
+    """
+    d = cov.shape[0]
+    return h * (rng.standard_normal((n, d)) @ psd_sqrt(cov).T)
+
+
+def pose_moments(x: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Weighted mean, deviations and covariance of the pose ``(ρ, v_B, Λ)`` of particles.
+
+    Args:
+        x: (N, ≥9) particle states. w: (N,) normalised weights.
+
+    Returns:
+        ``(mean (9,), dev (N, 9), cov (9, 9))``: the Euler angles' mean is circular and their
+        deviations are wrapped to (-π, π].
+    """
+    pose = x[:, 0:9]
+    mean = w @ pose
+    mean[6:9] = np.arctan2(w @ np.sin(pose[:, 6:9]), w @ np.cos(pose[:, 6:9]))
+    dev = pose - mean
+    dev[:, 6:9] = (dev[:, 6:9] + np.pi) % (2.0 * np.pi) - np.pi
+    return mean, dev, (dev * w[:, None]).T @ dev
+
+
+def regularise_pose(
+    x: FloatArray, idx: np.ndarray, w: FloatArray, h: float, rng: np.random.Generator
+) -> FloatArray:
+    """The resampled particles ``x[idx]`` with their pose moved by a shrunk Gaussian kernel.
+
+    Each selected particle's pose becomes ``x̄ + a (x_i − x̄) + h D ε`` with ``D Dᵀ`` the weighted
+    pose covariance before resampling, ``ε ~ N(0, I)`` and ``a = √(1 − h²)``: the kernel of the
+    regularised particle filter (Musso et al. 2001) with the shrinkage of Liu and West
+    (*Combined parameter and state estimation in simulation-based filtering*, 2001, §3.3), which
+    keeps the cloud's mean and covariance (``a² Σ + h² Σ = Σ``) instead of inflating it by
+    ``1 + h²`` at every resampling. The other states (ω) are copied unchanged: the dynamic
+    filter identifies the gyro bias from ω against the dynamics, which a kernel on ω would blur.
+
+    Args:
+        x: (N, 12) particles before resampling. idx: (N,) selected indices. w: (N,) their
+            normalised weights. h: Bandwidth in [0, 1]. rng: Random generator.
+
+    Returns:
+        (N, 12) the new particles (a fresh array; angles wrapped).
+    """
+    if not 0.0 <= h <= 1.0:
+        raise ValueError(f"regularise_pose: bandwidth h must be in [0, 1], got {h!r}")
+    mean, dev, cov = pose_moments(x, w)
+    out = x[idx]
+    a = math.sqrt(1.0 - h * h)
+    out[:, 0:9] = mean + a * dev[idx] + regularisation_jitter(cov, h, idx.shape[0], rng)
+    out[:, 6:9] = (out[:, 6:9] + np.pi) % (2.0 * np.pi) - np.pi
+    return out

@@ -33,6 +33,14 @@ def positive(key: str, value: Any, strict: bool = True) -> float:
     return v
 
 
+def fraction(key: str, value: Any) -> float:
+    """``value`` as a float in [0, 1]; else :func:`fail`."""
+    v = float(value)
+    if not 0.0 <= v <= 1.0:
+        raise fail(key, value, "a number in [0, 1]")
+    return v
+
+
 def parse_process_noise(key: str, value: Any) -> FloatArray:
     """Expand a scalar, 4 group values (ρ, v, Λ, ω) or 12 values to a (12,) density."""
     allowed = "a number, 4 values (ρ, v, Λ, ω groups) or 12 values, all finite and >= 0"
