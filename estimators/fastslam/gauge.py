@@ -38,6 +38,7 @@ import math
 
 import numpy as np
 
+from quadslam_env.models.jit import kernel
 from quadslam_env.types import POSE_DIM, FloatArray
 
 GAUGE_INDEX = np.array([0, 1, 2, 8])
@@ -82,6 +83,28 @@ def rotation_lever(points: FloatArray, anchor: FloatArray) -> FloatArray:
     return out
 
 
+@kernel
+def _add_shift_cov(point: FloatArray, anchor: FloatArray, G: FloatArray, out: FloatArray) -> None:
+    """``out[0:3, 0:3] += J G Jᵀ`` for ``J = [I₃, n₃ × (p − ρ_a)]`` (3, 4) of one point p, and,
+    when ``out`` is the (9, 9) pose covariance, the yaw row/column ``∂ψ/∂γ = [0, 0, 0, 1]``."""
+    lever = (-(point[1] - anchor[1]), point[0] - anchor[0], 0.0)
+    pose = out.shape[0] > 3
+    n = 4 if pose else 3  # rows of J: ρ (or l) x, y, z, then ψ (pose only, row 8 of out)
+    J = np.zeros((4, 4))
+    for i in range(3):
+        J[i, i] = 1.0
+        J[i, 3] = lever[i]
+    J[3, 3] = 1.0
+    rows = (0, 1, 2, 8)
+    for a in range(n):
+        for b in range(n):
+            v = 0.0
+            for k in range(4):
+                for m in range(4):
+                    v += J[a, k] * G[k, m] * J[b, m]
+            out[rows[a], rows[b]] += v
+
+
 def pose_gauge_cov(position: FloatArray, anchor: FloatArray, G: FloatArray) -> FloatArray:
     """The gauge's share ``J G Jᵀ`` (9, 9) of the pose ``(ρ, v_B, Λ)`` covariance.
 
@@ -92,11 +115,9 @@ def pose_gauge_cov(position: FloatArray, anchor: FloatArray, G: FloatArray) -> F
     Returns:
         (9, 9) covariance to add to the particle pose covariance (m², m²/s², rad² blocks).
     """
-    J = np.zeros((POSE_DIM, 4))
-    J[0:3, 0:3] = np.eye(3)
-    J[0:3, 3] = rotation_lever(position, anchor)
-    J[8, 3] = 1.0
-    return J @ G @ J.T
+    out = np.zeros((POSE_DIM, POSE_DIM))
+    _add_shift_cov(np.asarray(position, dtype=float), anchor, G, out)
+    return out
 
 
 def landmark_gauge_cov(means: FloatArray, anchor: FloatArray, G: FloatArray) -> FloatArray:
@@ -110,10 +131,17 @@ def landmark_gauge_cov(means: FloatArray, anchor: FloatArray, G: FloatArray) -> 
         (L, 3, 3) covariances in m² to add to the landmark covariances.
     """
     means = np.asarray(means, dtype=float).reshape(-1, 3)
-    J = np.zeros((means.shape[0], 3, 4))
-    J[:, :, 0:3] = np.eye(3)
-    J[:, :, 3] = rotation_lever(means, anchor)
-    return np.einsum("lij,jk,lmk->lim", J, G, J)
+    out = np.zeros((means.shape[0], 3, 3))
+    _add_landmark_shift_covs(means, anchor, G, out)
+    return out
+
+
+@kernel
+def _add_landmark_shift_covs(
+    means: FloatArray, anchor: FloatArray, G: FloatArray, covs: FloatArray
+) -> None:
+    for j in range(means.shape[0]):
+        _add_shift_cov(means[j], anchor, G, covs[j])
 
 
 def add_gauge_cov(
@@ -131,9 +159,9 @@ def add_gauge_cov(
         lm_covs: (L, 3, 3) landmark covariances, m².
     """
     G, anchor = gauge
-    pose_cov += pose_gauge_cov(position, anchor, G)
+    _add_shift_cov(position, anchor, G, pose_cov)
     if lm_means.shape[0]:
-        lm_covs += landmark_gauge_cov(lm_means, anchor, G)
+        _add_landmark_shift_covs(lm_means, anchor, G, lm_covs)
 
 
 def move_anchor(G: FloatArray, old: FloatArray, new: FloatArray) -> FloatArray:
