@@ -549,6 +549,21 @@ def test_parallel_envs_run_as_lanes_and_restore_torch_threads(tmp_path: Path) ->
     assert (run_dir / "model.zip").is_file()
 
 
+def test_sac_collects_from_several_lanes(tmp_path: Path) -> None:
+    """SAC on lanes: each vector step stores one transition per lane, then takes its
+    ``gradient_steps`` (``train_freq`` counts vector steps)."""
+    from stable_baselines3 import SAC
+
+    hp = tiny("sac", eval_freq=0, checkpoint_freq=0, train_freq=1, gradient_steps=2)
+    run_dir = train("sac", main_env(), timesteps=160, n_envs=4, out_dir=tmp_path,
+                    progress=False, hyperparams=hp)  # fmt: skip
+    model = SAC.load(run_dir / "model.zip", device="cpu")
+    assert model.num_timesteps == 160 and model.n_envs == 4
+    # 40 vector steps, of which the first 8 (32 transitions) only fill the buffer.
+    assert model._n_updates == 2 * (40 - 8)
+    assert yaml.safe_load((run_dir / "config.yaml").read_text())["hyperparams"]["n_envs"] == 4
+
+
 def test_resume_continues_from_the_latest_checkpoint(tmp_path: Path) -> None:
     from agents.training import latest_checkpoint, resume
 
