@@ -36,6 +36,27 @@ AFTER_S = 5.0
 """Seconds after a gap's end at which the re-lock error is read."""
 
 
+def seeded_lanes(
+    scenario: str, seeds: Sequence[int], overrides: dict[str, Any]
+) -> tuple[Any, DFLQRPolicy, np.ndarray, Any]:
+    """A vector env with one lane per seed, reset with those seeds, and the DF-LQR on it.
+
+    Returns:
+        ``(env, policy, obs (B, n), core)``: the env's :class:`~quadslam_env.core.SimCore`
+        gives the analyses what the info dicts do not (covariances, particles).
+    """
+    env = gym.make_vec(
+        "QuadSLAM-v0",
+        num_envs=len(seeds),
+        vectorization_mode="vector_entry_point",
+        scenario=scenario,
+        **overrides,
+    )
+    policy = DFLQRPolicy.from_env(env)
+    obs, _ = env.reset(seed=list(seeds))  # type: ignore[arg-type]
+    return env, policy, obs, env.unwrapped.core  # type: ignore[attr-defined]
+
+
 def record(scenario: str, seeds: Sequence[int], overrides: dict[str, Any]) -> dict[str, Any]:
     """Fly ``seeds`` (one lane each) to the end of their first episode.
 
@@ -44,16 +65,7 @@ def record(scenario: str, seeds: Sequence[int], overrides: dict[str, Any]) -> di
         end), ``"end"`` the B termination reasons ("" at the time limit) and ``"dt"``.
     """
     b = len(seeds)
-    env = gym.make_vec(
-        "QuadSLAM-v0",
-        num_envs=b,
-        vectorization_mode="vector_entry_point",
-        scenario=scenario,
-        **overrides,
-    )
-    policy = DFLQRPolicy.from_env(env)
-    obs, _ = env.reset(seed=list(seeds))  # type: ignore[arg-type]
-    core: Any = env.unwrapped.core  # type: ignore[attr-defined]
+    env, policy, obs, core = seeded_lanes(scenario, seeds, overrides)
     keys = ("t", "n_visible", "pos_err_m", "nees_pos")
     rows: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     live = np.ones(b, dtype=bool)

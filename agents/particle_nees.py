@@ -30,7 +30,7 @@ import gymnasium as gym
 import numpy as np
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.dflqr import DFLQRPolicy
+from agents.degradation import seeded_lanes
 from quadslam_env.models.frames import wrap_angle
 
 BLOCKS = {"pos": slice(0, 3), "vel": slice(3, 6), "att": slice(6, 9)}
@@ -73,16 +73,7 @@ def record(
             "episode": {**overrides.get("episode", {}), "duration_s": duration_s},
         }
     b = len(seeds)
-    env = gym.make_vec(
-        "QuadSLAM-v0",
-        num_envs=b,
-        vectorization_mode="vector_entry_point",
-        scenario=scenario,
-        **overrides,
-    )
-    policy = DFLQRPolicy.from_env(env)
-    obs, _ = env.reset(seed=list(seeds))  # type: ignore[arg-type]
-    core: Any = env.unwrapped.core  # type: ignore[attr-defined]
+    env, policy, obs, core = seeded_lanes(scenario, seeds, overrides)
     lanes = getattr(core.estimator, "lanes", [None] * b)
     recs: list[dict[str, Any]] = [
         {"t": [], "nees": {k: [] for k in ("pose", *BLOCKS)}, "pos_err": [], "map_err": [],
