@@ -341,7 +341,7 @@ class DynamicFastSLAM(FastSLAMBase):
 
     def _extra_diagnostics(self) -> dict[str, float]:
         """The model's principal moments of inertia in kg·m² (identified or nominal)."""
-        jx, jy, jz = np.diag(self.model.inertia).tolist()
+        jx, jy, jz = self.model.inertia.diagonal().tolist()
         return {"inertia_x": jx, "inertia_y": jy, "inertia_z": jz}
 
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
