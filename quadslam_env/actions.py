@@ -40,8 +40,8 @@ def _thrust_torque(
     action: FloatArray, max_thrust: float, max_torque: FloatArray, thrust: FloatArray,
     torque: FloatArray,
 ) -> None:  # fmt: skip
-    """``thrust_torque``: thrust (B,) ``(a0 + 1)/2 · max_thrust``, torque (B, 3) ``a1..3 ·
-    max_torque``."""
+    """Thrust (B,) ``(a0 + 1)/2 · max_thrust`` (both action modes) and the ``thrust_torque``
+    torque (B, 3) ``a1..3 · max_torque``."""
     for i in range(action.shape[0]):
         thrust[i] = 0.5 * (action[i, 0] + 1.0) * max_thrust
         for j in range(3):
@@ -121,13 +121,11 @@ class ActionMap:
 
     def inputs(self, action: FloatArray, rates_hat: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Thrust (B,) N and torque (B, 3) N·m for actions (B, 4) and estimated rates (B, 3)."""
-        p = self.params
+        b = action.shape[0]
+        thrust, torque = np.empty(b), np.empty((b, 3))
+        act = np.ascontiguousarray(action, dtype=float)
+        _thrust_torque(act, self._max_thrust, self._max_torque, thrust, torque)
         if self.mode == "thrust_torque":
-            b = action.shape[0]
-            thrust, torque = np.empty(b), np.empty((b, 3))
-            act = np.ascontiguousarray(action, dtype=float)
-            _thrust_torque(act, self._max_thrust, self._max_torque, thrust, torque)
             return thrust, torque
-        thrust = 0.5 * (action[:, 0] + 1.0) * p.max_thrust
-        rates_cmd = action[:, 1:] * self.max_rate
-        return thrust, (self.rate_gain * (rates_cmd - rates_hat)) @ p.inertia.T
+        rates_cmd = act[:, 1:] * self.max_rate  # thrust_rates: the same thrust, a rate loop
+        return thrust, (self.rate_gain * (rates_cmd - rates_hat)) @ self.params.inertia.T
