@@ -57,6 +57,13 @@ def seeded_lanes(
     return env, policy, obs, env.unwrapped.core  # type: ignore[attr-defined]
 
 
+def save_json(path: Path, result: dict[str, Any]) -> None:
+    """Write an analysis's ``--json`` result (folders made as needed) and say where."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=1) + "\n")
+    print(f"json: {path}")
+
+
 def record(scenario: str, seeds: Sequence[int], overrides: dict[str, Any]) -> dict[str, Any]:
     """Fly ``seeds`` (one lane each) to the end of their first episode.
 
@@ -195,9 +202,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     summary = {"scenario": args.scenario, "seeds": seeds, "set": args.set, **summary}
     print(format_summary(summary))
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(summary, indent=1) + "\n")
-        print(f"json: {args.json}")
+        save_json(args.json, summary)
     return 0
 
 

@@ -19,7 +19,6 @@ particle counts (``estimator.params.n_particles``).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Sequence
@@ -30,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.degradation import seeded_lanes
+from agents.degradation import save_json, seeded_lanes
 from quadslam_env.models.frames import wrap_angle
 
 BLOCKS = {"pos": slice(0, 3), "vel": slice(3, 6), "att": slice(6, 9)}
@@ -217,9 +216,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "set": args.set,
             "rows": rows,
         }
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(out, indent=1) + "\n")
-        print(f"json: {args.json}")
+        save_json(args.json, out)
     return 0
 
 
