@@ -129,7 +129,7 @@ def scan_update(filt: Any, slots: np.ndarray, meas: FloatArray, R: FloatArray) -
     """
     loglik, nis = filt._loglik, filt._nis_sum
     if filt.progressive_ess > 0.0:
-        mu, sigma = filt.mu[:, slots].copy(), filt.sigma[:, slots].copy()
+        mu, sigma = filt.mu[:, slots], filt.sigma[:, slots]  # fancy indexing: copies
         landmark_ekf_particles(filt.x, mu, sigma, np.arange(slots.shape[0]), meas, R, loglik, nis)
         ll = loglik / filt.likelihood_inflation
         if ess_after(filt.logw, ll, 1.0) >= filt.progressive_ess * filt.n_particles:

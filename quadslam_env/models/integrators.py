@@ -119,15 +119,16 @@ def propagate_lanes(
 
     Args:
         states: (N, 12) states, advanced in place.
-        inputs: (N, 7) inputs ``u = (f_T, τ, a)`` (see :func:`rigid_body_derivative`), held.
+        inputs: (M, 7) inputs ``u = (f_T, τ, a)`` (see :func:`rigid_body_derivative`), held;
+            M = 1 (one input for all lanes, e.g. FastSLAM's particles) or N (per lane).
         bodies: (K, 20) parameters from :func:`pack_bodies`, K = 1 (shared) or N (per lane).
         hold_rates: ``ω̇ = 0`` (strapdown model) instead of Euler's equation.
         use_rk4: Classical RK4 if True, forward Euler otherwise.
     """
     work = np.empty((5, STATE_DIM))
-    shared = bodies.shape[0] == 1
+    shared, shared_u = bodies.shape[0] == 1, inputs.shape[0] == 1
     for i in range(states.shape[0]):
-        x, u, body = states[i], inputs[i], bodies[0 if shared else i]
+        x, u, body = states[i], inputs[0 if shared_u else i], bodies[0 if shared else i]
         for _ in range(n_steps):
             if use_rk4:
                 rk4_step(x, u, body, hold_rates, h, work)
@@ -145,9 +146,10 @@ def derivative_lanes(
 
     Arguments as in :func:`propagate_lanes`.
     """
-    shared = bodies.shape[0] == 1
+    shared, shared_u = bodies.shape[0] == 1, inputs.shape[0] == 1
     for i in range(states.shape[0]):
-        rigid_body_derivative(states[i], inputs[i], bodies[0 if shared else i], hold_rates, out[i])
+        u = inputs[0 if shared_u else i]
+        rigid_body_derivative(states[i], u, bodies[0 if shared else i], hold_rates, out[i])
 
 
 # --------------------------------------------------------------------------------------------
@@ -156,13 +158,17 @@ def derivative_lanes(
 
 
 def lane_inputs(n: int, thrust: ArrayLike, torque: ArrayLike, accel: ArrayLike = 0.0) -> FloatArray:
-    """(n, 7) kernel inputs ``(f_T [N], τ [N·m] (3), a [m/s²] (3))`` broadcast from the parts.
+    """Kernel inputs ``(f_T [N], τ [N·m] (3), a [m/s²] (3))`` broadcast from the parts.
 
     Args:
         n: Number of lanes.
         thrust: Scalar or (n,). torque: (3,) or (n, 3). accel: Scalar, (3,) or (n, 3).
+
+    Returns:
+        (1, 7) if no part has a lane axis (the kernels share that row), else (n, 7).
     """
-    u = np.empty((n, INPUT_DIM))
+    per_lane = np.ndim(thrust) > 0 or np.ndim(torque) > 1 or np.ndim(accel) > 1
+    u = np.empty((n if per_lane else 1, INPUT_DIM))
     u[:, 0] = thrust
     u[:, 1:4] = torque
     u[:, 4:7] = accel

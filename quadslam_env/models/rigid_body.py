@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from quadslam_env.models.frames import dcm_from_trig, euler_rates_from_trig
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import GRAVITY, STATE_DIM, FloatArray
 
@@ -60,7 +60,7 @@ def saturate(
     )
 
 
-@kernel
+@inline_kernel
 def specific_force_body(
     u: float, v: float, w: float, thrust: float, mass: float, drag: float
 ) -> Vec3:
@@ -72,7 +72,7 @@ def specific_force_body(
     return -drag * u, -drag * v, -drag * w - thrust / mass
 
 
-@kernel
+@inline_kernel
 def kinematics(x: FloatArray, f_b: Vec3, out: FloatArray) -> None:
     """Rows ρ̇, v̇, Λ̇ of seed 001 eq. 2 for one state, written to ``out[0:9]``.
 
@@ -116,24 +116,23 @@ def pack_bodies(mass: float, drag: float, J: FloatArray, J_inv: FloatArray) -> F
     return out
 
 
-@kernel
-def euler_equation(p: float, q: float, r: float, tau: FloatArray, body: FloatArray) -> Vec3:
+@inline_kernel
+def euler_equation(p: float, q: float, r: float, tau: Vec3, body: FloatArray) -> Vec3:
     """``ω̇ = J⁻¹(τ − ω×Jω)`` (seed 001 eq. 2) in rad/s², τ (3,) in N·m, ``body`` (20,)."""
-    J, J_inv = body[2:11], body[11:20]  # row-major 3×3
-    h0 = J[0] * p + J[1] * q + J[2] * r
-    h1 = J[3] * p + J[4] * q + J[5] * r
-    h2 = J[6] * p + J[7] * q + J[8] * r
+    h0 = body[2] * p + body[3] * q + body[4] * r
+    h1 = body[5] * p + body[6] * q + body[7] * r
+    h2 = body[8] * p + body[9] * q + body[10] * r
     m0 = tau[0] - (q * h2 - r * h1)
     m1 = tau[1] - (r * h0 - p * h2)
     m2 = tau[2] - (p * h1 - q * h0)
     return (
-        J_inv[0] * m0 + J_inv[1] * m1 + J_inv[2] * m2,
-        J_inv[3] * m0 + J_inv[4] * m1 + J_inv[5] * m2,
-        J_inv[6] * m0 + J_inv[7] * m1 + J_inv[8] * m2,
+        body[11] * m0 + body[12] * m1 + body[13] * m2,
+        body[14] * m0 + body[15] * m1 + body[16] * m2,
+        body[17] * m0 + body[18] * m1 + body[19] * m2,
     )
 
 
-@kernel
+@inline_kernel
 def rigid_body_derivative(
     x: FloatArray, u: FloatArray, body: FloatArray, hold_rates: bool, out: FloatArray
 ) -> None:
@@ -152,7 +151,7 @@ def rigid_body_derivative(
     if hold_rates:
         out[9], out[10], out[11] = 0.0, 0.0, 0.0
     else:
-        out[9], out[10], out[11] = euler_equation(x[9], x[10], x[11], u[1:4], body)
+        out[9], out[10], out[11] = euler_equation(x[9], x[10], x[11], (u[1], u[2], u[3]), body)
 
 
 @kernel
