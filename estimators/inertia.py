@@ -6,29 +6,39 @@ Fig. 14, and does not use it. This module is that regression in an integrated, b
 form, written as a small Kalman filter so that it starts from the filter's nominal model and
 states its own uncertainty.
 
-Model (seed 000 eq. 1 with ``J = diag(J_x, J_y, J_z)``, ``θ = (1/J_x, 1/J_y, 1/J_z)``),
-integrated from the start of the flight:
+Model (seed 000 eq. 1 with ``J = diag(J_x, J_y, J_z)``): per body axis,
+``ω̇_j = θ_j τ_j + g_j ω̃_j`` with ``θ_j = 1/J_j``, the gyroscopic products
+``ω̃ = (q r, r p, p q)`` and ``g = ((J_y − J_z)/J_x, (J_z − J_x)/J_y, (J_x − J_y)/J_z)``
+(``−θ_j`` times the component of ``ω × Jω``). Integrated from the start of the flight,
 
-    ω_j(t) = ω_j(0) + θ_j Φ_j(t),    Φ(t) = ∫₀ᵗ (τ − ω × J ω) ds,
+    ω_j(t) = ω_j(0) + θ_j Φ_j(t) + g_j Ψ_j(t),    Φ(t) = ∫₀ᵗ τ ds,    Ψ(t) = ∫₀ᵗ ω̃ ds,
 
 and the gyro (seed 000 eq. 6) reads ``z_j(t) = ω_j(t) + b_j + v_j``, so per axis
 
-    z_j(t) = c_j + θ_j Φ_j(t) + v_j,    c_j = b_j + ω_j(0),
+    z_j(t) = c_j + θ_j Φ_j(t) + g_j Ψ_j(t) + v_j,    c_j = b_j + ω_j(0),
 
-a linear measurement of the state ``(c_j, θ_j)`` with the known, time-varying row
-``H = [1, Φ_j(t)]``. The torque τ is the applied control; ``ω × Jω`` (second order in the small
-rates) uses the gyro minus ``ĉ`` and the current ``J``. ``Φ(t)`` depends only on torques applied
-*before* the reading, hence only on earlier gyro noise: the regressor is predetermined, so the
-estimate is consistent even with the controller in the loop (a regression on gyro
-*differences* is not: there the torque reacts to the noise of the first reading and the
-inertia came out 11–16 % low in closed loop). Starting at rest (``ω(0) ≈ 0``) makes ``c`` the
-gyro bias itself; its drift enters as random-walk process noise on ``c``.
+a linear measurement of ``β_j = (c_j, θ_j, g_j)`` with the known, time-varying row
+``H = [1, Φ_j(t), Ψ_j(t)]``: the Kalman filter is the exact recursive least-squares solution.
+The torque τ is the applied control; ``ω̃`` is formed from the gyro minus ``ĉ``. Treating g
+as a parameter of its own keeps the regressors free of Ĵ. (Integrating ``τ − ω × Ĵω`` with the
+Ĵ of each moment, as a first version did, baked the early, still wrong Ĵ of one axis into the
+others: on ``fastslam_out_of_view_600s``, whose DF-LQR yaws at 3 rad/s in the first second,
+a 1.4 % error of Ĵ_x gave a 1.5 % error of Ĵ_y and a gyro bias of 9e-3 rad/s after 3 s,
+for a gyro without bias.) The filter's model takes ``J = 1/θ̂``; ĝ is not fed back (a
+consistency check only).
 
-An integrating gyro reports the mean rate over its sample period, so ``Φ`` is taken at the
-middle of the period.
+The regressors depend only on torques applied and rates measured *before* the reading's
+period ends, not on its noise: they are predetermined, so the estimate is consistent even
+with the controller in the loop (a regression on gyro *differences* is not: there the torque
+reacts to the noise of the first reading and the inertia came out 11–16 % low in closed
+loop). Starting at rest (``ω(0) ≈ 0``) makes ``c`` the gyro bias itself; its drift enters as
+random-walk process noise on ``c``.
+
+An integrating gyro reports the mean rate over its sample period, so the regressors are taken
+at the middle of the period.
 
 The per-sample arithmetic is numba kernels (:func:`regression_step`, :func:`regression_measure`)
-on the (3, 2) means and (3, 2, 2) covariances in place: it runs at every IMU period of the
+on the (3, 3) means and (3, 3, 3) covariances in place: it runs at every IMU period of the
 dynamics-based FastSLAM.
 """
 
@@ -51,6 +61,14 @@ NIS_WINDOW_S = 1.0
 MAX_NIS = 9.0
 """The estimate is :attr:`GyroTorqueRegression.usable` while the running NIS of every axis is
 below this, i.e. while the rigid-body model explains the gyro data."""
+PARAMS = 3
+"""Regression parameters per axis: ``(c_j, θ_j, g_j)``."""
+
+
+def gyroscopic_coefficients(inertia: FloatArray) -> FloatArray:
+    """``g = −θ ⊙ diag(D(J))`` (3,): ``((J_y − J_z)/J_x, (J_z − J_x)/J_y, (J_x − J_y)/J_z)``."""
+    jx, jy, jz = (float(v) for v in inertia)
+    return np.array([(jy - jz) / jx, (jz - jx) / jy, (jx - jy) / jz])
 
 
 @kernel
@@ -66,44 +84,91 @@ def regression_measure(
     cov: FloatArray,
     gyro: FloatArray,
     sigma: float,
-    phi: FloatArray,
+    rows: FloatArray,
     nis: FloatArray,
 ) -> None:
-    """Kalman update with ``z_j = c_j + θ_j Φ_j + v_j`` per axis, in place.
+    """Kalman update with ``z_j = H_j β_j + v_j``, ``H_j = rows[j]``, per axis, in place.
 
     Args:
-        mean: (3, 2) means ``(c_j, θ_j)``, updated. cov: (3, 2, 2) covariances, updated
-            (symmetrised).
+        mean: (3, 3) means ``β_j = (c_j, θ_j, g_j)``, updated. cov: (3, 3, 3) covariances,
+            updated (symmetrised).
         gyro: (3,) reading ``z`` in rad/s. sigma: Noise std of ``v`` in rad/s (> 0).
-        phi: (3,) regressor ``Φ`` in N·m·s. nis: (3,) receives ``ν²/S`` per axis.
+        rows: (3, 3) rows ``H_j = (1, Φ_j, Ψ_j)``. nis: (3,) receives ``ν²/S`` per axis.
     """
+    n = PARAMS
     var = sigma**2
+    ph = np.empty(n)
+    k = np.empty(n)
     for j in range(3):
-        h1 = phi[j]  # H = [1, Φ_j]
-        ph0 = cov[j, 0, 0] * 1.0 + cov[j, 0, 1] * h1  # P Hᵀ
-        ph1 = cov[j, 1, 0] * 1.0 + cov[j, 1, 1] * h1
-        S = (1.0 * ph0 + h1 * ph1) + var
-        k0, k1 = ph0 / S, ph1 / S
-        nu = gyro[j] - (1.0 * mean[j, 0] + h1 * mean[j, 1])
-        mean[j, 0] = mean[j, 0] + k0 * nu
-        mean[j, 1] = mean[j, 1] + k1 * nu
-        c00 = cov[j, 0, 0] - k0 * ph0
-        c01 = cov[j, 0, 1] - k0 * ph1
-        c10 = cov[j, 1, 0] - k1 * ph0
-        c11 = cov[j, 1, 1] - k1 * ph1
-        cov[j, 0, 0] = 0.5 * (c00 + c00)
-        cov[j, 0, 1] = cov[j, 1, 0] = 0.5 * (c01 + c10)
-        cov[j, 1, 1] = 0.5 * (c11 + c11)
+        P, h = cov[j], rows[j]
+        S = var
+        nu = gyro[j]
+        for a in range(n):
+            acc = 0.0
+            for b in range(n):
+                acc += P[a, b] * h[b]
+            ph[a] = acc  # P Hᵀ
+            S += h[a] * acc
+            nu -= h[a] * mean[j, a]
+        for a in range(n):
+            k[a] = ph[a] / S
+            mean[j, a] += k[a] * nu
+        for a in range(n):
+            for b in range(a, n):
+                v = 0.5 * ((P[a, b] - k[a] * ph[b]) + (P[b, a] - k[b] * ph[a]))
+                P[a, b] = v
+                P[b, a] = v
         nis[j] = nu * nu / S
+
+
+INTEGRALS = 4
+"""Rows of :attr:`GyroTorqueRegression.integrals`: ``∫τ``, ``∫z_m z_n``, ``∫z``, ``t``."""
+
+
+@kernel
+def regressors(integrals: FloatArray, c: FloatArray, out: FloatArray) -> None:
+    """``Φ = ∫τ`` and ``Ψ = ∫ω̃`` with ``ω = z − c`` into ``out`` (2, 3).
+
+    ``∫(z_m − c_m)(z_n − c_n) = ∫z_m z_n − c_n ∫z_m − c_m ∫z_n + c_m c_n t`` with
+    ``(m, n) = (y, z), (z, x), (x, y)``: the integrals are of the raw readings and the bias
+    enters when they are read, so a still wrong early ĉ is not integrated into Ψ.
+
+    Args:
+        integrals: (4, 3) rows ``∫τ`` (N·m·s), ``∫z_m z_n`` (rad²/s), ``∫z`` (rad), ``t`` (s).
+        c: (3,) gyro bias ``c`` in rad/s.
+    """
+    t = integrals[3, 0]
+    for j in range(3):
+        m, n = (j + 1) % 3, (j + 2) % 3
+        out[0, j] = integrals[0, j]
+        out[1, j] = (
+            integrals[1, j] - c[n] * integrals[2, m] - c[m] * integrals[2, n] + c[m] * c[n] * t
+        )
+
+
+@kernel
+def angular_impulse(
+    integrals: FloatArray, theta: FloatArray, c: FloatArray, out: FloatArray
+) -> None:
+    """``∫(τ − ω × Jω) = Φ − D(J) Ψ`` (3,) in N·m·s for ``J = 1/θ`` and the bias ``c``.
+
+    ``ω × Jω = D(J) ω̃`` with the constant ``D(J) = diag(J_z − J_y, J_x − J_z, J_y − J_x)``;
+    Φ and Ψ from :func:`regressors`.
+    """
+    phi_psi = np.empty((2, 3))
+    regressors(integrals, c, phi_psi)
+    jx, jy, jz = 1.0 / theta[0], 1.0 / theta[1], 1.0 / theta[2]
+    out[0] = phi_psi[0, 0] - (jz - jy) * phi_psi[1, 0]
+    out[1] = phi_psi[0, 1] - (jx - jz) * phi_psi[1, 1]
+    out[2] = phi_psi[0, 2] - (jy - jx) * phi_psi[1, 2]
 
 
 @kernel
 def regression_step(
     mean: FloatArray,
     cov: FloatArray,
-    phi: FloatArray,
+    integrals: FloatArray,
     nis: FloatArray,
-    theta0: FloatArray,
     gyro: FloatArray,
     torque: FloatArray,
     dt: float,
@@ -111,50 +176,61 @@ def regression_step(
     rate_var: float,
     gain: float,
 ) -> None:
-    """One gyro sample: advance ``Φ``, random-walk ``c``, update, track the running NIS.
+    """One gyro sample: advance the integrals, random-walk ``c``, update, track the NIS.
 
     Args:
-        mean, cov: (3, 2), (3, 2, 2) posterior, updated in place.
-        phi: (3,) ``Φ`` in N·m·s at the end of the last period, advanced in place.
+        mean, cov: (3, 3), (3, 3, 3) posterior, updated in place.
+        integrals: (4, 3) integrals of :func:`regressors` at the end of the last period,
+            advanced in place (the reading and the torque are held over the period).
         nis: (3,) running mean of ``ν²/S``, updated with weight ``gain``.
-        theta0: (3,) nominal ``1/J₀`` in 1/(kg·m²).
         gyro: (3,) reading in rad/s. torque: (3,) applied torque in N·m. dt: Period in s.
         sigma: Noise std of the reading in rad/s. rate_var: Random-walk variance density of
             ``c`` in rad²/s³. gain: Weight of the new NIS in the running mean.
     """
-    theta = np.empty(3)
-    clipped_theta(mean, theta0, theta)
-    p, q, r = gyro[0] - mean[0, 0], gyro[1] - mean[1, 0], gyro[2] - mean[2, 0]
-    hx, hy, hz = (1.0 / theta[0]) * p, (1.0 / theta[1]) * q, (1.0 / theta[2]) * r  # J ω
-    # τ − ω × Jω, held over the period; Φ at the middle of the period for the reading.
-    rate = (
-        torque[0] - (q * hz - r * hy),
-        torque[1] - (r * hx - p * hz),
-        torque[2] - (p * hy - q * hx),
-    )
-    phi_mid = np.empty(3)
+    inc = np.empty((INTEGRALS, 3))
     for j in range(3):
-        phi_mid[j] = phi[j] + 0.5 * dt * rate[j]
-        phi[j] = phi[j] + dt * rate[j]
-        cov[j, 0, 0] += rate_var * dt  # c is a random walk, θ a constant
+        m, n = (j + 1) % 3, (j + 2) % 3
+        inc[0, j] = torque[j]
+        inc[1, j] = gyro[m] * gyro[n]
+        inc[2, j] = gyro[j]
+        inc[3, j] = 1.0
+    mid = np.empty((INTEGRALS, 3))  # at the middle of the period, for the reading
+    for a in range(INTEGRALS):
+        for j in range(3):
+            mid[a, j] = integrals[a, j] + 0.5 * dt * inc[a, j]
+            integrals[a, j] += dt * inc[a, j]
+    c = np.empty(3)
+    for j in range(3):
+        c[j] = mean[j, 0]
+    phi_psi = np.empty((2, 3))
+    regressors(mid, c, phi_psi)
+    rows = np.empty((3, PARAMS))
+    for j in range(3):
+        m, n = (j + 1) % 3, (j + 2) % 3
+        rows[j, 0], rows[j, 1], rows[j, 2] = 1.0, phi_psi[0, j], phi_psi[1, j]
+        # c is a random walk (bias drift), θ and g constants. The gyro noise in ω̃ (variance
+        # σ² (ω_m² + ω_n²)) makes Ψ a random walk around its true value; c absorbs g δΨ.
+        spread = (gyro[m] - c[m]) ** 2 + (gyro[n] - c[n]) ** 2
+        cov[j, 0, 0] += rate_var * dt + (mean[j, 2] * dt * sigma) ** 2 * spread
     new = np.empty(3)
-    regression_measure(mean, cov, gyro, sigma, phi_mid, new)
+    regression_measure(mean, cov, gyro, sigma, rows, new)
     for j in range(3):
         nis[j] += gain * (new[j] - nis[j])
 
 
 class GyroTorqueRegression:
-    """Three independent 2-state Kalman filters over ``(c_j, θ_j)``, one per body axis.
+    """Three independent 3-state Kalman filters over ``(c_j, θ_j, g_j)``, one per body axis.
 
     Args:
         inertia_prior: (3,) prior principal moments ``J₀`` in kg·m² (the filter's model).
-        inertia_rel_sigma: Prior std of θ relative to ``θ₀ = 1/J₀``.
+        inertia_rel_sigma: Prior std of θ relative to ``θ₀ = 1/J₀``, and the prior std of
+            each ``g_j`` (|g_j| ≤ 1 for any principal moments: ``|J_y − J_z| ≤ J_x``).
         bias_sigma: Prior std of ``c`` (gyro bias plus initial rate) in rad/s.
         bias_rate_sigma: Random-walk density of ``c`` in rad/s/√s (covers the bias drift).
 
     Attributes:
-        mean: (3, 2) posterior means, rows ``(c_j, θ_j)``.
-        cov: (3, 2, 2) posterior covariances.
+        mean: (3, 3) posterior means, rows ``(c_j, θ_j, g_j)``.
+        cov: (3, 3, 3) posterior covariances.
     """
 
     def __init__(
@@ -164,19 +240,22 @@ class GyroTorqueRegression:
         bias_sigma: float,
         bias_rate_sigma: float,
     ) -> None:
-        self.theta0 = 1.0 / np.asarray(inertia_prior, dtype=float).reshape(3)
+        j0 = np.asarray(inertia_prior, dtype=float).reshape(3)
+        self.theta0 = 1.0 / j0
+        self.g0 = gyroscopic_coefficients(j0)
         self.inertia_rel_sigma = float(inertia_rel_sigma)
         self.bias_sigma = float(bias_sigma)
         self.bias_rate_sigma = float(bias_rate_sigma)
         self.reset()
 
     def reset(self) -> None:
-        """Back to the prior; ``Φ = 0`` (the flight starts now)."""
-        self.mean = np.column_stack([np.zeros(3), self.theta0])
-        self.cov = np.zeros((3, 2, 2))
+        """Back to the prior; ``Φ = Ψ = 0`` (the flight starts now)."""
+        self.mean = np.column_stack([np.zeros(3), self.theta0, self.g0])
+        self.cov = np.zeros((3, PARAMS, PARAMS))
         self.cov[:, 0, 0] = self.bias_sigma**2
         self.cov[:, 1, 1] = (self.inertia_rel_sigma * self.theta0) ** 2
-        self.phi = np.zeros(3)  # Φ at the end of the last period, N·m·s
+        self.cov[:, 2, 2] = self.inertia_rel_sigma**2
+        self.integrals = np.zeros((INTEGRALS, 3))  # of :func:`regressors`, flight so far
         self.nis = np.ones(3)  # running mean of ν²/S per axis
         self.n_updates = 0
 
@@ -222,9 +301,8 @@ class GyroTorqueRegression:
         regression_step(
             self.mean,
             self.cov,
-            self.phi,
+            self.integrals,
             self.nis,
-            self.theta0,
             np.asarray(gyro, dtype=float),
             np.asarray(torque, dtype=float),
             float(dt),
@@ -234,25 +312,23 @@ class GyroTorqueRegression:
         )
         self.n_updates += 1
 
-    def measure(self, gyro: FloatArray, sigma: float, phi: FloatArray) -> FloatArray:
-        """Kalman update with ``z_j = c_j + θ_j Φ_j + v_j`` for a given regressor ``Φ``.
+    def measure(
+        self, gyro: FloatArray, sigma: float, phi: FloatArray, psi: FloatArray
+    ) -> FloatArray:
+        """Kalman update with ``z_j = c_j + θ_j Φ_j + g_j Ψ_j + v_j`` for given regressors.
 
         Args:
             gyro: (3,) reading ``z`` in rad/s.
             sigma: Noise std of ``v`` in rad/s (> 0).
-            phi: (3,) ``Φ`` in N·m·s at the reading's time.
+            phi: (3,) ``Φ = ∫τ`` in N·m·s at the reading's time. psi: (3,) ``Ψ = ∫ω̃`` in rad²/s.
 
         Returns:
             (3,) normalised innovation squared ``ν²/S`` of each axis.
         """
         nis = np.empty(3)
+        rows = np.column_stack([np.ones(3), np.asarray(phi, float), np.asarray(psi, float)])
         regression_measure(
-            self.mean,
-            self.cov,
-            np.asarray(gyro, dtype=float),
-            float(sigma),
-            np.asarray(phi, dtype=float),
-            nis,
+            self.mean, self.cov, np.asarray(gyro, dtype=float), float(sigma), rows, nis
         )
         self.n_updates += 1
         return nis

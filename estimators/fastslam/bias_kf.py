@@ -210,6 +210,7 @@ def kf_means_update(mean: FloatArray, nu: FloatArray, gain: KfGain, loglik: Floa
 @kernel
 def imu_bias_step(
     x: FloatArray,
+    x_prev: FloatArray,
     xb: FloatArray,
     P: FloatArray,
     a: FloatArray,
@@ -233,12 +234,16 @@ def imu_bias_step(
 
     The shared covariance is predicted and updated once (:func:`kf_covariance_predict`,
     :func:`kf_covariance_update` with ``H = H_BIAS``); then per particle i: ``x̂^B ← A x̂^B``,
-    ``ν = z − h^d(x^{D,i}) − H x̂^B`` with ``h^d = (f_B, ω)`` (the specific force of the
-    particle's velocity and the applied thrust, and its body rates) and ``H x̂^B = b0 + b1``
-    (eq. 12), and :func:`kf_means_update`.
+    ``ν = z − h^d(x^{D,i}) − H x̂^B`` with ``h^d = (f_B, ω̄)`` and ``H x̂^B = b0 + b1`` (eq. 12),
+    and :func:`kf_means_update`. ``f_B`` is the specific force of the particle's velocity and
+    the applied thrust. ``ω̄ = (ω_start + ω_end) / 2`` is the particle's mean body rate over the
+    IMU period (trapezoid), not eq. 12's rate at its end: the gyro reports the mean rate over
+    its period (:mod:`quadslam_env.imu`), and during a manoeuvre the two differ by about
+    ``ω̇ Δt / 2``, a systematic innovation the bias KF would otherwise learn as gyro bias.
 
     Args:
-        x: (N, 12) particle states. xb: (N, 12) bias means, updated in place.
+        x: (N, 12) particle states at the end of the period. x_prev: (N, 12) at its start.
+        xb: (N, 12) bias means, updated in place.
         P: (12, 12) shared covariance, updated in place.
         a: (12,) diagonal of A. Q: (12, 12) process noise. R: (6, 6) IMU noise ``R^I``.
         accel: (3,) accelerometer reading in m/s². gyro: (3,) gyro reading in rad/s.
@@ -263,7 +268,8 @@ def imu_bias_step(
         f = specific_force_body(x[i, 3], x[i, 4], x[i, 5], thrust, mass, drag)
         for j in range(3):
             nu[i, j] = accel[j] - f[j] - (xb[i, j] + xb[i, 6 + j])
-            nu[i, 3 + j] = gyro[j] - x[i, 9 + j] - (xb[i, 3 + j] + xb[i, 9 + j])
+            rate = 0.5 * (x_prev[i, 9 + j] + x[i, 9 + j])
+            nu[i, 3 + j] = gyro[j] - rate - (xb[i, 3 + j] + xb[i, 9 + j])
     kf_means_update(xb, nu, gain, loglik)
 
 

@@ -263,7 +263,9 @@ class DynamicFastSLAM(FastSLAMBase):
             self._imu_R = (sa, sg, np.diag([sa * sa] * 3 + [sg * sg] * 3))
         return self._imu_R[2]
 
-    def _imu_step(self, imu: ImuSample, control: Control, dt: float) -> FloatArray | None:
+    def _imu_step(
+        self, imu: ImuSample, control: Control, dt: float, x_prev: FloatArray
+    ) -> FloatArray | None:
         """Table 2 steps 2–4: bias KF predict, IMU likelihood (eq. 26), bias KF update.
 
         One kernel (:func:`~estimators.fastslam.bias_kf.imu_bias_step`): the shared covariance
@@ -276,6 +278,7 @@ class DynamicFastSLAM(FastSLAMBase):
         model = self.model
         imu_bias_step(
             self.x,
+            x_prev,
             self.xb,
             self.P,
             a,
@@ -295,8 +298,8 @@ class DynamicFastSLAM(FastSLAMBase):
         """Update the inertia identification and move the model and the particles to it.
 
         The particles' ω were integrated with the old θ̂; under the new one the same torque
-        history gives ``ω + (θ̂_new − θ̂_old) ⊙ Φ`` (the ω part of the dynamics is linear in θ),
-        so that shift is applied to every particle before the IMU step compares ω with the
+        history gives another ω (:meth:`~.process.DynamicsModel.retune`), and that shift is
+        applied to every particle before the IMU step compares ω with the
         gyro. Without it, the model error made while θ̂ was still wrong would stay in the
         particles' ω and be absorbed by the gyro-bias KF. The model follows the estimate only
         while it explains the data (:attr:`GyroTorqueRegression.usable`), else the nominal.
@@ -305,7 +308,7 @@ class DynamicFastSLAM(FastSLAMBase):
         reg.update(imu.gyro, float(imu.gyro_sigma), control.torque, dt)
         # While the data contradict the rigid-body model, fall back to the nominal inertia.
         theta = reg.theta if reg.usable else 1.0 / self._inertia0
-        self.model.retune(self.x, theta, reg.phi)
+        self.model.retune(self.x, theta, reg.integrals, reg.mean[:, 0].copy())
 
     def _post_predict(self, imu: ImuSample) -> None:
         """Stage 2 (Table 2 step 8, eq. 32–34): ``ω^i ~ N(ω_m − b̂_ω^i, σ_g² I)``."""

@@ -335,8 +335,8 @@ class FastSLAMBase:
                 self.n_divergences += 1
                 return
             penalty = np.where(self._bad, -np.inf, 0.0)
-        self.x = x_new
-        loglik = self._imu_step(imu, control, dt)
+        x_prev, self.x = self.x, x_new
+        loglik = self._imu_step(imu, control, dt, x_prev)
         if penalty is not None:
             loglik = penalty if loglik is None else loglik + penalty
         if loglik is not None:
@@ -354,8 +354,11 @@ class FastSLAMBase:
         """Motion model without process noise: (N, 12) new states (a fresh array)."""
         raise NotImplementedError
 
-    def _imu_step(self, imu: ImuSample, control: Control, dt: float) -> FloatArray | None:
-        """Hook: IMU log-likelihood (N,) after propagation, or ``None`` for no weighting."""
+    def _imu_step(
+        self, imu: ImuSample, control: Control, dt: float, x_prev: FloatArray
+    ) -> FloatArray | None:
+        """Hook: IMU log-likelihood (N,) after propagation (``x_prev`` (N, 12): the particles
+        before it), or ``None`` for no weighting."""
         return None
 
     def _post_predict(self, imu: ImuSample) -> None:

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from estimators.inertia import angular_impulse
 from quadslam_env.models.frames import wrap_pi
 from quadslam_env.models.integrators import RigidBodyLanes, kinematic_derivative
 from quadslam_env.models.jit import kernel
@@ -46,19 +47,26 @@ class DynamicsModel(RigidBodyLanes):
         super().set_inertia(inertia)
         self.principal_theta = 1.0 / np.diag(self.inertia)
 
-    def retune(self, x: FloatArray, theta: FloatArray, phi: FloatArray) -> None:
+    def retune(
+        self, x: FloatArray, theta: FloatArray, integrals: FloatArray, bias: FloatArray
+    ) -> None:
         """Move the model to the principal inverse inertia ``θ`` (3,) in 1/(kg·m²), and the
-        particles' rates with it: ``ω^i ← ω^i + (θ − θ_model) ⊙ Φ`` for the torque integral
-        ``Φ`` (3,) in N·m·s (see :meth:`DynamicFastSLAM._identify_inertia`). A no-op if ``θ``
-        equals :attr:`principal_theta`. The inertia becomes ``J = diag(1/θ)``, ``J⁻¹ = diag(1/J)``
+        particles' rates with it: ``ω^i ← ω^i + θ ⊙ I(1/θ) − θ_model ⊙ I(1/θ_model)``, the
+        change of the rate the flight's torques give (see
+        :meth:`DynamicFastSLAM._identify_inertia`), with ``I(J) = ∫(τ − ω × Jω)`` from
+        :func:`estimators.inertia.angular_impulse`. A no-op if ``θ`` equals
+        :attr:`principal_theta`. The inertia becomes ``J = diag(1/θ)``, ``J⁻¹ = diag(1/J)``
         (what the general inverse gives for a diagonal J).
 
         Args:
             x: (N, 12) particle states, ω updated in place.
-            theta: (3,) new θ. phi: (3,) Φ.
+            theta: (3,) new θ. integrals: (4, 3) and bias: (3,) ``c`` in rad/s, of
+                :class:`estimators.inertia.GyroTorqueRegression`.
         """
         J = np.empty(3)
-        if _retune(x, theta, phi, self.principal_theta, J, self._bodies, self.mass, self.drag):
+        if _retune(
+            x, theta, integrals, bias, self.principal_theta, J, self._bodies, self.mass, self.drag
+        ):
             self.inertia = _EYE3 * J  # diag(J) (np.diag costs more than the step's kernel)
             self.inertia_inv = _EYE3 * (1.0 / J)
 
@@ -129,7 +137,8 @@ def perturb_particles(
 def _retune(
     x: FloatArray,
     theta: FloatArray,
-    phi: FloatArray,
+    integrals: FloatArray,
+    bias: FloatArray,
     theta_model: FloatArray,
     J: FloatArray,
     bodies: FloatArray,
@@ -142,8 +151,11 @@ def _retune(
     """
     if theta[0] == theta_model[0] and theta[1] == theta_model[1] and theta[2] == theta_model[2]:
         return False
+    new, old = np.empty(3), np.empty(3)
+    angular_impulse(integrals, theta, bias, new)
+    angular_impulse(integrals, theta_model, bias, old)
     for j in range(3):
-        d = (theta[j] - theta_model[j]) * phi[j]
+        d = theta[j] * new[j] - theta_model[j] * old[j]
         for i in range(x.shape[0]):
             x[i, 9 + j] += d
     J_mat, J_inv = np.zeros((1, 3, 3)), np.zeros((1, 3, 3))

@@ -18,11 +18,14 @@ from quadslam_env.types import FloatArray
 
 @kernel
 def ess_of(weights: FloatArray) -> float:
-    """``N_eff = 1 / Σ w_i²`` for normalised weights (N,) (seed 004 Table 3-2, line 3)."""
+    """``N_eff = 1 / Σ w_i²`` for normalised weights (N,) (seed 004 Table 3-2, line 3).
+
+    Capped at N: for equal weights the rounded sum can fall an ulp below 1/N.
+    """
     total = 0.0
     for i in range(weights.shape[0]):
         total += weights[i] * weights[i]
-    return 1.0 / total
+    return min(1.0 / total, float(weights.shape[0]))
 
 
 @kernel
