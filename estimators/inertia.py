@@ -19,7 +19,8 @@ and the gyro (seed 000 eq. 6) reads ``z_j(t) = ω_j(t) + b_j + v_j``, so per axi
 
 a linear measurement of ``β_j = (c_j, θ_j, g_j)`` with the known, time-varying row
 ``H = [1, Φ_j(t), Ψ_j(t)]``: the Kalman filter is the exact recursive least-squares solution.
-The torque τ is the applied control; ``ω̃`` is formed from the gyro minus ``ĉ``. Treating g
+The torque τ is the applied control; ``ω̃`` is formed from the gyro minus ``ĉ``, with ĉ
+applied when the integrals of the raw readings are read (:func:`regressors`). Treating g
 as a parameter of its own keeps the regressors free of Ĵ. (Integrating ``τ − ω × Ĵω`` with the
 Ĵ of each moment, as a first version did, baked the early, still wrong Ĵ of one axis into the
 others: on ``fastslam_out_of_view_600s``, whose DF-LQR yaws at 3 rad/s in the first second,
@@ -65,10 +66,16 @@ PARAMS = 3
 """Regression parameters per axis: ``(c_j, θ_j, g_j)``."""
 
 
-def gyroscopic_coefficients(inertia: FloatArray) -> FloatArray:
-    """``g = −θ ⊙ diag(D(J))`` (3,): ``((J_y − J_z)/J_x, (J_z − J_x)/J_y, (J_x − J_y)/J_z)``."""
-    jx, jy, jz = (float(v) for v in inertia)
-    return np.array([(jy - jz) / jx, (jz - jx) / jy, (jx - jy) / jz])
+@kernel
+def inertia_differences(J: FloatArray, out: FloatArray) -> None:
+    """``d = (J_y − J_z, J_z − J_x, J_x − J_y)`` (3,) in kg·m² for principal moments ``J`` (3,).
+
+    ``ω × Jω = −d ⊙ ω̃`` with ``ω̃ = (q r, r p, p q)`` (seed 000 eq. 1, diagonal J); the
+    gyroscopic coefficients of the regression are ``g = d / J``.
+    """
+    out[0] = J[1] - J[2]
+    out[1] = J[2] - J[0]
+    out[2] = J[0] - J[1]
 
 
 @kernel
@@ -150,17 +157,17 @@ def regressors(integrals: FloatArray, c: FloatArray, out: FloatArray) -> None:
 def angular_impulse(
     integrals: FloatArray, theta: FloatArray, c: FloatArray, out: FloatArray
 ) -> None:
-    """``∫(τ − ω × Jω) = Φ − D(J) Ψ`` (3,) in N·m·s for ``J = 1/θ`` and the bias ``c``.
+    """``∫(τ − ω × Jω) = Φ + d ⊙ Ψ`` (3,) in N·m·s for ``J = 1/θ`` and the bias ``c``.
 
-    ``ω × Jω = D(J) ω̃`` with the constant ``D(J) = diag(J_z − J_y, J_x − J_z, J_y − J_x)``;
-    Φ and Ψ from :func:`regressors`.
+    d from :func:`inertia_differences`, Φ and Ψ from :func:`regressors`.
     """
-    phi_psi = np.empty((2, 3))
+    phi_psi, J, d = np.empty((2, 3)), np.empty(3), np.empty(3)
     regressors(integrals, c, phi_psi)
-    jx, jy, jz = 1.0 / theta[0], 1.0 / theta[1], 1.0 / theta[2]
-    out[0] = phi_psi[0, 0] - (jz - jy) * phi_psi[1, 0]
-    out[1] = phi_psi[0, 1] - (jx - jz) * phi_psi[1, 1]
-    out[2] = phi_psi[0, 2] - (jy - jx) * phi_psi[1, 2]
+    for j in range(3):
+        J[j] = 1.0 / theta[j]
+    inertia_differences(J, d)
+    for j in range(3):
+        out[j] = phi_psi[0, j] + d[j] * phi_psi[1, j]
 
 
 @kernel
@@ -242,7 +249,9 @@ class GyroTorqueRegression:
     ) -> None:
         j0 = np.asarray(inertia_prior, dtype=float).reshape(3)
         self.theta0 = 1.0 / j0
-        self.g0 = gyroscopic_coefficients(j0)
+        d0 = np.empty(3)
+        inertia_differences(j0, d0)
+        self.g0 = d0 / j0  # prior gyroscopic coefficients
         self.inertia_rel_sigma = float(inertia_rel_sigma)
         self.bias_sigma = float(bias_sigma)
         self.bias_rate_sigma = float(bias_rate_sigma)
