@@ -3,6 +3,8 @@ the dynamics-based FastSLAM."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 from scipy.stats import chi2
@@ -38,14 +40,35 @@ def test_kalman_update_equals_regularised_least_squares() -> None:
         np.testing.assert_allclose(reg.cov[j], np.linalg.inv(info), rtol=1e-6)
 
 
+def _fly(
+    params: Any,
+    reg: GyroTorqueRegression,
+    torques: np.ndarray,
+    down: float,
+    rng: np.random.Generator,
+    sigma: float,
+    dt: float,
+    bias: np.ndarray | float = 0.0,
+) -> float:
+    """Fly the simulator's rigid body from rest at ``x0[2] = down`` under ``torques`` (n, 3),
+    hovering thrust, feeding ``reg`` a gyro with ``bias`` and white noise ``sigma`` per period
+    ``dt``. Returns the largest |yaw rate| in rad/s."""
+    body = Vehicle(params, physics_dt=0.002)
+    x0 = np.zeros(12)
+    x0[2] = down
+    body.reset(x0)
+    peak = 0.0
+    for tau in torques:
+        rates = body.step(params.mass * 9.81, tau, dt)
+        peak = max(peak, abs(rates[2]))
+        reg.update(rates + bias + rng.normal(0.0, sigma, 3), sigma, tau, dt)
+    return peak
+
+
 def test_identifies_inertia_and_gyro_bias_of_the_simulated_rigid_body() -> None:
     """The simulator's rigid body under random smooth torques, filter prior inertia +150 %."""
     params = vehicle_preset("sadeghzadeh2021")
     true_j = np.diag(params.inertia)
-    body = Vehicle(params, physics_dt=0.002)
-    x0 = np.zeros(12)
-    x0[2] = -1.0
-    body.reset(x0)
     rng = np.random.default_rng(1)
     bias, sigma, dt = np.array([0.005, -0.003, 0.004]), 0.00175, 0.01
     reg = GyroTorqueRegression(
@@ -55,9 +78,7 @@ def test_identifies_inertia_and_gyro_bias_of_the_simulated_rigid_body() -> None:
     torques = 0.02 * np.column_stack(
         [np.sin(2.0 * t), np.sin(3.1 * t + 1.0), 0.5 * np.sin(1.3 * t + 2.0)]
     )
-    for tau in torques:
-        rates = body.step(params.mass * 9.81, tau, dt)
-        reg.update(rates + bias + rng.normal(0.0, sigma, 3), sigma, tau, dt)
+    _fly(params, reg, torques, -1.0, rng, sigma, dt, bias)
     np.testing.assert_allclose(reg.inertia, true_j, rtol=0.01)
     np.testing.assert_allclose(reg.gyro_bias, bias, atol=5e-4)
     assert np.all(reg.relative_std() < 0.01)
@@ -79,16 +100,9 @@ def test_estimate_is_consistent_through_a_fast_yaw_spin() -> None:
     torques = np.column_stack([0.3 * np.sin(5.0 * t), 0.15 * np.sin(4.1 * t + 1.0), yaw])
     z_bias, z_theta, peak = [], [], 0.0
     for seed in range(10):
-        body = Vehicle(params, physics_dt=0.002)
-        x0 = np.zeros(12)
-        x0[2] = -2.0
-        body.reset(x0)
-        rng = np.random.default_rng(seed)
         reg = GyroTorqueRegression(true_j, 1.0, bias_sigma=0.01, bias_rate_sigma=0.0)
-        for tau in torques:
-            rates = body.step(params.mass * 9.81, tau, dt)
-            peak = max(peak, abs(rates[2]))
-            reg.update(rates + rng.normal(0.0, sigma, 3), sigma, tau, dt)  # gyro without bias
+        rng = np.random.default_rng(seed)
+        peak = max(peak, _fly(params, reg, torques, -2.0, rng, sigma, dt))  # gyro without bias
         z_bias += list(reg.mean[:, 0] / np.sqrt(reg.cov[:, 0, 0]))
         z_theta += list((reg.mean[:, 1] - 1.0 / true_j) / np.sqrt(reg.cov[:, 1, 1]))
     assert peak > 2.5  # the spin happened

@@ -308,7 +308,7 @@ class DynamicFastSLAM(FastSLAMBase):
         reg.update(imu.gyro, float(imu.gyro_sigma), control.torque, dt)
         # While the data contradict the rigid-body model, fall back to the nominal inertia.
         theta = reg.theta if reg.usable else 1.0 / self._inertia0
-        self.model.retune(self.x, theta, reg.integrals, reg.mean[:, 0].copy())
+        self.model.retune(self.x, theta, reg.integrals, reg.gyro_bias)
 
     def _post_predict(self, imu: ImuSample) -> None:
         """Stage 2 (Table 2 step 8, eq. 32–34): ``ω^i ~ N(ω_m − b̂_ω^i, σ_g² I)``."""
