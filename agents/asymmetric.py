@@ -29,6 +29,7 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, MlpExtractor
 from torch import nn
 
+from agents.hyperparams import ASYMMETRIC, check_fixed_policy_kwargs
 from agents.lane_share import ACTOR_KEY, PRIVILEGED_KEY
 
 
@@ -79,7 +80,9 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
     ...); the features extractors are fixed (:class:`SelectKeys`) and never shared.
 
     Raises:
-        ValueError: The observation space is not a dict with ``obs`` and ``privileged``.
+        ValueError: The observation space is not a dict with ``obs`` and ``privileged``, or
+            ``features_extractor_class``/``features_extractor_kwargs`` are given
+            (:func:`agents.hyperparams.check_fixed_policy_kwargs`).
     """
 
     def __init__(
@@ -98,9 +101,7 @@ class AsymmetricActorCriticPolicy(ActorCriticPolicy):
                 f"allowed: a Dict with keys {ACTOR_KEY!r} and {PRIVILEGED_KEY!r} (train with "
                 "privileged observations)"
             )
-        for key in ("features_extractor_class", "features_extractor_kwargs"):
-            if key in kwargs:
-                raise ValueError(f"policy_kwargs.{key}: fixed by AsymmetricActorCriticPolicy")
+        check_fixed_policy_kwargs(kwargs, ASYMMETRIC)
         kwargs["share_features_extractor"] = False
         super().__init__(
             observation_space,

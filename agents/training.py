@@ -27,6 +27,7 @@ from agents.hyperparams import (
     ASYMMETRIC,
     DEFAULTS,
     algorithms,
+    build_policy_kwargs,
     default_config_path,
     load_hyperparams,
     resolve_settings,
@@ -110,7 +111,7 @@ def _build_model(
         policy,
         venv,
         seed=seed,
-        policy_kwargs=settings["policy_kwargs"] or None,
+        policy_kwargs=build_policy_kwargs(settings["policy_kwargs"]) or None,
         verbose=verbose,
         **settings["algo_kwargs"],
     )
