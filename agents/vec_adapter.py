@@ -27,7 +27,14 @@ a term does not apply), which costs nothing extra.
 **Workers** (``n_workers > 1``): the lanes are split into contiguous shares, each simulated by a
 worker process ("forkserver" where available, else "spawn") holding a core of its lanes and
 talking over ``multiprocessing`` pipes; lanes keep their global seed offsets, so the results are
-those of ``n_workers=1``.
+those of ``n_workers=1``. Each worker builds the info dicts of its own lanes, so a lane's dict
+holds exactly the keys its core reported for it (episode summaries only when it ended). The
+workers' ``step_info`` arrays are merged over the union of their keys: a key a worker lacked
+(the ``episode_*`` summaries appear only in a core where some lane ended) is NaN on its lanes
+(``""`` for string terms), as in one core of all lanes. Both start methods re-import the main
+module in each worker, so a script creating the env with ``n_workers > 1`` must do so under an
+``if __name__ == "__main__":`` guard; without it the workers die at startup and the
+constructor raises a ``RuntimeError`` that says so.
 """
 
 from __future__ import annotations
@@ -64,16 +71,22 @@ class QuadSLAMVecEnv(VecEnv):
             :class:`agents.wrappers.ResidualDFLQRWrapper` on each lane.
         info_keys: Keys of the scalar env's info to copy per lane (``None``: all; cost above).
         stagger: Cut the first episode of lane i after ``ceil(max_steps (i+1) / B)`` steps
-            (truncated), so the lanes' episodes are spread over the trajectory instead of
-            running in lockstep (training: otherwise every rollout batch covers one short
-            stretch of the reference).
-        privileged: Observations are dicts ``{"obs": the env's observation, "privileged": the
-            same observation built from the true state}`` (asymmetric actor-critic training,
-            :mod:`agents.asymmetric`); terminal observations too.
+            (``done`` with ``TimeLimit.truncated``), so the lanes' episodes are spread over the
+            trajectory instead of running in lockstep (training: otherwise every rollout batch
+            covers one short stretch of the reference). The last lane's first episode runs
+            its full length; later episodes of every lane are not cut. The cut is applied
+            after each ``reset()``.
+        privileged: Observations are dicts ``{"obs": (B, obs_dim) the env's observation,
+            "privileged": (B, obs_dim) the same observation built from the true state}``
+            (asymmetric actor-critic training, :mod:`agents.asymmetric`), and so are
+            ``terminal_observation`` entries (each (obs_dim,)); ``observation_space`` is the
+            matching ``Dict``.
         **env_kwargs: Keyword arguments of ``gymnasium.make(env_id, ...)``.
 
     Raises:
         ConfigError: Bad ``num_envs``/``n_workers`` or env kwargs.
+        RuntimeError: A worker process died during startup, typically because the calling
+            script creates the env outside an ``if __name__ == "__main__":`` guard.
         ActionError: (from ``step``) actions not a finite (B, 4) array; names the lanes.
     """
 
@@ -106,11 +119,13 @@ class QuadSLAMVecEnv(VecEnv):
             self._shares.append(InProcess(*args) if n_workers == 1 else self._spawn(args))
         if n_workers > 1:
             try:
-                for share in self._shares:
-                    unwrap(share.recv())
+                for index in range(n_workers):
+                    unwrap(self._startup_reply(index))
             except Exception:
-                for process in self._processes:
+                for share, process in zip(self._shares, self._processes, strict=True):
                     process.terminate()
+                    process.join(timeout=5.0)
+                    share.close()
                 raise
         self.closed = False
         single_obs, single_act = (
@@ -130,7 +145,9 @@ class QuadSLAMVecEnv(VecEnv):
 
     def _spawn(self, args: tuple) -> Any:
         ctx: Any
+        self._start_method = "spawn"
         if "forkserver" in mp.get_all_start_methods():
+            self._start_method = "forkserver"
             ctx = mp.get_context("forkserver")
             ctx.set_forkserver_preload(["agents.lane_share"])  # workers fork with it imported
         else:
@@ -141,6 +158,28 @@ class QuadSLAMVecEnv(VecEnv):
         work_remote.close()
         self._processes.append(process)
         return remote
+
+    def _startup_reply(self, index: int) -> tuple[str, Any]:
+        """Worker ``index``'s first message (its share built, or the error it raised).
+
+        Raises:
+            RuntimeError: The worker's pipe broke before it replied (the process died during
+                startup); chains the pipe's error.
+        """
+        try:
+            return self._shares[index].recv()
+        except (EOFError, OSError) as exc:
+            process = self._processes[index]
+            process.join(timeout=5.0)
+            raise RuntimeError(
+                f"QuadSLAMVecEnv: worker process {index} died during startup (exit code "
+                f"{process.exitcode}) before building its lanes. The workers are started "
+                f"with the {self._start_method!r} start method, "
+                "which re-imports your main module in each worker: put the code that creates "
+                'QuadSLAMVecEnv(..., n_workers > 1) under an `if __name__ == "__main__":` '
+                "guard (or use n_workers=1). The worker's own traceback, if any, is on "
+                "stderr above."
+            ) from exc
 
     def _ask(self, messages: Sequence[tuple[str, Any] | None]) -> list[Any]:
         """Send one message per share (``None``: skip it) and gather the replies."""
@@ -201,12 +240,7 @@ class QuadSLAMVecEnv(VecEnv):
                 self.reset_infos[sl.start + lane] = info
         obs = _concat([r[0] for r in replies])
         rewards, dones = (np.concatenate([r[k] for r in replies]) for k in (1, 2))
-        arrays = [r[5] for r in replies]
-        self.step_info = (
-            arrays[0]
-            if len(arrays) == 1
-            else {key: np.concatenate([a[key] for a in arrays]) for key in arrays[0]}
-        )
+        self.step_info = _merge_arrays([r[5] for r in replies], self._slices)
         return obs, rewards, dones, infos
 
     def close(self) -> None:
@@ -270,6 +304,45 @@ class QuadSLAMVecEnv(VecEnv):
         if (mode or self.render_mode) != "rgb_array" or self.render_mode != "rgb_array":
             return None
         return self.get_images()[0]
+
+
+def _merge_arrays(parts: list[dict[str, Any]], slices: list[slice]) -> dict[str, np.ndarray]:
+    """Merge the shares' per-lane info arrays over the union of their keys.
+
+    A share that lacks a key (the ``episode_*`` summaries exist only in a core where some lane
+    ended this step) contributes "missing" on its lanes: NaN for numeric terms (the result is
+    then floating point: integer/bool terms become float64), ``""`` for string terms (an object
+    array). This is what one core of all the lanes would report.
+
+    Args:
+        parts: Each share's ``{key: (k_w,) array or list of k_w values}``.
+        slices: Each share's global lanes (contiguous, in order, covering 0..B-1).
+
+    Returns:
+        ``{key: (B,) array}`` in first-seen key order; a single share's dict unchanged.
+    """
+    if len(parts) == 1:
+        return parts[0]
+    num_lanes = slices[-1].stop
+    merged: dict[str, np.ndarray] = {}
+    for key in dict.fromkeys(key for part in parts for key in part):
+        values = [None if key not in part else np.asarray(part[key]) for part in parts]
+        present = [v for v in values if v is not None]
+        if len(present) == len(parts):
+            merged[key] = np.concatenate(present)
+            continue
+        if any(v.dtype.kind in "OUS" for v in present):  # strings, e.g. termination_reason
+            out = np.full(num_lanes, "", dtype=object)
+        else:
+            dtype = np.result_type(*present)
+            if not np.issubdtype(dtype, np.inexact):
+                dtype = np.dtype(np.float64)
+            out = np.full(num_lanes, np.nan, dtype=dtype)
+        for sl, value in zip(slices, values, strict=True):
+            if value is not None:
+                out[sl] = value
+        merged[key] = out
+    return merged
 
 
 def _concat(parts: list[Any]) -> Any:
