@@ -24,12 +24,12 @@ at 8 rad/s, 0.04 m at 20 rad/s).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from quadslam_env.models.flatness import inverse_map
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import GRAVITY, FloatArray
@@ -70,17 +70,6 @@ def lqr_gain(Q: FloatArray = Q_TILDE, R: FloatArray = R_TILDE) -> FloatArray:
 
 
 @kernel
-def _inverse_map(ux: float, uy: float, uz: float, u_psi: float, mass: float) -> tuple:
-    """Seed 001 eq. 15–19 for one command: ``(f_T N, φ_d rad, θ_d rad, r_d rad/s)``."""
-    thrust = mass * math.sqrt(ux * ux + uy * uy + uz * uz)
-    scale = -mass / max(thrust, 1e-9)
-    z1, z2, z3 = scale * ux, scale * uy, scale * uz
-    phi_d = math.asin(min(1.0, max(-1.0, -z2)))
-    theta_d = math.atan2(z1, z3)
-    return thrust, phi_d, theta_d, u_psi * math.cos(theta_d) / math.cos(phi_d)
-
-
-@kernel
 def _command_lanes(
     obs: FloatArray,
     K: FloatArray,
@@ -110,7 +99,7 @@ def _command_lanes(
             for j in range(7):
                 acc -= K[i, j] * r_err[j]
             v[i] = acc
-        thrust, phi_d, theta_d, r_d = _inverse_map(v[0], v[1], v[2], v[3], mass)
+        thrust, phi_d, theta_d, r_d = inverse_map(v[0], v[1], v[2], v[3], mass)
         out[b, 0] = thrust
         out[b, 1] = -kp[0] * (o[6] - phi_d) - kd[0] * o[9]
         out[b, 2] = -kp[1] * (o[7] - theta_d) - kd[1] * o[10]
@@ -119,27 +108,6 @@ def _command_lanes(
             out[b, 0] = min(1.0, max(-1.0, 2.0 * out[b, 0] / limits[0] - 1.0))
             for i in range(1, 4):
                 out[b, i] = min(1.0, max(-1.0, out[b, i] / limits[i]))
-
-
-def inverse_mapping(
-    u: FloatArray, mass: float
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Seed 001 eq. 15–19, batched.
-
-    Args:
-        u: (n, 4) commands ``(u_p in the heading frame [m/s²], u_ψ [rad/s])``.
-        mass: Vehicle mass in kg.
-
-    Returns:
-        ``(f_T (n,) N, φ_d (n,) rad, θ_d (n,) rad, r_d (n,) rad/s)``.
-    """
-    rows = np.array(
-        [
-            _inverse_map(float(r[0]), float(r[1]), float(r[2]), float(r[3]), mass)
-            for r in np.asarray(u, dtype=float)
-        ]
-    )
-    return rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3]
 
 
 class DFLQRPolicy:

@@ -18,14 +18,29 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
 
+from estimators.metrics import phase_key
 from quadslam_env.actions import validate_actions
 from quadslam_env.env import lane_info
 
+# Record keys reported over the whole episode and, with the phase in the name
+# (``track_pos_rmse_steady_m``, ``track_pos_rmse_transient_m``, …), over each phase.
+PHASED_KEYS = (
+    "track_pos_rmse_m",
+    "est_pos_rmse_m",
+    "est_vel_rmse_mps",
+    "est_att_rmse_deg",
+    "anees_pose",
+    "nees_pose_in_bounds",
+)
+STEADY_KEYS = tuple(phase_key(k, "steady") for k in PHASED_KEYS)
+TRANSIENT_KEYS = tuple(phase_key(k, "transient") for k in PHASED_KEYS)
 EPISODE_KEYS = (
     "seed",
     "duration_s",
     "terminated",
     "termination_reason",
+    *STEADY_KEYS,
+    *TRANSIENT_KEYS,
     "est_pos_rmse_m",
     "est_vel_rmse_mps",
     "est_att_rmse_deg",
@@ -38,11 +53,13 @@ EPISODE_KEYS = (
     "gyro_bias_rel_err",
     "steps_per_s",
 )
+"""The keys of an episode record; a phase the episode never reached (it ended at or before
+``settle_s``, or ``settle_s`` is 0) leaves that phase's keys out of the record."""
 SUMMARY_KEYS = tuple(
     k for k in EPISODE_KEYS if k not in ("seed", "terminated", "termination_reason")
 )
 # Mapping from the env's episode summary (last info) to the JSON episode record.
-_FROM_INFO = {
+_WHOLE_FROM_INFO = {
     "est_pos_rmse_m": "episode_est_pos_rmse_m",
     "est_vel_rmse_mps": "episode_est_vel_rmse_mps",
     "est_att_rmse_deg": "episode_est_att_rmse_deg",
@@ -53,6 +70,11 @@ _FROM_INFO = {
     "n_mapped": "episode_n_mapped",
     "accel_bias_rel_err": "episode_accel_bias_rel_err",
     "gyro_bias_rel_err": "episode_gyro_bias_rel_err",
+}
+_PHASE_FROM_INFO = {
+    phase_key(k, phase): phase_key(_WHOLE_FROM_INFO[k], phase)
+    for phase in ("steady", "transient")
+    for k in PHASED_KEYS
 }
 # Unknown data association (``lidar.association: unknown``) adds these to the record.
 _ASSOCIATION_FROM_INFO = {
@@ -180,7 +202,11 @@ def episode_record(
         "terminated": bool(terminated),
         "termination_reason": str(info.get("termination_reason", "")),
     }
-    for key, src in _FROM_INFO.items():
+    for key, src in _PHASE_FROM_INFO.items():
+        value = json_float(info.get(src, math.nan))
+        if value is not None:  # a phase the episode never reached has no entry
+            record[key] = value
+    for key, src in _WHOLE_FROM_INFO.items():
         record[key] = json_float(info.get(src, math.nan))
     for key, src in _ASSOCIATION_FROM_INFO.items():
         if src in info:
@@ -316,24 +342,33 @@ def _run_lanes(
 
 
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
-    """Median, min and max over episodes of each numeric key (NaNs ignored; None if all NaN)."""
+    """Median, min and max over episodes of each numeric key, and ``n``, the number of
+    episodes they cover (absent, None and NaN values left out; None when none is left)."""
     out: dict[str, dict[str, float | None]] = {}
     extra = [k for k in _ASSOCIATION_FROM_INFO if episodes and k in episodes[0]]
     for key in (*SUMMARY_KEYS, *extra):
-        vals = np.array([np.nan if e[key] is None else e[key] for e in episodes], dtype=float)
+        vals = np.array([_number(e.get(key)) for e in episodes], dtype=float)
         vals = vals[np.isfinite(vals)]
         out[key] = (
             {"median": float(np.median(vals)), "min": float(vals.min()), "max": float(vals.max())}
             if vals.size
             else {"median": None, "min": None, "max": None}
         )
+        out[key]["n"] = int(vals.size)
     return out
+
+
+def _number(value: Any) -> float:
+    return math.nan if value is None else float(value)
 
 
 def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) -> str:
     """Plain-text table: one row per episode and a median row."""
     cols = [
         ("seed", "seed", "{:d}"),
+        ("track steady m", "track_pos_rmse_steady_m", "{:.4f}"),
+        ("est steady m", "est_pos_rmse_steady_m", "{:.4f}"),
+        ("track transient m", "track_pos_rmse_transient_m", "{:.4f}"),
         ("pos m", "est_pos_rmse_m", "{:.4f}"),
         ("vel m/s", "est_vel_rmse_mps", "{:.4f}"),
         ("att deg", "est_att_rmse_deg", "{:.3f}"),
@@ -361,7 +396,7 @@ def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) ->
     for ep in episodes:
         end = ep["termination_reason"] or "time limit"
         rows.append(
-            [cell(fmt, end if key == "termination_reason" else ep[key]) for _, key, fmt in cols]
+            [cell(fmt, end if key == "termination_reason" else ep.get(key)) for _, key, fmt in cols]
         )
     med = ["median"] + [
         cell(fmt, summary[key]["median"]) if key in summary else "" for _, key, fmt in cols[1:]

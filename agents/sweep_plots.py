@@ -22,6 +22,8 @@ from agents.sweep_table import SUMMARY_METRICS, varying_columns
 
 _SETTINGS = ("scenario", "env", "algo", "policy")
 _LABELS = {
+    "track_pos_rmse_steady_m": "true tracking RMSE, steady state [m]",
+    "est_pos_rmse_steady_m": "estimated position RMSE, steady state [m]",
     "est_pos_rmse_m": "estimated position RMSE [m]",
     "track_pos_rmse_m": "true tracking RMSE [m]",
     "anees_pose": "pose ANEES",

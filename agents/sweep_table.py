@@ -5,8 +5,9 @@ Columns, in order: ``job_id``, ``kind``, ``name`` (the job block's), ``status`` 
 ``policy``, ``seed`` (the episode's seed; a train job's training seed), ``episode_seed`` (the
 episode's seed, also for train jobs' held-out episodes), then one column per ``set`` key
 (``lidar.sigma_range_m``) and ``hyperparams.<key>``, then the per-episode metrics of
-``quadslam run --json`` (:data:`agents.evaluation.EPISODE_KEYS`: ``est_pos_rmse_m``,
-``track_pos_rmse_m``, ``anees_pose``, …), and ``job_wall_s``, ``train_wall_s``, ``run_dir``
+``quadslam run --json`` (:data:`agents.evaluation.EPISODE_KEYS`: ``track_pos_rmse_steady_m``,
+``est_pos_rmse_steady_m``, the transient's, ``est_pos_rmse_m``, ``anees_pose``, …; empty where
+an episode never reached a phase), and ``job_wall_s``, ``train_wall_s``, ``run_dir``
 (train jobs) and ``error`` (failed jobs). A train job without evaluation episodes has one
 row with empty metrics; a job that has not run (an interrupted sweep) has none.
 """
@@ -37,7 +38,14 @@ ID_COLUMNS = (
 METRICS = tuple(k for k in EPISODE_KEYS if k != "seed")
 TAIL_COLUMNS = ("job_wall_s", "train_wall_s", "run_dir", "error")
 #: Metrics drawn and printed in the summaries.
-SUMMARY_METRICS = ("est_pos_rmse_m", "track_pos_rmse_m", "anees_pose", "map_rmse_m")
+SUMMARY_METRICS = (
+    "track_pos_rmse_steady_m",
+    "est_pos_rmse_steady_m",
+    "track_pos_rmse_m",
+    "est_pos_rmse_m",
+    "anees_pose",
+    "map_rmse_m",
+)
 
 
 def setting_columns(jobs: list[Job]) -> list[str]:

@@ -405,12 +405,26 @@ _LAST = (
     ("episode_accel_bias_rel_err", "est_accel_bias_rel_err"),
     ("episode_gyro_bias_rel_err", "est_gyro_bias_rel_err"),
 )
-_INPUT_KEYS = (*(k for _, k in _RMS), *(k for _, k in _LAST), "est_nees_pose", "est_nees_pos")
+_INPUT_KEYS = (*(k for _, k in _RMS), *(k for _, k in _LAST), "est_nees_pose", "est_nees_pos", "t")
 _N_RMS, _N_LAST = len(_RMS), len(_LAST)
 # Accumulator columns: steps, RMS sums, last values, then NEES pose (sum, count, inside the 95%
 # bounds) and NEES position (sum, count).
 _COLS = 1 + _N_RMS + _N_LAST + 5
 _ALL_INPUT_COLS = np.arange(len(_INPUT_KEYS))
+PHASES = ("transient", "steady")
+"""The two phases of an episode: ``t ≤ settle_s`` and ``t > settle_s`` (docs: metrics)."""
+SETTLE_TOL_S = 1e-9
+"""A step at ``t ≤ settle_s + SETTLE_TOL_S`` is in the transient (``t`` is ``steps·dt``)."""
+
+
+def phase_key(name: str, phase: str) -> str:
+    """The per-phase name of an episode summary: the phase before the unit suffix
+    (``episode_track_pos_rmse_m`` → ``episode_track_pos_rmse_steady_m``), else at the end
+    (``episode_anees_pose`` → ``episode_anees_pose_steady``)."""
+    stem, _, unit = name.rpartition("_")
+    if unit in ("m", "mps", "deg"):
+        return f"{stem}_{phase}_{unit}"
+    return f"{name}_{phase}"
 
 
 def input_columns(rows: dict[str, int]) -> np.ndarray:
@@ -421,38 +435,54 @@ def input_columns(rows: dict[str, int]) -> np.ndarray:
 
 @kernel
 def _accumulate(
-    acc: FloatArray, values: FloatArray, cols: np.ndarray, sel: np.ndarray, lo: float, hi: float
+    acc: FloatArray,
+    values: FloatArray,
+    cols: np.ndarray,
+    sel: np.ndarray,
+    lo: float,
+    hi: float,
+    settle: float,
 ) -> None:
     """Add one step's terms to the lanes selected by ``sel`` (B,): term j of
-    :data:`_INPUT_KEYS` is the (B,) row ``values[cols[j]]`` (NaN where ``cols[j]`` < 0)."""
+    :data:`_INPUT_KEYS` is the (B,) row ``values[cols[j]]`` (NaN where ``cols[j]`` < 0).
+
+    ``acc`` is (3, B, cols): the whole episode, the transient and the steady state; each step
+    goes to the whole episode and to the phase its time ``t`` falls in."""
     n_rms, n_last = len(_RMS), len(_LAST)
     nees_col = 1 + n_rms + n_last
+    t_col = cols[n_rms + n_last + 2]
     nan = math.nan
-    for b in range(acc.shape[0]):
+    for b in range(acc.shape[1]):
         if not sel[b]:
             continue
-        acc[b, 0] += 1.0
-        for j in range(n_rms):
-            acc[b, 1 + j] += (values[cols[j], b] if cols[j] >= 0 else nan) ** 2
-        for j in range(n_last):
-            c = cols[n_rms + j]
-            acc[b, 1 + n_rms + j] = values[c, b] if c >= 0 else nan
-        for k in range(2):  # pose, position; NaN/inf NEES values stay out of the ANEES
-            c = cols[n_rms + n_last + k]
-            v = values[c, b] if c >= 0 else nan
-            if math.isfinite(v):
-                col = nees_col + 3 * k
-                acc[b, col] += v
-                acc[b, col + 1] += 1.0
-                if k == 0 and lo <= v <= hi:
-                    acc[b, col + 2] += 1.0
+        t = values[t_col, b] if t_col >= 0 else nan
+        phase = 2 if t > settle else 1  # NaN time (no "t" row): the transient
+        for ph in (0, phase):
+            a = acc[ph, b]
+            a[0] += 1.0
+            for j in range(n_rms):
+                a[1 + j] += (values[cols[j], b] if cols[j] >= 0 else nan) ** 2
+            for j in range(n_last):
+                c = cols[n_rms + j]
+                a[1 + n_rms + j] = values[c, b] if c >= 0 else nan
+            for k in range(2):  # pose, position; NaN/inf NEES values stay out of the ANEES
+                c = cols[n_rms + n_last + k]
+                v = values[c, b] if c >= 0 else nan
+                if math.isfinite(v):
+                    col = nees_col + 3 * k
+                    a[col] += v
+                    a[col + 1] += 1.0
+                    if k == 0 and lo <= v <= hi:
+                        a[col + 2] += 1.0
 
 
 class EpisodeMetrics:
     """Accumulates per-step terms of B lanes into the ``episode_*`` summaries.
 
     Running sums only (O(1) memory per lane), so hour-long episodes do not grow with the step
-    count.
+    count. Each RMSE and NEES summary is kept over the whole episode and over each of
+    :data:`PHASES` (named by :func:`phase_key`): the transient ``t ≤ settle_s`` and the steady
+    state ``t > settle_s``, ``t`` being the step's ``t`` term.
 
     With ``association`` (unknown data association) it also sums the
     :data:`ASSOCIATION_KEYS` counts into ``episode_assoc_wrong_rate`` (wrong / associated
@@ -462,27 +492,31 @@ class EpisodeMetrics:
     Args:
         num_lanes: B.
         association: Summarise the association terms too.
+        settle_s: End of the transient, s.
     """
 
-    def __init__(self, num_lanes: int = 1, association: bool = False) -> None:
+    def __init__(
+        self, num_lanes: int = 1, association: bool = False, settle_s: float = 0.0
+    ) -> None:
         self.num_lanes = num_lanes
         self.association = association
-        self._acc = np.zeros((num_lanes, _COLS))
+        self.settle_s = float(settle_s)
+        self._acc = np.zeros((1 + len(PHASES), num_lanes, _COLS))  # whole, transient, steady
         self._assoc = np.zeros((num_lanes, len(ASSOCIATION_KEYS) + 1))  # sums, last spurious
         self._all = np.ones(num_lanes, dtype=bool)
         self.reset(np.arange(num_lanes))
 
     def reset(self, lanes: np.ndarray) -> None:
         """Zero the sums of the lanes selected by the (B,) mask or index array ``lanes``."""
-        self._acc[lanes] = 0.0
-        self._acc[lanes, 1 + _N_RMS : 1 + _N_RMS + _N_LAST] = math.nan
+        self._acc[:, lanes] = 0.0
+        self._acc[:, lanes, 1 + _N_RMS : 1 + _N_RMS + _N_LAST] = math.nan
         self._assoc[lanes] = 0.0
 
     def add(self, info: dict[str, FloatArray], lanes: np.ndarray | None = None) -> None:
         """Record one step's terms of the lanes selected by the (B,) mask ``lanes``.
 
         Values are (B,) arrays (or numbers, broadcast to every lane). NaN/inf NEES values are
-        left out of the ANEES; a missing key counts as NaN.
+        left out of the ANEES; a missing key counts as NaN (a missing ``t``: the transient).
         """
         values = np.empty((len(_INPUT_KEYS), self.num_lanes))
         for j, key in enumerate(_INPUT_KEYS):
@@ -503,7 +537,8 @@ class EpisodeMetrics:
             lanes: (B,) bool lanes to record (default: all).
         """
         sel = self._all if lanes is None else lanes
-        _accumulate(self._acc, values, cols, sel, *NEES_POSE_BOUNDS_95)
+        lo, hi = NEES_POSE_BOUNDS_95
+        _accumulate(self._acc, values, cols, sel, lo, hi, self.settle_s + SETTLE_TOL_S)
 
     def add_association(self, info: dict[str, FloatArray], lanes: np.ndarray | None) -> None:
         """Record one step's :data:`ASSOCIATION_KEYS` counts and ``spurious_landmarks``."""
@@ -514,22 +549,37 @@ class EpisodeMetrics:
             np.copyto(self._assoc[:, -1], info["spurious_landmarks"], where=sel)
 
     def summary(self) -> dict[str, FloatArray]:
-        """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds, each (B,)."""
-        acc = self._acc
-        n = acc[:, 0]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out = {"episode_steps": n.copy()}
-            for j, (name, _) in enumerate(_RMS):
-                out[name] = np.where(n > 0, np.sqrt(acc[:, 1 + j] / n), math.nan)
-            for j, (name, _) in enumerate(_LAST):
-                out[name] = acc[:, 1 + _N_RMS + j].copy()
-            s, c, inside, s3, c3 = acc[:, 1 + _N_RMS + _N_LAST :].T
-            out["episode_anees_pose"] = np.where(c > 0, s / c, math.nan)
-            out["episode_nees_pose_in_bounds"] = np.where(c > 0, inside / c, math.nan)
-            out["episode_anees_pos"] = np.where(c3 > 0, s3 / c3, math.nan)
-            if self.association:
+        """Episode RMSEs, ANEES and the share of steps inside the 95% χ² bounds, each (B,),
+        over the whole episode and per phase (NaN for a phase without steps)."""
+        out = {"episode_steps": self._acc[0, :, 0].copy()}
+        out.update(_rms_nees(self._acc[0], ""))
+        for j, (name, _) in enumerate(_LAST):
+            out[name] = self._acc[0, :, 1 + _N_RMS + j].copy()
+        for p, phase in enumerate(PHASES, start=1):
+            out[f"episode_steps_{phase}"] = self._acc[p, :, 0].copy()
+            out.update(_rms_nees(self._acc[p], phase))
+        if self.association:
+            with np.errstate(invalid="ignore", divide="ignore"):
                 _, n_assoc, n_wrong, n_true, n_missed, spurious = self._assoc.T
                 out["episode_assoc_wrong_rate"] = n_wrong / n_assoc
                 out["episode_assoc_missed_rate"] = n_missed / n_true
                 out["episode_spurious_landmarks"] = spurious.copy()
         return out
+
+
+def _rms_nees(acc: FloatArray, phase: str) -> dict[str, FloatArray]:
+    """The RMSE and NEES summaries of one phase's (B, cols) sums (``phase`` "" = whole)."""
+
+    def key(name: str) -> str:
+        return phase_key(name, phase) if phase else name
+
+    n = acc[:, 0]
+    out: dict[str, FloatArray] = {}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j, (name, _) in enumerate(_RMS):
+            out[key(name)] = np.where(n > 0, np.sqrt(acc[:, 1 + j] / n), math.nan)
+        s, c, inside, s3, c3 = acc[:, 1 + _N_RMS + _N_LAST :].T
+        out[key("episode_anees_pose")] = np.where(c > 0, s / c, math.nan)
+        out[key("episode_nees_pose_in_bounds")] = np.where(c > 0, inside / c, math.nan)
+        out[key("episode_anees_pos")] = np.where(c3 > 0, s3 / c3, math.nan)
+    return out

@@ -231,12 +231,25 @@ class EpisodeConfig(Section):
     report_step_time: bool = _spec(
         False, kind="bool", doc="put the estimator's wall-clock time in info['est_step_time_ms']"
     )
+    settle_s: float | None = _spec(
+        None,
+        lo=0.0,
+        hi=1e6,
+        optional=True,
+        doc="end of the transient, s: the *_steady metrics cover t > settle_s, the "
+        "*_transient ones the rest; null = 10 s, or 0 when the vehicle starts on the reference",
+    )
 
     def validate(self) -> None:
         if abs(self.initial_euler_deg[1]) >= 89.0:
             raise ConfigError(
                 f"episode.initial_euler_deg[1]: got {self.initial_euler_deg[1]}; "
                 "allowed: |pitch| < 89 deg"
+            )
+        if self.settle_s is not None and self.settle_s >= self.duration_s:
+            raise ConfigError(
+                f"episode.settle_s: got {self.settle_s}; allowed: null or 0 <= settle_s < "
+                f"episode.duration_s = {self.duration_s} (a steady phase must remain)"
             )
 
 

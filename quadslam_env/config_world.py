@@ -125,3 +125,9 @@ class TrajectoryConfig(Section):
         doc="tangent: heading along the horizontal velocity; fixed: yaw_deg",
     )
     yaw_deg: float = _spec(0.0, lo=-180.0, hi=180.0, doc="heading of the fixed yaw mode, deg")
+    start_on_reference: bool = _spec(
+        False,
+        kind="bool",
+        doc="start each episode on the reference (its position, velocity, attitude and yaw "
+        "rate at t = 0, the estimate around it) instead of episode.initial_*: no transient",
+    )

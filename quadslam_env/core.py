@@ -42,6 +42,7 @@ from estimators.metrics import (
 )
 from quadslam_env.actions import ActionMap
 from quadslam_env.config import LandmarksConfig, ScenarioConfig
+from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
 from quadslam_env.measurements import ScanReturns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
@@ -136,21 +137,16 @@ class SimCore:
         self.t: FloatArray = np.zeros(b)
         self.n_visible = np.zeros(b, dtype=np.int64)
         self.unlabeled = cfg.lidar.association == "unknown"
-        self.episode = EpisodeMetrics(b, association=self.unlabeled)
+        self._state0 = initial_state(cfg, self.trajectory, self.vehicle_params.mass)
+        self.settle_s = settle_time(cfg, self.trajectory, self._state0)
+        """End of the transient, s: the episode's ``*_steady`` summaries cover t > settle_s."""
+        self.episode = EpisodeMetrics(b, association=self.unlabeled, settle_s=self.settle_s)
         self._match = np.full((b, 0), -1, dtype=np.int64)  # true id of each estimator label
         self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(b))
         self.termination = Termination(cfg.episode, self.dt, b, self.max_steps)
         trace = cfg.episode.max_cov_trace
         self._max_cov_trace = math.inf if trace is None else trace
         self._cov0 = np.diag(cfg.estimator.initial_cov_diag)
-        self._state0 = np.concatenate(
-            [
-                cfg.episode.initial_position,
-                cfg.episode.initial_velocity,
-                np.radians(cfg.episode.initial_euler_deg),
-                np.zeros(3),
-            ]
-        )
         self.last_scan: tuple[np.ndarray, np.ndarray, FloatArray] | None = None
         self.last_rates: FloatArray = np.zeros((b, 3))
         self.est: BatchEstimate = self._snapshot()

@@ -95,7 +95,7 @@ def test_sweep_table_equals_the_run_command_job_by_job(local_ray, tmp_path, caps
         cli = json.loads(reference.read_text())
         (episode,) = cli["episodes"]
         for key in COMPARED:
-            want = float("nan") if episode[key] is None else episode[key]
+            want = float("nan") if episode.get(key) is None else episode[key]
             got = getattr(row, "episode_seed" if key == "seed" else key)
             if key == "termination_reason":
                 got = "" if got is None else got
@@ -105,8 +105,8 @@ def test_sweep_table_equals_the_run_command_job_by_job(local_ray, tmp_path, caps
         assert {k: job[k] for k in ("scenario", "estimator", "policy")} == {
             k: cli[k] for k in ("scenario", "estimator", "policy")
         }
-        assert [{k: e[k] for k in COMPARED} for e in job["episodes"]] == [
-            {k: e[k] for k in COMPARED} for e in cli["episodes"]
+        assert [{k: e.get(k) for k in COMPARED} for e in job["episodes"]] == [
+            {k: e.get(k) for k in COMPARED} for e in cli["episodes"]
         ]
     # Several seeds as lanes of one job: the same numbers again.
     lanes = _spec(
