@@ -1,5 +1,5 @@
-"""``quadslam study …``: the studies' subcommands (cost of estimation, data association,
-Cramér–Rao bound) and the writing of their ``--json``/``--plots`` outputs."""
+"""``quadslam study …``: the studies' subcommands (cost of estimation, active perception, data
+association, Cramér–Rao bound) and the writing of their ``--json``/``--plots`` outputs."""
 
 from __future__ import annotations
 
@@ -48,6 +48,25 @@ def _save_study(
         print(f"wrote {where}")
     saver.check()
     return 0
+
+
+def cmd_study_active(args: argparse.Namespace) -> int:
+    """Fixed, tangent and look-at headings and residual PPO with the heading channel."""
+    from agents.outputs import check_output_dir, check_output_file
+    from agents.study_active import format_study, plot_study, run_study, write_json
+
+    out = args.out or Path("runs") / f"study_active{'_quick' if args.quick else ''}"
+    check_output_dir(out, "--out")
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.plots is not None:
+        check_output_dir(args.plots, "--plots")
+    tic = time.perf_counter()
+    result = run_study(out, args.quick, args.training_seeds, args.episodes)
+    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    print(format_study(result))
+    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
+    return _save_study(args, result, write_json, plot_study, "active_perception.png")
 
 
 def cmd_study_association(args: argparse.Namespace) -> int:
@@ -106,6 +125,18 @@ def add_study_parser(
     cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     cost.add_argument("--plots", type=Path, help="write the box plot (PNG) here")
     cost.set_defaults(func=cmd_study_cost)
+    active = studies.add_parser(
+        "active-perception",
+        help="where to look: DF-LQR with a fixed or tangent heading, the look-at heuristic "
+        "and residual PPO with a heading channel (held-out seeds)",
+    )
+    active.add_argument("--quick", action="store_true", help="1 training seed, small budget")
+    active.add_argument("--training-seeds", type=positive_int, help="default 3 (quick: 1)")
+    active.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
+    active.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
+    active.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    active.add_argument("--plots", type=Path, help="write the where-it-looks figure (PNG) here")
+    active.set_defaults(func=cmd_study_active)
     assoc = studies.add_parser(
         "association",
         help="unknown data association: known vs NN vs JCBB (EKF-SLAM), known vs ML "

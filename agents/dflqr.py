@@ -117,6 +117,8 @@ class DFLQRPolicy:
         vehicle: Nominal vehicle parameters (mass, inertia, actuator limits).
         natural_freq: (3,) attitude-loop natural frequencies in rad/s.
         damping: Attitude-loop damping ratio.
+        action_dim: 4, or 5 for an env with the heading channel (``action.heading``): the
+            fifth component, the reference heading's rate, is 0 (the heading is held).
 
     Attributes:
         K: (4, 7) LQR gain on ``r̃ = (ρ̃, ρ̃̇, ψ̃)``.
@@ -128,6 +130,7 @@ class DFLQRPolicy:
         vehicle: VehicleParams,
         natural_freq: FloatArray = ATTITUDE_NATURAL_FREQ,
         damping: float = ATTITUDE_DAMPING,
+        action_dim: int = 4,
     ) -> None:
         self.vehicle = vehicle
         self.K = lqr_gain()
@@ -136,6 +139,7 @@ class DFLQRPolicy:
         self.kp = inertia * wn**2
         self.kd = 2.0 * damping * wn * inertia
         self._limits = np.array([vehicle.max_thrust, *vehicle.max_torque])
+        self.action_dim = action_dim
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> DFLQRPolicy:
@@ -150,6 +154,7 @@ class DFLQRPolicy:
             raise ValueError(f"action.mode: got {mode!r}; DFLQRPolicy needs 'thrust_torque'")
         if "natural_freq" not in kwargs:
             kwargs["natural_freq"] = attitude_natural_freq(base.scenario.imu_rate_hz)
+        kwargs.setdefault("action_dim", base.scenario.action.dim)
         return cls(base.vehicle_params, **kwargs)
 
     def command(self, obs: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -177,7 +182,7 @@ class DFLQRPolicy:
         obs = np.asarray(observation, dtype=float)
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
-        act = np.empty((batch.shape[0], 4))
+        act = np.zeros((batch.shape[0], self.action_dim))
         _command_lanes(batch, self.K, self.kp, self.kd, float(self.vehicle.mass), self._limits,
                        act)  # fmt: skip
         act = act.astype(np.float32)

@@ -320,7 +320,8 @@ def _run_lanes(
     while active.any():
         action, state = policy.predict(obs, state=state, episode_start=start, deterministic=True)
         start = np.zeros(n, dtype=bool)
-        obs, _, terminated, truncated, info = core.step(validate_actions(action, n), active)
+        checked = validate_actions(action, n, core.action_map.dim)
+        obs, _, terminated, truncated, info = core.step(checked, active)
         steps += 1
         if observer is not None:
             observer(core, active.copy())

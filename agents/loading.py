@@ -20,10 +20,10 @@ import numpy as np
 from agents.dflqr import DFLQRPolicy
 from agents.hyperparams import algorithms, parse_normalize
 from agents.lane_share import ACTOR_KEY
+from agents.lookat import LookAtPolicy
 from agents.run_folder import find_run_dir, read_run_config, vecnormalize_path
 from agents.wrappers import (
-    DEFAULT_RESIDUAL_SCALE,
-    as_residual_scale,
+    ResidualDFLQR,
     parse_wrapper_spec,
     residual_action,
 )
@@ -52,7 +52,7 @@ class TrainedPolicy:
         algo: str,
         config: dict[str, Any] | None = None,
         vec_normalize: Any = None,
-        controller: DFLQRPolicy | None = None,
+        controller: DFLQRPolicy | LookAtPolicy | None = None,
         scale: np.ndarray | None = None,
     ) -> None:
         self.model = model
@@ -228,8 +228,8 @@ def load_model(path: str | Path, env: gym.Env) -> TrainedPolicy:
                 )
         wrapper = parse_wrapper_spec(hp.get("wrapper"))
         if wrapper is not None:
-            controller = DFLQRPolicy.from_env(env)
-            scale = as_residual_scale(wrapper[1].get("scale", DEFAULT_RESIDUAL_SCALE))
+            residual = ResidualDFLQR(env, **wrapper[1])
+            controller, scale = residual.controller, residual.scale
     return TrainedPolicy(model, algo, config, vec_normalize, controller, scale)
 
 

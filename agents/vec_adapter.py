@@ -224,7 +224,8 @@ class QuadSLAMVecEnv(VecEnv):
         Raises:
             ActionError: Not a finite (B, 4) array (naming the lanes); no lane is stepped.
         """
-        checked = validate_actions(actions, self.num_envs)
+        dim = int(np.prod(self.action_space.shape or (4,)))
+        checked = validate_actions(actions, self.num_envs, dim)
         act = np.asarray(actions, dtype=np.float32) if self._residual else checked
         for share, sl in zip(self._shares, self._slices, strict=True):
             share.send(("step", act[sl]))

@@ -38,6 +38,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.dflqr import DFLQRPolicy
+from agents.lookat import LookAtPolicy
 
 RESIDUAL_DFLQR = "residual_dflqr"
 WRAPPERS = (RESIDUAL_DFLQR,)
@@ -77,17 +78,37 @@ def as_residual_scale(scale: float | Sequence[float]) -> np.ndarray:
     return arr.astype(np.float32)
 
 
+BASES = ("dflqr", "lookat")
+"""Controllers a residual can sit on: DF-LQR, or DF-LQR with the look-at heading rule
+(:mod:`agents.lookat`, for scenarios with the heading channel)."""
+
+
+def base_controller(env: Any, base: str) -> DFLQRPolicy | LookAtPolicy:
+    """The controller named ``base`` (one of :data:`BASES`) for ``env``.
+
+    Raises:
+        ValueError: Unknown name, or ``lookat`` on a scenario without the heading channel.
+    """
+    if base == "dflqr":
+        return DFLQRPolicy.from_env(env)
+    if base == "lookat":
+        return LookAtPolicy(env)
+    raise ValueError(f"wrapper.base: got {base!r}; allowed: {list(BASES)}")
+
+
 class ResidualDFLQR:
     """The residual-on-DF-LQR action for one env or B lanes: the one place the formula is applied.
 
     Args:
         env: A (possibly wrapped) ``QuadSLAMEnv`` or ``QuadSLAMVectorEnv`` (``thrust_torque``).
         scale: Residual scale, a number or (4,) per component, in normalised action units.
-        controller: DF-LQR controller to use; default ``DFLQRPolicy.from_env(env)``.
+        controller: Controller to use; default the one named by ``base``.
+        base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`), when no ``controller`` is given.
 
     Attributes:
-        controller: The DF-LQR policy.
-        scale: (4,) float32 residual scale.
+        controller: The base policy (DF-LQR, or DF-LQR with the look-at heading).
+        scale: (4,) float32 residual scale ((5,) with the heading channel, whose scale is 1).
+        dim: Components of one action (4, or 5 with the heading channel).
 
     Raises:
         ValueError: Bad ``scale`` or an env not in ``thrust_torque`` mode.
@@ -97,10 +118,16 @@ class ResidualDFLQR:
         self,
         env: Any,
         scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
-        controller: DFLQRPolicy | None = None,
+        controller: DFLQRPolicy | LookAtPolicy | None = None,
+        base: str = "dflqr",
     ) -> None:
-        self.scale = as_residual_scale(scale)
-        self.controller = controller if controller is not None else DFLQRPolicy.from_env(env)
+        if controller is None:
+            controller = base_controller(env, base)
+        self.controller = controller
+        self.dim = self.controller.action_dim
+        # A heading channel (fifth component) is the agent's own command, not a residual:
+        # DF-LQR's is 0 and its scale 1, so the formula passes it through.
+        self.scale = np.concatenate([as_residual_scale(scale), np.ones(self.dim - 4, np.float32)])
 
     def __call__(self, obs: np.ndarray, residual: Any) -> tuple[np.ndarray, np.ndarray]:
         """Actions for residuals given the observations the agent acted on.
@@ -116,7 +143,7 @@ class ResidualDFLQR:
             ValueError: ``residual`` does not have the shape of one action per observation.
         """
         res = np.asarray(residual, dtype=np.float32)
-        want = (*np.shape(obs)[:-1], 4)
+        want = (*np.shape(obs)[:-1], self.dim)
         if res.shape != want:
             raise ValueError(f"residual action: got shape {res.shape}; allowed: {want}")
         base, _ = self.controller.predict(obs)
@@ -149,15 +176,17 @@ class _ResidualSteps:
 class ResidualDFLQRWrapper(_ResidualSteps, gym.Wrapper):
     """Residual RL on DF-LQR: ``a = clip(a_DFLQR(o) + scale ⊙ δ, -1, 1)``.
 
-    The action space stays ``Box(-1, 1, (4,), float32)`` and is interpreted as the residual
-    ``δ``; the DF-LQR part is computed from the latest observation returned by ``reset`` /
+    The action space stays ``Box(-1, 1, (4,), float32)`` (5 with the heading channel, whose
+    component is the agent's heading-rate command, passed through) and is interpreted as the
+    residual ``δ``; the DF-LQR part is computed from the latest observation returned by ``reset`` /
     ``step`` (i.e. the observation the agent acted on). The env must use the
     ``thrust_torque`` action mode.
 
     Args:
         env: A (possibly wrapped) ``QuadSLAMEnv``.
         scale: Residual scale, a number or (4,) per component, in normalised action units.
-        controller: DF-LQR controller to use; default ``DFLQRPolicy.from_env(env)``.
+        controller: Base controller to use; default the one named by ``base``.
+        base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`).
 
     Attributes:
         residual: The :class:`ResidualDFLQR` composer (``controller``, ``scale``).
@@ -171,16 +200,17 @@ class ResidualDFLQRWrapper(_ResidualSteps, gym.Wrapper):
         self,
         env: gym.Env,
         scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
-        controller: DFLQRPolicy | None = None,
+        controller: DFLQRPolicy | LookAtPolicy | None = None,
+        base: str = "dflqr",
     ) -> None:
         super().__init__(env)
-        self.residual = ResidualDFLQR(env, scale, controller)
-        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self.residual = ResidualDFLQR(env, scale, controller, base)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.residual.dim,), dtype=np.float32)
         self._obs = None
         self.last_action: np.ndarray | None = None
 
     @property
-    def controller(self) -> DFLQRPolicy:
+    def controller(self) -> DFLQRPolicy | LookAtPolicy:
         """The DF-LQR policy."""
         return self.residual.controller
 
@@ -209,7 +239,8 @@ class ResidualDFLQRVectorWrapper(_ResidualSteps, gym.vector.VectorWrapper):
     Args:
         env: A ``QuadSLAMVectorEnv`` (possibly wrapped), ``thrust_torque`` mode.
         scale: Residual scale, a number or (4,) per component, in normalised action units.
-        controller: DF-LQR controller to use; default ``DFLQRPolicy.from_env(env)``.
+        controller: Base controller to use; default the one named by ``base``.
+        base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`).
 
     Raises:
         ValueError: Bad ``scale`` or an env not in ``thrust_torque`` mode.
@@ -219,11 +250,14 @@ class ResidualDFLQRVectorWrapper(_ResidualSteps, gym.vector.VectorWrapper):
         self,
         env: gym.vector.VectorEnv,
         scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
-        controller: DFLQRPolicy | None = None,
+        controller: DFLQRPolicy | LookAtPolicy | None = None,
+        base: str = "dflqr",
     ) -> None:
         super().__init__(env)
-        self.residual = ResidualDFLQR(env, scale, controller)
-        self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self.residual = ResidualDFLQR(env, scale, controller, base)
+        self.single_action_space = gym.spaces.Box(
+            -1.0, 1.0, shape=(self.residual.dim,), dtype=np.float32
+        )
         self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self._obs = None
 
@@ -267,13 +301,15 @@ def parse_wrapper_spec(spec: Any) -> tuple[str, dict[str, Any]] | None:
         return None
     if name not in WRAPPERS:
         raise ValueError(f"wrapper: got {name!r}; allowed: {['none', *WRAPPERS]}")
-    unknown = set(kwargs) - {"scale"}
+    unknown = set(kwargs) - {"scale", "base"}
     if unknown:
         raise ValueError(
-            f"wrapper.{sorted(unknown)[0]}: unknown key for {name}; allowed: ['scale']"
+            f"wrapper.{sorted(unknown)[0]}: unknown key for {name}; allowed: ['base', 'scale']"
         )
     if "scale" in kwargs:
         as_residual_scale(kwargs["scale"])  # validate early, with the config's wording
+    if kwargs.get("base", "dflqr") not in BASES:
+        raise ValueError(f"wrapper.base: got {kwargs['base']!r}; allowed: {list(BASES)}")
     return name, kwargs
 
 

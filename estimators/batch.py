@@ -533,3 +533,14 @@ def health_problem(est: Estimate, max_cov_trace: float = math.inf) -> str | None
     """What is wrong with one scalar snapshot (see :func:`health_codes`); ``None`` if healthy."""
     code = int(health_codes(batch_from_estimates([est]), max_cov_trace)[0])
     return HEALTH_PROBLEMS[code] or None
+
+
+def position_std(est: BatchEstimate) -> FloatArray:
+    """The estimator's own position uncertainty √trace(P_ρ) (B,) in m: 0 without a covariance
+    (the oracle) and where the trace is not finite (such a lane ends as diverged on this step,
+    see :func:`health_codes`)."""
+    cov = est.pose_cov
+    if cov is None:
+        return np.zeros(est.position.shape[0])
+    trace = cov[:, 0, 0] + cov[:, 1, 1] + cov[:, 2, 2]
+    return np.where(np.isfinite(trace), np.sqrt(np.maximum(trace, 0.0)), 0.0)

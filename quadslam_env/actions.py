@@ -52,33 +52,34 @@ class ActionError(ValueError):
     """An action of the wrong shape, type or with non-finite entries."""
 
 
-def validate_actions(action: Any, num_lanes: int | None) -> FloatArray:
+def validate_actions(action: Any, num_lanes: int | None, dim: int = ACTION_DIM) -> FloatArray:
     """Check and clip an action to [-1, 1].
 
     Args:
-        action: The action: shape (4,) for the scalar env (``num_lanes=None``), (B, 4) for a
-            vector env of ``num_lanes`` lanes.
+        action: The action: shape (dim,) for the scalar env (``num_lanes=None``), (B, dim) for
+            a vector env of ``num_lanes`` lanes.
         num_lanes: B, or ``None`` for a single action.
+        dim: Components of one action (4, or 5 with the heading channel).
 
     Returns:
-        (B, 4) float actions clipped to [-1, 1] (B = 1 for a single action).
+        (B, dim) float actions clipped to [-1, 1] (B = 1 for a single action).
 
     Raises:
         ActionError: Wrong type or shape, or non-finite entries (naming the lanes).
     """
     single = num_lanes is None
-    want = (ACTION_DIM,) if single else (num_lanes, ACTION_DIM)
+    want = (dim,) if single else (num_lanes, dim)
     if (
         type(action) is np.ndarray
         and action.dtype in _FAST_DTYPES
         and action.shape == want
         and action.flags.c_contiguous
     ):  # the common case in one pass; anything else (or a non-finite entry) below
-        out = np.empty((action.size // ACTION_DIM, ACTION_DIM))
-        if _clip_lanes(action.reshape(-1, ACTION_DIM), out):
+        out = np.empty((action.size // dim, dim))
+        if _clip_lanes(action.reshape(-1, dim), out):
             return out
     name = "action" if single else "actions"
-    allowed = "4 finite numbers in [-1, 1]" if single else f"shape {want}, finite, in [-1, 1]"
+    allowed = f"{dim} finite numbers in [-1, 1]" if single else f"shape {want}, finite, in [-1, 1]"
     try:
         arr = np.asarray(action)
         if arr.dtype.kind in "cmM":  # complex, timedelta, datetime: not real numbers
@@ -97,7 +98,7 @@ def validate_actions(action: Any, num_lanes: int | None) -> FloatArray:
             f"actions: non-finite values in lane(s) {lanes}; allowed: {allowed}; no lane was "
             "stepped"
         )
-    return np.clip(arr.reshape(-1, ACTION_DIM), -1.0, 1.0)
+    return np.clip(arr.reshape(-1, dim), -1.0, 1.0)
 
 
 class ActionMap:
@@ -115,15 +116,21 @@ class ActionMap:
         self.rate_gain = np.array(cfg.rate_gain_per_s)
         self._max_thrust = float(params.max_thrust)
         self._max_torque = np.array(params.max_torque, dtype=float)
-        self.hover_action = np.array(
-            [2.0 * params.hover_thrust / params.max_thrust - 1.0, 0.0, 0.0, 0.0]
-        )
+        self.dim = cfg.dim
+        self.max_heading_rate = math.radians(cfg.max_heading_rate_dps)
+        self.hover_action = np.zeros(self.dim)
+        self.hover_action[0] = 2.0 * params.hover_thrust / params.max_thrust - 1.0
+
+    def heading_rate(self, action: FloatArray) -> FloatArray:
+        """The commanded reference heading rate ψ̇_d (B,) in rad/s of actions (B, 5)."""
+        return action[:, ACTION_DIM] * self.max_heading_rate
 
     def inputs(self, action: FloatArray, rates_hat: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Thrust (B,) N and torque (B, 3) N·m for actions (B, 4) and estimated rates (B, 3)."""
+        """Thrust (B,) N and torque (B, 3) N·m for actions (B, ≥ 4) and estimated rates (B, 3)
+        (a heading channel, column 4, is the reference's: :meth:`heading_rate`)."""
         b = action.shape[0]
         thrust, torque = np.empty(b), np.empty((b, 3))
-        act = np.ascontiguousarray(action, dtype=float)
+        act = np.ascontiguousarray(action[:, :ACTION_DIM], dtype=float)
         _thrust_torque(act, self._max_thrust, self._max_torque, thrust, torque)
         if self.mode == "thrust_torque":
             return thrust, torque

@@ -116,6 +116,12 @@ class RewardConfig(Section):
     termination_penalty: float = _spec(
         100.0, lo=0.0, doc="subtracted on the step that terminates the episode"
     )
+    pos_std_weight: float = _spec(
+        0.0,
+        lo=0.0,
+        doc="w_σ on the estimator's own position uncertainty √trace(P_ρ) (m; 0 without a "
+        "covariance): rewards looking where the filter learns",
+    )
 
 
 @dataclass(frozen=True)
@@ -135,6 +141,15 @@ class ObservationConfig(Section):
         lo=0.0,
         hi=10.0,
         doc="append the reference displacement Δ seconds ahead (3 values each, m)",
+    )
+    landmarks_nearest: int = _spec(
+        0,
+        kind="int",
+        lo=0,
+        hi=64,
+        doc="append the K nearest mapped landmarks as the estimate sees them: LiDAR azimuth, "
+        "elevation (rad) and range (m) from the estimated pose, and 1 (0 and zeros: padding), "
+        "nearest first (4 values each)",
     )
     clip: float = _spec(
         100.0, lo=1e-6, hi=1e30, doc="observations are clipped to ±clip (the Box bounds)"
@@ -171,6 +186,20 @@ class ActionConfig(Section):
         lo_open=True,
         doc="thrust_rates: inner-loop gain K in τ = J K (ω_cmd − ω̂), 1/s",
     )
+    heading: bool = _spec(
+        False,
+        kind="bool",
+        doc="a fifth action a4: the rate a4·max_heading_rate_dps of the reference heading ψ_d "
+        "(with trajectory.yaw_mode: free), which a controller then tracks",
+    )
+    max_heading_rate_dps: float = _spec(
+        90.0, lo=0.0, lo_open=True, hi=3600.0, doc="heading: ψ̇_d at |a4| = 1, deg/s"
+    )
+
+    @property
+    def dim(self) -> int:
+        """Components of one action: 4, plus 1 with the heading channel."""
+        return 5 if self.heading else 4
 
 
 @dataclass(frozen=True)
@@ -387,6 +416,7 @@ class ScenarioConfig:
                 f"episode.control_hz = {scenario.episode.control_hz} (integer ratio >= 1)"
             )
         check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
+        check_heading(scenario)
         return scenario
 
     def to_dict(self) -> dict[str, Any]:
@@ -417,6 +447,32 @@ def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
             f"imu.rate_hz: got {rate_hz}; allowed: null (= episode.control_hz), or a rate "
             f"that is an integer multiple or an integer fraction of episode.control_hz = "
             f"{control_hz} (e.g. {control_hz / 10:g} or {control_hz * 10:g})"
+        )
+
+
+def check_heading(scenario: ScenarioConfig) -> None:
+    """The heading channel and the free-heading reference go together, and the landmark
+    observation needs an estimated map.
+
+    Raises:
+        ConfigError: Naming the key, the value and what is allowed.
+    """
+    yaw_mode, heading = scenario.trajectory.yaw_mode, scenario.action.heading
+    if heading and yaw_mode != "free":
+        raise ConfigError(
+            f"action.heading: got true with trajectory.yaw_mode = {yaw_mode!r}, which "
+            "prescribes the heading; allowed: false, or trajectory.yaw_mode: free"
+        )
+    if yaw_mode == "free" and not heading:
+        raise ConfigError(
+            "trajectory.yaw_mode: got 'free' with action.heading = false (nothing would set "
+            "the heading); allowed: 'tangent' or 'fixed', or action.heading: true"
+        )
+    if scenario.observation.landmarks_nearest and scenario.estimator.name == "oracle":
+        raise ConfigError(
+            f"observation.landmarks_nearest: got {scenario.observation.landmarks_nearest} with "
+            "estimator.name = 'oracle', whose map is the truth; allowed: 0, or an estimator "
+            "that maps the landmarks"
         )
 
 

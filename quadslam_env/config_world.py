@@ -121,10 +121,13 @@ class TrajectoryConfig(Section):
     yaw_mode: str = _spec(
         "tangent",
         kind="str",
-        choices=("tangent", "fixed"),
-        doc="tangent: heading along the horizontal velocity; fixed: yaw_deg",
+        choices=("tangent", "fixed", "free"),
+        doc="tangent: heading along the horizontal velocity; fixed: yaw_deg; free: set by the "
+        "action's heading channel (action.heading), starting at yaw_deg",
     )
-    yaw_deg: float = _spec(0.0, lo=-180.0, hi=180.0, doc="heading of the fixed yaw mode, deg")
+    yaw_deg: float = _spec(
+        0.0, lo=-180.0, hi=180.0, doc="heading of the fixed yaw mode (free: at t = 0), deg"
+    )
     start_on_reference: bool = _spec(
         False,
         kind="bool",

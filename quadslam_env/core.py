@@ -30,7 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from estimators.batch import BatchEstimate, BatchEstimator, health_codes, make_batch
+from estimators.batch import (
+    BatchEstimate,
+    BatchEstimator,
+    health_codes,
+    make_batch,
+    position_std,
+)
 from estimators.metrics import (
     ASSOCIATION_KEYS,
     METRIC_KEYS,
@@ -130,6 +136,12 @@ class SimCore:
         if self._steps_per_imu > 1:
             self._replay = self._new_replay()
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
+        # A free heading (action.heading): the reference's ψ_d and ψ̇_d are lane state, set by
+        # the action's heading channel; None when the trajectory prescribes the heading.
+        self._heading: tuple[FloatArray, FloatArray] | None = None
+        if cfg.action.heading:
+            self._heading = (np.zeros(b), np.zeros(b))
+        self._heading0 = math.radians(cfg.trajectory.yaw_deg)
         self.reward = Reward(cfg.reward, self.action_map.hover_action)
         self.observer = ObservationBuilder(cfg.observation, self.trajectory)
         self.steps = np.zeros(b, dtype=np.int64)
@@ -215,13 +227,16 @@ class SimCore:
         self.estimator.reset_lanes(lanes, mean0, cov0, est_rngs, known)
         self.steps[lanes] = 0
         self.t[lanes] = 0.0
+        if self._heading is not None:
+            self._heading[0][lanes] = self._heading0
+            self._heading[1][lanes] = 0.0
         self.n_visible[lanes] = 0
         self.termination.reset(lanes)
         self.episode.reset(lanes)
         est = self._snapshot()
         if self.unlabeled:
             self._associated(est, None, np.isin(np.arange(self.num_lanes), lanes))
-        ref = self.trajectory.batch(self.t)
+        ref = self.reference()
         _, info = self._metrics(est, ref)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
         return obs[lanes], {key: value[lanes] for key, value in info.items()}
@@ -257,6 +272,10 @@ class SimCore:
         act = action if active is None else np.where(active[:, None], action, 0.0)
         active = self._all_lanes if active is None else active
         thrust, torque = self.action_map.inputs(act, self.est.rates)
+        if self._heading is not None:  # the reference heading turns at the commanded rate
+            heading, rate = self._heading
+            np.copyto(rate, self.action_map.heading_rate(act), where=active)
+            np.copyto(heading, wrap_angle(heading + rate * self.dt), where=active)
         vehicle = self.vehicle
         if self._imu_per_step == 1:
             self.last_rates = vehicle.step(thrust, torque, self.dt, active)
@@ -307,7 +326,7 @@ class SimCore:
                 rematch |= self._replay.last_due
             self._associated(est, returns if scan is not None else None, rematch)
         toc = time.perf_counter() if timed else 0.0
-        ref = self.trajectory.batch(self.t)
+        ref = self.reference()
         values, info = self._metrics(est, ref)
         if timed:  # the batch's estimator time per lane stepped
             info["est_step_time_ms"] = np.full(b, 1e3 * (toc - tic) / max(1, int(active.sum())))
@@ -315,7 +334,8 @@ class SimCore:
             state, values[_TRACK], values[_NEES_POSE],
             health_codes(est, self._max_cov_trace), active, self.steps,
         )  # fmt: skip
-        self.reward.terms(state, ref, act, terminated, values[_REWARD0 : _REWARD + 1])
+        std = position_std(est) if self.scenario.reward.pos_std_weight > 0.0 else None
+        self.reward.terms(state, ref, act, terminated, values[_REWARD0 : _REWARD + 1], std)
         for key, row in _REWARD_ROWS:
             info[key] = values[row]
         reward = values[_REWARD]
@@ -408,9 +428,14 @@ class SimCore:
         return self.observer.build(truth, self.reference(), self.t, self.n_visible)
 
     def reference(self, lanes: Sequence[int] | None = None) -> FlatOutputs:
-        """Reference of every lane (or of ``lanes``) at its current time."""
-        t = self.t if lanes is None else self.t[np.asarray(lanes)]
-        return self.trajectory.batch(t)
+        """Reference of every lane (or of ``lanes``) at its current time; with a free heading
+        its ψ_d and ψ̇_d are the lanes' commanded ones."""
+        idx = slice(None) if lanes is None else np.asarray(lanes)
+        ref = self.trajectory.batch(self.t[idx])
+        if self._heading is None:
+            return ref
+        heading, rate = self._heading
+        return dataclasses.replace(ref, yaw=heading[idx].copy(), yaw_rate=rate[idx].copy())
 
     def _associated(
         self, est: BatchEstimate, returns: ScanReturns | None, rematch: np.ndarray

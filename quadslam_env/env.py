@@ -113,7 +113,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self.vehicle_params = core.vehicle_params
         self.trajectory = core.trajectory
         self.observation_space = core.observer.space
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(core.action_map.dim,), dtype=np.float32)
         self.hover_action = core.action_map.hover_action
         self.metadata = {**self.metadata, "render_fps": step_rate(self.scenario)}
         self._renderer: LaneRenderer | None = None
@@ -168,8 +168,18 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._core.estimator.lane_estimate(0)
 
     def reference(self, t: float | None = None) -> FlatOutputs:
-        """Flat outputs of the reference at ``t`` (default: now)."""
-        return self.trajectory(self.t if t is None else t)
+        """Flat outputs of the reference at ``t`` (default: now, with a free heading the
+        commanded one; at another time the trajectory's own, heading ``yaw_deg``)."""
+        if t is not None:
+            return self.trajectory(t)
+        ref = self._core.reference([0])
+        return FlatOutputs(
+            pos=ref.pos[0],
+            vel=ref.vel[0],
+            acc=ref.acc[0],
+            yaw=float(ref.yaw[0]),  # type: ignore[index]
+            yaw_rate=float(ref.yaw_rate[0]),  # type: ignore[index]
+        )
 
     def observation_from(self, estimate: Estimate) -> np.ndarray:
         """The observation the env would emit now if its estimator had returned ``estimate``.
@@ -181,7 +191,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         core = self._core
         t = core.t[:1]
         obs = core.observer.build(
-            batch_from_estimates([estimate]), core.trajectory.batch(t), t, np.zeros(1, int)
+            batch_from_estimates([estimate]), core.reference([0]), t, np.zeros(1, int)
         )
         return obs[0]
 
@@ -205,7 +215,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """Advance one control period (``dt`` s)."""
-        act = validate_actions(action, None)
+        act = validate_actions(action, None, self._core.action_map.dim)
         obs, reward, terminated, truncated, info = self._core.step(act)
         if self._renderer is not None:
             self._renderer.record(info)

@@ -14,8 +14,9 @@ from gymnasium import spaces
 
 from estimators.batch import BatchEstimate
 from quadslam_env.config import ObservationConfig
-from quadslam_env.models.frames import wrap_pi
+from quadslam_env.models.frames import dcm_from_euler_batch, wrap_pi
 from quadslam_env.models.jit import kernel
+from quadslam_env.models.lidar import lidar_measure
 from quadslam_env.trajectories import FlatOutputs, Trajectory
 from quadslam_env.types import FloatArray
 
@@ -88,13 +89,44 @@ def _finish(obs: FloatArray, clip: float, out: np.ndarray) -> None:
             out[i, j] = min(max(v, -clip), clip) if math.isfinite(v) else 0.0
 
 
+def nearest_landmarks(est: BatchEstimate, k: int) -> FloatArray:
+    """The ``k`` nearest mapped landmarks as the estimate sees them.
+
+    Each is the LiDAR measurement model (``quadslam_env.models.lidar``, seed 001 eq. 30–31) of
+    its estimated position from the estimated pose: azimuth α (rad, positive right), elevation
+    β (rad, positive down), range δ (m), then 1; rows past the mapped landmarks are zeros.
+
+    Args:
+        est: Belief of B lanes.
+        k: Landmarks per lane.
+
+    Returns:
+        (B, k, 4) ``(α, β, δ, mask)``, nearest first.
+    """
+    b = est.position.shape[0]
+    out = np.zeros((b, k, 4))
+    if est.landmark_means.shape[1] == 0:
+        return out
+    dcm = dcm_from_euler_batch(est.euler)
+    meas = lidar_measure(est.position[:, None, :], dcm[:, None], est.landmark_means)
+    rng = np.where(est.landmark_mapped, meas[..., 2], np.inf)
+    order = np.argsort(rng, axis=1, kind="stable")[:, :k]
+    n = order.shape[1]
+    picked = np.take_along_axis(meas, order[..., None], axis=1)
+    mapped = np.take_along_axis(est.landmark_mapped, order, axis=1)
+    out[:, :n, :3] = np.where(mapped[..., None], picked, 0.0)
+    out[:, :n, 3] = mapped
+    return out
+
+
 class ObservationBuilder:
     """Builds the float32 observations of B lanes and the single-lane ``Box`` space.
 
     Optional blocks, appended in this order: position uncertainty (3, √diag of the position
     covariance in the heading frame, m; 0 without a covariance), landmark counts (2: visible
     in the last scan, mapped), reference look-ahead (3 per entry of ``lookahead_s``:
-    ``C3(ψ_d)ᵀ(ρ_d(t+Δ) - ρ_d(t))``, m).
+    ``C3(ψ_d)ᵀ(ρ_d(t+Δ) - ρ_d(t))``, m), the nearest mapped landmarks (4 per landmark of
+    ``landmarks_nearest``: :func:`nearest_landmarks`).
     """
 
     def __init__(self, cfg: ObservationConfig, trajectory: Trajectory) -> None:
@@ -107,6 +139,8 @@ class ObservationBuilder:
             self.layout.append(("landmark_counts", 2))
         for dt in cfg.lookahead_s:
             self.layout.append((f"lookahead_{dt:g}s", 3))
+        if cfg.landmarks_nearest:
+            self.layout.append(("landmarks_nearest", 4 * cfg.landmarks_nearest))
         self.size = sum(n for _, n in self.layout)
         self.space = spaces.Box(-cfg.clip, cfg.clip, shape=(self.size,), dtype=np.float32)
 
@@ -156,6 +190,10 @@ class ObservationBuilder:
                 obs[:, i + 1] = -s * d[:, 0] + c * d[:, 1]
                 obs[:, i + 2] = d[:, 2]
                 i += 3
+        if self.cfg.landmarks_nearest:
+            k = self.cfg.landmarks_nearest
+            obs[:, i : i + 4 * k] = nearest_landmarks(est, k).reshape(b, 4 * k)
+            i += 4 * k
         out = np.empty((b, self.size), dtype=np.float32)
         _finish(obs, float(self.cfg.clip), out)
         return out

@@ -1,7 +1,9 @@
 """Reward from the true state against the reference (DESIGN.md §4), for B lanes at once.
 
-``reward = alive - w_p ‖ρ - ρ_d‖ - w_v ‖ρ̇ - ρ̇_d‖ - w_ψ |wrap(ψ - ψ_d)| - w_u ‖a - a_hover‖²/4
-- penalty·[terminated]``; every term is reported in ``info`` as ``reward_<term>`` and they sum to
+``reward = alive - w_p ‖ρ - ρ_d‖ - w_v ‖ρ̇ - ρ̇_d‖ - w_ψ |wrap(ψ - ψ_d)|
+- w_u ‖a - a_hover‖²/4 - penalty·[terminated] - w_σ √trace(P_ρ)``, the last term on the
+estimator's own position covariance P_ρ (its confidence, not the truth: a reward for looking
+where it learns); every term is reported in ``info`` as ``reward_<term>`` and they sum to
 the reward.
 """
 
@@ -24,6 +26,7 @@ REWARD_KEYS = (
     "reward_yaw",
     "reward_effort",
     "reward_termination",
+    "reward_pos_std",
 )
 
 
@@ -53,12 +56,13 @@ def _reward_lanes(
     action: FloatArray,
     hover_action: FloatArray,
     terminated: np.ndarray,
+    pos_std: FloatArray,
     out: FloatArray,
 ) -> None:
-    """Fill the rows of ``out`` (7, B) with the terms of :data:`REWARD_KEYS` and their sum
+    """Fill the rows of ``out`` (8, B) with the terms of :data:`REWARD_KEYS` and their sum
     (see :class:`Reward`); the sum adds the terms in key order."""
-    alive, w_pos, w_vel, w_yaw, w_effort, penalty = (
-        weights[0], weights[1], weights[2], weights[3], weights[4], weights[5]
+    alive, w_pos, w_vel, w_yaw, w_effort, penalty, w_std = (
+        weights[0], weights[1], weights[2], weights[3], weights[4], weights[5], weights[6]
     )  # fmt: skip
     for b in range(out.shape[1]):
         x = state[b]
@@ -80,10 +84,11 @@ def _reward_lanes(
         out[3, b] = -w_yaw * abs(wrap_pi(x[8] - ref_yaw[b]))
         out[4, b] = -w_effort * effort / 4.0
         out[5, b] = -penalty if terminated[b] else 0.0
+        out[6, b] = -w_std * pos_std[b] if w_std > 0.0 else 0.0
         total = out[0, b]
-        for j in range(1, 6):
+        for j in range(1, 7):
             total += out[j, b]
-        out[6, b] = total
+        out[7, b] = total
 
 
 class Reward:
@@ -97,7 +102,7 @@ class Reward:
     def __init__(self, cfg: RewardConfig, hover_action: FloatArray) -> None:
         self._weights = np.array(
             [cfg.alive, cfg.pos_weight, cfg.vel_weight, cfg.yaw_weight, cfg.effort_weight,
-             cfg.termination_penalty]
+             cfg.termination_penalty, cfg.pos_std_weight]
         )  # fmt: skip
         self._hover = np.ascontiguousarray(hover_action, dtype=float)
 
@@ -108,6 +113,7 @@ class Reward:
         action: FloatArray,
         terminated: np.ndarray,
         out: FloatArray | None = None,
+        pos_std: FloatArray | None = None,
     ) -> FloatArray:
         """Signed reward terms of B lanes and the reward.
 
@@ -116,15 +122,17 @@ class Reward:
             ref: Reference of the lanes at the same time ((B, 3) and (B,) arrays).
             action: (B, 4) normalised action applied this step.
             terminated: (B,) bool, whether this step ends the lane's episode by failure.
-            out: (7, B) C-contiguous array to write into (default: a new one).
+            out: (8, B) C-contiguous array to write into (default: a new one).
+            pos_std: (B,) the estimate's √trace(P_ρ) in m (default 0: no covariance).
 
         Returns:
-            (7, B): the terms of :data:`REWARD_KEYS` in order, one row each, then the reward
+            (8, B): the terms of :data:`REWARD_KEYS` in order, one row each, then the reward
             (their sum).
         """
         if out is None:
             out = np.empty((len(REWARD_KEYS) + 1, state.shape[0]))
         yaw = np.asarray(ref.yaw, dtype=float)  # (B,) already; asarray only narrows the type
+        std = np.zeros(state.shape[0]) if pos_std is None else pos_std
         _reward_lanes(self._weights, state, ref.pos, ref.vel, yaw, action, self._hover,
-                      terminated, out)  # fmt: skip
+                      terminated, std, out)  # fmt: skip
         return out

@@ -78,7 +78,9 @@ class QuadSLAMVectorEnv(VectorEnv):
         self.vehicle_params = core.vehicle_params
         self.hover_action = core.action_map.hover_action
         self.single_observation_space = core.observer.space
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self.single_action_space = spaces.Box(
+            -1.0, 1.0, shape=(core.action_map.dim,), dtype=np.float32
+        )
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
@@ -146,7 +148,7 @@ class QuadSLAMVectorEnv(VectorEnv):
             ActionError: ``actions`` is not a finite (B, 4) array (naming the lanes); no lane
                 is changed.
         """
-        act = validate_actions(actions, self.num_envs)
+        act = validate_actions(actions, self.num_envs, self._core.action_map.dim)
         core = self._core
         resetting = self._autoreset.copy()
         obs, reward, terminated, truncated, info = core.step(act, ~resetting)

@@ -28,6 +28,7 @@ ESTIMATOR_OF = {
     "QuadSLAM-EKF-v0": "ekf_slam",
     "QuadSLAM-FastSLAM-v0": "fastslam",
     "QuadSLAM-Oracle-v0": "oracle",
+    "QuadSLAM-ActivePerception-v0": "ekf_slam",
 }
 TIMING_KEYS = {"est_step_time_ms"}  # wall-clock: legitimately differs between runs
 REQUIRED_INFO = (
@@ -65,7 +66,8 @@ def action_sequence(env: gym.Env, n: int, seed: int = 99, scale: float = 0.02) -
     """Deterministic small perturbations around the hover action."""
     rng = np.random.default_rng(seed)
     hover = env.unwrapped.hover_action
-    return np.clip(hover + scale * rng.standard_normal((n, 4)), -1, 1).astype(np.float32)
+    noise = scale * rng.standard_normal((n, hover.shape[0]))
+    return np.clip(hover + noise, -1, 1).astype(np.float32)
 
 
 def numeric_info(info: dict[str, Any]) -> dict[str, Any]:

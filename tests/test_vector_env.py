@@ -33,6 +33,12 @@ CASES = {
     "QuadSLAM-EKF-v0-imu10": {**SHORT, "imu": {"rate_hz": 10.0}},
     "QuadSLAM-EKF-v0-imu1000": {**SHORT, "imu": {"rate_hz": 1000.0}},
     "QuadSLAM-FastSLAM-v0-imu10": {**FAST_FASTSLAM, "imu": {"rate_hz": 10.0}},
+    # A free heading turned by a fifth action, the nearest-landmark observation and the
+    # reward on the filter's own position uncertainty.
+    "QuadSLAM-ActivePerception-v0": {
+        "episode": {"duration_s": 0.35, "settle_s": 0.2},
+        "reward": {"pos_std_weight": 0.5},
+    },
     "QuadSLAM-EKF-v0-unknown-imu5": {
         "episode": {"duration_s": 0.45},
         "imu": {"rate_hz": 5.0},
@@ -53,7 +59,9 @@ def lane_actions(env_id: str, lanes: int, steps: int) -> np.ndarray:
     single = gym.make(_id(env_id), **_kwargs(env_id))
     hover = single.unwrapped.hover_action
     single.close()
-    acts = hover + 0.05 * rng.standard_normal((steps, lanes, 4))
+    acts = hover + 0.05 * rng.standard_normal((steps, lanes, hover.shape[0]))
+    if hover.shape[0] == 5:  # the heading channel: turns of either sign
+        acts[:, :, 4] = rng.uniform(-1.0, 1.0, (steps, lanes))
     if lanes > 1:
         acts[:, 1, 1] = 1.0  # full roll torque: ends lane 1 on the tilt limit
     return acts.astype(np.float32)
