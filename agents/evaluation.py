@@ -345,22 +345,23 @@ def _run_lanes(
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
     """Median, min and max over episodes of each numeric key, and ``n``, the number of
     episodes they cover (absent, None and NaN values left out; None when none is left)."""
-    out: dict[str, dict[str, float | None]] = {}
     extra = [k for k in _ASSOCIATION_FROM_INFO if episodes and k in episodes[0]]
-    for key in (*SUMMARY_KEYS, *extra):
-        vals = np.array([_number(e.get(key)) for e in episodes], dtype=float)
-        vals = vals[np.isfinite(vals)]
-        out[key] = (
-            {"median": float(np.median(vals)), "min": float(vals.min()), "max": float(vals.max())}
-            if vals.size
-            else {"median": None, "min": None, "max": None}
-        )
-        out[key]["n"] = int(vals.size)
-    return out
+    return {key: stats([e.get(key) for e in episodes]) for key in (*SUMMARY_KEYS, *extra)}
 
 
-def _number(value: Any) -> float:
-    return math.nan if value is None else float(value)
+def stats(values: Sequence[Any]) -> dict[str, Any]:
+    """``median``, ``min``, ``max`` of the finite values (None, NaN left out; None when none
+    is left) and ``n``, how many there are."""
+    arr = np.array([math.nan if v is None else float(v) for v in values], dtype=float)
+    arr = arr[np.isfinite(arr)]
+    if not arr.size:
+        return {"median": None, "min": None, "max": None, "n": 0}
+    return {
+        "median": float(np.median(arr)),
+        "min": float(arr.min()),
+        "max": float(arr.max()),
+        "n": int(arr.size),
+    }
 
 
 def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) -> str:

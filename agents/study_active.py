@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation import Trace, json_float, run_episodes
+from agents.evaluation import Trace, json_float, run_episodes, stats
 
 ENV_ID = "QuadSLAM-ActivePerception-v0"
 EVAL_SEED0 = 1000
@@ -92,29 +92,16 @@ def fly(
     return records
 
 
-def _stats(values: list[Any]) -> dict[str, float | int | None]:
-    arr = np.array([np.nan if v is None else v for v in values], dtype=float)
-    arr = arr[np.isfinite(arr)]
-    if not arr.size:
-        return {"median": None, "min": None, "max": None, "n": 0}
-    return {
-        "median": float(np.median(arr)),
-        "min": float(arr.min()),
-        "max": float(arr.max()),
-        "n": int(arr.size),
-    }
-
-
 def row_result(config: str, label: str, per_seed: list[list[dict[str, Any]]]) -> dict[str, Any]:
     """One table row: stats over training seeds (several groups) or over the episodes."""
     episodes = [e for group in per_seed for e in group]
     out: dict[str, Any] = {"config": config, "controller": label}
     for key in (*KEYS, "landmarks_per_scan"):
         if len(per_seed) > 1:
-            medians = [_stats([e.get(key) for e in group])["median"] for group in per_seed]
-            out[key] = _stats(medians)
+            medians = [stats([e.get(key) for e in group])["median"] for group in per_seed]
+            out[key] = stats(medians)
         else:
-            out[key] = _stats([e.get(key) for e in episodes])
+            out[key] = stats([e.get(key) for e in episodes])
     out["crash_rate"] = float(np.mean([e["terminated"] for e in episodes]))
     out["spread_over"] = "training seeds" if len(per_seed) > 1 else "episodes"
     out["n_training_seeds"] = len(per_seed) if config == "ppo" else 0
@@ -195,10 +182,10 @@ def run_study(
 def format_study(result: dict[str, Any]) -> str:
     """The study table as text (steady state first)."""
 
-    def cell(stats: dict[str, Any], fmt: str = "{:.3f}") -> str:
-        if stats["median"] is None:
+    def cell(spread: dict[str, Any], fmt: str = "{:.3f}") -> str:
+        if spread["median"] is None:
             return "–"
-        lo, mid, hi = (fmt.format(stats[k]) for k in ("min", "median", "max"))
+        lo, mid, hi = (fmt.format(spread[k]) for k in ("min", "median", "max"))
         return f"{mid} ({lo}–{hi})"
 
     head = (
