@@ -227,6 +227,10 @@ class SimCore:
         self.estimator.reset_lanes(lanes, mean0, cov0, est_rngs, known)
         self.steps[lanes] = 0
         self.t[lanes] = 0.0
+        if self.last_scan is not None:  # a reset lane's last scan belongs to its old episode
+            scanned, visible, meas = self.last_scan
+            kept = scanned[~np.isin(scanned, lanes)]
+            self.last_scan = (kept, visible, meas) if kept.size else None
         if self._heading is not None:
             self._heading[0][lanes] = self._heading0
             self._heading[1][lanes] = 0.0

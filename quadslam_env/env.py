@@ -19,7 +19,7 @@ from estimators.batch import BatchEstimator, batch_from_estimates
 from quadslam_env.actions import ActionError, validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
-from quadslam_env.reset_options import parse_reset_options
+from quadslam_env.reset_options import parse_reset_options, parse_seed
 from quadslam_env.trajectories import FlatOutputs
 from quadslam_env.types import FloatArray
 
@@ -121,6 +121,10 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
             from quadslam_env.render import LaneRenderer
 
             self._renderer = LaneRenderer(core, 0)
+        # Until the first reset, and again once an episode ends: the core would otherwise go on
+        # simulating a crashed or timed-out vehicle, which no Gymnasium user should see.
+        self._needs_reset = True
+        self._episode_ended = False
 
     # ------------------------------------------------------------------ properties
     @property
@@ -205,18 +209,39 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start an episode; options: ``initial_state`` (12,), ``landmarks`` (L, 3)."""
+        """Start an episode; options: ``initial_state`` (12,), ``landmarks`` (L, 3).
+
+        Raises:
+            ConfigError: ``seed`` is not ``None`` or an integer >= 0 (NumPy integers are
+                accepted, bools are not), or bad ``options``.
+        """
         opts = parse_reset_options(options)
-        super().reset(seed=seed)
+        super().reset(seed=parse_seed(seed))
         obs, info = self._core.reset_lanes([0], [self.np_random], opts)
+        self._needs_reset = self._episode_ended = False
         if self._renderer is not None:
             self._renderer.record(info)
         return obs[0], lane_info(info, 0)
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        """Advance one control period (``dt`` s)."""
+        """Advance one control period (``dt`` s).
+
+        Raises:
+            gymnasium.error.ResetNeeded: Before the first ``reset()``, or after a step that
+                returned ``terminated`` or ``truncated`` (the episode is over).
+            ActionError: ``action`` is not a finite (4,) array (5 with ``action.heading``);
+                nothing is changed.
+        """
+        if self._needs_reset:
+            why = (
+                "the episode ended (terminated or truncated) on the last step"
+                if self._episode_ended
+                else "no episode was started"
+            )
+            raise gym.error.ResetNeeded(f"QuadSLAMEnv.step: {why}; call reset() before step()")
         act = validate_actions(action, None, self._core.action_map.dim)
         obs, reward, terminated, truncated, info = self._core.step(act)
+        self._needs_reset = self._episode_ended = bool(terminated[0] or truncated[0])
         if self._renderer is not None:
             self._renderer.record(info)
         return obs[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), lane_info(info, 0)

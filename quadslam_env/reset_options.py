@@ -1,5 +1,5 @@
-"""Validation of the ``options`` of ``reset``: a given initial state and landmark map
-(shared by the scalar and the vector env)."""
+"""Validation of the arguments of ``reset``: the seed, a given initial state and landmark map
+(shared by the scalar and the vector env) and the vector env's ``reset_mask``."""
 
 from __future__ import annotations
 
@@ -12,6 +12,86 @@ from quadslam_env.config import ConfigError
 from quadslam_env.types import STATE_DIM, FloatArray
 
 RESET_OPTIONS = ("initial_state", "landmarks")
+RESET_MASK = "reset_mask"
+_SEED_ALLOWED = "None or an integer >= 0"
+
+
+def parse_seed(seed: Any, key: str = "seed", allowed: str = _SEED_ALLOWED) -> int | None:
+    """Validate one seed as ``gymnasium.Env.reset`` takes it, NumPy integers included.
+
+    Args:
+        seed: ``None`` or an integer ≥ 0 (``int`` or ``np.integer``; not ``bool``).
+        key: The name in the error message, e.g. ``seed[2]`` for an entry of a list.
+        allowed: What the error message says is allowed.
+
+    Returns:
+        The seed as a Python ``int`` (what ``gymnasium.utils.seeding`` accepts), or ``None``.
+
+    Raises:
+        ConfigError: Not an integer (a float, a string, a bool), or negative.
+    """
+    if seed is None:
+        return None
+    # bool is an int subclass, but True is a mistake, not seed 1.
+    if isinstance(seed, bool | np.bool_) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ConfigError(f"{key}: got {seed!r}; allowed: {allowed}")
+    return int(seed)
+
+
+def parse_lane_seeds(seed: Any, num_lanes: int) -> list[int | None]:
+    """The seed of each of ``num_lanes`` lanes, as Gymnasium's vector envs take them.
+
+    Args:
+        seed: ``None`` (no lane reseeded), an integer s (lane i gets s + i) or a list, tuple or
+            1-D array of ``num_lanes`` entries, each ``None`` or an integer ≥ 0.
+        num_lanes: B.
+
+    Returns:
+        (B,) list of ``int`` or ``None``.
+
+    Raises:
+        ConfigError: A seed that :func:`parse_seed` rejects, or a sequence of the wrong length.
+    """
+    each = f"a list of {num_lanes} seeds, one per lane, each {_SEED_ALLOWED}"
+    if isinstance(seed, list | tuple) or (isinstance(seed, np.ndarray) and seed.ndim == 1):
+        if len(seed) != num_lanes:
+            raise ConfigError(f"seed: got {seed!r} (a list of {len(seed)}); allowed: {each}")
+        entry = f"{_SEED_ALLOWED} (one seed per lane)"
+        return [parse_seed(s, f"seed[{i}]", entry) for i, s in enumerate(seed)]
+    first = parse_seed(seed, "seed", f"None, an integer >= 0 (lane i gets seed + i) or {each}")
+    return [None if first is None else first + i for i in range(num_lanes)]
+
+
+def split_reset_mask(
+    options: dict[str, Any] | None, num_lanes: int
+) -> tuple[np.ndarray | None, dict[str, Any] | None]:
+    """Take the vector env's ``reset_mask`` out of ``options`` (the caller's dict is not changed).
+
+    Args:
+        options: The ``options`` of a vector env's ``reset``.
+        num_lanes: B.
+
+    Returns:
+        ``(mask (B,) bool or None, the other options or None)``.
+
+    Raises:
+        ConfigError: A mask that is not a (B,) bool array with at least one ``True`` (as
+            Gymnasium's vector envs require).
+    """
+    if not isinstance(options, dict) or RESET_MASK not in options:
+        return None, options
+    value = options[RESET_MASK]
+    try:
+        mask = np.asarray(value) if isinstance(value, list | tuple | np.ndarray) else None
+    except ValueError:  # a ragged list
+        mask = None
+    if mask is None or mask.dtype != np.bool_ or mask.shape != (num_lanes,) or not mask.any():
+        raise ConfigError(
+            f"reset options.{RESET_MASK}: got {value!r}; allowed: a ({num_lanes},) bool array "
+            "with at least one True (the lanes to reset)"
+        )
+    rest = {key: v for key, v in options.items() if key != RESET_MASK}
+    return mask.copy(), rest or None
 
 
 def parse_reset_options(options: dict[str, Any] | None) -> dict[str, FloatArray]:

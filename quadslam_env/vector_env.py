@@ -2,13 +2,25 @@
 
 Registered as the ``vector_entry_point`` of every id, so
 ``gymnasium.make_vec("QuadSLAM-EKF-v0", num_envs=B, vectorization_mode="vector_entry_point",
-**kwargs)`` takes the same kwargs as ``gymnasium.make``. Lane i of ``reset(seed=s)`` is the
-scalar env reset with seed ``s + i``, step for step and through autoresets, because both run
-the same :class:`~quadslam_env.core.SimCore` code.
+**kwargs)`` takes the same kwargs as ``gymnasium.make`` (plus ``autoreset_mode``). Lane i of
+``reset(seed=s)`` is the scalar env reset with seed ``s + i``, step for step and through every
+reset of the lane, because both run the same :class:`~quadslam_env.core.SimCore` code.
 
-Gymnasium 1.x conventions: ``metadata["autoreset_mode"]`` is next-step (the step after a lane
-ends resets it, ignoring its action, and returns its reset observation with reward 0); info is
-a dict of (B,) arrays, each with a ``_key`` bool mask of the lanes where the term applies.
+Gymnasium 1.x conventions: ``metadata["autoreset_mode"]`` is the ``autoreset_mode`` the env was
+made with (what :class:`gymnasium.vector.SyncVectorEnv` does in that mode):
+
+* ``NEXT_STEP`` (default): the step after a lane ends resets it, ignoring its action, and
+  returns its reset observation with reward 0.
+* ``SAME_STEP``: a lane that ends is reset in the same step; the step returns its reset
+  observation and reset info with the ending step's reward, ``terminated`` and ``truncated``,
+  and ``info["final_obs"]`` (object (B,), the lane's last observation) and
+  ``info["final_info"]`` (the ending step's info) with their ``_final_obs``/``_final_info``
+  masks.
+* ``DISABLED``: nothing is reset by ``step``; ``reset(options={"reset_mask": mask})`` resets
+  the masked lanes, and stepping while a lane that ended was not reset raises.
+
+Info is a dict of (B,) arrays, each with a ``_key`` bool mask of the lanes where the term
+applies.
 """
 
 from __future__ import annotations
@@ -17,7 +29,7 @@ from collections.abc import Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from gymnasium import spaces
+from gymnasium import error, spaces
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -26,7 +38,12 @@ from quadslam_env.actions import validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import step_rate
-from quadslam_env.reset_options import parse_reset_options
+from quadslam_env.reset_options import (
+    parse_lane_seeds,
+    parse_reset_options,
+    parse_seed,
+    split_reset_mask,
+)
 
 if TYPE_CHECKING:
     from quadslam_env.render import LaneRenderer
@@ -42,7 +59,12 @@ class QuadSLAMVectorEnv(VectorEnv):
         estimator_name: Estimator applied before ``overrides`` (used by the registered ids).
         max_episode_steps: Accepted for ``make_vec`` compatibility; must be ``None`` (the
             scenario's ``episode.duration_s`` sets the episode length).
+        autoreset_mode: A :class:`gymnasium.vector.AutoresetMode` or its value
+            (``"NextStep"``, ``"SameStep"``, ``"Disabled"``); see the module docstring.
         **overrides: Section mappings merged into the scenario, e.g. ``episode={...}``.
+
+    Raises:
+        ConfigError: A bad ``num_envs``, ``render_mode``, ``autoreset_mode`` or scenario.
     """
 
     metadata = {
@@ -58,6 +80,7 @@ class QuadSLAMVectorEnv(VectorEnv):
         render_mode: str | None = None,
         estimator_name: str | None = None,
         max_episode_steps: int | None = None,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         **overrides: Any,
     ) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
@@ -69,6 +92,7 @@ class QuadSLAMVectorEnv(VectorEnv):
             )
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode: got {render_mode!r}; allowed: None or 'rgb_array'")
+        self.autoreset_mode = parse_autoreset_mode(autoreset_mode)
         self.scenario: ScenarioConfig = load_scenario(scenario, overrides, estimator_name)
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
@@ -84,8 +108,15 @@ class QuadSLAMVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
-        self._autoreset = np.zeros(self.num_envs, dtype=bool)
-        self.metadata = {**self.metadata, "render_fps": step_rate(self.scenario)}
+        # Lanes whose last step ended their episode and that were not reset since (NEXT_STEP:
+        # reset by the next step; DISABLED: stepping them raises; SAME_STEP: never left set).
+        self._ended = np.zeros(self.num_envs, dtype=bool)
+        self._obs: np.ndarray | None = None  # (B, n) last observations; None before a reset
+        self.metadata = {
+            **self.metadata,
+            "render_fps": step_rate(self.scenario),
+            "autoreset_mode": self.autoreset_mode,
+        }
         self._renderer: LaneRenderer | None = None
         if render_mode is not None:  # lane 0's history; nothing without render_mode
             from quadslam_env.render import LaneRenderer
@@ -101,8 +132,9 @@ class QuadSLAMVectorEnv(VectorEnv):
         """Give lane i a generator seeded ``seeds[i]`` (``None``: keep the lane's generator), as
         ``gymnasium.Env.reset(seed=...)`` does for the scalar env."""
         for lane, s in enumerate(seeds):
+            s = parse_seed(s, f"seed[{lane}]")
             if s is not None:
-                self._rngs[lane] = seeding.np_random(int(s))[0]
+                self._rngs[lane] = seeding.np_random(s)[0]
 
     def lane_rngs(self, lanes: Iterable[int]) -> list[np.random.Generator]:
         """The generators of ``lanes`` (a lane never seeded gets one from fresh entropy)."""
@@ -119,38 +151,94 @@ class QuadSLAMVectorEnv(VectorEnv):
         seed: int | list[int | None] | None = None,
         options: dict[str, Any] | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Reset every lane; lane i is seeded with ``seed + i`` (or ``seed[i]`` for a list).
+        """Reset every lane, or the lanes of ``options["reset_mask"]``.
 
-        Options (applied to every lane): ``initial_state`` (12,), ``landmarks`` (L, 3).
+        Lane i is seeded with ``seed + i`` (or ``seed[i]`` for a list); with a mask only the
+        masked lanes are reseeded and reset, and the other lanes' rows of the returned
+        observation are their last observations (as in Gymnasium's vector envs).
+
+        Args:
+            seed: ``None``, an integer >= 0 or a list of B entries, each ``None`` or an
+                integer >= 0 (NumPy integers are accepted, bools are not).
+            options: ``initial_state`` (12,), ``landmarks`` (L, 3) (applied to every lane
+                reset) and ``reset_mask`` (B,) bool, the lanes to reset (at least one).
+
+        Returns:
+            ``(obs (B, n) float32, info)``: info as in :meth:`step`, for the lanes reset.
+
+        Raises:
+            ConfigError: A bad seed, seed list length, option or ``reset_mask``.
         """
-        opts = parse_reset_options(options)
         b = self.num_envs
-        if isinstance(seed, list):
-            if len(seed) != b:
-                raise ConfigError(f"seed: got a list of {len(seed)}; allowed: {b} seeds or an int")
-            seeds = seed
+        seeds = parse_lane_seeds(seed, b)
+        mask, rest = split_reset_mask(options, b)
+        opts = parse_reset_options(rest)
+        if mask is None:
+            mask = np.ones(b, dtype=bool)
+        elif self._obs is None:
+            raise error.ResetNeeded(
+                "QuadSLAMVectorEnv.reset: reset_mask before the first reset; call reset() "
+                "without it first"
+            )
+        lanes = np.flatnonzero(mask)
+        self.seed_lanes([s if m else None for s, m in zip(seeds, mask, strict=True)])
+        obs_k, info_k = self._core.reset_lanes(lanes, self.lane_rngs(lanes), opts)
+        if self._obs is None or lanes.size == b:
+            obs, info = obs_k, info_k
         else:
-            seeds = [None if seed is None else int(seed) + i for i in range(b)]
-        self.seed_lanes(seeds)
-        lanes = np.arange(b)
-        obs, info = self._core.reset_lanes(lanes, self.lane_rngs(lanes), opts)
-        self._autoreset[:] = False
-        if self._renderer is not None:
+            obs = self._obs.copy()
+            obs[lanes] = obs_k
+            info = _lane_rows(info_k, lanes, b)
+        self._ended[lanes] = False
+        self._obs = obs.copy()  # a caller may write into what it is given
+        if self._renderer is not None and mask[self._renderer.lane]:
             self._renderer.record(info)
         return obs, _vector_info(info)
 
     def step(
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Step every lane; lanes that ended on the previous step are reset instead.
+        """Step every lane; what happens to lanes that end depends on ``autoreset_mode``.
+
+        NEXT_STEP: lanes that ended on the previous step are reset instead of stepped.
+        SAME_STEP: lanes that end now are reset now, their last observation and info in
+        ``info["final_obs"]``/``info["final_info"]``. DISABLED: no lane is reset.
+
+        Args:
+            actions: (B, 4) actions in [-1, 1] ((B, 5) with ``action.heading``).
+
+        Returns:
+            ``(obs (B, n) float32, reward (B,), terminated (B,), truncated (B,), info)``.
 
         Raises:
+            gymnasium.error.ResetNeeded: Before the first ``reset()``, or (DISABLED) while a
+                lane that ended was not reset; no lane is changed.
             ActionError: ``actions`` is not a finite (B, 4) array (naming the lanes); no lane
                 is changed.
         """
+        if self._obs is None:
+            raise error.ResetNeeded("QuadSLAMVectorEnv.step: call reset() before step()")
+        mode = self.autoreset_mode
+        if mode == AutoresetMode.DISABLED and self._ended.any():
+            raise error.ResetNeeded(
+                f"QuadSLAMVectorEnv.step: lane(s) {np.flatnonzero(self._ended).tolist()} ended "
+                "(terminated or truncated) and autoreset_mode is DISABLED; call "
+                "reset(options={'reset_mask': mask}) with those lanes before step()"
+            )
         act = validate_actions(actions, self.num_envs, self._core.action_map.dim)
+        if mode == AutoresetMode.NEXT_STEP:
+            out = self._step_next(act)
+        else:
+            out = self._step_all(act, reset=mode == AutoresetMode.SAME_STEP)
+        self._obs = out[0].copy()  # a caller may write into what it is given
+        return out
+
+    def _step_next(
+        self, act: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """NEXT_STEP: step the lanes, reset the ones that ended on the previous step."""
         core = self._core
-        resetting = self._autoreset.copy()
+        resetting = self._ended.copy()
         obs, reward, terminated, truncated, info = core.step(act, ~resetting)
         info["termination_reason"] = np.array(info["termination_reason"], dtype=object)
         lanes = np.flatnonzero(resetting)
@@ -160,17 +248,42 @@ class QuadSLAMVectorEnv(VectorEnv):
             reward[lanes] = 0.0
             terminated[lanes] = False
             truncated[lanes] = False
-            for key, value in info.items():
-                if key in r_info:
-                    value[lanes] = r_info[key]
-                elif key == "termination_reason":
-                    value[lanes] = ""
-                else:
-                    value[lanes] = np.nan
-        self._autoreset = terminated | truncated
+            _put_lane_rows(info, lanes, r_info)
+        self._ended = terminated | truncated
         if self._renderer is not None:
             self._renderer.record(info)
         return obs, reward, terminated, truncated, _vector_info(info)
+
+    def _step_all(
+        self, act: np.ndarray, reset: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """SAME_STEP (``reset``) or DISABLED: step every lane; with ``reset`` the lanes that
+        end now are reset now, as :class:`gymnasium.vector.SyncVectorEnv` does."""
+        core = self._core
+        obs, reward, terminated, truncated, info = core.step(act)
+        info["termination_reason"] = np.array(info["termination_reason"], dtype=object)
+        ended = terminated | truncated
+        lanes = np.flatnonzero(ended)
+        extra: dict[str, Any] = {}
+        if reset and lanes.size:
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            for lane in lanes.tolist():
+                final_obs[lane] = obs[lane].copy()
+            final = {key: _only(value, ended) for key, value in info.items()}
+            extra = {
+                "final_obs": final_obs,
+                "_final_obs": ended.copy(),
+                "final_info": _vector_info(final),
+                "_final_info": ended.copy(),
+            }
+            r_obs, r_info = core.reset_lanes(lanes, self.lane_rngs(lanes))
+            obs[lanes] = r_obs
+            _put_lane_rows(info, lanes, r_info)  # as SyncVectorEnv: the reset's info
+            ended[:] = False
+        self._ended = ended
+        if self._renderer is not None:
+            self._renderer.record(info)
+        return obs, reward, terminated, truncated, {**_vector_info(info), **extra}
 
     # VectorEnv.render is typed as one frame per lane; this env draws lane 0 only (README).
     def render(self) -> np.ndarray | None:  # type: ignore[override]
@@ -178,6 +291,53 @@ class QuadSLAMVectorEnv(VectorEnv):
         if self._renderer is None:
             return None
         return self._renderer.frame()
+
+
+def parse_autoreset_mode(value: Any) -> AutoresetMode:
+    """The :class:`gymnasium.vector.AutoresetMode` of ``value`` (the enum or its value).
+
+    Raises:
+        ConfigError: Anything else, naming the allowed values.
+    """
+    if isinstance(value, AutoresetMode):
+        return value
+    for mode in AutoresetMode:
+        if isinstance(value, str) and value == mode.value:
+            return mode
+    allowed = [mode.value for mode in AutoresetMode]
+    raise ConfigError(
+        f"autoreset_mode: got {value!r}; allowed: a gymnasium.vector.AutoresetMode or one of "
+        f"{allowed}"
+    )
+
+
+def _only(value: np.ndarray, lanes: np.ndarray) -> np.ndarray:
+    """A copy of the (B,) info term ``value`` that applies only in the (B,) bool ``lanes``."""
+    if value.dtype == object:  # termination_reason
+        return np.where(lanes, value, "")
+    return np.where(lanes, value, np.nan)
+
+
+def _put_lane_rows(info: dict[str, Any], lanes: np.ndarray, lane_info: dict[str, Any]) -> None:
+    """Write ``lane_info`` ((k,) terms of a reset of ``lanes`` (k,)) into the (B,) ``info`` in
+    place; terms the reset does not report do not apply there (NaN, or ``""``)."""
+    for key, value in info.items():
+        if key in lane_info:
+            value[lanes] = lane_info[key]
+        elif key == "termination_reason":
+            value[lanes] = ""
+        else:
+            value[lanes] = np.nan
+
+
+def _lane_rows(lane_info: dict[str, Any], lanes: np.ndarray, b: int) -> dict[str, Any]:
+    """(B,) terms from the (k,) terms of ``lanes`` (k,): NaN in the other lanes."""
+    out: dict[str, Any] = {}
+    for key, value in lane_info.items():
+        row = np.full(b, np.nan)
+        row[lanes] = value
+        out[key] = row
+    return out
 
 
 def _vector_info(info: dict[str, Any]) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import pytest
 
 import estimators
 import quadslam_env
-from quadslam_env.config import LandmarksConfig
+from quadslam_env.config import ConfigError, LandmarksConfig
 from quadslam_env.env import ActionError
 from quadslam_env.models import VEHICLE_PRESETS
 from quadslam_env.world import make_landmarks
@@ -406,6 +406,50 @@ def test_terminates_on_position_error():
     assert term
     assert info["termination_reason"] == "position_error_limit"
     assert info["track_pos_err_m"] > 1.0
+
+
+@pytest.mark.parametrize("end", ["terminated", "truncated"])
+def test_step_after_the_episode_ended_raises_until_reset(end):
+    env = make_env("QuadSLAM-Oracle-v0", episode={"duration_s": 0.05})  # 5 steps
+    hover = env.unwrapped.hover_action.astype(np.float32)
+    x0 = np.zeros(12)
+    x0[6] = math.radians(85.0)  # tilted beyond the limit: ends on the first step
+    options = {"initial_state": x0} if end == "terminated" else None
+    env.reset(seed=0, options=options)
+    for _ in range(5):
+        _, _, term, trunc, _ = env.step(hover)
+        if term or trunc:
+            break
+    assert (term, trunc) == (end == "terminated", end == "truncated")
+    state, steps = env.unwrapped.true_state, env.unwrapped.steps
+    for stepped in (env, env.unwrapped):  # wrapped by gymnasium.make, and bare
+        with pytest.raises(gym.error.ResetNeeded, match=r"episode ended.*call reset\(\)"):
+            stepped.step(hover)
+    np.testing.assert_array_equal(env.unwrapped.true_state, state)  # it did not move
+    assert env.unwrapped.steps == steps
+    env.reset()
+    assert not any(env.step(hover)[2:4])
+
+
+def test_step_before_the_first_reset_raises():
+    env = make_env("QuadSLAM-Oracle-v0").unwrapped
+    with pytest.raises(gym.error.ResetNeeded, match=r"no episode was started; call reset\(\)"):
+        env.step(env.hover_action)
+
+
+@pytest.mark.parametrize("seed", [1.5, "3", True, np.True_, -1, [3]])
+def test_bad_seed_names_the_key_the_value_and_what_is_allowed(seed):
+    env = make_env("QuadSLAM-Oracle-v0")
+    with pytest.raises(ConfigError) as err:
+        env.reset(seed=seed)
+    assert str(err.value) == f"seed: got {seed!r}; allowed: None or an integer >= 0"
+
+
+def test_numpy_integer_seed_equals_the_python_int():
+    env = make_env("QuadSLAM-Oracle-v0")
+    want, _ = env.reset(seed=7)
+    for seed in (np.int64(7), np.uint16(7)):
+        np.testing.assert_array_equal(env.reset(seed=seed)[0], want)
 
 
 # ----------------------------------------------------------------------------- render / frame

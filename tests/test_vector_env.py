@@ -8,10 +8,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
+from gymnasium.wrappers import vector as vector_wrappers
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.dflqr import DFLQRPolicy
 from quadslam_env.actions import ActionError
+from quadslam_env.config import ConfigError
 
 SHORT = {"episode": {"duration_s": 0.35}}
 FAST_FASTSLAM = {
@@ -68,63 +70,136 @@ def lane_actions(env_id: str, lanes: int, steps: int) -> np.ndarray:
 
 
 def _kwargs(env_id: str) -> dict:
-    return dict(CASES[env_id])
+    """The make kwargs of a case; a 20° tilt limit ends lane 1 (full roll torque, see
+    :func:`lane_actions`) every ~20 steps, so lanes end, and are reset, at different steps."""
+    kwargs = dict(CASES[env_id])
+    kwargs["episode"] = {**kwargs.get("episode", {}), "max_tilt_deg": 20.0}
+    return kwargs
 
 
-def scalar_rollout(env_id: str, seed: int, actions: np.ndarray) -> tuple[list[tuple], int]:
-    """What a lane must produce, from the scalar env (reset the step after an episode ends),
-    and how many times it was reset after an episode end."""
+MODES = [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP, AutoresetMode.DISABLED]
+
+
+def scalar_rollout(
+    env_id: str, seed: int, actions: np.ndarray, mode: AutoresetMode = AutoresetMode.NEXT_STEP
+) -> tuple[list[tuple], int]:
+    """What a lane must produce, from the scalar env reset as the vector env's ``mode`` resets
+    the lane, and how many times it was reset after an episode end.
+
+    Entries ``(obs, reward, terminated, truncated, info, final)``, ``final`` the ending step's
+    ``(obs, info)`` where SAME_STEP put the reset in that step's entry, else ``None``.
+    NEXT_STEP resets on the step after an end (its action unused); SAME_STEP in the ending
+    step; DISABLED right after it, as an entry of its own (a ``reset_mask`` reset).
+    """
     env = gym.make(_id(env_id), **_kwargs(env_id))
     obs, info = env.reset(seed=seed)
-    out = [(obs, 0.0, False, False, info)]
+    out = [(obs, 0.0, False, False, info, None)]
     done = False
     n_resets = 0
     for a in actions:
-        if done:
+        if done:  # NEXT_STEP only: the other modes reset below, right after the end
             obs, info = env.reset()
-            out.append((obs, 0.0, False, False, info))
+            out.append((obs, 0.0, False, False, info, None))
             done = False
             n_resets += 1
             continue
         obs, reward, term, trunc, info = env.step(a)
-        out.append((obs, reward, term, trunc, info))
         done = term or trunc
+        if done and mode == AutoresetMode.SAME_STEP:
+            final = (obs, info)
+            obs, info = env.reset()
+            out.append((obs, reward, term, trunc, info, final))
+        else:
+            out.append((obs, reward, term, trunc, info, None))
+        if done and mode != AutoresetMode.NEXT_STEP:
+            if mode == AutoresetMode.DISABLED:
+                obs, info = env.reset()
+                out.append((obs, 0.0, False, False, info, None))
+            done = False
+            n_resets += 1
     env.close()
     return out, n_resets
 
 
+def vector_rollout(
+    vec: gym.vector.VectorEnv, seed: int, actions: np.ndarray
+) -> list[tuple[tuple, np.ndarray, int]]:
+    """Events ``(reset or step result, lanes (B,) bool it applies to, steps taken)`` of ``vec``
+    reset with ``seed`` and stepped with ``actions`` (T, B, 4); with DISABLED the lanes that
+    end are reset with ``reset_mask`` right after the step."""
+    b = vec.num_envs
+    every = np.ones(b, dtype=bool)
+    obs, info = vec.reset(seed=seed)
+    events = [((obs, np.zeros(b), np.zeros(b, bool), np.zeros(b, bool), info), every, 0)]
+    for k, act in enumerate(actions, start=1):
+        result = vec.step(act)
+        events.append((result, every, k))
+        ended = result[2] | result[3]
+        if vec.metadata["autoreset_mode"] == AutoresetMode.DISABLED and ended.any():
+            obs, info = vec.reset(options={"reset_mask": ended})
+            reset = (obs, np.zeros(b), np.zeros(b, bool), np.zeros(b, bool), info)
+            events.append((reset, ended, k))
+    return events
+
+
+def assert_lane_info(got: dict, lane: int, want: dict, where: str) -> None:
+    """Lane ``lane`` of the vector info ``got`` holds exactly the scalar env's ``want``."""
+    want = dict(want)
+    keys = {
+        key
+        for key in got
+        if not key.startswith("_") and key not in ("final_obs", "final_info")
+        and got[f"_{key}"][lane]
+    }  # fmt: skip
+    reason = want.pop("termination_reason", "")
+    assert keys - {"termination_reason"} == set(want), where
+    got_reason = got["termination_reason"][lane] if "termination_reason" in keys else ""
+    assert got_reason == reason, where
+    for key, value in want.items():
+        if key != "est_step_time_ms":
+            assert got[key][lane] == pytest.approx(value, rel=1e-6, abs=1e-9), f"{where} {key}"
+
+
+@pytest.mark.parametrize("mode", MODES, ids=[m.value for m in MODES])
 @pytest.mark.parametrize("env_id", sorted(CASES))
-def test_lane_i_equals_the_scalar_env_seeded_s_plus_i_through_autoresets(env_id):
+def test_lane_i_equals_the_scalar_env_seeded_s_plus_i_through_autoresets(env_id, mode):
     lanes, steps, seed = 3, 80, 100
     acts = lane_actions(env_id, lanes, steps)
     vec = gym.make_vec(
         _id(env_id),
         num_envs=lanes,
         vectorization_mode="vector_entry_point",
+        autoreset_mode=mode,
         **_kwargs(env_id),
     )
-    obs, info = vec.reset(seed=seed)
-    got = [(obs, np.zeros(lanes), np.zeros(lanes, bool), np.zeros(lanes, bool), info)]
-    for k in range(steps):
-        got.append(vec.step(acts[k]))
+    assert vec.metadata["autoreset_mode"] == mode
+    events = vector_rollout(vec, seed, acts)
     vec.close()
+    end_steps = []
     for lane in range(lanes):
-        want, n_resets = scalar_rollout(env_id, seed + lane, acts[:, lane])
-        assert n_resets >= 1  # the comparison went through at least one autoreset
-        for k, (w, g) in enumerate(zip(want, got, strict=True)):
-            w_obs, w_rew, w_term, w_trunc, w_info = w
+        want, n_resets = scalar_rollout(env_id, seed + lane, acts[:, lane], mode)
+        assert n_resets >= 1  # the comparison went through at least one reset after an end
+        got = [(event, step) for event, applies, step in events if applies[lane]]
+        ends = []
+        for k, (w, (g, step)) in enumerate(zip(want, got, strict=True)):
+            w_obs, w_rew, w_term, w_trunc, w_info, w_final = w
             g_obs, g_rew, g_term, g_trunc, g_info = g
-            np.testing.assert_array_equal(g_obs[lane], w_obs, err_msg=f"lane {lane} step {k}")
+            where = f"lane {lane} event {k}"
+            np.testing.assert_array_equal(g_obs[lane], w_obs, err_msg=where)
             assert g_rew[lane] == pytest.approx(w_rew, rel=1e-6, abs=1e-9)
             assert (bool(g_term[lane]), bool(g_trunc[lane])) == (w_term, w_trunc)
-            keys = {key for key in g_info if not key.startswith("_") and g_info[f"_{key}"][lane]}
-            reason = w_info.pop("termination_reason", "")
-            assert keys - {"termination_reason"} == set(w_info), f"lane {lane} step {k}"
-            got_reason = g_info["termination_reason"][lane] if "termination_reason" in keys else ""
-            assert got_reason == reason
-            for key, value in w_info.items():
-                if key != "est_step_time_ms":
-                    assert g_info[key][lane] == pytest.approx(value, rel=1e-6, abs=1e-9), key
+            assert_lane_info(g_info, lane, w_info, where)
+            has_final = "final_obs" in g_info and g_info["_final_obs"][lane]
+            assert has_final == (w_final is not None), where
+            assert bool("final_info" in g_info and g_info["_final_info"][lane]) == has_final
+            if has_final:
+                np.testing.assert_array_equal(g_info["final_obs"][lane], w_final[0])
+                assert_lane_info(g_info["final_info"], lane, w_final[1], f"{where} final")
+            if w_term or w_trunc:
+                ends.append(step)
+        end_steps.append(ends)
+    # Several episode ends, not at the same steps in every lane.
+    assert max(map(len, end_steps)) >= 3 and len(set(map(tuple, end_steps))) > 1
 
 
 def test_vector_conventions():
@@ -240,3 +315,174 @@ def test_a_diverging_lane_ends_alone_with_its_reason_and_autoresets():
     assert reward[1] == 0.0 and not term[1] and info["t"][1] == 0.0
     vec.close()
     clean.close()
+
+
+# ----------------------------------------------------------------------------- autoreset modes
+ORACLE = "QuadSLAM-Oracle-v0"
+TINY = {"episode": {"duration_s": 0.05}}  # 5 steps
+
+
+def _vec(mode: AutoresetMode | str, lanes: int = 2, **kwargs) -> gym.vector.VectorEnv:
+    return gym.make_vec(
+        ORACLE,
+        num_envs=lanes,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=mode,
+        **kwargs,
+    )
+
+
+@pytest.mark.parametrize("mode", MODES, ids=[m.value for m in MODES])
+def test_autoreset_mode_takes_the_enum_or_its_value_and_is_in_the_metadata(mode):
+    for value in (mode, mode.value):
+        vec = _vec(value)
+        assert vec.metadata["autoreset_mode"] is mode
+        vec.close()
+    assert _vec(AutoresetMode.NEXT_STEP).metadata == gym.make_vec(ORACLE, num_envs=2).metadata
+
+
+@pytest.mark.parametrize("bad", ["same_step", "SAME_STEP", 1, None])
+def test_unknown_autoreset_mode_names_the_key_the_value_and_the_allowed_values(bad):
+    with pytest.raises(ConfigError, match=r"^autoreset_mode: got .+; allowed: .*") as err:
+        _vec(bad)
+    assert repr(bad) in str(err.value) and "'NextStep', 'SameStep', 'Disabled'" in str(err.value)
+
+
+def test_cleanrl_style_same_step_loop_counts_every_episode_once():
+    lanes, steps = 3, 80
+    acts = lane_actions(ORACLE, lanes, steps)  # lane 1 ends on the tilt limit, see _kwargs
+    vec = vector_wrappers.RecordEpisodeStatistics(
+        _vec(AutoresetMode.SAME_STEP, lanes, **_kwargs(ORACLE))
+    )
+    vec.reset(seed=0)
+    ends = finals = 0
+    for act in acts:
+        _, _, terminated, truncated, infos = vec.step(act)
+        done = terminated | truncated
+        ends += int(done.sum())
+        assert ("final_info" in infos) == done.any() == ("episode" in infos)
+        if not done.any():
+            continue
+        final = infos["final_info"]
+        np.testing.assert_array_equal(infos["_final_info"], done)
+        np.testing.assert_array_equal(infos["_final_obs"], done)
+        for i in np.flatnonzero(infos["_final_info"]):  # as CleanRL reads them
+            finals += 1
+            assert vec.single_observation_space.contains(infos["final_obs"][i])
+            assert all(final[f"_{key}"][i] for key in ("episode_steps", "episode_est_pos_rmse_m"))
+            # Every step counts in same-step mode: the statistics wrapper agrees.
+            assert final["episode_steps"][i] == infos["episode"]["l"][i]
+            assert infos["t"][i] == 0.0  # the lane was reset in the same step
+        assert not final["_episode_steps"][~done].any()
+    assert finals == ends and ends >= 6
+    vec.close()
+
+
+def test_disabled_autoreset_raises_on_an_ended_lane_and_reset_mask_resets_only_those():
+    acts = lane_actions(ORACLE, 3, 40)
+    vec = _vec(AutoresetMode.DISABLED, 3, **_kwargs(ORACLE))
+    core = vec.unwrapped.core
+    with pytest.raises(gym.error.ResetNeeded, match=r"call reset\(\)"):
+        vec.step(acts[0])
+    with pytest.raises(gym.error.ResetNeeded, match="reset_mask"):
+        vec.reset(options={"reset_mask": np.array([True, False, False])})
+    obs, _ = vec.reset(seed=3)
+    for act in acts:
+        obs, _, terminated, truncated, info = vec.step(act)
+        if (terminated | truncated).any():
+            break
+    ended = terminated | truncated
+    assert ended.tolist() == [False, True, False]  # lane 1 on the tilt limit
+    assert "final_obs" not in info and info["t"][1] > 0.0  # nothing was reset
+    before = core.vehicle.state.copy(), core.t.copy()
+    with pytest.raises(gym.error.ResetNeeded, match=r"lane\(s\) \[1\] ended.*reset_mask"):
+        vec.step(act)
+    np.testing.assert_array_equal(core.vehicle.state, before[0])  # no lane moved
+    start = core.vehicle.state[0].copy()  # lane 0's upright state: the other options apply
+    options = {"reset_mask": ended, "initial_state": start.tolist()}
+    r_obs, r_info = vec.reset(options=options)
+    assert "reset_mask" in options  # the caller's options are left as they were
+    np.testing.assert_array_equal(core.vehicle.state[1], start)
+    np.testing.assert_array_equal(r_obs[[0, 2]], obs[[0, 2]])  # the last observations
+    np.testing.assert_array_equal(core.vehicle.state[[0, 2]], before[0][[0, 2]])
+    assert core.t.tolist() == [before[1][0], 0.0, before[1][2]]
+    assert r_info["_t"].tolist() == [False, True, False]
+    vec.step(act)  # every lane is running again
+    assert core.t.tolist() == pytest.approx([before[1][0] + 0.01, 0.01, before[1][2] + 0.01])
+    vec.close()
+
+
+@pytest.mark.parametrize(
+    "mask",
+    [
+        [1, 0],
+        np.array([0, 1]),
+        np.array([True, False, True]),
+        np.array([False, False]),
+        "all",
+    ],
+)
+def test_bad_reset_mask_is_a_config_error(mask):
+    vec = _vec(AutoresetMode.DISABLED)
+    vec.reset(seed=0)
+    with pytest.raises(ConfigError, match=r"reset options\.reset_mask: got .*; allowed: a \(2,\)"):
+        vec.reset(options={"reset_mask": mask})
+    vec.close()
+
+
+@pytest.mark.parametrize("mode", MODES, ids=[m.value for m in MODES])
+def test_gymnasium_vector_wrappers_and_render_in_every_mode(mode):
+    wrappers = vector_wrappers
+    base = _vec(mode, render_mode="rgb_array", **TINY)
+    env = wrappers.RecordEpisodeStatistics(base)
+    env = wrappers.NormalizeReward(wrappers.ClipAction(env))
+    if mode == AutoresetMode.NEXT_STEP:  # Gymnasium's observation wrappers: next-step only
+        env = wrappers.NormalizeObservation(env)
+    env = wrappers.DictInfoToList(env)
+    history = base.unwrapped._renderer.history
+    env.reset(seed=0)
+    action = np.tile(1.5 * base.unwrapped.hover_action, (2, 1))  # clipped to [-1, 1]
+    lengths = []
+    for _ in range(12):
+        obs, _, terminated, truncated, infos = env.step(action)
+        done = terminated | truncated
+        if mode == AutoresetMode.DISABLED and done.any():
+            env.reset(options={"reset_mask": done})
+        lengths += [info["episode"]["l"] for info in infos if "episode" in info]
+        for info in infos:
+            if "final_obs" in info:
+                assert info["final_obs"].shape == obs.shape[1:]
+                assert "episode_steps" in info["final_info"]
+    assert lengths == [5] * 4  # two episodes in each lane, counted once each
+    assert history.episode == 3  # lane 0's frames follow its resets
+    assert base.render().shape == (480, 640, 3)
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("seed", "fragment"),
+    [
+        (1.5, r"seed: got 1\.5; allowed: None, an integer >= 0 .* or a list of 3 seeds"),
+        ("3", r"seed: got '3'; allowed: None, an integer >= 0"),
+        (True, r"seed: got True; allowed"),
+        (-1, r"seed: got -1; allowed"),
+        ([1, 2], r"seed: got \[1, 2\] \(a list of 2\); allowed: a list of 3 seeds"),
+        ([0, 1, 2.5], r"seed\[2\]: got 2\.5; allowed: None or an integer >= 0"),
+        ([0, -1, 2], r"seed\[1\]: got -1"),
+        ((0, np.True_, 2), r"seed\[1\]: got "),
+    ],
+)
+def test_bad_seeds_name_the_key_the_value_and_what_is_allowed(seed, fragment):
+    vec = _vec(AutoresetMode.NEXT_STEP, 3)
+    with pytest.raises(ConfigError, match=fragment) as err:
+        vec.reset(seed=seed)
+    assert "\n" not in str(err.value)
+    vec.close()
+
+
+def test_numpy_integer_seeds_equal_python_ones():
+    vec = _vec(AutoresetMode.NEXT_STEP, 3)
+    want, _ = vec.reset(seed=4)
+    for seed in (np.int64(4), np.uint8(4), [4, np.int32(5), 6], np.arange(4, 7)):
+        np.testing.assert_array_equal(vec.reset(seed=seed)[0], want)
+    vec.close()
