@@ -482,6 +482,18 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def _drop_other_params(data: dict[str, Any], override: Any) -> dict[str, Any]:
+    """The scenario without its estimator ``params`` when ``override`` (the ``estimator``
+    override) names another estimator: those settings belong to the scenario's estimator, and
+    the new one starts from its own defaults (plus any ``params`` the override gives)."""
+    if not isinstance(override, dict) or not isinstance(data.get("estimator"), dict):
+        return data
+    name = override.get("name")
+    if name is None or name == data["estimator"].get("name", "ekf_slam"):
+        return data
+    return {**data, "estimator": {**data["estimator"], "params": {}}}
+
+
 def load_scenario(
     scenario: str | Path | dict[str, Any] | None = None,
     overrides: dict[str, Any] | None = None,
@@ -535,5 +547,5 @@ def load_scenario(
     if overrides:
         if not isinstance(overrides, dict):
             raise ConfigError(f"overrides: got {overrides!r}; allowed: a mapping of sections")
-        data = deep_merge(data, overrides)
+        data = deep_merge(_drop_other_params(data, overrides.get("estimator")), overrides)
     return ScenarioConfig.from_dict(data, name=name)

@@ -247,3 +247,20 @@ def test_exponent_floats_without_a_dot_are_numbers(tmp_path: Path) -> None:
     path = tmp_path / "s.yaml"
     path.write_text("estimator:\n  initial_cov_diag: [1e-3, -2e+1, 5, 0.5, 1.0e-2, 1_0e0]\n")
     assert load_yaml(path)["estimator"]["initial_cov_diag"] == [1e-3, -20.0, 5, 0.5, 1e-2, 10.0]
+
+
+def test_switching_the_estimator_by_override_starts_from_its_own_defaults() -> None:
+    # The scenario's EKF settings belong to the EKF: an override that names another estimator
+    # drops them; one that keeps the estimator merges into them.
+    swapped = load_scenario("ekf_figure8_biased_imu", {"estimator": {"name": "oracle"}})
+    assert swapped.estimator.name == "oracle" and swapped.estimator.params == {}
+    fastslam = load_scenario(
+        "ekf_figure8_biased_imu",
+        {"estimator": {"name": "fastslam", "params": {"n_particles": 30}}},
+    )
+    assert fastslam.estimator.params == {"n_particles": 30}
+    kept = load_scenario(
+        "ekf_figure8_biased_imu", {"estimator": {"params": {"estimate_imu_bias": False}}}
+    )
+    assert kept.estimator.params["process_noise"] == [0.0] * 9
+    assert kept.estimator.params["estimate_imu_bias"] is False
