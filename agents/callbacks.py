@@ -7,12 +7,17 @@
   ``ProgressBarCallback`` needs ``rich``, which is not a dependency).
 - :class:`SaveVecNormalizeCallback`: saves the ``VecNormalize`` statistics next to
   ``EvalCallback``'s ``best_model.zip`` so the best model can be evaluated like the final one.
+- :class:`AtomicCheckpointCallback`, :class:`AtomicEvalCallback`: SB3's checkpoint and
+  evaluation callbacks with every file written atomically (SB3 writes in place, so a kill or a
+  full disk during a save left a truncated checkpoint, ``best_model.zip`` or
+  ``evaluations.npz``, which ``--resume`` and the learning curve then failed on).
 """
 
 from __future__ import annotations
 
 import math
 import re
+import shutil
 import sys
 import time
 from collections import Counter, defaultdict
@@ -21,8 +26,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 from tqdm import tqdm
+
+from agents.outputs import atomic_produce, atomic_produce_all, commit
 
 STEP_PREFIXES = ("est_", "track_", "reward_")
 EPISODE_PREFIX = "episode_"
@@ -204,5 +211,85 @@ class SaveVecNormalizeCallback(BaseCallback):
         vec_normalize = self.model.get_vec_normalize_env()
         if vec_normalize is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            vec_normalize.save(str(self.path))
+            atomic_produce(self.path, lambda tmp: vec_normalize.save(str(tmp)))
         return True
+
+
+class AtomicCheckpointCallback(CheckpointCallback):
+    """SB3's ``CheckpointCallback`` with a checkpoint's files written atomically together.
+
+    All of them (``VecNormalize`` statistics, a replay buffer if asked, the model zip) are
+    written under temporary names first and then moved into place, the zip last: a checkpoint
+    whose zip exists is complete, and a save that fails (a kill, a full disk) leaves no file
+    under a checkpoint's name.
+    """
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq != 0:
+            return True
+        model: Any = self.model
+        items: list[tuple[Path, Any]] = []
+        vec_normalize = model.get_vec_normalize_env() if self.save_vecnormalize else None
+        if vec_normalize is not None:
+            path = Path(self._checkpoint_path("vecnormalize_", extension="pkl"))
+            items.append((path, lambda tmp: vec_normalize.save(str(tmp))))
+        if self.save_replay_buffer and getattr(model, "replay_buffer", None) is not None:
+            path = Path(self._checkpoint_path("replay_buffer_", extension="pkl"))
+            items.append((path, lambda tmp: model.save_replay_buffer(tmp)))
+        zip_path = Path(self._checkpoint_path(extension="zip"))
+        atomic_produce_all([*items, (zip_path, lambda tmp: model.save(tmp))])
+        return True
+
+
+class AtomicEvalCallback(EvalCallback):
+    """SB3's ``EvalCallback`` with ``evaluations.npz`` and ``best_model.zip`` written
+    atomically.
+
+    SB3 writes both in place (``np.savez``, ``model.save``); here it writes them into a hidden
+    staging folder beside them, and each is moved into place after the evaluation that wrote
+    it. Takes the arguments of ``EvalCallback``; call :meth:`clean_up` when training ends
+    (also after an interruption).
+    """
+
+    def __init__(
+        self,
+        eval_env: Any,
+        *,
+        log_path: str | None = None,
+        best_model_save_path: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self._log_dir = None if log_path is None else Path(log_path)
+        self._best_dir = None if best_model_save_path is None else Path(best_model_save_path)
+        home = self._log_dir or self._best_dir
+        self._stage = None if home is None else home / ".staging"
+        stage = None if self._stage is None else str(self._stage)
+        super().__init__(
+            eval_env,
+            log_path=stage if log_path is not None else None,
+            best_model_save_path=stage if best_model_save_path is not None else None,
+            **kwargs,
+        )
+
+    def _init_callback(self) -> None:
+        super()._init_callback()
+        for folder in (self._log_dir, self._best_dir):
+            if folder is not None:
+                folder.mkdir(parents=True, exist_ok=True)
+
+    def _on_step(self) -> bool:
+        continue_training = super()._on_step()
+        if self._stage is not None:
+            for name, folder in (
+                ("evaluations.npz", self._log_dir),
+                ("best_model.zip", self._best_dir),
+            ):
+                staged = self._stage / name
+                if folder is not None and staged.exists():
+                    commit(staged, folder / name)
+        return bool(continue_training)
+
+    def clean_up(self) -> None:
+        """Remove the staging folder (what is in it was never published)."""
+        if self._stage is not None:
+            shutil.rmtree(self._stage, ignore_errors=True)

@@ -1,7 +1,10 @@
 """The ``quadslam`` command line: ``run``, ``evaluate``, ``train``, ``study``, ``sweep``, ``bench``.
 
-Bad input (unknown scenario, malformed YAML, wrong model file, bad numbers) is reported in one
-line on stderr with a non-zero exit status.
+Bad input (unknown scenario, malformed YAML, wrong model file, bad numbers), a file system
+that refuses a write and a full disk are reported in one line on stderr with exit status 2
+(:func:`main`); a bug (``TypeError``, ``KeyError``, …) keeps its traceback. Ctrl-C ends a
+command with status 130 and SIGTERM with 143, after ``train`` and ``sweep`` saved their work
+and printed how to resume it.
 """
 
 from __future__ import annotations
@@ -194,12 +197,14 @@ def fly(
 def cmd_run(args: argparse.Namespace) -> int:
     """DF-LQR episodes on a scenario: the package's main job."""
     from agents.dflqr import DFLQRPolicy
+    from agents.outputs import safe_name
 
     env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
     plots = args.plots
     if plots is None and not args.no_plots:
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        plots = Path("runs") / f"run-{stamp}-{env.unwrapped.scenario.name}"
+        # The scenario's name comes from its file: one safe folder name inside runs/.
+        plots = Path("runs") / f"run-{stamp}-{safe_name(env.unwrapped.scenario.name)}"
     check_outputs(plots, args.json, args.video)
     seeds = list(range(args.seed, args.seed + args.seeds))
     fly(env, DFLQRPolicy.from_env(env), "dflqr", seeds, plots, args.json, args.video)
@@ -213,6 +218,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     # A trained model is evaluated on its training env id and scenario unless told otherwise.
     cfg = run_config(args.policy) if args.policy != "dflqr" and Path(args.policy).exists() else None
+    if cfg is not None and Path(args.policy).is_dir():
+        _warn_unfinished(Path(args.policy))
     env_id = args.env or (cfg["env_id"] if cfg else "QuadSLAM-v0")
     # The run's resolved scenario (every section, env_kwargs overrides included) rebuilds the
     # training env without the scenario files; --scenario replaces it.
@@ -223,6 +230,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     seeds = list(range(args.seed, args.seed + args.episodes))
     fly(env, policy, name, seeds, args.plots, args.json, args.video)
     return 0
+
+
+def _warn_unfinished(run_dir: Path) -> None:
+    """One warning line when a run folder's training did not finish (its model is partial)."""
+    marker = run_dir / "INTERRUPTED"
+    if marker.is_file() or not (run_dir / "timing.json").is_file():
+        at = marker.read_text().strip() if marker.is_file() else ""
+        where = f" at {at} steps" if at.isdigit() else ""
+        print(
+            f"quadslam evaluate: warning: {run_dir} did not finish training{where}; "
+            f"resume it with: quadslam train --resume {run_dir}",
+            file=sys.stderr,
+        )
 
 
 def cmd_scenarios(args: argparse.Namespace) -> int:
@@ -261,43 +281,59 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an SB3 agent with ``configs/agents/<algo>.yaml`` and print the run folder."""
     from agents.hyperparams import parse_hyperparam_overrides
-    from agents.outputs import check_output_dir
+    from agents.outputs import Terminated, check_output_dir
     from agents.training import resume, train
+    from quadslam_env.config_files import check_config_file
 
-    if args.resume is not None:
-        run_dir = resume(
-            args.resume,
+    try:
+        if args.resume is not None:
+            run_dir = resume(
+                args.resume,
+                progress=not args.no_progress,
+                verbose=args.verbose,
+                torch_threads=args.torch_threads,
+            )
+            return _report_run(run_dir)
+        if args.algo is None:
+            raise ValueError("--algo: required (one of ppo, sac, td3, a2c) unless --resume RUN")
+        if args.config is not None:
+            check_config_file(args.config, "--config")  # before an unbounded read
+        check_output_dir(args.out or Path("runs"), "--out")
+        run_dir = train(
+            args.algo,
+            args.env,
+            config_path=args.config,
+            timesteps=args.timesteps,
+            n_envs=args.n_envs,
+            seed=args.seed,
+            out_dir=args.out,
             progress=not args.no_progress,
+            hyperparams=parse_hyperparam_overrides(args.hyperparams),
             verbose=args.verbose,
             torch_threads=args.torch_threads,
         )
-        return _report_run(run_dir)
-    if args.algo is None:
-        raise ValueError("--algo: required (one of ppo, sac, td3, a2c) unless --resume RUN")
-    check_output_dir(args.out or Path("runs"), "--out")
-    run_dir = train(
-        args.algo,
-        args.env,
-        config_path=args.config,
-        timesteps=args.timesteps,
-        n_envs=args.n_envs,
-        seed=args.seed,
-        out_dir=args.out,
-        progress=not args.no_progress,
-        hyperparams=parse_hyperparam_overrides(args.hyperparams),
-        verbose=args.verbose,
-        torch_threads=args.torch_threads,
-    )
+    except Terminated as exc:  # SIGTERM: the run folder was saved first
+        if exc.run_dir is None:
+            raise
+        return _report_run(exc.run_dir, status=143)
     return _report_run(run_dir)
 
 
-def _report_run(run_dir: Path) -> int:
-    """Print a finished (or interrupted: status 130) run folder with its wall clock."""
+def _report_run(run_dir: Path, status: int = 130) -> int:
+    """Print a finished run folder with its wall clock (status 0), or an interrupted one with
+    how to resume it (``status``: 130 after Ctrl-C, 143 after SIGTERM)."""
     import json
 
-    if (run_dir / "INTERRUPTED").exists():
-        print(f"run folder: {run_dir} (partial: interrupted, model saved)", file=sys.stderr)
-        return 130  # the shell's status for SIGINT, so scripts see the run did not finish
+    marker = run_dir / "INTERRUPTED"
+    if marker.exists():
+        at = marker.read_text().strip()
+        steps = f" at {int(at):,} steps" if at.isdigit() else ""
+        print(
+            f"run folder: {run_dir} (partial: interrupted{steps}, model saved); resume with: "
+            f"quadslam train --resume {run_dir}",
+            file=sys.stderr,
+        )
+        return status  # the shell's status for the signal, so scripts see it did not finish
     timing = json.loads((run_dir / "timing.json").read_text())
     print(f"run folder: {run_dir}")
     print(
@@ -425,16 +461,72 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: What a command stopped by Ctrl-C or SIGTERM leaves behind (train and sweep say it
+#: themselves, with the folder to resume).
+_STOPPED_HINTS = {
+    "study": "; finished training runs in its --out folder are reused when it is rerun",
+}
+
+
+def _user_error(exc: BaseException) -> bool:
+    """An error of the input or the environment (one line, status 2), not a bug.
+
+    The project's own errors are ``ValueError`` subclasses (``ConfigError``,
+    ``OutputPathError``, ``SweepError``, …) or :class:`agents.outputs.DiskFullError`; the file
+    system's are ``OSError``; Gymnasium's (an unknown or broken env id) derive from
+    ``gymnasium.error.Error``. ``TypeError``, ``KeyError`` and the rest are bugs and keep their
+    traceback.
+    """
+    from agents.outputs import DiskFullError
+
+    if isinstance(exc, ValueError | OSError | DiskFullError):
+        return True
+    gym_error = sys.modules.get("gymnasium.error")  # not imported: cannot be one of its errors
+    return gym_error is not None and isinstance(exc, gym_error.Error)
+
+
+def _message(exc: BaseException) -> str:
+    """The error on one line; an ``OSError`` as its reason and file, without ``[Errno N]``."""
+    if isinstance(exc, OSError) and exc.strerror:
+        text = exc.strerror
+        if exc.filename is not None:
+            text += f": {str(exc.filename)!r}"
+        if exc.filename2 is not None:
+            text += f" -> {str(exc.filename2)!r}"
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())  # one line, even for multi-line YAML errors
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``quadslam`` console script."""
+    """Entry point of the ``quadslam`` console script.
+
+    Returns:
+        The command's status; 2 after a one-line error (see :func:`_user_error`), 130 after
+        Ctrl-C and 143 after SIGTERM (``train`` and ``sweep`` save their work first).
+    """
+    from agents.outputs import Terminated, sigterm_as_interrupt, sigterm_received
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args))
-    except (ValueError, TypeError, FileNotFoundError, KeyError) as exc:
-        message = " ".join(str(exc).split())  # one line, even for multi-line YAML errors
-        print(f"quadslam {args.command}: error: {message}", file=sys.stderr)
+        with sigterm_as_interrupt():
+            code = int(args.func(args))
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        what = "terminated (SIGTERM)" if terminated else "interrupted"
+        # Only the studies that keep training runs (they have --out) reuse anything.
+        hint = _STOPPED_HINTS.get(args.command, "") if hasattr(args, "out") else ""
+        print(f"quadslam {args.command}: {what}{hint}", file=sys.stderr)
+        return 143 if terminated else 130
+    except Exception as exc:
+        if not _user_error(exc):
+            raise
+        print(f"quadslam {args.command}: error: {_message(exc)}", file=sys.stderr)
         return 2
+    # A command that saved its work after SIGTERM returns Ctrl-C's 130: the shell's status
+    # for SIGTERM is 143.
+    return 143 if code == 130 and sigterm_received() else code
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from quadslam_env.config import parse_yaml
+from quadslam_env.config_files import parse_yaml, read_text_file
 
 
 def versions() -> dict[str, str]:
@@ -45,12 +45,16 @@ def new_run_dir(out_dir: str | Path | None, algo: str, env_id: str, seed: int) -
     """Create ``<out_dir>/<algo>_<env_id>_s<seed>_<time>[-i]`` and return it.
 
     Race-free: the folder is claimed by ``mkdir`` itself (``exist_ok=False``), so two trainings
-    started in the same second get different folders.
+    started in the same second get different folders. The name is made of letters, digits,
+    ``._-`` only (:func:`agents.outputs.safe_name`).
     """
+    from agents.outputs import safe_name
+
     parent = Path(out_dir) if out_dir is not None else Path("runs")
     parent.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    base = parent / f"{algo}_{env_id}_s{seed}_{stamp}"
+    # Gymnasium ids may hold a namespace ("ns/Env-v0"): one folder name, never a sub-path.
+    base = parent / safe_name(f"{algo}_{env_id}_s{seed}_{stamp}", limit=160)
     for i in range(10_000):
         run_dir = base if i == 0 else base.with_name(f"{base.name}-{i}")
         try:
@@ -67,8 +71,8 @@ def read_run_config(folder: Path) -> dict[str, Any] | None:
     if not cfg.is_file():
         return None
     try:
-        data = parse_yaml(cfg.read_text())
-    except (OSError, yaml.YAMLError):
+        data = parse_yaml(read_text_file(cfg, "run config"))  # size-capped
+    except (ValueError, yaml.YAMLError):  # ConfigError: unreadable, too large, not UTF-8
         return None
     if isinstance(data, dict) and "algo" in data and "hyperparams" in data:
         return data

@@ -120,6 +120,8 @@ def train_or_reuse(seed: int, timesteps: int | None, out: Path) -> Path:
             print(f"  reusing {done.parent}", file=sys.stderr)
             return done.parent
     run = train("ppo", ENV_ID, timesteps=timesteps, seed=seed, out_dir=folder, progress=False)
+    if (run / "INTERRUPTED").exists():  # Ctrl-C: train() saved and returned; stop the study
+        raise KeyboardInterrupt
     wall = float(json.loads((run / "timing.json").read_text())["wall_s"])
     print(f"  ppo seed {seed}: trained in {wall:.0f} s ({run})", file=sys.stderr)
     return run

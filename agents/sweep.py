@@ -12,6 +12,14 @@ traceback) and the others go on. At the end the table ``OUT/results.csv`` /
 ``OUT/results.parquet`` and the summary plots ``OUT/plots/*.png`` are written from every
 finished job (:mod:`agents.sweep_table`, :mod:`agents.sweep_plots`).
 
+One sweep at a time per output folder: the driver holds an advisory lock
+(``fcntl.flock``) on ``OUT/.sweep.lock`` while it runs, and a second sweep on the same folder
+stops at once with a one-line error. SIGTERM stops a sweep like Ctrl-C (the finished jobs'
+table is written, exit status 143; Ray's own handler, which would exit at once, is replaced
+after ``ray.init``). A full disk stops the sweep with one line saying how many jobs are saved
+in ``OUT`` and how to resume (exit status 2); every file is written atomically, so nothing
+finished is lost or truncated.
+
 Why plain Ray tasks and not Ray Tune for training jobs: the grid is fixed by the spec and
 every trial runs to the end, so Tune's schedulers and search algorithms would have nothing to
 do; a task's ``num_cpus`` is the same per-trial resource reservation Tune makes; and Tune's
@@ -21,24 +29,35 @@ also cover ``run`` and ``evaluate`` jobs).
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import logging
 import os
+import signal
 import socket
 import sys
+import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from agents.outputs import check_output_dir, json_text, write_bytes_atomic
+from agents.outputs import (
+    DiskFullError,
+    check_output_dir,
+    is_disk_full,
+    json_text,
+    write_bytes_atomic,
+)
 from agents.sweep_jobs import RESULT_FILE, execute_job, read_result
 from agents.sweep_spec import Job, load_spec, spec_path
 
 INSTALL_HINT = "install it with: pip install 'quadslam[ray]'"
 ERROR_FILE = "error.txt"
+LOCK_FILE = ".sweep.lock"
 # Single-threaded BLAS in every worker (see agents/cli.py); set for cluster nodes too.
 _THREAD_VARS = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
@@ -56,7 +75,8 @@ class SweepReport:
         ran: Ids of the jobs run (and finished) in this session.
         skipped: Ids of the jobs already finished before (``--resume``).
         failed: Job id → one-line error of the jobs that raised.
-        interrupted: The sweep was stopped (Ctrl-C) before every job ran.
+        interrupted: The sweep was stopped (Ctrl-C, SIGTERM) before every job ran.
+        disk_full: The write that found no space left (the sweep stopped there), or ``None``.
         wall_s: Wall time of the session in s.
         rows: Rows of the table.
         summary: The printed summary (median metrics per swept setting).
@@ -68,6 +88,7 @@ class SweepReport:
     skipped: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
     interrupted: bool = False
+    disk_full: OSError | None = None
     wall_s: float = 0.0
     rows: int = 0
     summary: str = ""
@@ -221,8 +242,10 @@ def run_jobs(
 ) -> None:
     """Run ``jobs`` as Ray tasks, at most ``limit`` at once; save each as it finishes.
 
-    A job's exception is recorded in ``report.failed`` and its ``error.txt``; Ctrl-C stops
-    the loop (the jobs finished stay finished) and sets ``report.interrupted``.
+    A job's exception is recorded in ``report.failed`` and its ``error.txt``; Ctrl-C or
+    SIGTERM stops the loop (the jobs finished stay finished) and sets ``report.interrupted``;
+    a full disk stops it and sets ``report.disk_full`` (the job being saved is not finished:
+    its ``result.json``, written last, is missing, so ``--resume`` runs it again).
     """
     from tqdm import tqdm
 
@@ -252,7 +275,12 @@ def run_jobs(
                     report.ran.append(job.job_id)
                 bar.update(1)
                 bar.set_postfix(failed=len(report.failed), refresh=False)
-    except KeyboardInterrupt:
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        # The jobs in flight end with the Ray session, as after Ctrl-C.
+        report.disk_full = exc
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (agents.outputs.Terminated)
         # The jobs in flight are not cancelled one by one (a forced ray.cancel racing with a
         # task's completion can abort Ray's core worker); they end with the driver's Ray
         # session: ray.shutdown() for a local Ray, the job's end on a cluster.
@@ -261,9 +289,43 @@ def run_jobs(
         bar.close()
 
 
+@contextlib.contextmanager
+def out_lock(out: Path) -> Iterator[None]:
+    """Hold the advisory lock of a sweep's output folder (``OUT/.sweep.lock``) in the block.
+
+    The lock is ``fcntl.flock`` on the file (released by the kernel when the process ends,
+    even on ``kill -9``), so a stale lock file never blocks a later sweep.
+
+    Raises:
+        SweepError: Another process holds the lock (one line naming the folder).
+    """
+    path = out / LOCK_FILE
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:
+        raise SweepError(
+            f"--out {str(out)!r}: cannot create the lock file {LOCK_FILE} "
+            f"({exc.strerror}); allowed: a writable folder"
+        ) from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise SweepError(
+                f"--out {str(out)!r}: another quadslam sweep is running on this folder (it "
+                f"holds {LOCK_FILE}); allowed: wait for it to end, or another --out"
+            ) from None
+        with contextlib.suppress(OSError):  # who holds it, for a curious user
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()} {socket.gethostname()}\n".encode())
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 def _check_out(out: Path, jobs: list[Job], resume: bool) -> None:
-    """The output folder must be writable, and hold no finished job unless ``--resume``."""
-    check_output_dir(out, "--out")
+    """The output folder must hold no finished job unless ``--resume`` (checked under the
+    folder's lock)."""
     if resume:
         return
     finished = [j for j in jobs if (job_folder(out, j) / RESULT_FILE).exists()]
@@ -296,7 +358,10 @@ def run_sweep(
 
     Raises:
         agents.sweep_spec.SweepSpecError: A bad spec (before anything runs).
-        SweepError: No Ray, an unreachable cluster, or ``out`` in use without ``--resume``.
+        SweepError: No Ray, an unreachable cluster, ``out`` in use by another sweep, or
+            holding finished jobs without ``--resume``.
+        agents.outputs.DiskFullError: No space left; the message says how many jobs are
+            saved in ``out`` and how to resume.
     """
     tic = time.perf_counter()
     path = spec_path(spec)
@@ -306,6 +371,57 @@ def run_sweep(
     import_ray()  # also pandas / pyarrow for the table
     if address is not None:
         check_address(address)  # at once, before any folder is made
+    else:
+        _warn_workers(workers)
+    check_output_dir(out, "--out")
+    with out_lock(out):
+        try:
+            report = _run_locked(path, jobs, out, address, resume, workers, progress, tic)
+        except OSError as exc:
+            if not is_disk_full(exc):
+                raise
+            raise _disk_full(exc, path, jobs, out) from None
+        if report.disk_full is not None:
+            raise _disk_full(report.disk_full, path, jobs, out)
+    return report
+
+
+def _warn_workers(workers: int | None) -> None:
+    """One warning line when a local sweep asks for more workers than this machine's cores
+    (each job then gets a share of a core: slower, and timings are not comparable)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    if workers is not None and workers > cores:
+        print(
+            f"quadslam sweep: warning: --workers {workers} is more than the {cores} CPU "
+            f"core(s) of this machine; the jobs will share cores",
+            file=sys.stderr,
+        )
+
+
+def _disk_full(exc: OSError, spec: Path, jobs: list[Job], out: Path) -> DiskFullError:
+    """The one-line report of a full disk: what did not fit, what is saved, how to resume."""
+    saved = sum(read_result(job_folder(out, job)) is not None for job in jobs)
+    return DiskFullError(
+        f"no space left on device writing {exc.filename or 'a file'}; {saved} of {len(jobs)} "
+        f"job(s) are saved in {out} (jobs/*/result.json); free some space, then: "
+        f"quadslam sweep {spec} --resume --out {out}"
+    )
+
+
+def _run_locked(
+    path: Path,
+    jobs: list[Job],
+    out: Path,
+    address: str | None,
+    resume: bool,
+    workers: int | None,
+    progress: bool,
+    tic: float,
+) -> SweepReport:
+    """:func:`run_sweep` while holding the output folder's lock (``tic``: its start)."""
     _check_out(out, jobs, resume)
     report = SweepReport(jobs)
     todo = []
@@ -322,7 +438,12 @@ def run_sweep(
         )
     if todo:
         ray = import_ray()
+        handler = signal.getsignal(signal.SIGTERM)
         started = connect(ray, address, workers)
+        if started and threading.current_thread() is threading.main_thread():
+            # ray.init installed its own SIGTERM handler (sys.exit at once: no table, no
+            # hint); the one from before (the CLI's, raising Terminated) comes back.
+            signal.signal(signal.SIGTERM, handler if handler is not None else signal.SIG_DFL)
         try:
             write_bytes_atomic(out / "spec.yaml", path.read_bytes())
             _check_cpus(ray, todo, address is None and started)
@@ -330,6 +451,8 @@ def run_sweep(
         finally:
             if started:
                 ray.shutdown()
+    if report.disk_full is not None:
+        return report  # the table and the record would not fit either; --resume writes them
     report.outputs = write_outputs(jobs, out, report)
     report.wall_s = time.perf_counter() - tic
     _write_sweep_record(out, path, report, address, workers)
@@ -377,7 +500,8 @@ def main_sweep(
     resume: bool,
     workers: int | None,
 ) -> int:
-    """``quadslam sweep``: run, print the summary; exit status 0, 1 (a job failed) or 130."""
+    """``quadslam sweep``: run, print the summary; exit status 0, 1 (a job failed) or 130
+    (Ctrl-C; the CLI makes it 143 after SIGTERM)."""
     path = spec_path(spec)
     out = out if out is not None else Path("runs") / f"sweep_{path.stem}"
     report = run_sweep(path, out, address, resume, workers)

@@ -178,6 +178,10 @@ class Resolver:
         env_id = point.get("env", "QuadSLAM-EKF-v0")
         config = point.get("config")
         source = Path(config).resolve() if config is not None else default_config_path(algo)
+        if config is not None:
+            from quadslam_env.config_files import check_config_file
+
+            check_config_file(source, "config")  # exists, a file, at most 1 MiB: before reading
         for key in ("timesteps", "n_envs"):
             value = point.get(key)
             if value is not None and (not is_int(value) or value < 1):

@@ -36,7 +36,8 @@ less start-up per episode, fewer and longer jobs).
 Everything is checked before any job starts (:func:`load_spec`): unknown keys or kinds,
 empty grids, unknown scenarios, env ids, algorithms or estimators, bad ``set`` keys or values
 and bad hyperparameters raise :class:`SweepSpecError`, one line naming the job block, the key,
-the value and what is allowed.
+the value and what is allowed. A spec of more than :data:`MAX_JOBS` jobs is refused from its
+counts, before any seed list or grid point is made.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ import copy
 import hashlib
 import itertools
 import json
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -76,6 +78,9 @@ KIND_KEYS: dict[str, tuple[str, ...]] = {
 #: Keys whose list value is a grid axis (``set`` and ``hyperparams`` entries are too).
 AXIS_KEYS = ("scenario", "estimator", "env", "algo", "policy", "config", "timesteps", "n_envs")
 TOP_KEYS = ("description", "jobs")
+#: Most jobs of one sweep (each is a Ray task, a folder and table rows; 10^8 seeds would
+#: exhaust the memory while the grid is expanded).
+MAX_JOBS = 100_000
 
 
 @dataclass(frozen=True)
@@ -145,12 +150,17 @@ def load_spec(spec: str | Path) -> list[Job]:
         SweepSpecError: Unreadable file, malformed YAML or any invalid entry (see the module
             docstring); nothing has run yet.
     """
-    from quadslam_env.config_files import DuplicateKeyError, parse_yaml, read_text_file
+    from quadslam_env.config_files import (
+        DuplicateKeyError,
+        YamlLimitError,
+        parse_yaml,
+        read_text_file,
+    )
 
     path = spec_path(spec)
     try:
         data = parse_yaml(read_text_file(path, "sweep spec"))
-    except DuplicateKeyError as exc:
+    except (DuplicateKeyError, YamlLimitError) as exc:
         raise SweepSpecError(f"{path}: {exc}") from None
     except yaml.YAMLError as exc:
         raise SweepSpecError(f"{path}: malformed YAML ({exc})") from None
@@ -185,7 +195,8 @@ def parse_spec(data: Any, where: str = "spec") -> list[Job]:
     seen: dict[str, int] = {}
     validator = Resolver()
     for i, block in enumerate(blocks):
-        for job in _expand_block(block, i, f"{where}: jobs[{i}]", validator):
+        budget = MAX_JOBS - len(jobs)
+        for job in _expand_block(block, i, f"{where}: jobs[{i}]", validator, budget):
             if job.job_id in seen:
                 raise SweepSpecError(
                     f"{where}: jobs[{i}] (seed {job.seed}): the same job as one of "
@@ -197,8 +208,11 @@ def parse_spec(data: Any, where: str = "spec") -> list[Job]:
 
 
 # ----------------------------------------------------------------------------- one block
-def _expand_block(block: Any, index: int, where: str, validator: Resolver) -> list[Job]:
-    """Check one job block's keys and values and expand its grid."""
+def _expand_block(
+    block: Any, index: int, where: str, validator: Resolver, budget: int = MAX_JOBS
+) -> list[Job]:
+    """Check one job block's keys and values and expand its grid (at most ``budget`` jobs:
+    what :data:`MAX_JOBS` leaves after the blocks before)."""
     if not isinstance(block, dict):
         raise SweepSpecError(f"{where}: got {block!r}; allowed: a mapping with a 'kind' key")
     kind = block.get("kind")
@@ -219,11 +233,10 @@ def _expand_block(block: Any, index: int, where: str, validator: Resolver) -> li
     name = block.get("name", f"jobs[{index}]")
     if not isinstance(name, str) or not name.strip():
         raise SweepSpecError(f"{where}.name: got {name!r}; allowed: a non-empty string")
-    seeds = _seeds(block, where)
     per_job = block.get("seeds_per_job", 1)
     if not is_int(per_job) or per_job < 1:
         raise SweepSpecError(f"{where}.seeds_per_job: got {per_job!r}; allowed: a positive integer")
-    groups = [seeds[i : i + per_job] for i in range(0, len(seeds), per_job)]
+    n_seeds = _seed_count(block, where)
     cpus = block.get("cpus", 1)
     if isinstance(cpus, bool) or not isinstance(cpus, int | float) or not cpus > 0:
         raise SweepSpecError(f"{where}.cpus: got {cpus!r}; allowed: a positive number")
@@ -238,6 +251,18 @@ def _expand_block(block: Any, index: int, where: str, validator: Resolver) -> li
     hp_entries = _dotted(block.get("hyperparams", {}), f"{where}.hyperparams", min_parts=1)
     axes += [(f"set:{k}", _axis(v, f"{where}.set.{k}")) for k, v in set_entries.items()]
     axes += [(f"hp:{k}", _axis(v, f"{where}.hyperparams.{k}")) for k, v in hp_entries.items()]
+    points = math.prod(len(values) for _, values in axes)
+    n_groups = -(-n_seeds // per_job)
+    if points * n_groups > budget:
+        before = MAX_JOBS - budget
+        earlier = f" (after {before:,} in the blocks before)" if before else ""
+        raise SweepSpecError(
+            f"{where}: {points * n_groups:,} jobs ({points:,} grid point(s) × {n_groups:,} "
+            f"seed group(s)){earlier}; allowed: at most {MAX_JOBS:,} jobs per sweep (fewer "
+            "seeds or axis values, or more seeds_per_job)"
+        )
+    seeds = _seeds(block, where)
+    groups = [seeds[i : i + per_job] for i in range(0, len(seeds), per_job)]
 
     jobs = []
     for values in itertools.product(*(vals for _, vals in axes)):
@@ -262,6 +287,14 @@ def _expand_block(block: Any, index: int, where: str, validator: Resolver) -> li
                 )
             )
     return jobs
+
+
+def _seed_count(block: dict[str, Any], where: str) -> int:
+    """How many seeds :func:`_seeds` will list (a bad value is reported by it)."""
+    seeds = block.get("seeds", 1)
+    if isinstance(seeds, list):
+        return len(seeds)
+    return int(seeds) if is_int(seeds) and seeds >= 1 else 1
 
 
 def _seeds(block: dict[str, Any], where: str) -> list[int]:

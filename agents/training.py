@@ -1,4 +1,4 @@
-"""Train stable-baselines3 agents on the QuadSLAM envs (DESIGN.md §6).
+"""Train stable-baselines3 agents on the QuadSLAM envs (docs/design.md §6).
 
 :func:`train` reads the zoo-style entry (:mod:`agents.hyperparams`), builds ``n_envs`` lanes of
 the native vector env in this process (:class:`agents.vec_adapter.QuadSLAMVecEnv`), trains,
@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import contextlib
 import json
-import signal
+import pickle
+import shutil
 import sys
-import threading
+import tempfile
 import time
 import warnings
-from collections.abc import Iterator
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,15 @@ from agents.hyperparams import (
     default_config_path,
     load_hyperparams,
     resolve_settings,
+)
+from agents.outputs import (
+    DiskFullError,
+    Terminated,
+    atomic_produce_all,
+    commit,
+    is_disk_full,
+    signals_deferred,
+    write_text_atomic,
 )
 from agents.run_folder import new_run_dir, read_run_config, versions
 from quadslam_env.config import deep_merge
@@ -222,9 +232,18 @@ def train(
         "torch_threads": threads,
         "scenario": scenario_dict,
     }
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-    (run_dir / "seed.txt").write_text(f"{int(seed)}\n")
-    (run_dir / "versions.json").write_text(json.dumps(versions(), indent=2) + "\n")
+    try:
+        write_text_atomic(run_dir / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+        write_text_atomic(run_dir / "seed.txt", f"{int(seed)}\n")
+        write_text_atomic(run_dir / "versions.json", json.dumps(versions(), indent=2) + "\n")
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        shutil.rmtree(run_dir, ignore_errors=True)  # just made, and holds nothing of value
+        raise DiskFullError(
+            f"no space left on device writing {exc.filename or run_dir}; nothing was trained "
+            f"(the new run folder was removed); free some space and train again"
+        ) from None
 
     return _learn(run_dir, algo, env_id, settings, seed, progress, verbose, threads, tic)
 
@@ -238,8 +257,9 @@ class Checkpoint:
     steps: int
 
 
-def latest_checkpoint(run_dir: Path) -> Checkpoint | None:
-    """The furthest saved point of a run: a checkpoint, or an interrupted run's model."""
+def saved_points(run_dir: Path) -> list[Checkpoint]:
+    """Every saved point of a run, furthest first: its checkpoints and an interrupted run's
+    model (``model.zip`` with the step count in ``INTERRUPTED``)."""
     found: list[Checkpoint] = []
     for path in (run_dir / "checkpoints").glob("model_*_steps.zip"):
         steps = path.stem[len("model_") : -len("_steps")]
@@ -254,7 +274,48 @@ def latest_checkpoint(run_dir: Path) -> Checkpoint | None:
             found.append(
                 Checkpoint(run_dir / "model.zip", pkl if pkl.is_file() else None, int(text))
             )
-    return max(found, key=lambda c: c.steps, default=None)
+    # At equal steps the interrupted model first: it was saved after the checkpoint.
+    return sorted(found, key=lambda c: (c.steps, c.model.parent == run_dir), reverse=True)
+
+
+def latest_checkpoint(run_dir: Path) -> Checkpoint | None:
+    """The furthest saved point of a run: a checkpoint, or an interrupted run's model."""
+    points = saved_points(run_dir)
+    return points[0] if points else None
+
+
+def checkpoint_problem(point: Checkpoint, needs_vecnormalize: bool) -> str | None:
+    """Why ``point`` cannot be loaded (a truncated or damaged file), or ``None``.
+
+    The model zip is read through (every member's CRC is checked); the ``VecNormalize``
+    statistics, when the run normalises, must unpickle.
+    """
+    try:
+        with zipfile.ZipFile(point.model) as archive:
+            if "data" not in archive.namelist():  # e.g. the torch zip inside a torn one
+                return f"{point.model.name} is truncated or damaged (no 'data' member)"
+            bad = archive.testzip()
+        if bad is not None:
+            return f"{point.model.name}: {bad} is damaged"
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        return f"{point.model.name} is truncated or damaged ({exc})"
+    if needs_vecnormalize:
+        if point.vecnormalize is None:
+            return f"{point.model.name} has no VecNormalize file"
+        try:
+            with open(point.vecnormalize, "rb") as fh:
+                pickle.load(fh)  # the run's own file, as VecNormalize.load reads it
+        except Exception as exc:  # any unpickling error means "cannot be used"
+            return f"{point.vecnormalize.name} is truncated or damaged ({type(exc).__name__})"
+    return None
+
+
+def _timing_steps(run_dir: Path) -> str:
+    """The step count a finished run's ``timing.json`` records (``?`` if unreadable)."""
+    try:
+        return f"{int(json.loads((run_dir / 'timing.json').read_text())['timesteps'])}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "?"
 
 
 def resume(
@@ -271,7 +332,10 @@ def resume(
     ``seed + steps + i`` (fresh episodes, not those of the first session). The new session's
     episodes go to ``monitor/lanes_from_<steps>.monitor.csv``, its logs to
     ``logs/from_<steps>/``; ``model.zip``, ``vecnormalize.pkl`` and ``timing.json`` are
-    replaced.
+    replaced. A saved point that does not load (a truncated checkpoint) is skipped for the
+    newest one that does; ``INTERRUPTED`` stays until the new session's final save is in
+    place. A run stopped after its last step was saved is only finished (model, curve,
+    ``timing.json``).
 
     Raises:
         ValueError: Not a run folder, nothing saved to resume from, or already finished.
@@ -283,23 +347,146 @@ def resume(
         raise ValueError(f"--resume {str(run_dir)!r}: not a run folder (no readable config.yaml)")
     algo, env_id, seed = config["algo"], config["env_id"], int(config["seed"])
     settings = resolve_settings(algo, config["hyperparams"])
-    start = latest_checkpoint(run_dir)
-    if start is None:
+    # Finished: timing.json (written last) and no INTERRUPTED marker.
+    if (run_dir / "timing.json").is_file() and not (run_dir / "INTERRUPTED").exists():
+        raise ValueError(
+            f"--resume {str(run_dir)!r}: already at {_timing_steps(run_dir)} of its "
+            f"{settings['n_timesteps']} steps (finished)"
+        )
+    points = saved_points(run_dir)
+    if not points:
         raise ValueError(
             f"--resume {str(run_dir)!r}: no checkpoint (checkpoints/model_<N>_steps.zip) and no "
             "interrupted model.zip to continue from"
         )
-    if start.steps >= settings["n_timesteps"]:
-        raise ValueError(
-            f"--resume {str(run_dir)!r}: already at {start.steps} of its "
-            f"{settings['n_timesteps']} steps"
+    # A save cut short (a crash, a full disk, a kill -9 while SB3 wrote a checkpoint) leaves
+    # a truncated file: go back to the newest one that loads.
+    problems: list[str] = []
+    start = None
+    for point in points:
+        problem = checkpoint_problem(point, settings["normalize"] is not None)
+        if problem is None:
+            start = point
+            break
+        problems.append(problem)
+    if start is None:
+        raise ValueError(f"--resume {str(run_dir)!r}: no saved point loads ({'; '.join(problems)})")
+    if problems:
+        print(
+            f"resume: skipped {'; '.join(problems)}; continuing from "
+            f"{start.model.relative_to(run_dir)} ({start.steps:,} steps)",
+            file=sys.stderr,
         )
-    if settings["normalize"] is not None and start.vecnormalize is None:
-        raise ValueError(f"--resume {str(run_dir)!r}: {start.model.name} has no VecNormalize file")
-    (run_dir / "INTERRUPTED").unlink(missing_ok=True)
+    for folder in (run_dir, run_dir / "checkpoints", run_dir / "eval"):
+        for stale in folder.glob(".*.tmp-*"):  # a save the killed session never finished
+            stale.unlink(missing_ok=True)
+    # The INTERRUPTED marker stays until this session's final model and timing.json are
+    # written: a session killed before then must not leave a folder that looks finished.
     return _learn(
         run_dir, algo, env_id, settings, seed, progress, verbose, torch_threads, tic, start
     )
+
+
+def _callbacks(
+    run_dir: Path,
+    env_id: str,
+    settings: dict[str, Any],
+    seed: int,
+    progress: bool,
+    verbose: int,
+    label: str,
+) -> tuple[list[Any], Any, Any]:
+    """The training callbacks: ``(callbacks, eval vector env or None, eval callback or None)``.
+
+    Every file they write is written atomically (:mod:`agents.callbacks`).
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.callbacks import (
+        AtomicCheckpointCallback,
+        AtomicEvalCallback,
+        EstimationMetricsCallback,
+        SaveVecNormalizeCallback,
+        TqdmProgressCallback,
+    )
+
+    n, norm = settings["n_envs"], settings["normalize"]
+    callbacks: list[Any] = [EstimationMetricsCallback()]
+    eval_venv = eval_cb = None
+    if settings["eval_freq"] > 0:
+        # One lane per evaluation episode: SB3's evaluate_policy runs them in parallel.
+        n_eval = settings["n_eval_episodes"]
+        eval_venv = _make_vec_env(env_id, settings, n_eval, seed + 10_000, None)
+        if norm is not None:
+            eval_venv = VecNormalize(eval_venv, training=False, **{**norm, "norm_reward": False})
+        on_best = (
+            SaveVecNormalizeCallback(run_dir / "eval" / "best_vecnormalize.pkl")
+            if norm is not None
+            else None
+        )
+        eval_cb = AtomicEvalCallback(
+            eval_venv,
+            callback_on_new_best=on_best,
+            n_eval_episodes=settings["n_eval_episodes"],
+            eval_freq=max(settings["eval_freq"] // n, 1),
+            log_path=str(run_dir / "eval"),
+            best_model_save_path=str(run_dir / "eval"),
+            deterministic=True,
+            verbose=verbose,
+        )
+        callbacks.append(eval_cb)
+    if settings["checkpoint_freq"] > 0:
+        callbacks.append(
+            AtomicCheckpointCallback(
+                save_freq=max(settings["checkpoint_freq"] // n, 1),
+                save_path=str(run_dir / "checkpoints"),
+                name_prefix="model",
+                save_vecnormalize=True,
+            )
+        )
+    if progress:
+        callbacks.append(TqdmProgressCallback(desc=label))
+    return callbacks, eval_venv, eval_cb
+
+
+def _run_learn(
+    model: Any, callbacks: list[Any], total: int, fresh: bool
+) -> tuple[KeyboardInterrupt | None, OSError | None, float]:
+    """``model.learn`` up to ``total`` steps; ``(stop, full, seconds)``.
+
+    ``stop`` is the Ctrl-C (``KeyboardInterrupt``) or SIGTERM (:class:`Terminated`) that
+    ended it early, ``full`` the ``ENOSPC`` of a checkpoint or log write that did.
+    """
+    from stable_baselines3.common.callbacks import CallbackList
+
+    # From the loaded model's own count: a session stopped between replacing model.zip and
+    # updating INTERRUPTED resumes where the model really is.
+    remaining = total - int(model.num_timesteps)
+    tic = time.perf_counter()
+    stop: KeyboardInterrupt | None = None
+    full: OSError | None = None
+    with warnings.catch_warnings():
+        # The eval env is wrapped differently (VecNormalize with training=False).
+        warnings.filterwarnings("ignore", message="Training and eval env are not of")
+        try:
+            if remaining > 0:
+                model.learn(
+                    total_timesteps=remaining,
+                    callback=CallbackList(callbacks),
+                    reset_num_timesteps=fresh,
+                )
+        except KeyboardInterrupt as exc:
+            stop = exc
+            how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+            print(
+                f"training {how} at {model.num_timesteps} steps; saving the model",
+                file=sys.stderr,
+            )
+        except OSError as exc:
+            if not is_disk_full(exc):
+                raise
+            full = exc  # reported in one line once what fits is saved (_disk_full)
+    return stop, full, time.perf_counter() - tic
 
 
 def _learn(
@@ -314,141 +501,156 @@ def _learn(
     tic: float,
     start: Checkpoint | None = None,
 ) -> Path:
-    """Build the lanes and the model (or load ``start``), learn, save; returns ``run_dir``."""
-    from stable_baselines3.common.callbacks import (
-        CallbackList,
-        CheckpointCallback,
-        EvalCallback,
-    )
+    """Build the lanes and the model (or load ``start``), learn, save; returns ``run_dir``.
+
+    The files are written atomically; Ctrl-C and SIGTERM are held from the moment the model
+    is saved until the learning curve and ``timing.json`` are written. ``INTERRUPTED`` (the
+    step count of an unfinished ``model.zip``) is written when training stopped early, and
+    removed only once a finished session's ``timing.json`` is in place.
+
+    Raises:
+        agents.outputs.Terminated: SIGTERM, after the run folder was saved (``run_dir`` set).
+        agents.outputs.DiskFullError: No space left; the message names the last good save.
+    """
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from agents.callbacks import (
-        EstimationMetricsCallback,
-        SaveVecNormalizeCallback,
-        TqdmProgressCallback,
-    )
-
-    n = settings["n_envs"]
     done = 0 if start is None else start.steps
     suffix = "" if start is None else f"_from_{done}"
-    with _torch_settings(threads):
-        venv = _make_vec_env(
-            env_id, settings, n, seed + done, run_dir / "monitor", True, name=f"lanes{suffix}"
-        )
-        eval_venv = None
-        try:
-            norm = settings["normalize"]
-            if start is not None and start.vecnormalize is not None:
-                venv = VecNormalize.load(str(start.vecnormalize), venv)
-                venv.training = True
-            elif norm is not None:
-                gamma = settings["algo_kwargs"].get("gamma", 0.99)
-                venv = VecNormalize(venv, **{"gamma": gamma, **norm})
-            if start is None:
-                model = _build_model(algo, settings, venv, seed, verbose)
-            else:
-                cls: Any = algorithms()[algo]
-                model = cls.load(start.model, env=venv, device="cpu")
-            formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
-            log_dir = run_dir / "logs" / suffix.lstrip("_") if start else run_dir / "logs"
-            model.set_logger(configure(str(log_dir), formats))
-
-            callbacks: list[Any] = [EstimationMetricsCallback()]
-            if settings["eval_freq"] > 0:
-                # One lane per evaluation episode: SB3's evaluate_policy runs them in parallel.
-                n_eval = settings["n_eval_episodes"]
-                eval_venv = _make_vec_env(env_id, settings, n_eval, seed + 10_000, None)
-                if norm is not None:
-                    eval_venv = VecNormalize(
-                        eval_venv, training=False, **{**norm, "norm_reward": False}
-                    )
-                on_best = (
-                    SaveVecNormalizeCallback(run_dir / "eval" / "best_vecnormalize.pkl")
-                    if norm is not None
-                    else None
+    norm = settings["normalize"]
+    full: OSError | None = None  # no space left on the device
+    saving = contextlib.ExitStack()  # entered when the model is saved, left after timing.json
+    try:
+        with saving, _torch_settings(threads):
+            venv = _make_vec_env(
+                env_id, settings, settings["n_envs"], seed + done, run_dir / "monitor", True,
+                name=f"lanes{suffix}",
+            )  # fmt: skip
+            eval_venv = eval_cb = None
+            try:
+                if start is not None and start.vecnormalize is not None:
+                    venv = VecNormalize.load(str(start.vecnormalize), venv)
+                    venv.training = True
+                elif norm is not None:
+                    gamma = settings["algo_kwargs"].get("gamma", 0.99)
+                    venv = VecNormalize(venv, **{"gamma": gamma, **norm})
+                if start is None:
+                    model = _build_model(algo, settings, venv, seed, verbose)
+                else:
+                    cls: Any = algorithms()[algo]
+                    model = cls.load(start.model, env=venv, device="cpu")
+                formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
+                log_dir = run_dir / "logs" / suffix.lstrip("_") if start else run_dir / "logs"
+                model.set_logger(configure(str(log_dir), formats))
+                callbacks, eval_venv, eval_cb = _callbacks(
+                    run_dir, env_id, settings, seed, progress, verbose, f"{algo} {env_id}"
                 )
-                callbacks.append(
-                    EvalCallback(
-                        eval_venv,
-                        callback_on_new_best=on_best,
-                        n_eval_episodes=settings["n_eval_episodes"],
-                        eval_freq=max(settings["eval_freq"] // n, 1),
-                        log_path=str(run_dir / "eval"),
-                        best_model_save_path=str(run_dir / "eval"),
-                        deterministic=True,
-                        verbose=verbose,
-                    )
+                stop, full, learn_s = _run_learn(
+                    model, callbacks, settings["n_timesteps"], start is None
                 )
-            if settings["checkpoint_freq"] > 0:
-                callbacks.append(
-                    CheckpointCallback(
-                        save_freq=max(settings["checkpoint_freq"] // n, 1),
-                        save_path=str(run_dir / "checkpoints"),
-                        name_prefix="model",
-                        save_vecnormalize=True,
-                    )
-                )
-            if progress:
-                callbacks.append(TqdmProgressCallback(desc=f"{algo} {env_id}"))
-
-            interrupted = False
-            learn_tic = time.perf_counter()
-            with warnings.catch_warnings():
-                # The eval env is wrapped differently (VecNormalize with training=False).
-                warnings.filterwarnings("ignore", message="Training and eval env are not of")
+                # A second Ctrl-C (or a SIGTERM) must not leave a half-written folder.
+                saving.enter_context(signals_deferred(SAVING_NOTE))
                 try:
-                    model.learn(
-                        total_timesteps=settings["n_timesteps"] - done,
-                        callback=CallbackList(callbacks),
-                        reset_num_timesteps=start is None,
-                    )
-                except KeyboardInterrupt:
-                    interrupted = True
-                    print(
-                        f"training interrupted at {model.num_timesteps} steps; saving the model",
-                        file=sys.stderr,
-                    )
-            learn_s = time.perf_counter() - learn_tic
-            with _sigint_deferred():  # a second Ctrl-C must not leave a half-written folder
-                model.save(run_dir / "model.zip")
-                if norm is not None:
-                    model.get_vec_normalize_env().save(str(run_dir / "vecnormalize.pkl"))
-                if interrupted:
-                    (run_dir / "INTERRUPTED").write_text(f"{model.num_timesteps}\n")
-        finally:
-            for vec in (venv, eval_venv):
-                # Workers may already be gone after Ctrl-C (they exit on KeyboardInterrupt).
-                with contextlib.suppress(EOFError, BrokenPipeError, ConnectionError):
-                    if vec is not None:
-                        vec.close()
-    with _sigint_deferred():
-        plot_learning_curve(run_dir)
+                    _save_model(model, run_dir, norm is not None)
+                    if stop is not None or full is not None:
+                        write_text_atomic(run_dir / "INTERRUPTED", f"{model.num_timesteps}\n")
+                except OSError as exc:
+                    if not is_disk_full(exc):
+                        raise
+                    full = full or exc
+            finally:
+                if eval_cb is not None:
+                    eval_cb.clean_up()
+                for vec in (venv, eval_venv):
+                    # Workers may already be gone after Ctrl-C (they exit on KeyboardInterrupt).
+                    with contextlib.suppress(EOFError, BrokenPipeError, ConnectionError):
+                        if vec is not None:
+                            vec.close()
+            if full is not None:
+                raise _disk_full(run_dir, full, settings)
+            _finish(run_dir, model, learn_s, tic, settings)
+            if stop is None:  # this session finished: only now does the folder look finished
+                (run_dir / "INTERRUPTED").unlink(missing_ok=True)
+    except Terminated as exc:
+        # A SIGTERM held while saving is delivered once the folder is complete.
+        if exc.run_dir is None and (run_dir / "timing.json").is_file():
+            raise Terminated(run_dir) from None
+        raise
+    if isinstance(stop, Terminated):
+        raise Terminated(run_dir)
+    return run_dir
+
+
+def _finish(
+    run_dir: Path, model: Any, learn_s: float, tic: float, settings: dict[str, Any]
+) -> None:
+    """The learning curve, then ``timing.json`` (written last)."""
+    try:
+        _plot_curve(run_dir)
         timing = {
             "timesteps": int(model.num_timesteps),
             "learn_s": round(learn_s, 2),  # model.learn: stepping, updates, evaluations
             "wall_s": round(time.perf_counter() - tic, 2),  # all of train(), config to plot
             "steps_per_s": round(model.num_timesteps / max(learn_s, 1e-9), 1),
         }
-        (run_dir / "timing.json").write_text(json.dumps(timing, indent=2) + "\n")
-    return run_dir
+        write_text_atomic(run_dir / "timing.json", json.dumps(timing, indent=2) + "\n")
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        raise _disk_full(run_dir, exc, settings) from None
 
 
-@contextlib.contextmanager
-def _sigint_deferred() -> Iterator[None]:
-    """Hold Ctrl-C while the model, its statistics, the learning curve and ``timing.json`` are
-    written: an interrupt then only prints a note, so the run folder is never left half-written
-    (a second Ctrl-C after the one that stopped training used to end in a traceback and no
-    learning curve). Outside the main thread signals cannot be handled and nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+SAVING_NOTE = "quadslam train: saving the run folder, please wait"
 
-    def note(signum: int, frame: Any) -> None:
-        print("quadslam train: saving the run folder, please wait", file=sys.stderr)
 
-    previous = signal.signal(signal.SIGINT, note)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+def _save_model(model: Any, run_dir: Path, normalized: bool) -> None:
+    """``model.zip`` (and ``vecnormalize.pkl``), written atomically together: a failed save
+    (a full disk, a kill) leaves the previous pair whole, never a new model with old
+    statistics."""
+    items: list[tuple[Path, Any]] = [(run_dir / "model.zip", lambda tmp: model.save(tmp))]
+    if normalized:
+        vec = model.get_vec_normalize_env()
+        items.insert(0, (run_dir / "vecnormalize.pkl", lambda tmp: vec.save(str(tmp))))
+    atomic_produce_all(items)
+
+
+def _plot_curve(run_dir: Path) -> None:
+    """``learning_curve.png``, written atomically.
+
+    :func:`agents.curves.plot_learning_curve` writes into the folder it is given, so it gets
+    a staging folder of the run's name whose ``monitor``, ``logs`` and ``eval`` link to the
+    run's; the PNG is then moved into place. Without symbolic links (some file systems) the
+    curve is written in place.
+    """
+    with tempfile.TemporaryDirectory(prefix=".curve-", dir=run_dir) as tmp:
+        staged = Path(tmp) / run_dir.name
+        staged.mkdir()
+        try:
+            for sub in ("monitor", "logs", "eval"):
+                if (run_dir / sub).exists():
+                    (staged / sub).symlink_to((run_dir / sub).resolve(), target_is_directory=True)
+        except OSError:
+            plot_learning_curve(run_dir)
+            return
+        plot_learning_curve(staged)
+        commit(staged / "learning_curve.png", run_dir / "learning_curve.png")
+
+
+def _disk_full(run_dir: Path, exc: OSError, settings: dict[str, Any]) -> DiskFullError:
+    """The one-line report of a full disk: the file that did not fit, the last good save."""
+    total = int(settings["n_timesteps"])
+    needs_norm = settings["normalize"] is not None
+    good = next(
+        (p for p in saved_points(run_dir) if checkpoint_problem(p, needs_norm) is None), None
+    )
+    head = f"no space left on device writing {exc.filename or 'a file'}"
+    if good is None:
+        return DiskFullError(
+            f"{head}; nothing in the run folder {run_dir} can be resumed (no checkpoint was "
+            "saved); free some space and train again"
+        )
+    return DiskFullError(
+        f"{head}; the run folder {run_dir} keeps its last good save "
+        f"({good.model.relative_to(run_dir)}, {good.steps:,} of {total:,} steps); free some "
+        f"space, then: quadslam train --resume {run_dir}"
+    )

@@ -7,6 +7,12 @@ layout (``scenarios/*.yaml``, ``agents/*.yaml``).
 
 A scenario file may carry a top-level ``description:``, one line that ``quadslam scenarios``
 lists next to its name.
+
+Inputs are bounded: a configuration file is at most :data:`MAX_CONFIG_BYTES` (checked from
+its size before reading, and never more than that is read from a pipe), and a YAML document at
+most :data:`MAX_YAML_NODES` nodes once its aliases are expanded and :data:`MAX_YAML_DEPTH`
+levels deep, so an alias bomb ("billion laughs") or a deeply nested file is a one-line error,
+not a ``MemoryError`` or a ``RecursionError`` somewhere later.
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ from __future__ import annotations
 import copy
 import os
 import re
+import stat
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -24,6 +31,12 @@ from quadslam_env.config_schema import ConfigError
 
 #: Longest accepted scenario ``description`` (one line of a terminal table).
 MAX_DESCRIPTION_CHARS = 160
+#: Largest configuration file read (scenario, sweep spec, run config): 1 MiB.
+MAX_CONFIG_BYTES = 1 << 20
+#: Most YAML nodes of one document with every alias expanded (a shipped file has < 400).
+MAX_YAML_NODES = 100_000
+#: Deepest nesting of YAML collections (a configuration needs a handful of levels).
+MAX_YAML_DEPTH = 100
 
 
 def config_dir() -> Path:
@@ -68,6 +81,63 @@ class DuplicateKeyError(yaml.YAMLError):
         )
 
 
+class YamlLimitError(yaml.YAMLError):
+    """A YAML document beyond the size or depth any configuration needs (an alias bomb)."""
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [part for pair in node.value for part in pair]
+    return []
+
+
+def check_node_graph(root: yaml.Node) -> None:
+    """Refuse a composed document whose expanded size or depth is beyond the limits.
+
+    Aliases share nodes, so the graph is small even when the document it stands for is
+    astronomically large; sizes are summed with every alias counted in full (each node's size
+    computed once), iteratively, so neither the count nor Python's stack can blow up.
+
+    Raises:
+        YamlLimitError: More than :data:`MAX_YAML_NODES` expanded nodes, nesting deeper than
+            :data:`MAX_YAML_DEPTH`, or an alias inside its own anchor (a recursive document).
+    """
+    sizes: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, finished = stack.pop()
+        key = id(node)
+        if finished:
+            on_path.discard(key)
+            size = 1 + sum(sizes[id(child)] for child in _children(node))
+            if size > MAX_YAML_NODES:
+                raise YamlLimitError(
+                    f"more than {MAX_YAML_NODES:,} values once its aliases are expanded "
+                    f"(line {node.start_mark.line + 1}); allowed: a configuration of at most "
+                    f"{MAX_YAML_NODES:,} values (an alias bomb is refused)"
+                )
+            sizes[key] = size
+            continue
+        if key in sizes:
+            continue
+        if key in on_path:
+            raise YamlLimitError(
+                f"an alias refers to its own anchor (line {node.start_mark.line + 1}); "
+                "allowed: aliases of finished values, no recursive structures"
+            )
+        on_path.add(key)
+        if len(on_path) > MAX_YAML_DEPTH:
+            raise YamlLimitError(
+                f"nested more than {MAX_YAML_DEPTH} levels deep (line "
+                f"{node.start_mark.line + 1}); allowed: at most {MAX_YAML_DEPTH} levels"
+            )
+        stack.append((node, True))
+        stack.extend((child, False) for child in _children(node))
+
+
 class _YamlLoader(yaml.SafeLoader):
     """PyYAML's safe loader that also reads ``1e-4`` as a float and rejects duplicate keys.
 
@@ -75,8 +145,15 @@ class _YamlLoader(yaml.SafeLoader):
     ``"1e-4"``; config values would then fail validation with a confusing message. A mapping
     that repeats a key (a second ``episode:`` section) raises :class:`DuplicateKeyError`
     instead of silently dropping the first; keys brought in by a ``<<`` merge may be
-    overridden as YAML intends.
+    overridden as YAML intends. The composed document is checked by
+    :func:`check_node_graph` before any Python object is built from it.
     """
+
+    def get_single_node(self) -> Any:
+        node = super().get_single_node()
+        if node is not None:
+            check_node_graph(node)
+        return node
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         if isinstance(node, yaml.MappingNode):
@@ -106,21 +183,76 @@ def parse_yaml(text: str) -> Any:
     """``yaml.safe_load`` that also reads exponent floats without a dot (``1e-4``).
 
     Raises:
-        yaml.YAMLError: Malformed YAML; :class:`DuplicateKeyError` for a repeated key.
+        yaml.YAMLError: Malformed YAML; :class:`DuplicateKeyError` for a repeated key;
+            :class:`YamlLimitError` for a document beyond the size or depth limits.
     """
-    return yaml.load(text, Loader=_YamlLoader)  # a SafeLoader subclass: no arbitrary objects
+    try:
+        return yaml.load(text, Loader=_YamlLoader)  # a SafeLoader subclass: no arbitrary objects
+    except RecursionError:  # PyYAML's parser recurses per level, before the node check
+        raise YamlLimitError(
+            f"nested too deeply; allowed: at most {MAX_YAML_DEPTH} levels"
+        ) from None
+
+
+def _mib(size: int) -> str:
+    """``size`` in bytes for a message: ``512 bytes``, ``1 MiB``, ``3 GiB``."""
+    if size < 1024:
+        return f"{size:,} bytes"
+    units = ("KiB", "MiB", "GiB", "TiB")
+    value, index = size / 1024, 0
+    while value >= 1024 and index < len(units) - 1:
+        value /= 1024
+        index += 1
+    return f"{value:.3g} {units[index]}"
+
+
+def check_config_file(path: Path, what: str = "scenario file") -> os.stat_result:
+    """Check a configuration file before reading it: it exists, is not a folder or a device,
+    and a regular file's size is at most :data:`MAX_CONFIG_BYTES`.
+
+    A FIFO (``<(cat scenario.yaml)``) passes: :func:`read_text_file` reads at most the cap
+    from it.
+
+    Raises:
+        ConfigError: The message names the file, the problem and what is allowed.
+    """
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise ConfigError(f"{what} {str(path)[:200]!r}: cannot be read ({exc.strerror})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ConfigError(f"{what} {str(path)!r}: is a folder; allowed: a YAML file")
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISFIFO(st.st_mode)):
+        kind = "a character device" if stat.S_ISCHR(st.st_mode) else "not a regular file"
+        raise ConfigError(f"{what} {str(path)!r}: is {kind}; allowed: a YAML file")
+    if stat.S_ISREG(st.st_mode) and st.st_size > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{what} {str(path)!r}: {_mib(st.st_size)}; allowed: at most {_mib(MAX_CONFIG_BYTES)}"
+        )
+    return st
 
 
 def read_text_file(path: Path, what: str = "scenario file") -> str:
-    """A UTF-8 text file's content, with errors that name the file.
+    """A UTF-8 text file's content (at most :data:`MAX_CONFIG_BYTES`), with errors that name
+    the file.
 
     Raises:
-        ConfigError: The file cannot be read or is not UTF-8 text.
+        ConfigError: The file cannot be read, is a folder or a device, is larger than the
+            cap, or is not UTF-8 text.
     """
+    check_config_file(path, what)
     try:
-        return path.read_text(encoding="utf-8")
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_CONFIG_BYTES + 1)  # a file that grew, or a pipe: never more
     except OSError as exc:
         raise ConfigError(f"{what} {str(path)!r}: cannot be read ({exc.strerror})") from exc
+    if len(data) > MAX_CONFIG_BYTES:
+        raise ConfigError(
+            f"{what} {str(path)!r}: more than {_mib(MAX_CONFIG_BYTES)}; allowed: at most "
+            f"{_mib(MAX_CONFIG_BYTES)}"
+        )
+    try:
+        return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ConfigError(
             f"{what} {str(path)!r}: not UTF-8 text (byte {exc.object[exc.start]:#04x} at "
@@ -138,7 +270,7 @@ def load_yaml(path: Path) -> dict[str, Any]:
     text = read_text_file(path)
     try:
         data = parse_yaml(text)
-    except DuplicateKeyError as exc:
+    except (DuplicateKeyError, YamlLimitError) as exc:
         raise ConfigError(f"scenario file {str(path)!r}: {exc}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"scenario file {str(path)!r}: malformed YAML ({exc})") from exc

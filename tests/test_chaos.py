@@ -13,9 +13,13 @@ from __future__ import annotations
 import errno
 import json
 import os
+import signal
 import stat
+import subprocess
+import sys
 import tempfile
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -499,3 +503,405 @@ def test_fastslam_map_that_cannot_fit_is_rejected_with_its_size(
         gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=5, vectorization_mode="vector_entry_point",
                      **kwargs)  # fmt: skip
     assert "96 × 5 × 500 × 40" in str(info.value) and "at most 32 landmarks" in str(info.value)
+
+
+# ------------------------------------------------------- output targets that are not files
+
+
+def _fifo_reader(path: Path) -> tuple[Any, list[bytes]]:
+    """A thread that reads a FIFO to its end (a writer blocks until a reader opens it)."""
+    import threading
+
+    got: list[bytes] = []
+
+    def read() -> None:
+        with open(path, "rb") as fh:
+            got.append(fh.read())
+
+    thread = threading.Thread(target=read, daemon=True)
+    thread.start()
+    return thread, got
+
+
+def test_a_fifo_is_written_through_never_replaced(tmp_path: Path) -> None:
+    fifo = tmp_path / "pipe.json"
+    os.mkfifo(fifo)
+    thread, got = _fifo_reader(fifo)
+    outputs.write_bytes_atomic(fifo, b'{"a": 1}\n')
+    thread.join(10)
+    assert got == [b'{"a": 1}\n']
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)  # still the FIFO
+    check_output_file(fifo, "--json")  # accepted before the work
+
+
+def test_a_character_device_is_written_through(tmp_path: Path) -> None:
+    null = tmp_path / "null"
+    try:
+        os.mknod(null, stat.S_IFCHR | 0o666, os.makedev(1, 3))  # /dev/null's numbers
+    except OSError:
+        pytest.skip("cannot create a device node here")
+    saver = Saver()
+    assert saver.write_json(null, {"x": 1}, "--json") == null
+    saver.check()
+    assert stat.S_ISCHR(os.lstat(null).st_mode) and no_temp_files(tmp_path)
+
+
+def test_a_link_to_a_file_stays_and_the_file_is_replaced_atomically(tmp_path: Path) -> None:
+    real = tmp_path / "data" / "r.json"
+    real.parent.mkdir()
+    real.write_text("old")
+    link = tmp_path / "r.json"
+    link.symlink_to(real)
+    check_output_file(link, "--json")
+    outputs.write_bytes_atomic(link, b"new")
+    assert link.is_symlink() and link.resolve() == real.resolve()
+    assert real.read_text() == "new" and no_temp_files(tmp_path)
+
+
+def test_a_link_to_a_process_descriptor_is_written_through(tmp_path: Path) -> None:
+    """``/dev/stdout`` is a link to ``/proc/self/fd/1``: writing means writing to the
+    descriptor (a pipe here), whatever it points to."""
+    read_end, write_end = os.pipe()
+    link = tmp_path / "stdout.json"
+    link.symlink_to(f"/proc/self/fd/{write_end}")
+    try:
+        outputs.write_bytes_atomic(link, b"through the pipe")
+        os.close(write_end)
+        assert os.read(read_end, 100) == b"through the pipe"
+    finally:
+        os.close(read_end)
+    assert link.is_symlink()
+
+
+def test_json_to_dev_stdout_appends_to_the_redirected_stdout(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """``--json /dev/stdout`` with stdout redirected to a file (pytest's capture file): the
+    document follows the printed table in that file, which is not replaced."""
+    code = main([*RUN, "--no-plots", "--json", "/dev/stdout"])
+    out, _ = capfd.readouterr()
+    assert code == 0
+    start = out.index("\n{") + 1
+    document, _ = json.JSONDecoder().raw_decode(out[start:])
+    assert document["policy"] == "dflqr" and "median" in out[:start]  # the table came first
+
+
+def _socket_at(path: Path) -> Any:
+    import socket
+
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.bind(str(path))
+    return sock
+
+
+@pytest.mark.parametrize(
+    ("make", "expected"),
+    [
+        (lambda p: p.symlink_to(p.parent / "missing.json"), "a symbolic link to a missing file"),
+        (lambda p: p.mkdir(), "is a folder"),
+        (_socket_at, "is a socket"),
+    ],
+    ids=["dangling_link", "folder", "socket"],
+)
+def test_targets_that_must_not_be_replaced_are_refused_in_one_line(
+    capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    no_work: None,
+    make: Callable[[Path], Any],
+    expected: str,
+) -> None:
+    target = tmp_path / "out.json"
+    keep = make(target)
+    code, _, line = cli(capsys, [*RUN, "--no-plots", "--json", str(target)])
+    assert code == 2 and line.startswith("quadslam run: error: --json:") and expected in line
+    with pytest.raises(outputs.OutputPathError, match=expected):
+        outputs.write_bytes_atomic(target, b"x")
+    assert os.path.lexists(target) and not target.is_file()  # untouched
+    if keep is not None:
+        keep.close()
+
+
+def test_a_scenario_name_cannot_place_the_run_folder_outside_runs(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    for name in ("x/../../escaped", "n" * 300):
+        scenario = tmp_path / "evil.yaml"
+        scenario.write_text(f"name: {json.dumps(name)}\nepisode: {{duration_s: 0.3}}\n")
+        code, stdout, _ = cli(capsys, ["run", "--scenario", str(scenario)])
+        assert code == 0, stdout
+    folders = sorted(p.name for p in (work / "runs").iterdir())
+    assert len(folders) == 2 and all(len(f) < 120 and "/" not in f for f in folders)
+    assert any("x_.._.._escaped" in f for f in folders)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["evil.yaml", "work"]  # no escape
+    assert [p.name for p in work.iterdir()] == ["runs"]
+
+
+# --------------------------------------------------------------- training: kill, disk, SIGTERM
+
+TRAIN_HP = [
+    "n_steps=64",
+    "batch_size=32",
+    "n_epochs=1",
+    "policy_kwargs={net_arch: [8]}",
+    "env_kwargs.episode.duration_s=1.0",
+    "eval_freq=0",
+    "checkpoint_freq=64",
+]
+
+
+def train_argv(out: Path, timesteps: int) -> list[str]:
+    return [
+        "train", "--algo", "ppo", "--env", "QuadSLAM-EKF-v0", "--timesteps", str(timesteps),
+        "--n-envs", "1", "--out", str(out), "--no-progress", "--hyperparams", *TRAIN_HP,
+    ]  # fmt: skip
+
+
+def _default_signals() -> None:
+    """In the child, SIGINT and SIGTERM as a terminal delivers them: a test runner started in
+    the background (or under a nohup-like wrapper) passes them on ignored, and an ignored
+    signal stays ignored in Python."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def start_cli(argv: list[str]) -> subprocess.Popen[str]:
+    """``python -m agents.cli ARGV`` in a child process with the default signal handling."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "agents.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=_default_signals,
+    )
+
+
+def wait_for(check: Callable[[], Any], proc: subprocess.Popen[str], timeout: float) -> Any:
+    """Poll ``check()`` until it is truthy; fail if the child ends or time runs out first."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        found = check()
+        if found:
+            return found
+        if proc.poll() is not None:
+            _, err = proc.communicate()
+            pytest.fail(f"the child ended first (status {proc.returncode}): {err[-2000:]}")
+        time.sleep(0.02)
+    proc.kill()
+    pytest.fail("timed out waiting for the child")
+
+
+def checkpoints(out: Path) -> list[Path]:
+    found = out.glob("ppo_*/checkpoints/model_*_steps.zip")
+    return sorted(found, key=lambda p: int(p.stem.split("_")[1]))
+
+
+def test_kill_9_mid_training_then_resume_finishes_past_a_truncated_checkpoint(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    from stable_baselines3 import PPO
+
+    out = tmp_path / "runs"
+    proc = start_cli(train_argv(out, 1024))
+    wait_for(lambda: len(checkpoints(out)) >= 2, proc, 240)
+    proc.kill()  # SIGKILL: no handler runs, nothing is saved on the way out
+    proc.communicate(timeout=60)
+    (run,) = out.glob("ppo_*")
+    assert not (run / "timing.json").exists()  # does not look finished
+    saved = checkpoints(out)
+    newest = saved[-1]
+    newest.write_bytes(newest.read_bytes()[: newest.stat().st_size // 2])  # a torn save
+    code = main(["train", "--resume", str(run), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"skipped {newest.name} is truncated" in err
+    assert f"continuing from checkpoints/{saved[-2].name}" in err
+    assert (run / "timing.json").is_file() and not (run / "INTERRUPTED").exists()
+    assert json.loads((run / "timing.json").read_text())["timesteps"] >= 1024
+    assert PPO.load(run / "model.zip", device="cpu").num_timesteps >= 1024
+    assert not list(run.rglob(".*.tmp-*"))
+
+
+def test_resume_keeps_the_interrupted_marker_until_its_save_has_landed(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """A resumed session that crashes, or finds the disk full when saving, leaves the run
+    marked INTERRUPTED with its previous model intact; the next resume finishes it."""
+    from stable_baselines3 import PPO
+
+    learn = PPO.learn
+    calls = {"n": 0}
+
+    def stopped_learn(self: Any, *args: Any, **kwargs: Any) -> Any:
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise KeyboardInterrupt  # the first session: Ctrl-C at once
+        raise RuntimeError("a crash in the second session")
+
+    monkeypatch.setattr(PPO, "learn", stopped_learn)
+    out = tmp_path / "runs"
+    assert main(train_argv(out, 256)) == 130
+    (run,) = out.glob("ppo_*")
+    marker, model = (run / "INTERRUPTED").read_text(), (run / "model.zip").read_bytes()
+    assert "--resume" in capsys.readouterr().err
+
+    with pytest.raises(RuntimeError, match="a crash"):
+        main(["train", "--resume", str(run), "--no-progress"])
+    assert (run / "INTERRUPTED").read_text() == marker  # still marked, the finished look
+    code = main(["evaluate", "--policy", str(run), "--episodes", "1", "--duration", "0.3"])
+    assert code == 0 and "did not finish training at 0 steps" in capsys.readouterr().err
+
+    monkeypatch.setattr(PPO, "learn", learn)
+    real_save = PPO.save
+
+    def full_save(self: Any, path: Any, *args: Any, **kwargs: Any) -> None:
+        if Path(path).parent == run:  # the final model.zip (checkpoints still fit)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_save(self, path, *args, **kwargs)
+
+    monkeypatch.setattr(PPO, "save", full_save)
+    code, _, line = cli(capsys, ["train", "--resume", str(run), "--no-progress"])
+    assert code == 2 and line.startswith("quadslam train: error: no space left on device")
+    assert f"quadslam train --resume {run}" in line and "model_256_steps.zip" in line
+    assert (run / "model.zip").read_bytes() == model  # never truncated
+    assert (run / "INTERRUPTED").read_text() == marker
+    assert not list(run.rglob(".*.tmp-*"))
+
+    monkeypatch.setattr(PPO, "save", real_save)
+    code = main(["train", "--resume", str(run), "--no-progress"])
+    assert code == 0, capsys.readouterr().err
+    assert not (run / "INTERRUPTED").exists() and (run / "timing.json").is_file()
+
+
+def test_train_on_a_full_disk_exits_2_naming_the_last_good_checkpoint(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    from stable_baselines3 import PPO
+
+    real_save = PPO.save
+    saves = {"n": 0}
+
+    def save(self: Any, path: Any, *args: Any, **kwargs: Any) -> None:
+        saves["n"] += 1
+        if saves["n"] > 1:  # the first checkpoint fits, nothing after it does
+            with open(path, "wb") as fh:
+                fh.write(b"PK\x03\x04 half a zip")  # what a full disk leaves behind
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real_save(self, path, *args, **kwargs)
+
+    monkeypatch.setattr(PPO, "save", save)
+    out = tmp_path / "runs"
+    code = main(train_argv(out, 256))
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1, err  # one line, no traceback
+    (run,) = out.glob("ppo_*")
+    assert err[0].startswith("quadslam train: error: no space left on device writing")
+    assert "checkpoints/model_64_steps.zip, 64 of 256 steps" in err[0]
+    assert err[0].endswith(f"quadslam train --resume {run}")
+    names = sorted(p.name for p in (run / "checkpoints").iterdir())
+    assert names == ["model_64_steps.zip", "model_vecnormalize_64_steps.pkl"]  # nothing torn
+    assert not (run / "model.zip").exists() and not list(run.rglob(".*.tmp-*"))
+
+    monkeypatch.setattr(PPO, "save", real_save)
+    assert main(["train", "--resume", str(run), "--no-progress"]) == 0
+    assert json.loads((run / "timing.json").read_text())["timesteps"] >= 256
+
+
+def test_sigterm_stops_training_saves_it_and_exits_143(tmp_path: Path) -> None:
+    out = tmp_path / "runs"
+    proc = start_cli(train_argv(out, 100_000))
+    wait_for(lambda: checkpoints(out), proc, 240)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    (run,) = out.glob("ppo_*")
+    steps = int((run / "INTERRUPTED").read_text())
+    assert steps >= 64 and (run / "model.zip").is_file() and (run / "timing.json").is_file()
+    last = err.strip().splitlines()[-1]
+    assert f"interrupted at {steps:,} steps" in last
+    assert last.endswith(f"resume with: quadslam train --resume {run}")
+
+
+def test_sigterm_while_saving_is_held_until_the_run_folder_is_complete(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """SIGTERM during training (in-process, as ``study`` calls train()), then another during
+    the learning-curve plot: the folder is completed, then the command ends with 143."""
+    from stable_baselines3 import PPO
+
+    import agents.training
+
+    def terminated_learn(self: Any, *args: Any, **kwargs: Any) -> None:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    plot = agents.training.plot_learning_curve
+
+    def plot_with_sigterm(run_dir: Path) -> None:
+        os.kill(os.getpid(), signal.SIGTERM)  # held until timing.json is written
+        plot(run_dir)
+
+    monkeypatch.setattr(PPO, "learn", terminated_learn)
+    monkeypatch.setattr(agents.training, "plot_learning_curve", plot_with_sigterm)
+    before = signal.getsignal(signal.SIGTERM)
+    out = tmp_path / "runs"
+    assert main(train_argv(out, 256)) == 143
+    (run,) = out.glob("ppo_*")
+    for name in ("model.zip", "INTERRUPTED", "timing.json", "learning_curve.png"):
+        assert (run / name).is_file(), name
+    err = capsys.readouterr().err
+    assert "please wait" in err and f"quadslam train --resume {run}" in err
+    assert signal.getsignal(signal.SIGTERM) is before  # restored
+
+
+def test_sigterm_stops_a_study_after_its_training_saved(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """``study`` dispatch: train() saves on SIGTERM and passes it on, so the study stops
+    (exit 143, one line) instead of going on to its next training."""
+    from stable_baselines3 import PPO
+
+    import agents.study_cost
+    from agents.training import train
+
+    def terminated_learn(self: Any, *args: Any, **kwargs: Any) -> None:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    trained: list[Path] = []
+
+    def study(out: Path, *args: Any, **kwargs: Any) -> Any:
+        for seed in range(2):  # a study's trainings, one after the other
+            hp = {"n_steps": 64, "batch_size": 32, "eval_freq": 0, "checkpoint_freq": 0,
+                  "env_kwargs": {"episode": {"duration_s": 1.0}}}  # fmt: skip
+            trained.append(train("ppo", "QuadSLAM-EKF-v0", timesteps=128, n_envs=1, seed=seed,
+                                 out_dir=out, progress=False, hyperparams=hp))  # fmt: skip
+        raise AssertionError("the study went on after SIGTERM")
+
+    monkeypatch.setattr(PPO, "learn", terminated_learn)
+    monkeypatch.setattr(agents.study_cost, "run_study", study)
+    argv = ["study", "cost-of-estimation", "--quick", "--out", str(tmp_path / "s")]
+    code, _, line = cli(capsys, argv)
+    assert code == 143 and not trained
+    assert line.startswith("quadslam study: terminated (SIGTERM); finished training runs")
+    (run,) = (tmp_path / "s").glob("ppo_*")
+    assert (run / "INTERRUPTED").is_file() and (run / "model.zip").is_file()
+
+
+def test_sigterm_ends_run_in_one_line_with_143(tmp_path: Path) -> None:
+    proc = start_cli(["run", "--seeds", "50", "--no-plots"])
+    err: list[str] = []
+
+    def progress() -> bool:
+        assert proc.stderr is not None
+        err.append(os.read(proc.stderr.fileno(), 4096).decode(errors="replace"))
+        return "".join(err).count("step") >= 2  # the bar redrawn: flying, handler in place
+
+    wait_for(progress, proc, 120)
+    proc.send_signal(signal.SIGTERM)
+    _, rest = proc.communicate(timeout=60)
+    assert proc.returncode == 143
+    lines = [x for x in ("".join(err) + rest).replace("\r", "\n").splitlines() if x.strip()]
+    assert lines[-1] == "quadslam run: terminated (SIGTERM)"
+    assert "Traceback" not in rest

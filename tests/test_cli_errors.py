@@ -1,4 +1,4 @@
-"""Bad input to the ``quadslam`` CLI (DESIGN.md §7): every class of bad argument or file ends
+"""Bad input to the ``quadslam`` CLI (docs/design.md §7): every class of bad argument or file ends
 with a non-zero exit status and one line on stderr, starting with ``quadslam``, that names the
 offending key or value. Argument-type errors are argparse's (``SystemExit(2)``)."""
 
@@ -209,3 +209,155 @@ def test_evaluate_model_of_another_env(capsys, tmp_path):
 def test_evaluate_unknown_env_id(capsys):
     line = _one_line_error(capsys, [*EVALUATE, "--policy", "dflqr", "--env", "QuadSLAM-Nope-v0"])
     assert "QuadSLAM-Nope-v0" in line
+
+
+# ----------------------------------------------------------------------------- bounded inputs
+
+LONG = "n" * 300  # a file name beyond the file system's 255 bytes
+BOMB = (
+    "".join(
+        f"{k}: &{k} [{', '.join([f'*{p}'] * 9 if p else ['lol'] * 9)}]\n"
+        for p, k in zip(["", *"abcdefgh"], "abcdefghi", strict=True)
+    )
+    + "episode: *i\n"
+)  # 9^9 values once the aliases are expanded ("billion laughs")
+
+
+def _write(tmp_path: Path, name: str, text: str) -> str:
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
+
+
+def _big_file(tmp_path: Path) -> str:
+    path = tmp_path / "big.yaml"
+    with open(path, "wb") as fh:
+        fh.truncate(3 << 30)  # 3 GiB, sparse: refused from its size, never read
+    return str(path)
+
+
+def _huge_sweep(tmp_path: Path) -> str:
+    return _write(tmp_path, "huge.yaml", "jobs:\n  - {kind: run, seeds: 100000000}\n")
+
+
+def _two_block_sweep(tmp_path: Path) -> str:
+    blocks = "".join(f"  - {{kind: run, seeds: 60000, seed: {i * 60000}}}\n" for i in range(2))
+    return _write(tmp_path, "two.yaml", "jobs:\n" + blocks)
+
+
+BAD_INPUTS = {
+    # name: (argv builder, fragments of the one stderr line)
+    "scenario_dev_zero": (lambda t: [*RUN, "--scenario", "/dev/zero"], ["is a character device"]),
+    "scenario_folder": (lambda t: [*RUN, "--scenario", str(t)], ["is a folder"]),
+    "scenario_3_gib": (lambda t: [*RUN, "--scenario", _big_file(t)], ["3 GiB", "at most 1 MiB"]),
+    "scenario_alias_bomb": (
+        lambda t: [*RUN, "--scenario", _write(t, "bomb.yaml", BOMB)],
+        ["bomb.yaml", "more than 100,000 values once its aliases are expanded"],
+    ),
+    "set_alias_bomb": (
+        lambda t: [*RUN, "--set", "episode.duration_s=" + BOMB.replace("\n", ", ")[:-2]],
+        ["--set episode.duration_s"],
+    ),
+    "json_long_name": (
+        lambda t: [*RUN, "--json", str(t / LONG / "x.json")],
+        ["--json: the name 'nnnnnnnn", "is 300 bytes long", "at most 255 bytes"],
+    ),
+    "plots_long_name": (
+        lambda t: ["run", "--duration", "0.5", "--plots", str(t / LONG)],
+        ["--plots: the name", "at most 255 bytes"],
+    ),
+    "train_out_long_name": (
+        lambda t: ["train", "--algo", "ppo", "--out", str(t / LONG)],
+        ["--out: the name", "at most 255 bytes"],
+    ),
+    "train_config_dev_zero": (
+        lambda t: ["train", "--algo", "ppo", "--config", "/dev/zero"],
+        ["--config '/dev/zero': is a character device"],
+    ),
+    "sweep_10e8_seeds": (
+        lambda t: ["sweep", _huge_sweep(t), "--out", str(t / "o")],
+        ["jobs[0]: 100,000,000 jobs", "at most 100,000 jobs per sweep"],
+    ),
+    "sweep_blocks_add_up": (
+        lambda t: ["sweep", _two_block_sweep(t), "--out", str(t / "o")],
+        ["jobs[1]: 60,000 jobs", "after 60,000 in the blocks before", "at most 100,000"],
+    ),
+    "sweep_alias_bomb": (
+        lambda t: ["sweep", _write(t, "bomb_spec.yaml", BOMB), "--out", str(t / "o")],
+        ["bomb_spec.yaml", "more than 100,000 values"],
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_INPUTS))
+def test_unbounded_inputs_end_in_one_line(capsys, tmp_path, case):
+    argv, fragments = BAD_INPUTS[case]
+    line = _one_line_error(capsys, argv(tmp_path))
+    for fragment in fragments:
+        assert fragment in line, line
+    assert len(line) < 1000  # a bounded message, even for a 300-character name
+
+
+# ----------------------------------------------------------------------------- what main catches
+
+
+def _raising(exc: BaseException):
+    def command(args):
+        raise exc
+
+    return command
+
+
+def _gym_error() -> Exception:
+    import gymnasium.error
+
+    return gymnasium.error.NameNotFound("Environment `Nope` doesn't exist.")
+
+
+def _disk_full() -> Exception:
+    from agents.outputs import DiskFullError
+
+    return DiskFullError("no space left on device writing x; resume with: y")
+
+
+def _terminated() -> BaseException:
+    from agents.outputs import Terminated
+
+    return Terminated()
+
+
+CAUGHT = [
+    # (exception factory, exit status, fragment of the one stderr line)
+    (lambda: ValueError("bad value"), 2, "error: bad value"),
+    (lambda: FileNotFoundError(2, "No such file or directory", "/x.yaml"), 2,
+     "error: No such file or directory: '/x.yaml'"),
+    (lambda: OSError(28, "No space left on device", "/full/r.json"), 2,
+     "error: No space left on device: '/full/r.json'"),
+    (lambda: PermissionError(13, "Permission denied", "/ro"), 2, "Permission denied: '/ro'"),
+    (_gym_error, 2, "error: Environment `Nope` doesn't exist."),
+    (_disk_full, 2, "error: no space left on device writing x; resume with: y"),
+    (lambda: KeyboardInterrupt(), 130, "quadslam scenarios: interrupted"),
+    (_terminated, 143, "quadslam scenarios: terminated (SIGTERM)"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("make", "status", "fragment"), CAUGHT)
+def test_main_reports_user_errors_and_signals_in_one_line(
+    capsys, monkeypatch, make, status, fragment
+):
+    import agents.cli
+
+    monkeypatch.setattr(agents.cli, "cmd_scenarios", _raising(make()))
+    assert main(["scenarios"]) == status
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0], lines
+    assert "[Errno" not in lines[0]
+
+
+@pytest.mark.parametrize("exc", [TypeError("a bug"), KeyError("a bug"), AttributeError("bug")])
+def test_main_lets_bugs_show_their_traceback(monkeypatch, exc):
+    import agents.cli
+
+    monkeypatch.setattr(agents.cli, "cmd_scenarios", _raising(exc))
+    with pytest.raises(type(exc)):
+        main(["scenarios"])

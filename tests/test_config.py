@@ -1,8 +1,14 @@
-"""Scenario configuration: loading, merging, presets and validation errors (DESIGN.md §4, §7)."""
+"""Scenario configuration: loading, merging, presets and validation errors.
+
+See docs/design.md §4 and §7.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import threading
 from pathlib import Path
 
 import gymnasium as gym
@@ -264,3 +270,88 @@ def test_switching_the_estimator_by_override_starts_from_its_own_defaults() -> N
     )
     assert kept.estimator.params["process_noise"] == [0.0] * 9
     assert kept.estimator.params["estimate_imu_bias"] is False
+
+
+# ----------------------------------------------------------------------------- bounded reading
+
+
+def _fifo_with(path: Path, data: bytes) -> threading.Thread:
+    """A FIFO at ``path`` fed ``data`` by a thread (as ``<(cat scenario.yaml)`` is)."""
+    os.mkfifo(path)
+
+    def feed() -> None:
+        with contextlib.suppress(BrokenPipeError), open(path, "wb") as fh:
+            fh.write(data)
+
+    thread = threading.Thread(target=feed, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_a_scenario_from_a_pipe_is_read(tmp_path: Path) -> None:
+    thread = _fifo_with(tmp_path / "scenario.yaml", b"episode: {duration_s: 3.0}\n")
+    assert load_scenario(tmp_path / "scenario.yaml").episode.duration_s == 3.0
+    thread.join(10)
+
+
+def test_a_pipe_is_read_up_to_the_cap_only(tmp_path: Path) -> None:
+    from quadslam_env.config_files import MAX_CONFIG_BYTES
+
+    thread = _fifo_with(tmp_path / "endless.yaml", b"#" * (3 * MAX_CONFIG_BYTES))
+    with pytest.raises(ConfigError, match=r"endless\.yaml'.*more than 1 MiB; allowed: at most"):
+        load_yaml(tmp_path / "endless.yaml")
+    thread.join(10)  # the writer saw the reader go (a broken pipe), not a full read
+
+
+def test_a_file_at_the_cap_is_read_and_one_byte_more_is_not(tmp_path: Path) -> None:
+    from quadslam_env.config_files import MAX_CONFIG_BYTES
+
+    path = tmp_path / "padded.yaml"
+    head = b"episode: {duration_s: 2.0}\n"
+    path.write_bytes(head + b"#" * (MAX_CONFIG_BYTES - len(head)))
+    assert load_yaml(path) == {"episode": {"duration_s": 2.0}}
+    path.write_bytes(path.read_bytes() + b"#")
+    with pytest.raises(ConfigError, match=r"1 MiB; allowed: at most 1 MiB"):
+        load_yaml(path)
+
+
+YAML_BOMBS = {
+    "billion_laughs": (
+        "".join(
+            f"{k}: &{k} [{', '.join([f'*{p}'] * 9 if p else ['lol'] * 9)}]\n"
+            for p, k in zip(["", *"abcdefgh"], "abcdefghi", strict=True)
+        ),
+        "more than 100,000 values once its aliases are expanded",
+    ),
+    "quadratic_blowup": (
+        "a: &a [" + ", ".join(["x"] * 2000) + "]\nb: [" + ", ".join(["*a"] * 2000) + "]\n",
+        "more than 100,000 values",
+    ),
+    "recursive_alias": ("a: &a [1, *a]\n", "an alias refers to its own anchor"),
+    "deep_nesting": ("a: " + "[" * 150 + "]" * 150 + "\n", "nested more than 100 levels"),
+    "deeper_than_the_parser": ("a: " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(YAML_BOMBS))
+def test_yaml_bombs_are_one_line_config_errors(tmp_path: Path, name: str) -> None:
+    text, expected = YAML_BOMBS[name]
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_yaml(path)
+    message = str(info.value)
+    assert expected in message and str(path) in message
+    assert "\n" not in message and len(message) < 500
+
+
+def test_ordinary_aliases_and_merges_still_load(tmp_path: Path) -> None:
+    path = tmp_path / "aliases.yaml"
+    path.write_text(
+        "imu: &imu {preset: ideal}\n"
+        "lidar: &lidar {sigma_range_m: 0.05}\n"
+        "episode:\n  <<: {duration_s: 2.0}\n  control_hz: 100\n"
+    )
+    data = load_yaml(path)
+    assert data["imu"] == {"preset": "ideal"} and data["episode"]["duration_s"] == 2.0
+    assert load_scenario(path).lidar.sigma_range_m == 0.05

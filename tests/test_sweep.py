@@ -166,38 +166,44 @@ def test_failed_job_is_reported_and_resume_redoes_nothing_finished(local_ray, tm
     assert len(pd.read_parquet(out / "results.parquet")) == 5
 
 
-def test_ctrl_c_then_resume_loses_nothing(local_ray, tmp_path):
+def _default_signals() -> None:
+    """In the child, SIGINT and SIGTERM as a terminal delivers them: a test runner started in
+    the background (or under a nohup-like wrapper) passes them on ignored, and an ignored
+    signal stays ignored in Python."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _start_sweep(spec: Path, out: Path) -> subprocess.Popen:
+    argv = ["sweep", str(spec), "--out", str(out), "--workers", "1"]
+    return subprocess.Popen(
+        [sys.executable, "-m", "agents.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=_default_signals,
+    )
+
+
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_or_sigterm_then_resume_loses_nothing(local_ray, tmp_path, sig, status):
+    """Ctrl-C, or SIGTERM (a scheduler, ``docker stop``; Ray's own handler would exit at once
+    with no table): the finished jobs' table, the resume hint, the signal's status."""
     spec = _spec(
         tmp_path,
         [{"kind": "run", "seeds": 6, "set": {"episode.duration_s": 20}}],
     )
     out = tmp_path / "out"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "agents.cli",
-            "sweep",
-            str(spec),
-            "--out",
-            str(out),
-            "--workers",
-            "1",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
+    proc = _start_sweep(spec, out)
     deadline = time.monotonic() + 240
     while not _finished(out) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
     done = _finished(out)
-    assert proc.returncode == 130, err
-    assert "--resume" in err
+    assert proc.returncode == status, err
+    assert f"rerun with --resume --out {out}" in err.strip().splitlines()[-1]
     assert 1 <= len(done) < 6
     table = pd.read_csv(out / "results.csv")
     assert len(table) == len(done)  # the table of what had finished
@@ -247,3 +253,74 @@ def test_train_job_writes_a_run_folder_and_evaluates_it(local_ray, tmp_path):
     assert (out / "plots" / "hyperparams.learning_rate.png").is_file()
     jobs = load_spec(spec)
     assert {j.job_id for j in jobs} == set(table["job_id"])
+
+
+def test_a_second_sweep_on_the_same_out_is_refused_in_one_line(tmp_path, capsys):
+    """An advisory lock (flock on OUT/.sweep.lock) held by a running sweep; here by the test."""
+    import fcntl
+
+    spec = _spec(tmp_path, [{"kind": "run", "seeds": 1, "set": {"episode.duration_s": 1}}])
+    out = tmp_path / "out"
+    out.mkdir()
+    with open(out / ".sweep.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        for resume in ([], ["--resume"]):
+            assert main(["sweep", str(spec), "--out", str(out), *resume]) == 2
+            (line,) = capsys.readouterr().err.strip().splitlines()
+            assert line.startswith(f"quadslam sweep: error: --out {str(out)!r}: another quadslam")
+    assert not (out / "jobs").exists() and not (out / "spec.yaml").exists()
+
+
+def test_more_workers_than_cores_is_a_warning(tmp_path, capsys):
+    import fcntl
+
+    spec = _spec(tmp_path, [{"kind": "run", "seeds": 1, "set": {"episode.duration_s": 1}}])
+    out = tmp_path / "out"
+    out.mkdir()
+    cores = len(os.sched_getaffinity(0))
+    with open(out / ".sweep.lock", "w") as held:  # stops the sweep before Ray starts
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        main(["sweep", str(spec), "--out", str(out), "--workers", str(cores)])
+        assert "warning" not in capsys.readouterr().err
+        main(["sweep", str(spec), "--out", str(out), "--workers", str(cores + 62)])
+    warning = capsys.readouterr().err.splitlines()[0]
+    assert warning == (
+        f"quadslam sweep: warning: --workers {cores + 62} is more than the {cores} CPU "
+        "core(s) of this machine; the jobs will share cores"
+    )
+
+
+def test_full_disk_keeps_the_finished_jobs_and_says_how_to_resume(
+    local_ray, tmp_path, capsys, monkeypatch
+):
+    import errno
+
+    import agents.outputs
+
+    spec = _spec(tmp_path, [{"kind": "run", "seeds": 3, "set": {"episode.duration_s": 1}}])
+    out = tmp_path / "out"
+    real = agents.outputs._write_bytes
+    results = {"n": 0}
+
+    def write(path, data):
+        if path.name.startswith(".result.tmp-"):
+            results["n"] += 1
+            if results["n"] > 1:  # the first job's result fits, then the disk is full
+                raise OSError(errno.ENOSPC, "No space left on device")
+        real(path, data)
+
+    monkeypatch.setattr(agents.outputs, "_write_bytes", write)
+    code = main(["sweep", str(spec), "--out", str(out), "--workers", "1"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    line = err.replace("\r", "\n").strip().splitlines()[-1]
+    assert line.startswith("quadslam sweep: error: no space left on device writing")
+    assert f"1 of 3 job(s) are saved in {out}" in line
+    assert line.endswith(f"quadslam sweep {spec} --resume --out {out}")
+    assert len(_finished(out)) == 1
+    assert not list(out.rglob(".*.tmp-*"))  # no torn file anywhere
+
+    monkeypatch.setattr(agents.outputs, "_write_bytes", real)
+    report = run_sweep(spec, out, resume=True, progress=False)
+    assert len(report.skipped) == 1 and len(report.ran) == 2
+    assert len(pd.read_csv(out / "results.csv")) == 3
