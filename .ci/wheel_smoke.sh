@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Build the sdist and the wheel (from the sdist), install the wheel into a fresh venv outside the
-# checkout and run .ci/smoke_installed.py from an unrelated folder.
+# Build the sdist and the wheel (from the sdist), install the wheel into two fresh venvs outside
+# the checkout (no extras: .ci/smoke_env_only.py; the rl and plots extras:
+# .ci/smoke_installed.py) and run the checks from an unrelated folder.
 # Usage: .ci/wheel_smoke.sh [PYTHON]   (the fresh venv's interpreter, default python3)
 # BUILD_PYTHON (default: the checkout's .venv, made by `make`) needs the `build` package.
 set -euo pipefail
@@ -18,12 +19,20 @@ if grep -i "deprecat" "$WORK/build.log"; then
 fi
 rm -rf "$ROOT/build" "$ROOT"/*.egg-info
 
+WHEEL="$(ls "$WORK"/dist/*.whl)"
+mkdir "$WORK/elsewhere"
+cp "$ROOT/.ci/smoke_installed.py" "$ROOT/.ci/smoke_env_only.py" "$WORK/elsewhere/"
+
+# The env-only install: no extras, so no torch, SB3, tensorboard or matplotlib.
+"$PYTHON" -m venv "$WORK/venv-env"
+"$WORK/venv-env/bin/python" -m pip install --quiet -c "$ROOT/constraints.txt" "$WHEEL"
+(cd "$WORK/elsewhere" && env -u PYTHONPATH -u QUADSLAM_CONFIG_DIR OPENBLAS_NUM_THREADS=1 \
+    "$WORK/venv-env/bin/python" smoke_env_only.py)
+
+# Everything a user of the RL side installs.
 "$PYTHON" -m venv "$WORK/venv"
 "$WORK/venv/bin/python" -m pip install --quiet -c "$ROOT/constraints.txt" torch==2.13.0
-"$WORK/venv/bin/python" -m pip install --quiet -c "$ROOT/constraints.txt" "$WORK"/dist/*.whl
-
-mkdir "$WORK/elsewhere"
-cp "$ROOT/.ci/smoke_installed.py" "$WORK/elsewhere/"
+"$WORK/venv/bin/python" -m pip install --quiet -c "$ROOT/constraints.txt" "$WHEEL[rl,plots]"
 cd "$WORK/elsewhere"
 env -u PYTHONPATH -u QUADSLAM_CONFIG_DIR MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1 \
     "$WORK/venv/bin/python" smoke_installed.py

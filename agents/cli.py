@@ -10,6 +10,7 @@ and printed how to resume it.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import sys
 import time
@@ -17,15 +18,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from tqdm import tqdm
+
+from agents.cli_study import add_study_parser
+
 # The filters multiply matrices of a few hundred rows: multithreaded BLAS only adds hand-off
 # latency there (an EKF update took 7-24 ms with 2 threads vs 1 ms with 1 on 2 cores), and
-# vectorised envs already use the cores. Set before numpy is imported; users may override.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-from tqdm import tqdm  # noqa: E402
-
-from agents.cli_study import add_study_parser  # noqa: E402
+# vectorised envs already use the cores. Set by main() before numpy is imported (nothing above
+# imports it), not at import: importing this module changes no environment; users may override.
+BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def _positive_int(text: str) -> int:
@@ -117,12 +118,15 @@ def check_outputs(plots: Path | None, json_path: Path | None, video: Path | None
     """
     from agents.outputs import check_output_dir, check_output_file
     from agents.video import check_video_path
+    from quadslam_env.extras import require
 
     if json_path is not None:
         check_output_file(json_path, "--json")
     if video is not None:
+        require("matplotlib", "plots", "--video")
         check_video_path(video)
     if plots is not None:
+        require("matplotlib", "plots", "--plots")
         check_output_dir(plots, "--plots")
 
 
@@ -201,7 +205,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
     plots = args.plots
-    if plots is None and not args.no_plots:
+    if plots is None and not args.no_plots and importlib.util.find_spec("matplotlib") is None:
+        print("quadslam run: no figures (matplotlib is not installed: pip install "
+              "'quadslam[plots]')", file=sys.stderr)  # fmt: skip
+    elif plots is None and not args.no_plots:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         # The scenario's name comes from its file: one safe folder name inside runs/.
         plots = Path("runs") / f"run-{stamp}-{safe_name(env.unwrapped.scenario.name)}"
@@ -505,6 +512,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         The command's status; 2 after a one-line error (see :func:`_user_error`), 130 after
         Ctrl-C and 143 after SIGTERM (``train`` and ``sweep`` save their work first).
     """
+    for var in BLAS_THREAD_VARS:
+        os.environ.setdefault(var, "1")
     from agents.outputs import Terminated, sigterm_as_interrupt, sigterm_received
 
     parser = build_parser()

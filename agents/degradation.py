@@ -1,4 +1,4 @@
-"""Graceful degradation: an estimator with the landmarks out of view and back (issue 18).
+"""Graceful degradation: an estimator with the landmarks out of view and back.
 
 ``python -m agents.degradation --scenario ekf_out_of_view_600s --seeds 5 --json FILE``
 

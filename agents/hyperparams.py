@@ -1,4 +1,4 @@
-"""Zoo-style hyperparameter files: reading, validation, overrides (DESIGN.md §6).
+"""Zoo-style hyperparameter files: reading, validation, overrides (docs/design.md §6).
 
 Hyperparameters live in ``configs/agents/<algo>.yaml`` (package data of ``quadslam_env``),
 keyed by env id (rl-baselines3-zoo style). Each entry may hold:
@@ -41,6 +41,7 @@ import yaml
 
 from agents.wrappers import parse_wrapper_spec
 from quadslam_env.config import ConfigError, parse_yaml
+from quadslam_env.extras import require
 
 RESERVED_KEYS = (
     "n_envs",
@@ -98,7 +99,8 @@ _NET_ARCH_HEADS = ("pi", "vf", "qf")
 
 
 def algorithms() -> dict[str, type]:
-    """Supported algorithm names → SB3 classes (imported lazily)."""
+    """Supported algorithm names → SB3 classes (imported lazily; ``quadslam[rl]``)."""
+    require("stable_baselines3", "rl", "training and loading agents")
     from stable_baselines3 import A2C, PPO, SAC, TD3
 
     return {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C}

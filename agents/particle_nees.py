@@ -1,4 +1,4 @@
-"""Consistency of a particle filter in the loop: NEES per block, lineages, gauge share (issue 18).
+"""Consistency of a particle filter in the loop: NEES per block, lineages, gauge share.
 
 ``python -m agents.particle_nees --scenario paper_fastslam_helix --seeds 10 --duration 30
 [--n 100,250,500,1000] [--set SECTION.KEY=VALUE ...] --json FILE``

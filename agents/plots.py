@@ -8,6 +8,7 @@ import numpy as np
 
 from agents.evaluation import Trace
 from agents.outputs import Saver
+from quadslam_env.extras import require
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 
 
@@ -31,8 +32,7 @@ def write_figures(
         agents.outputs.OutputWriteError: Without ``saver``, when a file could not be written
             in ``out_dir``.
     """
-    import matplotlib
-
+    matplotlib = require("matplotlib", "plots", "figures (--plots)")
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

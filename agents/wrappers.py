@@ -1,4 +1,4 @@
-"""Action wrappers for learning on top of the DF-LQR baseline (DESIGN.md §6).
+"""Action wrappers for learning on top of the DF-LQR baseline (docs/design.md §6).
 
 :class:`ResidualDFLQRWrapper` turns the env into a *residual* learning problem: the agent outputs
 a correction ``δ ∈ [-1, 1]⁴`` and the env receives

@@ -1,4 +1,7 @@
-"""Estimator interface, the ``Estimate`` snapshot, and the name → class registry (DESIGN.md §5)."""
+"""Estimator interface, the ``Estimate`` snapshot and the name → class registry.
+
+See docs/design.md §5.
+"""
 
 from __future__ import annotations
 
@@ -84,6 +87,7 @@ _MODULES: dict[str, str] = {
     "ekf_slam": "estimators.ekf_slam",
     "fastslam": "estimators.fastslam",
     "fastslam_kinematic": "estimators.fastslam",
+    "isam2": "estimators.isam2",  # needs the optional extra quadslam[gtsam]
 }
 
 ENTRY_POINT_GROUP = "quadslam.estimators"

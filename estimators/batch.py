@@ -1,4 +1,4 @@
-"""Estimators over a leading batch axis of B lanes (DESIGN.md §9), and the one-lane bridge.
+"""Estimators over a leading batch axis of B lanes (docs/design.md §9), and the one-lane bridge.
 
 The simulation core (:mod:`quadslam_env.core`) steps B independent episodes ("lanes") in
 lockstep. It talks to its estimator through :class:`BatchEstimator`: arrays in, arrays out, with
@@ -497,7 +497,7 @@ def _health_codes(
 def health_codes(est: BatchEstimate, max_cov_trace: float = math.inf) -> np.ndarray:
     """What is wrong with each lane's belief, as (B,) indices into :data:`HEALTH_PROBLEMS`.
 
-    Checks (DESIGN.md §7), first failure wins: the estimator's own ``diverged`` flag, a finite
+    Checks (docs/design.md §7), first failure wins: the estimator's own ``diverged`` flag, a finite
     mean (pose, rates and mapped landmarks), a finite and symmetric pose covariance with no
     negative variance and no correlation beyond ±1 (beyond :data:`PSD_TOLERANCE` round-off),
     and a pose-covariance trace (over ρ m², v m²/s², Λ rad²) at most ``max_cov_trace``. The

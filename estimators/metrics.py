@@ -1,9 +1,9 @@
 """Accuracy and consistency metrics: the only module that sees truth and estimate together.
 
-Per step (DESIGN.md §5): position, inertial-velocity and attitude errors, NEES of the 9-DOF pose
-(ρ, v_B, Λ) and of the position, map RMSE over mapped landmarks, bias errors. Per episode:
-RMSEs, the average NEES (ANEES) and the share of steps whose NEES lies inside the two-sided 95%
-χ² interval. NEES is NaN when the estimator reports no covariance (the oracle).
+Per step (docs/design.md §5): position, inertial-velocity and attitude errors, NEES of the
+9-DOF pose (ρ, v_B, Λ) and of the position, map RMSE over mapped landmarks, bias errors. Per
+episode: RMSEs, the average NEES (ANEES) and the share of steps whose NEES lies inside the
+two-sided 95% χ² interval. NEES is NaN when the estimator reports no covariance (the oracle).
 
 Everything works on B lanes at once (a leading batch axis); a term that does not apply to a
 lane (no covariance, nothing mapped, no bias estimate) is NaN there.
@@ -234,7 +234,7 @@ def step_metrics(
     true_landmarks: FloatArray,
     true_bias: FloatArray,
 ) -> dict[str, FloatArray]:
-    """The ``est_*`` terms of one step of B lanes (DESIGN.md §4 ``info``), each (B,).
+    """The ``est_*`` terms of one step of B lanes (docs/design.md §4 ``info``), each (B,).
 
     Args:
         true_state: (B, 12) true states.

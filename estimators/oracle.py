@@ -1,4 +1,4 @@
-"""Oracle estimator: reports the true state (DESIGN.md §5), for ablations.
+"""Oracle estimator: reports the true state (docs/design.md §5), for ablations.
 
 It is the one estimator the simulation feeds with the truth (through ``set_truth``); it has no
 covariance, so NEES is reported as NaN by the metrics. :class:`OracleBatch` serves B lanes;

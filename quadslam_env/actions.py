@@ -1,4 +1,4 @@
-"""Actions: validation and the map from normalised actions to thrust and torque (DESIGN.md §4).
+"""Actions: validation and the map from normalised actions to thrust and torque (docs/design.md §4).
 
 ``thrust_torque`` maps ``a0`` to thrust in ``[0, max_thrust]`` and ``a1..a3`` to
 ``±max_torque``; ``thrust_rates`` maps ``a1..a3`` to body-rate commands ``±max_rate`` tracked by

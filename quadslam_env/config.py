@@ -1,4 +1,4 @@
-"""Typed, frozen, validated scenario settings (DESIGN.md §4 "Config flow").
+"""Typed, frozen, validated scenario settings (docs/design.md §4 "Config flow").
 
 A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the sections ``vehicle``,
 ``imu``, ``lidar``, ``landmarks``, ``trajectory``, ``estimator``, ``reward``, ``observation``,
@@ -433,7 +433,7 @@ class ScenarioConfig:
 def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
     """``imu.rate_hz`` must be null, an integer multiple of ``episode.control_hz`` or an
     integer fraction of it (the IMU samples on a grid that the control grid refines or is
-    refined by: DESIGN.md §3, docs/env.md "IMU rate").
+    refined by: docs/design.md §3, docs/env.md "IMU rate").
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.

@@ -12,7 +12,10 @@ from quadslam_env.config_schema import spec as _spec
 
 @dataclass(frozen=True)
 class LandmarksConfig(Section):
-    """Landmark layout (DESIGN.md §3): ``rauniyar2023`` random points, ``poles4``, ``explicit``."""
+    """Landmark layout (docs/design.md §3).
+
+    ``rauniyar2023`` random points, ``poles4``, ``explicit``.
+    """
 
     SECTION: ClassVar[str] = "landmarks"
     ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {

@@ -1,4 +1,4 @@
-"""The batched simulation: B quadcopter episodes ("lanes") stepped in lockstep (DESIGN.md §9).
+"""The batched simulation: B quadcopter episodes ("lanes") stepped in lockstep (docs/design.md §9).
 
 :class:`SimCore` owns every lane's true vehicle, IMU, LiDAR, landmark map, reference and the
 estimator of all lanes, as arrays with a leading batch axis. It is the only place that

@@ -1,4 +1,4 @@
-"""``QuadSLAMEnv``: the quadcopter simulator with an estimator in the loop (DESIGN.md §4).
+"""``QuadSLAMEnv``: the quadcopter simulator with an estimator in the loop (docs/design.md §4).
 
 Coordination only, for one lane of :class:`~quadslam_env.core.SimCore` (which sequences the
 physics, sensors, estimator, metrics, reward and observation for B lanes): this class turns the

@@ -1,6 +1,6 @@
 """Simulated IMU of B vehicles: accelerometer and gyro with bias, drift and white noise.
 
-DESIGN.md §3, §9. Each lane's IMU owns one ``numpy.random.Generator`` handed to it at reset
+docs/design.md §3, §9. Each lane's IMU owns one ``numpy.random.Generator`` handed to it at reset
 (a child of that lane's env generator), so lane i with seed s is the single env with seed s,
 bit for bit. :class:`Imu` is the one-lane case of :class:`ImuBatch`.
 
@@ -35,7 +35,7 @@ from quadslam_env.types import DEG, GRAVITY, IMU_DIM, FloatArray
 class ImuBatch:
     """Accelerometer + gyro per lane with constant bias, Gauss–Markov drift and white noise.
 
-    Seed 000 eq. 5–11 with a physical accelerometer (DESIGN.md §3):
+    Seed 000 eq. 5–11 with a physical accelerometer (docs/design.md §3):
     ``a_m = f_B + b0_a + b1_a + v_a``, ``ω_m = ω + b0_ω + b1_ω + v_ω``, where ``f_B`` is the
     specific force; with ``accel_range_g`` / ``gyro_range_dps`` each reading saturates at the
     sensor's full scale. The drift is first-order Gauss–Markov, discretised exactly:

@@ -1,6 +1,6 @@
 """Plain data passed from the simulator to the estimators: IMU samples, LiDAR scans, controls.
 
-These are the only things an estimator receives (DESIGN.md §1: estimators never see the truth).
+These are the only things an estimator receives (docs/design.md §1: estimators never see the truth).
 """
 
 from __future__ import annotations

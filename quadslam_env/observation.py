@@ -1,4 +1,4 @@
-"""Observation built only from the estimate and the reference (DESIGN.md §4).
+"""Observation built only from the estimate and the reference (docs/design.md §4).
 
 Everything is expressed in the reference-heading frame (rotated by ``C3(ψ_d)ᵀ``), so the
 observation is invariant to the reference's yaw. Built for B lanes at once (the scalar env is

@@ -1,4 +1,4 @@
-"""Reward from the true state against the reference (DESIGN.md §4), for B lanes at once.
+"""Reward from the true state against the reference (docs/design.md §4), for B lanes at once.
 
 ``reward = alive - w_p ‖ρ - ρ_d‖ - w_v ‖ρ̇ - ρ̇_d‖ - w_ψ |wrap(ψ - ψ_d)|
 - w_u ‖a - a_hover‖²/4 - penalty·[terminated] - w_σ √trace(P_ρ)``, the last term on the

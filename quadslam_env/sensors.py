@@ -1,6 +1,6 @@
 """Simulated LiDAR of B vehicles: the FOV-limited scanner of point landmarks.
 
-DESIGN.md §3, §9. Each lane's sensor owns one ``numpy.random.Generator`` handed to it at reset
+docs/design.md §3, §9. Each lane's sensor owns one ``numpy.random.Generator`` handed to it at reset
 (a child of that lane's env generator), so lane i with seed s is the single env with seed s,
 bit for bit. Generators are called in a Python loop over lanes (draws cannot be shared between
 lanes); the arithmetic is batched. :class:`Lidar` is the one-lane case. The IMU lives in

@@ -1,4 +1,4 @@
-"""Why an episode ends (DESIGN.md §4), for B lanes in one kernel.
+"""Why an episode ends (docs/design.md §4), for B lanes in one kernel.
 
 ``truncated`` when a lane that did not terminate reaches the episode's step limit.
 

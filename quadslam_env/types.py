@@ -1,4 +1,4 @@
-"""Shared array type, physical constants, dimensions and index slices (DESIGN.md §2, §9).
+"""Shared array type, physical constants, dimensions and index slices (docs/design.md §2, §9).
 
 Every module that needs one of these imports it from here, so a dimension or a constant is
 written once.
@@ -15,10 +15,10 @@ FloatArray = NDArray[np.float64]
 """A float64 NumPy array; shapes are given in the docstrings that use it."""
 
 GRAVITY = 9.81
-"""Gravitational acceleration g in m/s² (DESIGN.md §2); gravity is ``+g n3`` in NED."""
+"""Gravitational acceleration g in m/s² (docs/design.md §2); gravity is ``+g n3`` in NED."""
 
 DEG = math.pi / 180.0
-"""One degree in rad: configs and reports use degrees, the code radians (DESIGN.md §2)."""
+"""One degree in rad: configs and reports use degrees, the code radians (docs/design.md §2)."""
 
 STATE_DIM = 12
 """Vehicle state ``x = (ρ [m, N], v [m/s, B], Λ [rad], ω [rad/s, B])`` (seed 001 eq. 2)."""

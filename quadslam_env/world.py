@@ -1,4 +1,4 @@
-"""Landmark layouts (DESIGN.md §3)."""
+"""Landmark layouts (docs/design.md §3)."""
 
 from __future__ import annotations
 

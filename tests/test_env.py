@@ -1,4 +1,4 @@
-"""The Gymnasium env (DESIGN.md §4, §7): API checkers, determinism, pickling, vectorisation,
+"""The Gymnasium env (docs/design.md §4, §7): API checkers, determinism, pickling, vectorisation,
 input validation, reward/info contents, termination, rendering and the observation frame."""
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ REQUIRED_INFO = (
     "est_n_visible",
     "track_pos_err_m",
 )
-# Present exactly when defined (DESIGN.md §4: NaN terms are left out so info is reproducible).
+# Present exactly when defined (docs/design.md §4: NaN terms are left out so info is reproducible).
 EKF_INFO = ("est_nees_pose", "est_nis", "est_map_rmse_m")
 REWARD_TERMS = (
     "reward_alive",

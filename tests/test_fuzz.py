@@ -1,4 +1,4 @@
-"""Fuzzing (DESIGN.md §7): 10,000 random actions and hundreds of random configurations through
+"""Fuzzing (docs/design.md §7): 10,000 random actions and hundreds of random configurations through
 the env raise only the documented exceptions, with messages naming the bad action or key, and
 never corrupt the simulation. Everything is drawn from fixed seeds."""
 

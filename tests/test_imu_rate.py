@@ -1,6 +1,6 @@
-"""``imu.rate_hz`` apart from the control rate (DESIGN.md §3; docs/env.md "IMU rate"): the rule,
-the unchanged default, the noise at the IMU rate, what the estimator is fed, and EKF-SLAM's
-consistency and flight on the paper's 10 Hz IMU."""
+"""``imu.rate_hz`` apart from the control rate (docs/design.md §3; docs/env.md "IMU rate"):
+the rule, the unchanged default, the noise at the IMU rate, what the estimator is fed, and
+EKF-SLAM's consistency and flight on the paper's 10 Hz IMU."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The batched core (DESIGN.md §9): lane kernels, VehicleBatch, ImuBatch, LidarBatch.
+"""The batched core (docs/design.md §9): lane kernels, VehicleBatch, ImuBatch, LidarBatch.
 
 Independent facts (hover fixed point, conservation laws without torque, the FOV) and the lane
 contract: lane i of a B-lane object equals the one-lane object driven with the same inputs and
@@ -183,7 +183,7 @@ IMU_VEHICLE = TUMBLER  # with drag, so the specific force depends on the velocit
 
 
 def test_imu_random_stream_is_the_documented_per_lane_sequence() -> None:
-    """Reference written out from DESIGN.md §3 with the documented draw order."""
+    """Reference written out from docs/design.md §3 with the documented draw order."""
     rate = 100.0
     imu = ImuBatch(IMU_CFG, IMU_VEHICLE, rate, 1)
     imu.reset(np.array([0]), [np.random.default_rng(5)])

@@ -1,4 +1,4 @@
-"""Layer-1 models checked against independent facts (DESIGN.md §2–3, §8).
+"""Layer-1 models checked against independent facts (docs/design.md §2–3, §8).
 
 Rotations: the seed-001 elementary matrices, orthonormality, round trips, finite differences.
 Dynamics: hover fixed point, Newton and Euler laws in the inertial frame (finite differences
@@ -45,7 +45,7 @@ B3 = np.array([0.0, 0.0, 1.0])
 
 
 # ----------------------------------------------------------------------------- reference math
-# Written out from seed 001 eq. 1 / DESIGN.md §2–3, independent of the package code.
+# Written out from seed 001 eq. 1 / docs/design.md §2–3, independent of the package code.
 def c1(phi: float) -> np.ndarray:
     c, s = math.cos(phi), math.sin(phi)
     return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])

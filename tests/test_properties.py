@@ -244,7 +244,7 @@ def _initial(seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _check_estimate(est) -> None:
     if est.diagnostics.get("diverged", 0.0):
-        return  # divergence is flagged, which is what DESIGN.md §7 asks for
+        return  # divergence is flagged, which is what docs/design.md §7 asks for
     for name in ("position", "vel_body", "vel_inertial", "euler", "rates", "landmark_means"):
         assert np.isfinite(getattr(est, name)).all(), name
     cov = est.pose_cov

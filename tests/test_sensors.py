@@ -1,4 +1,4 @@
-"""Simulated sensors (DESIGN.md §3): noise-free values exactly, noise statistics within χ²
+"""Simulated sensors (docs/design.md §3): noise-free values exactly, noise statistics within χ²
 sampling bounds, Gauss–Markov drift stationary variance and autocorrelation, LiDAR FOV limits."""
 
 from __future__ import annotations

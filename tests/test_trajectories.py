@@ -1,4 +1,7 @@
-"""Reference trajectories: analytic derivatives vs central finite differences (DESIGN.md §3)."""
+"""Reference trajectories: analytic derivatives vs central finite differences.
+
+See docs/design.md §3.
+"""
 
 from __future__ import annotations
 

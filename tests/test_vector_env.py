@@ -1,4 +1,4 @@
-"""The native vector env: lane i equals the scalar env seeded s + i (DESIGN.md §9)."""
+"""The native vector env: lane i equals the scalar env seeded s + i (docs/design.md §9)."""
 
 from __future__ import annotations
 

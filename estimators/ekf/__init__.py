@@ -1,4 +1,4 @@
-"""EKF-SLAM of seed 001 §2.3 (DESIGN.md §5, §9), batched over lanes and compiled with numba.
+"""EKF-SLAM of seed 001 §2.3 (docs/design.md §5, §9), batched over lanes and compiled with numba.
 
 * :mod:`estimators.ekf.filter` — :class:`EkfSlamBatch` (state, reset, predict, estimate),
   registered as the native batched ``"ekf_slam"``;

@@ -1,4 +1,4 @@
-"""EKF-SLAM of seed 001 §2.3 over a leading batch axis of B lanes (DESIGN.md §5, §9).
+"""EKF-SLAM of seed 001 §2.3 over a leading batch axis of B lanes (docs/design.md §5, §9).
 
 State of lane b (seed 001 eq. 21–23), in fixed-capacity arrays::
 

@@ -1,4 +1,4 @@
-"""FastSLAM estimators (DESIGN.md §5; seed 000 §III, Tables 2–4).
+"""FastSLAM estimators (docs/design.md §5; seed 000 §III, Tables 2–4).
 
 Two Rao-Blackwellised particle filters share one implementation
 (:class:`~estimators.fastslam.particles.FastSLAMBase`):
@@ -18,13 +18,13 @@ Two Rao-Blackwellised particle filters share one implementation
     baseline (Fig. 10–14).
 
 Array layout (all particle work is batched; there is no Python loop over particles — the
-per-particle loops are numba kernels, DESIGN.md §9):
+per-particle loops are numba kernels, docs/design.md §9):
 
 * ``x``      (N, 12) particle states ``x^D``;
 * ``logw``   (N,) normalised log-weights;
 * ``mu``     (N, L, 3) landmark means ``μ_j^i`` in N, m; ``sigma`` (N, L, 3, 3) their
   covariances ``Σ_j^i`` in m². With known association L grows when a landmark id is seen for
-  the first time and the id → slot map is shared by all particles (DESIGN.md §3). With
+  the first time and the id → slot map is shared by all particles (docs/design.md §3). With
   unknown association (unlabeled scans, :mod:`.associate`) every particle associates by
   maximum likelihood and owns its map: particle i's landmarks are slots ``0 … n_i − 1``
   (``ParticleMaps.size``), L is a capacity, and the estimate reports the map of the
@@ -48,7 +48,7 @@ Choices not fixed by the papers (documented here and in the parameter table):
 * Process noise is a white-noise *density*: each step adds ``N(0, σ² dt)`` per state, so the
   filter behaves the same at any control rate.
 * The bias drift is discretised exactly, ``b1 ← e^{−T/τ} b1 + N(0, σ_b1²(1 − e^{−2T/τ}))``, with
-  σ_b1 the stationary standard deviation (DESIGN.md §3, matching the simulated IMU). Seed 000
+  σ_b1 the stationary standard deviation (docs/design.md §3, matching the simulated IMU). Seed 000
   eq. 11 uses the first-order ``1 − T/τ`` and ``Q = T²σ²``; the two agree to O(T/τ).
 * The IMU likelihood (eq. 26) is evaluated exactly: with the Gaussian bias prediction the
   integral in eq. 26 is ``N(z̄; H x̂^B_{k|k−1}, H P Hᵀ + R^I)``, which the paper approximates

@@ -1,7 +1,7 @@
 """Pure models (layer 1): frames, rigid-body dynamics, integrators, IMU noise, the LiDAR model.
 
 No RNG, no state. The per-vehicle math is numba kernels lifted over a leading batch axis
-(DESIGN.md §9); the modules:
+(docs/design.md §9); the modules:
 
 - :mod:`~quadslam_env.models.frames`: C_NB, elementary rotations, ∂C/∂Λ, D(Λ), angle wrap.
 - :mod:`~quadslam_env.models.params`: vehicle parameters and presets.

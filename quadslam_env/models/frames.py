@@ -1,6 +1,6 @@
 """Frames and attitude: C_NB, its elementary rotations and partials, D(Λ), angle wrapping.
 
-Conventions (DESIGN.md §2): inertial frame N is NED, body frame B is FRD and
+Conventions (docs/design.md §2): inertial frame N is NED, body frame B is FRD and
 ``C_NB = C3(ψ) C2(θ) C1(φ)`` (seed 001 eq. 1) maps body-frame components to inertial-frame
 components. All angles are in radians.
 
@@ -253,7 +253,7 @@ def skew(vec: ArrayLike) -> FloatArray:
 def rotation_angle_between(dcm_a: ArrayLike, dcm_b: ArrayLike) -> float:
     """Angle of the relative rotation ``C_aᵀ C_b`` in rad, in [0, π].
 
-    This is the attitude error metric of DESIGN.md §5: it does not depend on the
+    This is the attitude error metric of docs/design.md §5: it does not depend on the
     Euler parametrisation and has no wrap-around.
 
     Args:

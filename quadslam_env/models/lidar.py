@@ -4,7 +4,8 @@ A measurement of landmark ``l`` from pose ``(ρ, Λ)`` is ``y = (α, β, δ)``:
 ``c = C_NBᵀ (l - ρ)`` (landmark in the body frame, FRD),
 ``α = atan2(c2, c1)`` (azimuth, positive to the right),
 ``β = atan2(c3, √(c1² + c2²))`` (elevation, positive *below* the horizon since b3 points down),
-``δ = ‖c‖`` (range). Seed 001 eq. 31 lists the azimuth as ``atan(c1/c2)``; DESIGN.md §3 fixes it.
+``δ = ‖c‖`` (range). Seed 001 eq. 31 lists the azimuth as ``atan(c1/c2)``; docs/design.md §3
+fixes it.
 The inverse (eq. 44–45) is ``l = ρ + C_NB ϱ(y)`` with ``ϱ = δ (cβ cα, cβ sα, sβ)``.
 
 The model is written once, per landmark, as numba kernels: :func:`spherical_from_body` and

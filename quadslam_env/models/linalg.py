@@ -1,4 +1,4 @@
-"""Stacked small-matrix helpers shared by the filters (DESIGN.md §9).
+"""Stacked small-matrix helpers shared by the filters (docs/design.md §9).
 
 The NumPy functions work on arrays with leading batch axes (particles, lanes, landmarks): for
 3×3 blocks closed forms beat per-matrix LAPACK calls by far. ``cholesky_lower`` is a numba

@@ -1,4 +1,4 @@
-"""Vehicle parameters and presets (DESIGN.md §3; seed 001 Table 1, seed 000 §IV)."""
+"""Vehicle parameters and presets (docs/design.md §3; seed 001 Table 1, seed 000 §IV)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Rigid-body quadcopter dynamics (seed 001 eq. 2–3) as numba kernels on one vehicle.
 
-State vector (12,), DESIGN.md §2: ``x = (ρ, v, Λ, ω)`` with
+State vector (12,), docs/design.md §2: ``x = (ρ, v, Λ, ω)`` with
     ρ  position of the centre of mass in N (NED), m;
     v  velocity expressed in B (FRD), m/s;
     Λ  3-2-1 Euler angles (φ, θ, ψ), rad;
@@ -67,7 +67,7 @@ def specific_force_body(
     """Specific force ``f_B = C_NBᵀ(ρ̈ − g n3) = −(f_T/m) b3 − drag · v`` in m/s² (B frame).
 
     From eq. 2, ``C_NBᵀ ρ̈ = v̇ + ω×v``; this is what an accelerometer senses (seed 000 eq. 7
-    with a physical accelerometer, DESIGN.md §3).
+    with a physical accelerometer, docs/design.md §3).
     """
     return -drag * u, -drag * v, -drag * w - thrust / mass
 

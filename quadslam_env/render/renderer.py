@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from quadslam_env.extras import require
 from quadslam_env.render.history import LaneHistory
 
 if TYPE_CHECKING:  # matplotlib is imported on the first frame only
@@ -27,6 +28,8 @@ class LaneRenderer:
     """
 
     def __init__(self, core: Any, lane: int = 0) -> None:
+        # The figure imports matplotlib on the first frame; a missing one is said at make().
+        require("matplotlib", "plots", "render_mode='rgb_array'")
         self.core = core
         self.lane = int(lane)
         self.cfg = core.scenario.render
