@@ -1,0 +1,18 @@
+"""iSAM2 smoothing in the loop (``estimator.name: isam2``; needs ``quadslam[gtsam]``).
+
+* :mod:`estimators.isam2.estimator` — :class:`Isam2Slam`, the registered estimator: keyframes
+  at the LiDAR scans, IMU preintegration factors between them (Forster et al. 2017), LiDAR
+  factors per return, fixed-lag or full iSAM2;
+* :mod:`estimators.isam2.factors` — the LiDAR factor's error and analytic Jacobians (seed 001
+  eq. 30–31, 40) as GTSAM ``CustomFactor`` error functions;
+* :mod:`estimators.isam2.tangent` — the env's (ρ, v_B, Λ) against GTSAM's tangent space;
+* :mod:`estimators.isam2.settings` — :class:`Isam2Settings`, the validated parameters.
+
+Importing this package does not import GTSAM: building the estimator does, and fails with a
+:class:`~quadslam_env.config_schema.ConfigError` naming the extra when it is missing.
+"""
+
+from estimators.isam2.estimator import GTSAM_INSTALL, Isam2Slam, require_gtsam
+from estimators.isam2.settings import Isam2Settings
+
+__all__ = ["GTSAM_INSTALL", "Isam2Settings", "Isam2Slam", "require_gtsam"]

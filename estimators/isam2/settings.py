@@ -1,0 +1,209 @@
+"""Validated settings of the iSAM2 estimator (``estimator.params`` with ``estimator.name: isam2``).
+
+The keys shared with EKF-SLAM (``process_noise``, ``estimate_imu_bias`` and the four bias keys)
+have the EKF's meaning and units (:class:`estimators.ekf.settings.EkfSlamSettings`), so a
+scenario written for the EKF keeps its IMU model when its estimator is swapped; the other EKF
+keys (gating, association) do not apply to a smoother with known association and are
+rejected with the list of accepted keys.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from estimators.base import check_kwargs
+from quadslam_env.types import POSE_DIM
+
+_TYPES: dict[str, type | tuple[type, ...]] = {
+    "window_s": (float, int, type(None)),
+    "process_noise": (list, tuple, np.ndarray),
+    "estimate_imu_bias": bool,
+    "gyro_bias_sigma0": (float, int),
+    "accel_bias_sigma0": (float, int),
+    "gyro_bias_walk": (float, int),
+    "accel_bias_walk": (float, int),
+    "integration_sigma": (float, int),
+    "relinearize_threshold": (float, int),
+    "relinearize_skip": int,
+    "iterations": int,
+    "landmark_covariances": bool,
+    "factor_per_return": bool,
+}
+
+FIXED_BIAS_SIGMA = 1e-5
+"""With ``estimate_imu_bias: false`` the biases are held at zero by a prior of this std and a
+random walk of this density (m/s² and m/s²/√s for the accelerometer, rad/s and rad/s/√s for
+the gyro): the IMU factor of Forster et al. (2017) always carries bias variables, and a
+zero-variance prior would make the information matrix singular. Over a 3 s window such a
+bias moves the position by ½·1e-5·3² ≈ 5e-5 m, well below the LiDAR's resolution."""
+
+NOISE_FLOOR = 1e-12
+"""Smallest continuous-time variance (per axis) handed to GTSAM's preintegration (an ideal
+IMU has zero noise density, which would make the IMU factor's covariance singular)."""
+
+PRIOR_VARIANCE_FLOOR = 1e-8
+"""Smallest eigenvalue of the initial prior's covariance in GTSAM's tangent space (rad², m²,
+m²/s²): the scenarios' ``estimator.initial_cov_diag`` may hold zeros (a known attitude),
+which a Gaussian factor cannot represent."""
+
+
+def _check_nonneg(key: str, value: Any) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value >= 0.0):
+        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: a finite number >= 0")
+    return value
+
+
+def _check_positive(key: str, value: Any) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: a finite number > 0")
+    return value
+
+
+def _check_int(key: str, value: int, lo: int, hi: int) -> int:
+    if not lo <= value <= hi:
+        raise ValueError(
+            f"estimator.params.{key}: got {value!r}; allowed: an integer in [{lo}, {hi}]"
+        )
+    return int(value)
+
+
+@dataclass(frozen=True)
+class Isam2Settings:
+    """iSAM2 settings, built from ``estimator.params`` by :meth:`from_params`.
+
+    The accepted keys (all optional):
+
+    ``window_s`` (float > 0 or null, default 3.0): smoother lag in s. Vehicle states (pose,
+    velocity, biases) older than this are marginalised (GTSAM's
+    ``IncrementalFixedLagSmoother``), so the cost per scan stays bounded; landmarks stay in
+    the window for the whole episode (their timestamps are refreshed at every keyframe, so a
+    landmark that comes back into view still has its variable). ``null`` keeps every state:
+    full iSAM2 (Kaess et al. 2012), whose cost grows with the episode.
+
+    ``process_noise`` (list of 9 floats ≥ 0, default all 0): the EKF's continuous process
+    noise Q over (ρ, v_B, Λ) in m²/s, m²/s³, rad²/s, added to the preintegration's inputs:
+    the ρ block to the integration covariance, the v_B block to the accelerometer's and the
+    Λ block to the gyro's (exact for isotropic blocks in level flight). The simulator has no
+    process noise beyond the IMU's, so the default is none.
+
+    ``estimate_imu_bias`` (bool, default False): estimate the six IMU biases (accelerometer
+    m/s², gyro rad/s) as a random walk between keyframes (GTSAM's ``CombinedImuFactor``).
+    Off: the biases are held at zero (:data:`FIXED_BIAS_SIGMA`).
+
+    ``gyro_bias_sigma0`` (float ≥ 0, default 0.01 rad/s), ``accel_bias_sigma0`` (float ≥ 0,
+    default 0.05 m/s²): prior std per axis of the biases at the first keyframe (as the EKF's).
+
+    ``gyro_bias_walk`` (float ≥ 0, default 1e-4 rad/s/√s), ``accel_bias_walk`` (float ≥ 0,
+    default 1e-3 m/s²/√s): random-walk densities of the biases (as the EKF's).
+
+    ``integration_sigma`` (float ≥ 0, default 1e-4 m/√s): GTSAM's integration noise, the
+    position error of integrating a held IMU sample (added to the ρ block of ``process_noise``).
+
+    ``relinearize_threshold`` (float > 0, default 0.01): iSAM2 relinearises a variable when
+    its tangent-space update exceeds this (rad, m, m/s).
+
+    ``relinearize_skip`` (int in [1, 100], default 1): check for relinearisation every this
+    many updates.
+
+    ``iterations`` (int in [1, 20], default 1): iSAM2 updates per keyframe (the later ones
+    without new factors: one more Gauss–Newton step each).
+
+    ``landmark_covariances`` (bool, default True): recover every mapped landmark's marginal
+    covariance at each keyframe (for ``Estimate.landmark_covs``); off, they are reported as
+    zero, which saves one marginal per landmark and keyframe.
+
+    ``factor_per_return`` (bool, default False): unknown map, one LiDAR factor per return
+    (keys pose, landmark) instead of one per scan (keys pose and the scan's landmarks). The
+    two are the same likelihood; per scan makes one Python call per scan and linearisation
+    instead of one per return.
+
+    The measurement noise (LiDAR σ per return, IMU white noise per sample) comes with the
+    data, as for the EKF (:class:`~quadslam_env.measurements.LidarScan`,
+    :class:`~quadslam_env.measurements.ImuSample`).
+    """
+
+    window_s: float | None = 3.0
+    process_noise: tuple[float, ...] = (0.0,) * POSE_DIM
+    estimate_imu_bias: bool = False
+    gyro_bias_sigma0: float = 0.01
+    accel_bias_sigma0: float = 0.05
+    gyro_bias_walk: float = 1e-4
+    accel_bias_walk: float = 1e-3
+    integration_sigma: float = 1e-4
+    relinearize_threshold: float = 0.01
+    relinearize_skip: int = 1
+    iterations: int = 1
+    landmark_covariances: bool = True
+    factor_per_return: bool = False
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> Isam2Settings:
+        """Validate ``estimator.params``.
+
+        Raises:
+            ValueError: Unknown key, wrong type or out-of-range value (the message names the
+                key, the value and what is allowed).
+        """
+        check_kwargs("estimator.params", params, _TYPES)
+        window = params.get("window_s", 3.0)
+        if window is not None:
+            window = _check_positive("window_s", window)
+        q = params.get("process_noise", (0.0,) * POSE_DIM)
+        if len(q) != POSE_DIM or not all(
+            isinstance(e, float | int | np.floating | np.integer) and not isinstance(e, bool)
+            for e in q
+        ):
+            raise ValueError(
+                f"estimator.params.process_noise: got {q!r}; allowed: a list of 9 numbers >= 0"
+            )
+        return cls(
+            window_s=window,
+            process_noise=tuple(_check_nonneg("process_noise", e) for e in q),
+            estimate_imu_bias=bool(params.get("estimate_imu_bias", False)),
+            gyro_bias_sigma0=_check_nonneg(
+                "gyro_bias_sigma0", params.get("gyro_bias_sigma0", 0.01)
+            ),
+            accel_bias_sigma0=_check_nonneg(
+                "accel_bias_sigma0", params.get("accel_bias_sigma0", 0.05)
+            ),
+            gyro_bias_walk=_check_nonneg("gyro_bias_walk", params.get("gyro_bias_walk", 1e-4)),
+            accel_bias_walk=_check_nonneg("accel_bias_walk", params.get("accel_bias_walk", 1e-3)),
+            integration_sigma=_check_nonneg(
+                "integration_sigma", params.get("integration_sigma", 1e-4)
+            ),
+            relinearize_threshold=_check_positive(
+                "relinearize_threshold", params.get("relinearize_threshold", 0.01)
+            ),
+            relinearize_skip=_check_int(
+                "relinearize_skip", params.get("relinearize_skip", 1), 1, 100
+            ),
+            iterations=_check_int("iterations", params.get("iterations", 1), 1, 20),
+            landmark_covariances=bool(params.get("landmark_covariances", True)),
+            factor_per_return=bool(params.get("factor_per_return", False)),
+        )
+
+    def bias_prior_sigmas(self) -> tuple[float, float]:
+        """Prior std per axis of (accelerometer m/s², gyro rad/s) biases at the first keyframe
+        (at least :data:`FIXED_BIAS_SIGMA`: a zero std is a singular factor)."""
+        if not self.estimate_imu_bias:
+            return FIXED_BIAS_SIGMA, FIXED_BIAS_SIGMA
+        return (
+            max(self.accel_bias_sigma0, FIXED_BIAS_SIGMA),
+            max(self.gyro_bias_sigma0, FIXED_BIAS_SIGMA),
+        )
+
+    def bias_walks(self) -> tuple[float, float]:
+        """Random-walk densities of (accelerometer m/s²/√s, gyro rad/s/√s) biases (at least
+        :data:`FIXED_BIAS_SIGMA`)."""
+        if not self.estimate_imu_bias:
+            return FIXED_BIAS_SIGMA, FIXED_BIAS_SIGMA
+        return (
+            max(self.accel_bias_walk, FIXED_BIAS_SIGMA),
+            max(self.gyro_bias_walk, FIXED_BIAS_SIGMA),
+        )
