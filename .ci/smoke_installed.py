@@ -1,9 +1,9 @@
 """Smoke test of an installed quadslam wheel, run from a folder outside the checkout.
 
-Checks what the README promises a user of ``pip install quadslam``: the env ids make, reset and
-step; ``quadslam --version``, ``scenarios``, ``run``, ``train`` and ``evaluate`` work; a run
-folder evaluates from its own ``config.yaml`` without any scenario file; the sweep specs ship
-and ``quadslam sweep`` without the ``ray`` extra says how to get it.
+Checks what the README promises a user of ``pip install quadslam[rl,plots]``: the env ids
+make, reset and step; ``quadslam --version``, ``scenarios``, ``run``, ``train`` and
+``evaluate`` work; a run folder evaluates from its own ``config.yaml`` without any scenario
+file; the sweep specs ship and ``quadslam sweep`` without the ``ray`` extra says how to get it.
 """
 
 from __future__ import annotations

@@ -278,7 +278,7 @@ class _VersionAction(argparse.Action):
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    """Speed and scaling benchmark (figures for the README's Performance section)."""
+    """Speed and scaling benchmark (the figures of docs/performance.md)."""
     from agents.bench import main_bench
 
     main_bench(args.quick, args.json, args.plots, args.only)

@@ -27,6 +27,7 @@ and evaluates 5 episodes (a smoke run of the whole pipeline, minutes, not a resu
 
 from __future__ import annotations
 
+import copy
 import json
 import sys
 import warnings
@@ -232,6 +233,7 @@ def run_study(
             print(f"{cfg.name}: training seed {seed} ...", file=sys.stderr)
             run, wall = _train(cfg, seed, timesteps, out, base_kwargs)
             env_kwargs = (run_config(run) or {}).get("hyperparams", {}).get("env_kwargs", {})
+            env_kwargs = evaluation_kwargs(env_kwargs)
             for target, row in targets.items():
                 eps = _evaluate(run, target, env_kwargs, seeds)
                 row.per_seed.append(eps)
@@ -246,6 +248,18 @@ def run_study(
         "quick": quick,
     }
     return {"settings": settings, "rows": [row.result() for row in rows]}
+
+
+def evaluation_kwargs(train_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The env kwargs a learned row is evaluated with: its training ``env_kwargs`` without
+    the training-only ``trajectory.start_on_reference`` (every row flies the same take-off)."""
+    out = copy.deepcopy(train_kwargs)
+    trajectory = out.get("trajectory")
+    if isinstance(trajectory, dict):
+        trajectory.pop("start_on_reference", None)
+        if not trajectory:
+            del out["trajectory"]
+    return out
 
 
 def _train_on(cfg: TrainedConfig) -> str:

@@ -285,7 +285,8 @@ class QuadSLAMVectorEnv(VectorEnv):
             self._renderer.record(info)
         return obs, reward, terminated, truncated, {**_vector_info(info), **extra}
 
-    # VectorEnv.render is typed as one frame per lane; this env draws lane 0 only (README).
+    # VectorEnv.render is typed as one frame per lane; this env draws lane 0 only
+    # (docs/rendering.md).
     def render(self) -> np.ndarray | None:  # type: ignore[override]
         """Lane 0's frame (see :meth:`QuadSLAMEnv.render`), or ``None`` without ``render_mode``."""
         if self._renderer is None:

@@ -481,7 +481,7 @@ def test_sustained_huge_nis_flags_lost_lock_and_stays_flagged() -> None:
 def test_helix_closed_loop_identifies_both_biases_within_20_percent() -> None:
     """Issue criterion on ``paper_fastslam_helix`` (biases 0.005, DF-LQR on the estimate).
 
-    The truth is the simulator's total IMU bias; 4 seeds × 20 s (the README table uses
+    The truth is the simulator's total IMU bias; 4 seeds × 20 s (the docs/reproducing.md table uses
     10 × 30 s). The gyro bias is identified as ω_m − ω_dynamics, which needs the at-rest ω
     prior and a small ω process noise (with the earlier 1e-3 rad/s prior and 2e-4 rad/s/√s
     noise it was ~35 %).

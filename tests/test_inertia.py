@@ -146,7 +146,7 @@ def test_inertia_identification_rejects_products_of_inertia() -> None:
 
 
 def test_helix_with_inertia_plus_150_percent_matches_the_true_model() -> None:
-    """Seed 000 Fig. 14 case in closed loop (4 seeds × 20 s; the README uses 10 × 30 s)."""
+    """Seed 000 Fig. 14 case in closed loop (4 seeds × 20 s; docs/reproducing.md uses 10 × 30 s)."""
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
@@ -168,5 +168,6 @@ def test_helix_with_inertia_plus_150_percent_matches_the_true_model() -> None:
     assert not any(r["terminated"] for r in records)
     np.testing.assert_allclose(np.median(inertias, axis=0), true_j, rtol=0.03)
     assert np.median([r["est_pos_rmse_m"] for r in records]) < 0.1
-    # The fixed-model filter ends with relative gyro-bias errors of 3–6 here (README table).
+    # The fixed-model filter ends with relative gyro-bias errors of 3–6 here (the table of
+    # docs/reproducing.md).
     assert np.median([r["gyro_bias_rel_err"] for r in records]) < 1.0

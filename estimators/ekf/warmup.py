@@ -9,7 +9,7 @@ an :class:`~estimators.ekf.filter.EkfSlamBatch` therefore starts ``python -m
 estimators.ekf.warmup``, which compiles (and caches) the update while this process compiles
 everything before the first scan; the first :meth:`EkfSlamBatch.update` waits for it and loads
 the update from the cache. On a machine with two or more cores the first ``make_vec`` takes
-the longer of the two halves instead of their sum (README "Performance").
+the longer of the two halves instead of their sum (docs/performance.md).
 
 Nothing changes once the cache is warm, or where numba has no cache location. Set
 ``QUADSLAM_EKF_WARMUP=0`` to compile everything in the calling process.

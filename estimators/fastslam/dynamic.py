@@ -113,8 +113,8 @@ class DynamicFastSLAM(FastSLAMBase):
     ω prior and q_ω = 2e-4; 17 % with the 1e-4 prior and q_ω = 2e-4; 4–6 % with the 1e-4 prior
     and q_ω ∈ [1e-5, 5e-5] (default 2e-5), at unchanged position accuracy.
 
-    Model mismatch (``inertia_scale=2.5``, seed 000 Fig. 14; measured, see the README). With a
-    fixed model the dynamics predict ω wrongly during the controller's initial transient, the
+    Model mismatch (``inertia_scale=2.5``, seed 000 Fig. 14; measured in docs/reproducing.md).
+    With a fixed model the dynamics predict ω wrongly during the controller's initial transient, the
     gyro-bias KF absorbs that model error as "bias" while its prior is still wide, and the
     ω/bias split is never undone; the IMU likelihood, computed through the wrong model, then
     favours the wrong particles (0.26 m median, 2/10 seeds lost; 0.074 m with LiDAR-only
@@ -131,10 +131,10 @@ class DynamicFastSLAM(FastSLAMBase):
       in some runs); ``stage2_position=False`` keeps only the ω part. Measured on the helix
       at biases 0.005: both variants end every run early (attitude errors 6–8°), so stage 2
       is off by default.
-    * Consistency (README, "FastSLAM consistency"): resampling makes one initial particle the
-      ancestor of all within seconds, so the unobservable initial position and yaw (the SLAM
-      gauge) left the particle spread while the error kept it (pose ANEES 53.9 at N = 500).
-      ``anchor_gauge`` keeps the gauge out of the particles and adds it analytically
+    * Consistency (docs/reproducing.md, "FastSLAM consistency"): resampling makes one initial
+      particle the ancestor of all within seconds, so the unobservable initial position and yaw
+      (the SLAM gauge) left the particle spread while the error kept it (pose ANEES 53.9 at
+      N = 500). ``anchor_gauge`` keeps the gauge out of the particles and adds it analytically
       (:mod:`.gauge`); ``regularisation`` keeps the cloud's spread through resampling and
       ``progressive_ess`` lets a scan far narrower than the cloud (after landmarks were out of
       view) be absorbed in stages (:mod:`.progressive`). Pose ANEES now 8.2 (seeds 0–9).
