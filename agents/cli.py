@@ -367,7 +367,7 @@ def build_parser() -> argparse.ArgumentParser:
             "--estimator",
             metavar="NAME",
             help="replace the scenario's estimator: ekf_slam, fastslam, fastslam_kinematic, "
-            "oracle or a registered plug-in",
+            "isam2 (extra gtsam), oracle or a registered plug-in",
         )
         p.add_argument("--duration", type=_positive_float, help="episode length in s")
         p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")

@@ -231,6 +231,8 @@ def plot_study(result: dict[str, Any], out_dir: Path) -> Path:
         steady = row["track_pos_rmse_steady_m"]["median"]
         ax.set_title(f"{config}: steady {steady:.3f} m" if steady is not None else config)
         ax.set_xlabel("east [m]")
+        ax.set_xlim(-10.0, 10.0)  # one scale for every panel: the landmarks lie within 9 m
+        ax.set_ylim(-10.0, 10.0)
         ax.set_aspect("equal")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("north [m]")

@@ -65,7 +65,8 @@ class EstimatorConfig(Section):
     name: str = _spec(
         "ekf_slam",
         kind="str",
-        doc="a registered estimator: built in ekf_slam, fastslam, fastslam_kinematic, oracle; "
+        doc="a registered estimator: built in ekf_slam, fastslam, fastslam_kinematic, isam2, "
+        "oracle; "
         "more through estimators.register or a 'quadslam.estimators' entry point",
     )
     params: dict[str, Any] = _spec(  # noqa: RUF009 (validated field spec)
