@@ -119,7 +119,7 @@ def add_study_parser(
         "uncertainty-aware observation (held-out seeds)",
     )
     cost.add_argument("--quick", action="store_true", help="1 training seed, small budget")
-    cost.add_argument("--training-seeds", type=positive_int, help="default 3 (quick: 1)")
+    cost.add_argument("--training-seeds", type=positive_int, help="default 2 (quick: 1)")
     cost.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
     cost.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
     cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
