@@ -107,6 +107,23 @@ def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def _training_study_args(
+    parser: argparse.ArgumentParser,
+    positive_int: Callable[[str], int],
+    default_seeds: int,
+    plots_help: str,
+) -> None:
+    """The options of a study that trains agents: budget, seeds, episodes and outputs."""
+    parser.add_argument("--quick", action="store_true", help="1 training seed, small budget")
+    parser.add_argument(
+        "--training-seeds", type=positive_int, help=f"default {default_seeds} (quick: 1)"
+    )
+    parser.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
+    parser.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
+    parser.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    parser.add_argument("--plots", type=Path, help=plots_help)
+
+
 def add_study_parser(
     sub: Any, positive_int: Callable[[str], int], positive_float: Callable[[str], float]
 ) -> None:
@@ -118,24 +135,14 @@ def add_study_parser(
         help="DF-LQR and residual PPO on truth vs EKF-SLAM vs FastSLAM, privileged critic, "
         "uncertainty-aware observation (held-out seeds)",
     )
-    cost.add_argument("--quick", action="store_true", help="1 training seed, small budget")
-    cost.add_argument("--training-seeds", type=positive_int, help="default 2 (quick: 1)")
-    cost.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
-    cost.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
-    cost.add_argument("--json", type=Path, help="write the table and episodes as JSON")
-    cost.add_argument("--plots", type=Path, help="write the box plot (PNG) here")
+    _training_study_args(cost, positive_int, 2, "write the box plot (PNG) here")
     cost.set_defaults(func=cmd_study_cost)
     active = studies.add_parser(
         "active-perception",
         help="where to look: DF-LQR with a fixed or tangent heading, the look-at heuristic "
         "and residual PPO with a heading channel (held-out seeds)",
     )
-    active.add_argument("--quick", action="store_true", help="1 training seed, small budget")
-    active.add_argument("--training-seeds", type=positive_int, help="default 3 (quick: 1)")
-    active.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
-    active.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
-    active.add_argument("--json", type=Path, help="write the table and episodes as JSON")
-    active.add_argument("--plots", type=Path, help="write the where-it-looks figure (PNG) here")
+    _training_study_args(active, positive_int, 3, "write the where-it-looks figure (PNG) here")
     active.set_defaults(func=cmd_study_active)
     assoc = studies.add_parser(
         "association",

@@ -349,6 +349,14 @@ def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float |
     return {key: stats([e.get(key) for e in episodes]) for key in (*SUMMARY_KEYS, *extra)}
 
 
+def spread_cell(spread: dict[str, Any], fmt: str = "{:.3f}") -> str:
+    """``median (min–max)`` of a :func:`stats` result for a text table ("–" without values)."""
+    if spread["median"] is None:
+        return "–"
+    lo, mid, hi = (fmt.format(spread[k]) for k in ("min", "median", "max"))
+    return f"{mid} ({lo}–{hi})"
+
+
 def stats(values: Sequence[Any]) -> dict[str, Any]:
     """``median``, ``min``, ``max`` of the finite values (None, NaN left out; None when none
     is left) and ``n``, how many there are."""

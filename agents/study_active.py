@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation import Trace, json_float, run_episodes, stats
+from agents.evaluation import Trace, json_float, run_episodes, spread_cell, stats
 
 ENV_ID = "QuadSLAM-ActivePerception-v0"
 EVAL_SEED0 = 1000
@@ -183,12 +183,7 @@ def run_study(
 
 def format_study(result: dict[str, Any]) -> str:
     """The study table as text (steady state first)."""
-
-    def cell(spread: dict[str, Any], fmt: str = "{:.3f}") -> str:
-        if spread["median"] is None:
-            return "–"
-        lo, mid, hi = (fmt.format(spread[k]) for k in ("min", "median", "max"))
-        return f"{mid} ({lo}–{hi})"
+    cell = spread_cell
 
     head = (
         f"{'config':<14} {'track RMSE steady m':<22} {'transient m':<22} "

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.evaluation import json_float, run_episodes
+from agents.evaluation import json_float, run_episodes, spread_cell
 
 SCENARIO = "ekf_figure8_biased_imu"
 EVAL_SEED0 = 1000
@@ -275,11 +275,7 @@ def _train_on(cfg: TrainedConfig) -> str:
 
 def format_study(result: dict[str, Any]) -> str:
     """The study table as text."""
-
-    def cell(stats: dict[str, Any]) -> str:
-        if stats["median"] is None:
-            return "–"
-        return f"{stats['median']:.3f} ({stats['min']:.3f}–{stats['max']:.3f})"
+    cell = spread_cell
 
     head = (
         f"{'config':<16} {'train on':<9} {'eval on':<9} {'track RMSE steady m':<24} "
