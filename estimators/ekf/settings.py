@@ -10,6 +10,12 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from estimators.base import check_kwargs
+from estimators.imu_bias_settings import (
+    IMU_BIAS_DEFAULTS,
+    IMU_BIAS_TYPES,
+    check_nonneg,
+    imu_bias_settings,
+)
 from estimators.tentative import check_confirm_rule
 from quadslam_env.types import POSE_DIM, FloatArray
 
@@ -21,11 +27,7 @@ PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)
 
 _TYPES: dict[str, type | tuple[type, ...]] = {
     "process_noise": (list, tuple, np.ndarray),
-    "estimate_imu_bias": bool,
-    "gyro_bias_sigma0": (float, int),
-    "accel_bias_sigma0": (float, int),
-    "gyro_bias_walk": (float, int),
-    "accel_bias_walk": (float, int),
+    **IMU_BIAS_TYPES,
     "gate_probability": (float, int),
     "imu_noise_in_q": bool,
     "association": str,
@@ -38,13 +40,6 @@ _TYPES: dict[str, type | tuple[type, ...]] = {
 
 ASSOCIATION_METHODS = ("nn", "jcbb")
 """``estimator.params.association`` choices: nearest neighbour, joint compatibility B&B."""
-
-
-def _check_nonneg(key: str, value: float) -> float:
-    value = float(value)
-    if not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: a finite number >= 0")
-    return value
 
 
 @dataclass(frozen=True)
@@ -110,11 +105,11 @@ class EkfSlamSettings:
     """
 
     process_noise: tuple[float, ...] = PAPER_Q_UNKNOWN
-    estimate_imu_bias: bool = False
-    gyro_bias_sigma0: float = 0.01
-    accel_bias_sigma0: float = 0.05
-    gyro_bias_walk: float = 1e-4
-    accel_bias_walk: float = 1e-3
+    estimate_imu_bias: bool = IMU_BIAS_DEFAULTS["estimate_imu_bias"]
+    gyro_bias_sigma0: float = IMU_BIAS_DEFAULTS["gyro_bias_sigma0"]
+    accel_bias_sigma0: float = IMU_BIAS_DEFAULTS["accel_bias_sigma0"]
+    gyro_bias_walk: float = IMU_BIAS_DEFAULTS["gyro_bias_walk"]
+    accel_bias_walk: float = IMU_BIAS_DEFAULTS["accel_bias_walk"]
     gate_probability: float = 0.99
     imu_noise_in_q: bool = True
     association: str = "jcbb"
@@ -179,16 +174,8 @@ class EkfSlamSettings:
             association=method,
             confirm_hits=hits,
             confirm_window=window,
-            process_noise=tuple(_check_nonneg("process_noise", e) for e in q),
-            estimate_imu_bias=bool(params.get("estimate_imu_bias", False)),
-            gyro_bias_sigma0=_check_nonneg(
-                "gyro_bias_sigma0", params.get("gyro_bias_sigma0", 0.01)
-            ),
-            accel_bias_sigma0=_check_nonneg(
-                "accel_bias_sigma0", params.get("accel_bias_sigma0", 0.05)
-            ),
-            gyro_bias_walk=_check_nonneg("gyro_bias_walk", params.get("gyro_bias_walk", 1e-4)),
-            accel_bias_walk=_check_nonneg("accel_bias_walk", params.get("accel_bias_walk", 1e-3)),
+            process_noise=tuple(check_nonneg("process_noise", e) for e in q),
+            **imu_bias_settings(params),
             gate_probability=prob,
             imu_noise_in_q=bool(params.get("imu_noise_in_q", True)),
         )

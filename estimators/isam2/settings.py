@@ -16,16 +16,18 @@ from typing import Any
 import numpy as np
 
 from estimators.base import check_kwargs
+from estimators.imu_bias_settings import (
+    IMU_BIAS_DEFAULTS,
+    IMU_BIAS_TYPES,
+    check_nonneg,
+    imu_bias_settings,
+)
 from quadslam_env.types import POSE_DIM
 
 _TYPES: dict[str, type | tuple[type, ...]] = {
     "window_s": (float, int, type(None)),
     "process_noise": (list, tuple, np.ndarray),
-    "estimate_imu_bias": bool,
-    "gyro_bias_sigma0": (float, int),
-    "accel_bias_sigma0": (float, int),
-    "gyro_bias_walk": (float, int),
-    "accel_bias_walk": (float, int),
+    **IMU_BIAS_TYPES,
     "integration_sigma": (float, int),
     "relinearize_threshold": (float, int),
     "relinearize_skip": int,
@@ -49,13 +51,6 @@ PRIOR_VARIANCE_FLOOR = 1e-8
 """Smallest eigenvalue of the initial prior's covariance in GTSAM's tangent space (rad², m²,
 m²/s²): the scenarios' ``estimator.initial_cov_diag`` may hold zeros (a known attitude),
 which a Gaussian factor cannot represent."""
-
-
-def _check_nonneg(key: str, value: Any) -> float:
-    value = float(value)
-    if not (math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: a finite number >= 0")
-    return value
 
 
 def _check_positive(key: str, value: Any) -> float:
@@ -130,11 +125,11 @@ class Isam2Settings:
 
     window_s: float | None = 3.0
     process_noise: tuple[float, ...] = (0.0,) * POSE_DIM
-    estimate_imu_bias: bool = False
-    gyro_bias_sigma0: float = 0.01
-    accel_bias_sigma0: float = 0.05
-    gyro_bias_walk: float = 1e-4
-    accel_bias_walk: float = 1e-3
+    estimate_imu_bias: bool = IMU_BIAS_DEFAULTS["estimate_imu_bias"]
+    gyro_bias_sigma0: float = IMU_BIAS_DEFAULTS["gyro_bias_sigma0"]
+    accel_bias_sigma0: float = IMU_BIAS_DEFAULTS["accel_bias_sigma0"]
+    gyro_bias_walk: float = IMU_BIAS_DEFAULTS["gyro_bias_walk"]
+    accel_bias_walk: float = IMU_BIAS_DEFAULTS["accel_bias_walk"]
     integration_sigma: float = 1e-4
     relinearize_threshold: float = 0.01
     relinearize_skip: int = 1
@@ -151,10 +146,15 @@ class Isam2Settings:
                 key, the value and what is allowed).
         """
         check_kwargs("estimator.params", params, _TYPES)
-        window = params.get("window_s", 3.0)
+        default = cls()
+
+        def get(key: str) -> Any:  # the dataclass field's default when the key is absent
+            return params.get(key, getattr(default, key))
+
+        window = get("window_s")
         if window is not None:
             window = _check_positive("window_s", window)
-        q = params.get("process_noise", (0.0,) * POSE_DIM)
+        q = get("process_noise")
         if len(q) != POSE_DIM or not all(
             isinstance(e, float | int | np.floating | np.integer) and not isinstance(e, bool)
             for e in q
@@ -164,28 +164,16 @@ class Isam2Settings:
             )
         return cls(
             window_s=window,
-            process_noise=tuple(_check_nonneg("process_noise", e) for e in q),
-            estimate_imu_bias=bool(params.get("estimate_imu_bias", False)),
-            gyro_bias_sigma0=_check_nonneg(
-                "gyro_bias_sigma0", params.get("gyro_bias_sigma0", 0.01)
-            ),
-            accel_bias_sigma0=_check_nonneg(
-                "accel_bias_sigma0", params.get("accel_bias_sigma0", 0.05)
-            ),
-            gyro_bias_walk=_check_nonneg("gyro_bias_walk", params.get("gyro_bias_walk", 1e-4)),
-            accel_bias_walk=_check_nonneg("accel_bias_walk", params.get("accel_bias_walk", 1e-3)),
-            integration_sigma=_check_nonneg(
-                "integration_sigma", params.get("integration_sigma", 1e-4)
-            ),
+            process_noise=tuple(check_nonneg("process_noise", e) for e in q),
+            **imu_bias_settings(params),
+            integration_sigma=check_nonneg("integration_sigma", get("integration_sigma")),
             relinearize_threshold=_check_positive(
-                "relinearize_threshold", params.get("relinearize_threshold", 0.01)
+                "relinearize_threshold", get("relinearize_threshold")
             ),
-            relinearize_skip=_check_int(
-                "relinearize_skip", params.get("relinearize_skip", 1), 1, 100
-            ),
-            iterations=_check_int("iterations", params.get("iterations", 1), 1, 20),
-            landmark_covariances=bool(params.get("landmark_covariances", True)),
-            factor_per_return=bool(params.get("factor_per_return", False)),
+            relinearize_skip=_check_int("relinearize_skip", get("relinearize_skip"), 1, 100),
+            iterations=_check_int("iterations", get("iterations"), 1, 20),
+            landmark_covariances=bool(get("landmark_covariances")),
+            factor_per_return=bool(get("factor_per_return")),
         )
 
     def bias_prior_sigmas(self) -> tuple[float, float]:
