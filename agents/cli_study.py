@@ -13,21 +13,36 @@ from typing import Any
 
 def cmd_study_cost(args: argparse.Namespace) -> int:
     """Train and evaluate the cost-of-estimation configurations; print the table."""
-    from agents.outputs import check_output_dir, check_output_file
-    from agents.study_cost import format_study, plot_study, run_study, write_json
+    from agents import study_cost
 
-    out = args.out or Path("runs") / f"study_cost{'_quick' if args.quick else ''}"
-    check_output_dir(out, "--out")  # every output path before the first training
+    return _training_study(args, study_cost, "study_cost", "cost_of_estimation.png")
+
+
+def cmd_study_active(args: argparse.Namespace) -> int:
+    """Fixed, tangent and look-at headings and residual PPO with the heading channel."""
+    from agents import study_active
+
+    return _training_study(args, study_active, "study_active", "active_perception.png")
+
+
+def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str) -> int:
+    """Run a study that trains agents (its module's ``run_study``, ``format_study``,
+    ``write_json``, ``plot_study``): check every output path before the first training,
+    print the table and the wall clock, write ``--json`` and ``--plots`` (``png``)."""
+    from agents.outputs import check_output_dir, check_output_file
+
+    out = args.out or Path("runs") / f"{folder}{'_quick' if args.quick else ''}"
+    check_output_dir(out, "--out")
     if args.json is not None:
         check_output_file(args.json, "--json")
     if args.plots is not None:
         check_output_dir(args.plots, "--plots")
     tic = time.perf_counter()
-    result = run_study(out, args.quick, args.training_seeds, args.episodes)
+    result = study.run_study(out, args.quick, args.training_seeds, args.episodes)
     result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
-    print(format_study(result))
+    print(study.format_study(result))
     print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
-    return _save_study(args, result, write_json, plot_study, "cost_of_estimation.png")
+    return _save_study(args, result, study.write_json, study.plot_study, png)
 
 
 def _save_study(
@@ -48,25 +63,6 @@ def _save_study(
         print(f"wrote {where}")
     saver.check()
     return 0
-
-
-def cmd_study_active(args: argparse.Namespace) -> int:
-    """Fixed, tangent and look-at headings and residual PPO with the heading channel."""
-    from agents.outputs import check_output_dir, check_output_file
-    from agents.study_active import format_study, plot_study, run_study, write_json
-
-    out = args.out or Path("runs") / f"study_active{'_quick' if args.quick else ''}"
-    check_output_dir(out, "--out")
-    if args.json is not None:
-        check_output_file(args.json, "--json")
-    if args.plots is not None:
-        check_output_dir(args.plots, "--plots")
-    tic = time.perf_counter()
-    result = run_study(out, args.quick, args.training_seeds, args.episodes)
-    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
-    print(format_study(result))
-    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
-    return _save_study(args, result, write_json, plot_study, "active_perception.png")
 
 
 def cmd_study_association(args: argparse.Namespace) -> int:

@@ -159,20 +159,27 @@ def _kind_name(mode: int) -> str:
     return "not a regular file"
 
 
+def _link_chain(path: Path) -> Iterator[str]:
+    """The absolute path and each link it leads through, in order (at most 40: the kernel's
+    own limit on links followed)."""
+    here = os.path.abspath(path)
+    for _ in range(40):
+        yield here
+        try:
+            link = os.readlink(here)
+        except OSError:
+            return
+        here = os.path.normpath(os.path.join(os.path.dirname(here), link))
+
+
 def _via_proc(path: Path) -> bool:
     """The path or a link on the way is a process's file descriptor (``/dev/stdout`` →
     ``/proc/self/fd/1``): writing to it means writing to that descriptor, never replacing
     what it points to (a shell's ``> out.json``)."""
-    here = os.path.abspath(path)
-    for _ in range(40):  # the kernel's own limit on links followed
-        if here.startswith(("/proc/", "/dev/fd/")) or here in ("/dev/stdout", "/dev/stderr"):
-            return True
-        try:
-            link = os.readlink(here)
-        except OSError:
-            return False
-        here = os.path.normpath(os.path.join(os.path.dirname(here), link))
-    return False
+    return any(
+        here.startswith(("/proc/", "/dev/fd/")) or here in ("/dev/stdout", "/dev/stderr")
+        for here in _link_chain(path)
+    )
 
 
 _FD_LINK = re.compile(r"^/(?:proc/(self|thread-self|\d+)/fd|dev/fd)/(\d+)$")
@@ -187,8 +194,7 @@ def _own_descriptor(path: Path) -> int | None:
     it go: opening the file again would start at its own offset, and with a shell's
     ``> out.json`` the printed lines and the document would overwrite each other.
     """
-    here = os.path.abspath(path)
-    for _ in range(40):
+    for here in _link_chain(path):
         if here in _STD_NAMES:
             return _STD_NAMES[here]
         match = _FD_LINK.match(here)
@@ -197,11 +203,6 @@ def _own_descriptor(path: Path) -> int | None:
             if owner is None or owner in ("self", "thread-self") or int(owner) == os.getpid():
                 return int(match.group(2))
             return None
-        try:
-            link = os.readlink(here)
-        except OSError:
-            return None
-        here = os.path.normpath(os.path.join(os.path.dirname(here), link))
     return None
 
 
