@@ -55,6 +55,7 @@ test-rllib: $(RLLIB_STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 # The fresh-install check of CI: build the wheel, install it into a new venv outside the
 # checkout, use it from an unrelated folder.

@@ -1,7 +1,8 @@
 """EKF-SLAM and FastSLAM sections of ``quadslam bench`` (``ekf``, ``fastslam``).
 
-Estimator scaling is measured through the public :class:`estimators.Estimator` protocol with
-synthetic scans (no env), so it isolates the filter's own cost:
+Estimator scaling is measured through one vehicle's
+:class:`~quadslam_env.estimation.protocol.Estimator` interface with synthetic scans (no env), so
+it isolates the filter's own cost:
 
 * EKF-SLAM prediction, update and registration time vs the number of mapped / observed / new
   landmarks (seed 001 Fig. 12);
@@ -19,8 +20,9 @@ from typing import Any
 
 import numpy as np
 
-import estimators
 from agents.bench import Plan, Results
+from estimators.ekf import EkfSlam
+from estimators.fastslam import DynamicFastSLAM
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.lidar import lidar_measure
@@ -78,8 +80,8 @@ def _hover_inputs(mass: float) -> tuple[ImuSample, Control]:
 
 
 def _fresh(name: str, seed: int, **params: Any) -> Any:
-    vehicle = vehicle_preset("rauniyar2023")
-    est = estimators.make(name, vehicle=vehicle, **params)
+    one_vehicle: dict[str, Callable[..., Any]] = {"ekf_slam": EkfSlam, "fastslam": DynamicFastSLAM}
+    est = one_vehicle[name](vehicle=vehicle_preset("rauniyar2023"), **params)
     cov0 = np.diag([1e-3] * 3 + [1e-2] * 3 + [1e-4] * 3 + [1e-6] * 3)
     est.reset(np.zeros(12), cov0, np.random.default_rng(seed))
     return est

@@ -518,6 +518,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    # A command may build EKF-SLAM envs: on a cold numba cache, compile its update in a second
+    # process meanwhile (a library user asks for that explicitly).
+    from estimators.ekf import warmup
+
+    warmup.enable()
     try:
         with sigterm_as_interrupt():
             code = int(args.func(args))

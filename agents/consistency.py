@@ -17,8 +17,8 @@ import numpy as np
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.dflqr import DFLQRPolicy
-from estimators.metrics import anees_bounds
-from estimators.oracle import OracleEstimator
+from estimators.oracle import OracleBatch
+from quadslam_env.metrics import anees_bounds
 
 
 @dataclass
@@ -56,11 +56,15 @@ class ConsistencyResult:
         return float(anees.mean()), (lo, hi), float(np.mean((anees >= lo) & (anees <= hi)))
 
 
-def truth_observation(env: Any, oracle: OracleEstimator) -> np.ndarray:
-    """The observation the env would emit if its estimator returned the true state."""
+def truth_observation(env: Any, oracle: OracleBatch) -> np.ndarray:
+    """The observation the env would emit if its estimator returned the true state.
+
+    ``oracle`` is a one-lane :class:`~estimators.oracle.OracleBatch` (reused between calls).
+    """
     base = env.unwrapped
-    oracle.set_truth(base.true_state, base.landmark_ids, base.landmarks)
-    return base.observation_from(oracle.estimate())
+    landmarks = np.asarray(base.landmarks, dtype=float)
+    oracle.set_truth(base.true_state[None], landmarks[None], np.array([len(landmarks)]))
+    return base.observation_from(oracle.lane_estimate(0))
 
 
 def run_consistency(
@@ -69,7 +73,7 @@ def run_consistency(
     """Fly ``n_runs`` seeded episodes with a truth-driven DF-LQR and collect pose NEES."""
     env = gym.make(env_id, **env_kwargs)
     policy = DFLQRPolicy.from_env(env)
-    oracle = OracleEstimator()
+    oracle = OracleBatch(num_lanes=1, landmark_capacity=0)
     runs, runs_pos, rmses, terminated = [], [], [], 0
     for i in range(n_runs):
         env.reset(seed=seed0 + i)

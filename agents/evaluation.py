@@ -18,9 +18,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
 
-from estimators.metrics import phase_key
 from quadslam_env.actions import validate_actions
 from quadslam_env.env import lane_info
+from quadslam_env.metrics import phase_key
 
 # Record keys reported over the whole episode and, with the phase in the name
 # (``track_pos_rmse_steady_m``, ``track_pos_rmse_transient_m``, …), over each phase.

@@ -157,8 +157,8 @@ def run_soak(
     """
     from agents.consistency import truth_observation
     from agents.dflqr import DFLQRPolicy
-    from estimators.batch import health_problem
-    from estimators.oracle import OracleEstimator
+    from estimators.oracle import OracleBatch
+    from quadslam_env.estimation.health import health_problem
 
     if control not in ("estimate", "truth"):
         raise ValueError(f"control: got {control!r}; allowed: 'estimate' or 'truth'")
@@ -167,7 +167,7 @@ def run_soak(
     policy = DFLQRPolicy.from_env(env)
     full_state = getattr(base.estimator, "full_state", None)
     total_steps = base.max_steps
-    oracle = OracleEstimator() if control == "truth" else None
+    oracle = OracleBatch(num_lanes=1, landmark_capacity=0) if control == "truth" else None
 
     pose = _Extremes()
     landmarks = _Extremes()

@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 
 from estimators.ekf.settings import EkfSlamSettings
-from estimators.metrics import step_metrics
 from estimators.pcrb import BoundModel, TruthRecord, error_bounds, slam_bound
+from quadslam_env.metrics import step_metrics
 from quadslam_env.models.frames import dcm_from_euler, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.types import POSE_DIM, FloatArray

@@ -1,9 +1,27 @@
-"""Estimators (layer 3): they see sensor data and applied controls only, never the truth.
+"""Estimators (docs/design.md §1, §5): they see sensor data and applied controls only, never
+the truth.
 
-``estimators.make(name, **cfg)`` builds one by name; ``estimators.metrics`` is the only module
-that sees truth and estimate together.
+``estimators.make(name, num_lanes=B, **settings)`` builds one by name through the registry of
+the estimator boundary (:mod:`quadslam_env.estimation`), which these names are taken from;
+``@estimators.register(name)`` adds your own.
 """
 
-from estimators.base import Estimate, Estimator, available, make, register
+from quadslam_env.estimation import (
+    BatchEstimate,
+    BatchEstimator,
+    Estimate,
+    Estimator,
+    available,
+    make,
+    register,
+)
 
-__all__ = ["Estimate", "Estimator", "available", "make", "register"]
+__all__ = [
+    "BatchEstimate",
+    "BatchEstimator",
+    "Estimate",
+    "Estimator",
+    "available",
+    "make",
+    "register",
+]

@@ -17,7 +17,7 @@ IMU_BIAS_TYPES: dict[str, type | tuple[type, ...]] = {
     "gyro_bias_walk": (float, int),
     "accel_bias_walk": (float, int),
 }
-"""Accepted types of the shared keys (for :func:`estimators.base.check_kwargs`)."""
+"""Accepted types of the shared keys (for :func:`estimators.settings_check.check_kwargs`)."""
 
 IMU_BIAS_DEFAULTS: dict[str, Any] = {
     "estimate_imu_bias": False,

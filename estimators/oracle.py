@@ -1,8 +1,8 @@
 """Oracle estimator: reports the true state (docs/design.md §5), for ablations.
 
 It is the one estimator the simulation feeds with the truth (through ``set_truth``); it has no
-covariance, so NEES is reported as NaN by the metrics. :class:`OracleBatch` serves B lanes;
-:class:`OracleEstimator` is its one-lane form with the scalar :class:`Estimator` interface.
+covariance, so NEES is reported as NaN by the metrics. :class:`OracleBatch` serves B lanes (one
+lane for the scalar env).
 """
 
 from __future__ import annotations
@@ -12,14 +12,13 @@ from typing import Any
 
 import numpy as np
 
-from estimators.base import Estimate, check_kwargs, register
-from estimators.batch import BatchEstimate, KnownMaps, register_batch
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from estimators.settings_check import check_kwargs
+from quadslam_env.estimation import BatchEstimate, Estimate, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.types import FloatArray
 
 
-@register_batch("oracle")
+@register("oracle")
 class OracleBatch:
     """The true vehicle states and maps of B lanes.
 
@@ -113,48 +112,3 @@ class OracleBatch:
             landmark_means=out.landmark_means[lane, ids].copy(),
             landmark_covs=np.zeros((ids.size, 3, 3)),
         )
-
-
-@register("oracle")
-class OracleEstimator:
-    """One lane of :class:`OracleBatch` behind the scalar :class:`Estimator` interface.
-
-    Args:
-        vehicle: Nominal vehicle parameters (unused; accepted like every estimator).
-    """
-
-    uses_truth = True
-
-    def __init__(self, vehicle: Any = None, **params: Any) -> None:
-        self._batch = OracleBatch(1, 0, vehicle, **params)
-
-    def reset(
-        self,
-        mean0: FloatArray,
-        cov0: FloatArray,
-        rng: np.random.Generator,
-        known_landmarks: tuple[np.ndarray, FloatArray] | None = None,
-    ) -> None:
-        """Start; the state is overwritten by :meth:`set_truth` before every use."""
-        self._batch.reset_lanes(np.array([0]), np.asarray(mean0)[None], cov0, [rng])
-        if known_landmarks is not None:
-            pts = np.asarray(known_landmarks[1], dtype=float)
-            self.set_truth(np.asarray(mean0, dtype=float), np.asarray(known_landmarks[0]), pts)
-
-    def set_truth(self, state: FloatArray, landmark_ids: np.ndarray, landmarks: FloatArray) -> None:
-        """Receive the true 12-state and map (ids must be ``0 … L-1``, as the env makes them)."""
-        pts = np.asarray(landmarks, dtype=float).reshape(1, -1, 3)
-        self._batch.set_truth(np.asarray(state, float)[None], pts, np.array([pts.shape[1]]))
-
-    def predict(self, imu: ImuSample, control: Control, dt: float) -> None:
-        """Nothing to do: the truth arrives through :meth:`set_truth`."""
-
-    last_association = np.zeros(0, dtype=np.int64)
-    """The oracle pairs no return (its map is the truth)."""
-
-    def update(self, scan: LidarScan) -> None:
-        """Nothing to do: the truth arrives through :meth:`set_truth`."""
-
-    def estimate(self) -> Estimate:
-        """The true state as an :class:`Estimate` with no covariance."""
-        return self._batch.lane_estimate(0)

@@ -1,7 +1,7 @@
 """Posterior Cramér–Rao bound (PCRB) of EKF-SLAM's model along a true trajectory.
 
 An analysis tool, not an estimator: it evaluates the models at the **true** state, so no
-estimator may use it (like :mod:`estimators.metrics`, it belongs to the layer that compares
+estimator may use it (like :mod:`quadslam_env.metrics`, it belongs to the layer that compares
 estimators with the truth). It answers "how small could the error of any unbiased estimator
 using the same data be?", so that a filter's error, and a paper's figure, can be put next to
 what the sensors allow.
@@ -50,7 +50,7 @@ scan as known ones enter after the update with the known ones, as in the filter.
 The bound on the error of a function ``g`` of the state (the inertial velocity ``C_NB v``, the
 rotation vector of the attitude error) is ``∂g/∂x B ∂g/∂xᵀ``; :func:`error_bounds` gives the
 mean-square bounds of the position, inertial velocity and attitude (rotation angle) errors
-that :mod:`estimators.metrics` reports.
+that :mod:`quadslam_env.metrics` reports.
 """
 
 from __future__ import annotations
@@ -325,7 +325,7 @@ def error_transforms(state: FloatArray) -> tuple[FloatArray, FloatArray]:
         Jacobian F, eq. 28: ``ρ̇ = C_NB v``) and ``T_a`` (3, 3) = ``D(Λ)⁻¹``, which maps an
         Euler-angle error to the rotation vector of the attitude error in B (``Λ̇ = D(Λ) ω``,
         so a small ``δΛ`` is the rotation ``D⁻¹ δΛ``; its norm is the rotation angle that
-        :mod:`estimators.metrics` reports).
+        :mod:`quadslam_env.metrics` reports).
     """
     F, G = process_jacobians(np.asarray(state[:POSE_DIM], dtype=float), 0.0, np.zeros(3))
     T_a = np.asarray(np.linalg.inv(G[6:9, 1:4]), dtype=float)

@@ -89,10 +89,9 @@ class EstimatorConfig(Section):
     )
 
     def validate(self) -> None:
-        # The names come from the estimator registry (layer 3). Only its name table is read
-        # here (estimators.base imports no estimator); plug-ins listed by entry points are not
-        # imported until the env builds them.
-        from estimators.base import available
+        # The names come from the estimator registry, which imports no estimator; plug-ins
+        # listed by entry points are not imported until the env builds them.
+        from quadslam_env.estimation import available
 
         names = available()
         if self.name not in names:
@@ -397,7 +396,7 @@ class ScenarioConfig:
             **sections,
         )
         if scenario.lidar.association == "unknown":
-            from estimators.base import associates_unlabeled
+            from quadslam_env.estimation import associates_unlabeled
 
             try:
                 ok = associates_unlabeled(scenario.estimator.name)

@@ -30,14 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from estimators.batch import (
-    BatchEstimate,
-    BatchEstimator,
-    health_codes,
-    make_batch,
-    position_std,
-)
-from estimators.metrics import (
+from quadslam_env.actions import ActionMap
+from quadslam_env.config import LandmarksConfig, ScenarioConfig
+from quadslam_env.episode_start import initial_state, settle_time
+from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
+from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
+from quadslam_env.measurements import ScanReturns
+from quadslam_env.metrics import (
     ASSOCIATION_KEYS,
     METRIC_KEYS,
     EpisodeMetrics,
@@ -46,11 +45,6 @@ from estimators.metrics import (
     match_landmarks,
     metric_columns,
 )
-from quadslam_env.actions import ActionMap
-from quadslam_env.config import LandmarksConfig, ScenarioConfig
-from quadslam_env.episode_start import initial_state, settle_time
-from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
-from quadslam_env.measurements import ScanReturns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.observation import ObservationBuilder
@@ -127,7 +121,7 @@ class SimCore:
         capacity = landmark_capacity(cfg.landmarks)
         self.landmarks = np.zeros((b, capacity, 3))
         self.n_landmarks = np.zeros(b, dtype=np.int64)
-        self.estimator = make_batch(
+        self.estimator = make(
             cfg.estimator.name, b, capacity, vehicle=self.vehicle_params, **cfg.estimator.params
         )
         self._truth: BatchEstimator | None = None  # privileged observations, built on demand
@@ -425,7 +419,7 @@ class SimCore:
         own observations come from the estimate. With ``pos_uncertainty`` its entries are 0.
         """
         if self._truth is None:
-            self._truth = make_batch("oracle", self.num_lanes, self.landmarks.shape[1])
+            self._truth = make("oracle", self.num_lanes, self.landmarks.shape[1])
         truth_source: Any = self._truth  # OracleBatch: takes the truth through set_truth
         truth_source.set_truth(self.vehicle.state, self.landmarks, self.n_landmarks)
         truth = self._truth.estimate()

@@ -14,11 +14,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from estimators.base import Estimate
-from estimators.batch import BatchEstimator, batch_from_estimates
 from quadslam_env.actions import ActionError, validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
+from quadslam_env.estimation import BatchEstimator, Estimate, batch_from_estimates
 from quadslam_env.reset_options import parse_reset_options, parse_seed
 from quadslam_env.trajectories import FlatOutputs
 from quadslam_env.types import FloatArray
@@ -189,7 +188,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         """The observation the env would emit now if its estimator had returned ``estimate``.
 
         For baselines that fly on another estimate than the env's, e.g. the truth through
-        :class:`estimators.oracle.OracleEstimator` in the consistency runs. The visible-landmark
+        :class:`estimators.oracle.OracleBatch` in the consistency runs. The visible-landmark
         count in the observation is 0 (it belongs to the env's own scans).
         """
         core = self._core

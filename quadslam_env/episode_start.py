@@ -2,7 +2,7 @@
 
 Most scenarios start the vehicle at rest away from the reference (e.g. 2 m below the
 figure-8), so the first seconds are a climb onto it. Its error dwarfs what the estimator costs
-in flight, so every episode metric is also reported over two phases (``estimators.metrics``):
+in flight, so every episode metric is also reported over two phases (``quadslam_env.metrics``):
 the *transient* ``t ≤ settle_s`` and the *steady state* ``t > settle_s``.
 ``trajectory.start_on_reference`` removes the transient altogether.
 """

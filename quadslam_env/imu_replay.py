@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators.batch import BatchEstimator
+from quadslam_env.estimation import BatchEstimator
 from quadslam_env.types import FloatArray
 
 CHANGE_MEMORY = 0.5

@@ -4,8 +4,8 @@
 
 ``terminated`` on a non-finite true state, tilt beyond ``max_tilt_deg``, tracking error beyond
 ``max_pos_err_m``, ground contact (``ground_z_m``), or estimator divergence: the estimator's
-health check (:func:`estimators.batch.health_codes`: non-finite values, a pose covariance that
-is asymmetric, has a negative variance or a correlation beyond ±1, or a trace above
+health check (:func:`~quadslam_env.estimation.health.health_codes`: non-finite values, a pose
+covariance that is asymmetric, has a negative variance or a correlation beyond ±1, or a trace above
 ``max_cov_trace``), a pose covariance that is not positive semi-definite (infinite NEES), or
 pose NEES above ``nees_threshold`` for ``nees_window_s``.
 The first failed check, in that order, names the reason.
@@ -17,8 +17,8 @@ import math
 
 import numpy as np
 
-from estimators.batch import HEALTH_PROBLEMS
 from quadslam_env.config import EpisodeConfig
+from quadslam_env.estimation import HEALTH_PROBLEMS
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
@@ -132,7 +132,7 @@ class Termination:
             state: (B, 12) true states.
             track_err: (B,) true tracking error in m.
             nees: (B,) pose NEES (NaN without a covariance, inf when not PSD).
-            health: (B,) :func:`estimators.batch.health_codes` of the estimate.
+            health: (B,) :func:`quadslam_env.estimation.health.health_codes` of the estimate.
             active: (B,) bool, lanes stepped now (the others never end).
             steps: (B,) steps since each lane's reset.
 

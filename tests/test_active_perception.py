@@ -12,8 +12,8 @@ import pytest
 import quadslam_env  # noqa: F401
 from agents.dflqr import DFLQRPolicy
 from agents.lookat import LookAtPolicy, aim_azimuth
-from estimators.batch import BatchEstimate
 from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.estimation import BatchEstimate
 from quadslam_env.observation import nearest_landmarks
 
 AP = "QuadSLAM-ActivePerception-v0"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from agents.consistency import run_consistency
-from estimators.metrics import anees_bounds
+from quadslam_env.metrics import anees_bounds
 
 
 @pytest.mark.slow

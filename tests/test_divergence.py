@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from estimators.batch import HEALTH_PROBLEMS, BatchEstimate, health_codes
 from quadslam_env.config import ConfigError, ImuConfig, load_scenario
+from quadslam_env.estimation import HEALTH_PROBLEMS, BatchEstimate, health_codes
 from quadslam_env.models import GRAVITY, VEHICLE_PRESETS
 from quadslam_env.sensors import Imu
 from quadslam_env.types import DEG

@@ -15,8 +15,8 @@ import pickle
 import numpy as np
 import pytest
 
-from estimators.batch import make_batch
 from estimators.ekf import EkfSlam, EkfSlamBatch
+from quadslam_env.estimation import make
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
 from quadslam_env.models.strapdown import process_derivative
@@ -243,11 +243,11 @@ def test_capacity_grows_for_larger_ids_and_keeps_every_lane():
 
 
 def test_make_batch_builds_the_native_filter_and_validates():
-    est = make_batch("ekf_slam", 3, 10, gate_probability=0.95)
+    est = make("ekf_slam", 3, 10, gate_probability=0.95)
     assert isinstance(est, EkfSlamBatch) and est.num_lanes == 3 and not est.uses_truth
     assert est.gate_threshold == pytest.approx(7.815, abs=1e-3)
     with pytest.raises(ValueError, match="process_noise"):
-        make_batch("ekf_slam", 2, 10, process_noise=[0.1] * 8)
+        make("ekf_slam", 2, 10, process_noise=[0.1] * 8)
     with pytest.raises(ValueError, match="bogus"):
         EkfSlamBatch(2, 10, bogus=1)
     with pytest.raises(ValueError, match="dt"):

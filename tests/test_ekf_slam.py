@@ -1,4 +1,4 @@
-"""Tests of the EKF-SLAM estimator (estimators/ekf_slam.py) against independent facts.
+"""Tests of the EKF-SLAM estimator (estimators/ekf/) against independent facts.
 
 Finite differences, a dense textbook Kalman filter, dense first-order covariance propagation,
 the simulator's rigid-body dynamics, Monte-Carlo sampling and χ² bounds on NEES.
@@ -13,11 +13,7 @@ import pytest
 from scipy.stats import chi2
 
 import estimators
-from estimators.ekf_slam import (
-    EkfSlam,
-    process_derivative,
-    process_jacobians,
-)
+from estimators.ekf import EkfSlam, EkfSlamBatch
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import (
     GRAVITY,
@@ -29,6 +25,7 @@ from quadslam_env.models import (
     vehicle_preset,
     wrap_angle,
 )
+from quadslam_env.models.strapdown import process_derivative, process_jacobians
 
 SIG_LIDAR = np.array([np.deg2rad(0.33), np.deg2rad(0.30), 0.1])  # seed 001 Table 4
 SIG_ACC = 300e-6 * GRAVITY * 10.0  # seed 001 Table 5 density × √(100 Hz)
@@ -95,8 +92,8 @@ def _fd_jacobian(fun, x0: np.ndarray, eps: float = 1e-6) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- construction
 def test_registry_and_defaults():
-    f = estimators.make("ekf_slam")
-    assert isinstance(f, EkfSlam)
+    assert isinstance(estimators.make("ekf_slam", num_lanes=2), EkfSlamBatch)
+    f = EkfSlam()
     assert f.gate_threshold == pytest.approx(11.345, abs=1e-3)
     assert not f.known_map and not f.estimate_imu_bias
 

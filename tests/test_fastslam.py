@@ -24,6 +24,7 @@ from estimators.fastslam import (
     normalise_log_weights,
     systematic_resample,
 )
+from quadslam_env.estimation import LaneLoop
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import (
     VehicleParams,
@@ -334,7 +335,7 @@ def _hover_run(
     gyro_bias = np.array([0.01, -0.008, 0.006])
     accel_bias = np.array([0.02, -0.01, 0.03])
     sa, sg = 0.03, 0.002
-    est = estimators.make(name, vehicle=vehicle, **params)
+    est = estimators.make(name, vehicle=vehicle, **params).lanes[0]
     cov0 = np.diag([0.02**2] * 3 + [0.01**2] * 3 + [math.radians(0.2) ** 2] * 3 + [1e-8] * 3)
     est.reset(
         x + np.sqrt(np.diag(cov0)) * rng.normal(size=12), cov0, np.random.default_rng(seed + 1)
@@ -386,9 +387,12 @@ def test_stage2_runs_and_same_seed_reproduces() -> None:
 
 
 def test_registry_builds_both_filters() -> None:
+    """Both are one vehicle's filters: the registry runs them lane by lane."""
     vehicle = vehicle_preset("rauniyar2023")
-    assert isinstance(estimators.make("fastslam", vehicle=vehicle), DynamicFastSLAM)
-    assert isinstance(estimators.make("fastslam_kinematic"), KinematicFastSLAM)
+    dynamic = estimators.make("fastslam", num_lanes=2, vehicle=vehicle)
+    assert isinstance(dynamic, LaneLoop) and dynamic.num_lanes == 2
+    assert all(isinstance(lane, DynamicFastSLAM) for lane in dynamic.lanes)
+    assert isinstance(estimators.make("fastslam_kinematic").lanes[0], KinematicFastSLAM)
 
 
 def test_dynamic_filter_requires_vehicle() -> None:

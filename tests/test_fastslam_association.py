@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 import estimators
-from estimators.base import associates_unlabeled
 from estimators.fastslam import DynamicFastSLAM, KinematicFastSLAM, landmark_ekf_update
 from estimators.fastslam.associate import ParticleMaps
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.settings import AssociationSettings
+from quadslam_env.estimation import associates_unlabeled
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import dcm_from_euler, lidar_measure, specific_force, vehicle_preset
 
@@ -60,7 +60,7 @@ def _static_run(
     azimuth, ±15° elevation and 1–20 m range) and the shuffling use a second generator.
     """
     vehicle = vehicle_preset("sadeghzadeh2021")
-    est = estimators.make(name, vehicle=vehicle, n_particles=N_PARTICLES, **params)
+    est = estimators.make(name, vehicle=vehicle, n_particles=N_PARTICLES, **params).lanes[0]
     assert isinstance(est, FastSLAMBase)
     cov0 = np.diag([1e-4] * 6 + [1e-6] * 3 + [1e-8] * 3)
     known = (np.arange(len(LANDMARKS)) + 10, LANDMARKS) if known_map else None

@@ -14,8 +14,8 @@ from scipy.stats import chi2
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.consistency import run_consistency
 from agents.dflqr import ATTITUDE_NATURAL_FREQ, DFLQRPolicy, attitude_natural_freq
-from estimators.metrics import anees_bounds
 from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.metrics import anees_bounds
 from quadslam_env.models import GRAVITY
 
 P_FAIL = 1e-6  # two-sided false-alarm probability of each statistical bound

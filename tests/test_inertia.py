@@ -10,6 +10,7 @@ import pytest
 from scipy.stats import chi2
 
 import estimators
+from estimators.fastslam import DynamicFastSLAM
 from estimators.inertia import GyroTorqueRegression
 from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models import vehicle_preset
@@ -119,7 +120,7 @@ def test_data_the_rigid_body_cannot_explain_never_reach_the_model() -> None:
     for _ in range(300):
         reg.update(rng.uniform(-1.0, 1.0, 3), 0.002, rng.uniform(-0.5, 0.5, 3), 0.01)
     assert np.all(reg.nis > 9.0) and not reg.usable
-    flt = estimators.make("fastslam", vehicle=vehicle_preset("sadeghzadeh2021"), n_particles=20)
+    flt = DynamicFastSLAM(vehicle=vehicle_preset("sadeghzadeh2021"), n_particles=20)
     flt.reset(np.zeros(12), np.eye(12) * 1e-6, np.random.default_rng(0))
     for k in range(300):
         imu = ImuSample(0.01 * k, np.array([0.0, 0.0, -9.81]), rng.uniform(-1, 1, 3), 0.03, 0.002)
@@ -128,7 +129,6 @@ def test_data_the_rigid_body_cannot_explain_never_reach_the_model() -> None:
 
 
 def test_inertia_identification_rejects_products_of_inertia() -> None:
-    from estimators.fastslam import DynamicFastSLAM
     from quadslam_env.models import VehicleParams
 
     skew = VehicleParams(

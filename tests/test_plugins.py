@@ -14,8 +14,8 @@ import pytest
 import estimators
 import quadslam_env  # noqa: F401  (registers the env ids)
 from agents.dflqr import DFLQRPolicy
-from estimators import base
 from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.estimation import registry as base
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 

@@ -11,8 +11,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import estimators
 import quadslam_env
+from estimators.ekf import EkfSlam
+from estimators.fastslam import DynamicFastSLAM
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import (
     GRAVITY,
@@ -268,16 +269,14 @@ def _run_filter(flt, seq, seed: int) -> None:
 @FILTER_PROFILE
 @given(sensor_sequences(), st.integers(0, 2**16), st.booleans())
 def test_ekf_slam_random_sensor_data_never_nan(seq, seed, with_bias):
-    flt = estimators.make("ekf_slam", estimate_imu_bias=with_bias)
+    flt = EkfSlam(estimate_imu_bias=with_bias)
     _run_filter(flt, seq, seed)
 
 
 @FILTER_PROFILE
 @given(sensor_sequences(), st.integers(0, 2**16))
 def test_fastslam_random_sensor_data_never_nan(seq, seed):
-    flt = estimators.make(
-        "fastslam", vehicle=quadslam_env.vehicle_preset("rauniyar2023"), n_particles=50
-    )
+    flt = DynamicFastSLAM(vehicle=quadslam_env.vehicle_preset("rauniyar2023"), n_particles=50)
     _run_filter(flt, seq, seed)
 
 
@@ -308,12 +307,10 @@ def _aggressive_stream(flt, seed: int, bias: bool, n_steps: int = 300) -> None:
 
 @pytest.mark.parametrize(("seed", "bias"), [(14, True), (117, False)])
 def test_ekf_slam_tumbling_through_gimbal_lock_flags_or_stays_psd(seed, bias):
-    _aggressive_stream(estimators.make("ekf_slam", estimate_imu_bias=bias), seed, bias)
+    _aggressive_stream(EkfSlam(estimate_imu_bias=bias), seed, bias)
 
 
 @pytest.mark.parametrize("seed", [14, 117])
 def test_fastslam_tumbling_through_gimbal_lock_flags_or_stays_psd(seed):
-    flt = estimators.make(
-        "fastslam", vehicle=quadslam_env.vehicle_preset("rauniyar2023"), n_particles=50
-    )
+    flt = DynamicFastSLAM(vehicle=quadslam_env.vehicle_preset("rauniyar2023"), n_particles=50)
     _aggressive_stream(flt, seed, False)

@@ -10,8 +10,8 @@ from scipy.stats import binomtest, kstest, poisson
 from test_sensors import NOISE_FREE_LIDAR, POSE_EULER, POSE_POS, _scan, c3c2c1, lidar_point
 
 import estimators
-from estimators.metrics import association_counts, match_landmarks
 from quadslam_env.config import ConfigError, LidarConfig, load_scenario
+from quadslam_env.metrics import association_counts, match_landmarks
 from quadslam_env.sensors import Lidar
 
 NOISY = {**NOISE_FREE_LIDAR, "sigma_azimuth_deg": 0.3, "sigma_elevation_deg": 0.3,
@@ -199,7 +199,7 @@ def test_ekf_with_unlabeled_returns_equals_the_labeled_filter_when_association_i
     pairing: association is then exactly the truth, so the filter fed the shuffled,
     unlabeled scans must match the filter fed the labeled scans, up to the rounding of another
     landmark order, and name every return by the landmark the labeled filter gave it."""
-    from estimators.ekf_slam import EkfSlam
+    from estimators.ekf import EkfSlam
     from quadslam_env.measurements import Control, ImuSample, LidarScan
     from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
 

@@ -13,8 +13,9 @@ import pytest
 
 from estimators.ekf import warmup
 
-# A fresh process with an empty cache: the env's filter starts the warm-up process, the first
-# scan waits for it; numba's compile events say which kernels this process compiled itself.
+# A fresh process with an empty cache that asks for the warm-up: the env's filter starts the
+# warm-up process, the first scan waits for it; numba's compile events say which kernels this
+# process compiled itself.
 PROBE = """
 import json
 from numba.core import event
@@ -25,6 +26,7 @@ class Listener(event.Listener):
 event.register("numba:compile", Listener())
 import gymnasium as gym, numpy as np, quadslam_env
 from estimators.ekf import warmup
+warmup.enable()
 env = gym.make("QuadSLAM-EKF-v0")
 started = warmup._process is not None
 env.reset(seed=0)
@@ -63,13 +65,18 @@ class _FakePopen:
         return 0
 
 
-def test_warmup_starts_only_on_a_cold_cache_and_can_be_turned_off(
+def test_warmup_starts_only_when_asked_on_a_cold_cache_and_can_be_turned_off(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(warmup.subprocess, "Popen", _FakePopen)
     monkeypatch.setattr(warmup, "_process", None)
+    monkeypatch.setattr(warmup, "_enabled", False)
     index = tmp_path / "update.nbi"
     monkeypatch.setattr(warmup, "_index_path", lambda: index)
+    monkeypatch.delenv(warmup.ENV_VAR, raising=False)
+    warmup.start()  # not asked: a library user gets no second process
+    assert _FakePopen.calls == []
+    warmup.enable()
     monkeypatch.setenv(warmup.ENV_VAR, "0")
     warmup.start()
     assert _FakePopen.calls == []
@@ -80,6 +87,6 @@ def test_warmup_starts_only_on_a_cold_cache_and_can_be_turned_off(
     index.unlink()
     warmup.start()
     warmup.start()  # once per process
-    assert _FakePopen.calls == [[sys.executable, "-m", "estimators.ekf.warmup"]]
+    assert _FakePopen.calls == [[sys.executable, "-m", "estimators.ekf.compile_update"]]
     warmup.wait()
     assert warmup._process is None

@@ -5,8 +5,8 @@
 * :mod:`estimators.ekf.update` — the correction kernel (stacked observation model, χ² gate,
   stacked update, registration);
 * :mod:`estimators.ekf.kernels` — the prediction kernel, angle wrap and outputs;
-* :mod:`estimators.ekf.scalar` — :class:`EkfSlam`, the one-lane estimator registered as
-  ``"ekf_slam"`` in :mod:`estimators.base`;
+* :mod:`estimators.ekf.scalar` — :class:`EkfSlam`, one lane of the batch filter behind the
+  one-vehicle :class:`~quadslam_env.estimation.protocol.Estimator` interface;
 * :mod:`estimators.ekf.settings` — :class:`EkfSlamSettings`, the validated parameters.
 
 The process model (seed 001 eq. 24, 28) is :mod:`quadslam_env.models.strapdown`; the LiDAR

@@ -27,8 +27,6 @@ from typing import Any
 import numpy as np
 
 from estimators.association import UNASSOCIATED, joint_thresholds
-from estimators.base import Estimate
-from estimators.batch import BatchEstimate, IntArray, KnownMaps, register_batch
 from estimators.ekf import warmup
 from estimators.ekf.associate import UnlabeledScans
 from estimators.ekf.inspection import FilterInspection
@@ -41,18 +39,19 @@ from estimators.ekf.kernels import (
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.memory import check_ekf_map
+from quadslam_env.estimation import BatchEstimate, Estimate, IntArray, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import POSE_DIM, FloatArray
 
 _AR3 = np.arange(3)
 
 
-@register_batch("ekf_slam")
+@register("ekf_slam")
 class EkfSlamBatch(UnlabeledScans, FilterInspection):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
-    Implements :class:`estimators.batch.BatchEstimator`. Lane b behaves exactly like a scalar
-    :class:`~estimators.ekf.scalar.EkfSlam` fed the same inputs.
+    Implements :class:`~quadslam_env.estimation.protocol.BatchEstimator`. Lane b behaves
+    exactly like a scalar :class:`~estimators.ekf.scalar.EkfSlam` fed the same inputs.
 
     Args:
         num_lanes: B ≥ 1.

@@ -1,7 +1,8 @@
 """The scalar EKF-SLAM estimator: one lane of :class:`~estimators.ekf.filter.EkfSlamBatch`.
 
-This is the :class:`estimators.base.Estimator` registered as ``"ekf_slam"`` (used through
-``estimators.make`` and :class:`estimators.batch.LaneLoop`). Scans may carry any integer
+It implements :class:`quadslam_env.estimation.protocol.Estimator` over the batch filter with
+one lane, for a caller that feeds one vehicle's samples and scans by hand (the env builds the
+batch filter itself, registered as ``"ekf_slam"``). Scans may carry any integer
 landmark ids (e.g. 7, 42): the wrapper numbers them ``0, 1, …`` in order of first appearance
 (ascending within a scan, so registration order is kept) and the batch filter works on those.
 """
@@ -13,16 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from estimators.base import Estimate, register
 from estimators.ekf.filter import EkfSlamBatch
 from estimators.ekf.settings import EkfSlamSettings
+from quadslam_env.estimation import Estimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.types import FloatArray
 
 _INITIAL_LANDMARK_CAPACITY = 32
 
 
-@register("ekf_slam")
 class EkfSlam:
     """EKF-SLAM of seed 001 §2.3 with known data association (one vehicle).
 

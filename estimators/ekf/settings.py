@@ -9,13 +9,13 @@ from typing import Any
 import numpy as np
 from scipy.special import gammaincinv
 
-from estimators.base import check_kwargs
 from estimators.imu_bias_settings import (
     IMU_BIAS_DEFAULTS,
     IMU_BIAS_TYPES,
     check_nonneg,
     imu_bias_settings,
 )
+from estimators.settings_check import check_kwargs
 from estimators.tentative import check_confirm_rule
 from quadslam_env.types import POSE_DIM, FloatArray
 

@@ -4,15 +4,16 @@ The kernels compile on first use and numba caches them on disk (:mod:`quadslam_e
 so only the first process after an install pays. That first process compiles about 100
 kernels one after another; the LiDAR update (:func:`estimators.ekf.update.update_lanes` and
 its callees) is about 40% of it and is first needed at the first scan, after the physics,
-sensors, prediction, metrics and observation kernels. When its cache entry is missing, building
-an :class:`~estimators.ekf.filter.EkfSlamBatch` therefore starts ``python -m
-estimators.ekf.warmup``, which compiles (and caches) the update while this process compiles
-everything before the first scan; the first :meth:`EkfSlamBatch.update` waits for it and loads
-the update from the cache. On a machine with two or more cores the first ``make_vec`` takes
-the longer of the two halves instead of their sum (docs/performance.md).
+sensors, prediction, metrics and observation kernels.
 
-Nothing changes once the cache is warm, or where numba has no cache location. Set
-``QUADSLAM_EKF_WARMUP=0`` to compile everything in the calling process.
+Only when asked (:func:`enable`, which the ``quadslam`` command does, or
+``QUADSLAM_EKF_WARMUP=1``) and when its cache entry is missing, building an
+:class:`~estimators.ekf.filter.EkfSlamBatch` starts ``python -m estimators.ekf.compile_update``,
+which compiles (and caches) the update while this process compiles everything before the first
+scan; the first :meth:`EkfSlamBatch.update` waits for it and loads the update from the cache.
+On a machine with two or more cores the first ``make_vec`` then takes the longer of the two
+halves instead of their sum (docs/performance.md). Nothing changes once the cache is warm, or
+where numba has no cache location; ``QUADSLAM_EKF_WARMUP=0`` keeps it off even when asked.
 """
 
 from __future__ import annotations
@@ -22,14 +23,19 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
-
 ENV_VAR = "QUADSLAM_EKF_WARMUP"
 WAIT_S = 300.0
 """Longest wait for the warm-up process before compiling here anyway (a stuck process
 must not hang the env)."""
 
 _process: subprocess.Popen[bytes] | None = None
+_enabled = False
+
+
+def enable() -> None:
+    """Ask for the warm-up process from now on in this process (see the module docstring)."""
+    global _enabled
+    _enabled = True
 
 
 def _index_path() -> Path | None:
@@ -43,9 +49,11 @@ def _index_path() -> Path | None:
 
 
 def start() -> None:
-    """Start the warm-up process if the update kernel is not cached yet (once per process)."""
+    """Start the warm-up process if asked and the update kernel is not cached yet (once per
+    process)."""
     global _process
-    if _process is not None or os.environ.get(ENV_VAR, "1") == "0":
+    asked = os.environ.get(ENV_VAR, "1" if _enabled else "0")
+    if _process is not None or asked == "0":
         return
     index = _index_path()
     if index is None or index.exists():
@@ -53,7 +61,7 @@ def start() -> None:
     env = dict(os.environ, **{ENV_VAR: "0"})  # the child must not start another
     try:
         _process = subprocess.Popen(
-            [sys.executable, "-m", "estimators.ekf.warmup"],
+            [sys.executable, "-m", "estimators.ekf.compile_update"],
             env=env,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
@@ -73,20 +81,3 @@ def wait() -> None:
         process.wait(timeout=WAIT_S)
     except subprocess.TimeoutExpired:
         process.kill()
-
-
-def compile_update() -> None:
-    """Run one labeled update of a one-lane filter: compiles and caches the update kernels
-    with the argument types :meth:`EkfSlamBatch.update` always passes."""
-    from estimators.ekf.filter import EkfSlamBatch
-
-    ekf = EkfSlamBatch(1, 1)
-    lanes = np.zeros(1, dtype=np.int64)
-    ekf.reset_lanes(lanes, np.zeros((1, 12)), np.eye(12)[None], [np.random.default_rng(0)])
-    visible = np.ones((1, 1), dtype=bool)
-    meas = np.array([[[0.1, 0.1, 5.0]]])
-    ekf.update(np.zeros(1), lanes, visible, meas, np.full(3, 0.01))
-
-
-if __name__ == "__main__":
-    compile_update()

@@ -80,7 +80,7 @@ EKFs (:func:`.landmarks.landmark_ekf_particles`, on the LiDAR model's kernels) a
 draws stay outside the kernels, in the same order as before, so a seed gives the same stream.
 """
 
-# Importing the filter modules registers "fastslam" and "fastslam_kinematic" (estimators.base).
+# Importing the filter modules registers "fastslam" and "fastslam_kinematic".
 from estimators.fastslam.bias_kf import (
     BIAS_DIM,
     H_BIAS,

@@ -7,7 +7,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.base import register
 from estimators.fastslam.bias_kf import (
     BIAS_DIM,
     H_BIAS,
@@ -20,6 +19,7 @@ from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.process import DynamicsModel
 from estimators.fastslam.settings import FLOAT, SIGMA_FLOOR, fail, positive
 from estimators.inertia import GyroTorqueRegression
+from quadslam_env.estimation import register
 from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.linalg import chol3, inv3_sym, mv

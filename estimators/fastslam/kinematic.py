@@ -6,9 +6,9 @@ from typing import Any
 
 import numpy as np
 
-from estimators.base import register
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.settings import FLOAT, positive
+from quadslam_env.estimation import register
 from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.integrators import kinematic_propagate
 from quadslam_env.models.params import VehicleParams

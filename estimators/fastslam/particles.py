@@ -14,7 +14,6 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.base import Estimate, check_kwargs
 from estimators.fastslam.associate import ParticleMaps, update_unlabeled
 from estimators.fastslam.gauge import add_gauge_cov, gauge_split, pin_gauge
 from estimators.fastslam.landmarks import landmark_init
@@ -41,6 +40,8 @@ from estimators.fastslam.settings import (
     positive,
 )
 from estimators.memory import check_fastslam_map
+from estimators.settings_check import check_kwargs
+from quadslam_env.estimation import Estimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.linalg import psd_sqrt

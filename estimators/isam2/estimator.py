@@ -1,6 +1,6 @@
 """A factor-graph estimator in the loop: iSAM2 over IMU-preintegration and LiDAR factors.
 
-Registered as ``estimator.name: isam2`` (:func:`estimators.base.register`); it needs GTSAM
+Registered as ``estimator.name: isam2`` (:func:`quadslam_env.estimation.register`); it needs GTSAM
 (``pip install 'quadslam[gtsam]'``). The graph (docs/isam2.md):
 
 * **Keyframes** at the LiDAR scans (10 Hz on the paper's sensor), each with a ``Pose3``
@@ -27,8 +27,8 @@ factor, which adds the preintegration noise; both are mapped to (ρ, v_B, Λ).
 
 A GTSAM exception inside :meth:`Isam2Slam.update` (an indeterminate system, a failed
 Cholesky) never escapes: the estimator sets ``diagnostics["diverged"] = 1`` (the env ends the
-episode as diverged, :func:`estimators.batch.health_codes`), keeps its last finite estimate
-and dead-reckons from it.
+episode as diverged, :func:`~quadslam_env.estimation.health.health_codes`), keeps its last
+finite estimate and dead-reckons from it.
 """
 
 from __future__ import annotations
@@ -38,11 +38,11 @@ from typing import Any
 
 import numpy as np
 
-from estimators.base import Estimate, register
 from estimators.isam2.factors import known_map_error, landmark_error, scan_error
 from estimators.isam2.settings import NOISE_FLOOR, PRIOR_VARIANCE_FLOOR, Isam2Settings
 from estimators.isam2.tangent import state_covariance, tangent_covariance
 from quadslam_env.config_schema import ConfigError
+from quadslam_env.estimation import Estimate, register
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler, euler_from_dcm
 from quadslam_env.models.lidar import lidar_inverse
@@ -86,8 +86,8 @@ def _symbol(gtsam: Any, char: str, index: int) -> int:
 class Isam2Slam:
     """Fixed-lag (or full) iSAM2 smoothing of IMU preintegration and LiDAR factors.
 
-    Implements :class:`estimators.base.Estimator` with known data association, in known-map
-    (localisation) and unknown-map (SLAM) mode (module docstring).
+    Implements :class:`~quadslam_env.estimation.protocol.Estimator` with known data
+    association, in known-map (localisation) and unknown-map (SLAM) mode (module docstring).
 
     Args:
         vehicle: Nominal vehicle parameters (unused: the IMU drives the motion model).

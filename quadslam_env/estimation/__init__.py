@@ -1,0 +1,38 @@
+"""The estimator boundary (docs/design.md §5): the belief the env reads, the protocols an
+estimator implements, the one adapter for an estimator of one vehicle, the registry that finds
+estimators by name, and the health check of a belief.
+
+This package belongs to the ground floor: it imports the models and measurement types only,
+never an estimator or the env, so estimators and the env both build on it.
+"""
+
+from quadslam_env.estimation.health import HEALTH_PROBLEMS, health_codes, position_std
+from quadslam_env.estimation.lane_loop import LaneLoop
+from quadslam_env.estimation.protocol import BatchEstimator, Estimator, IntArray, KnownMaps
+from quadslam_env.estimation.registry import (
+    ENTRY_POINT_GROUP,
+    associates_unlabeled,
+    available,
+    make,
+    register,
+)
+from quadslam_env.estimation.snapshot import BatchEstimate, Estimate, batch_from_estimates
+
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "HEALTH_PROBLEMS",
+    "BatchEstimate",
+    "BatchEstimator",
+    "Estimate",
+    "Estimator",
+    "IntArray",
+    "KnownMaps",
+    "LaneLoop",
+    "associates_unlabeled",
+    "available",
+    "batch_from_estimates",
+    "health_codes",
+    "make",
+    "position_std",
+    "register",
+]

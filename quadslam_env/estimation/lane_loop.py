@@ -1,0 +1,156 @@
+"""The one adapter from a scalar :class:`~quadslam_env.estimation.protocol.Estimator` to the
+batched boundary: a Python loop over B scalar estimators (docs/design.md §9)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from quadslam_env.estimation.protocol import Estimator, IntArray, KnownMaps
+from quadslam_env.estimation.snapshot import (
+    BatchEstimate,
+    Estimate,
+    empty_batch,
+    fill_batch,
+    id_width,
+)
+from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.types import FloatArray
+
+
+class LaneLoop:
+    """A :class:`BatchEstimator` over B scalar estimators, one per lane (a Python loop).
+
+    This is how estimators without a batched implementation (FastSLAM, plug-ins) run in the
+    vector env; its cost is the scalar estimator's times B plus the per-lane conversion of
+    samples, scans and snapshots.
+
+    Args:
+        estimators: The B scalar estimators.
+        landmark_capacity: Initial Lmax of the landmark output arrays (grows as needed).
+    """
+
+    def __init__(self, estimators: Sequence[Estimator], landmark_capacity: int) -> None:
+        self.lanes = list(estimators)
+        self.num_lanes = len(self.lanes)
+        check_memory = getattr(self.lanes[0], "check_memory", None)
+        if check_memory is not None:  # the filters of the whole batch, before they grow
+            check_memory(self.num_lanes, landmark_capacity)
+        self.uses_truth = bool(getattr(self.lanes[0], "uses_truth", False))
+        b = self.num_lanes
+        self._estimates: list[Estimate | None] = [None] * b
+        self._out = empty_batch(b, max(landmark_capacity, 0))
+        self.last_association = np.zeros((b, 0), dtype=np.int64)
+        """(B, R) int the scalar estimators' labels of their last unlabeled scans' returns."""
+
+    def reset_lanes(
+        self,
+        lanes: IntArray,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rngs: Sequence[np.random.Generator],
+        known_landmarks: KnownMaps = None,
+    ) -> None:
+        """Reset each listed lane's scalar estimator (see :class:`BatchEstimator`)."""
+        for j, lane in enumerate(np.asarray(lanes).tolist()):
+            known = None if known_landmarks is None else known_landmarks[j]
+            self.lanes[lane].reset(mean0[j], cov0[j], rngs[j], known_landmarks=known)
+            self._estimates[lane] = None
+
+    def predict(
+        self,
+        t: FloatArray,
+        accel: FloatArray,
+        gyro: FloatArray,
+        accel_sigma: float,
+        gyro_sigma: float,
+        thrust: FloatArray,
+        torque: FloatArray,
+        dt: float,
+        active: np.ndarray,
+    ) -> None:
+        """Call each active lane's ``predict`` with its :class:`ImuSample` and :class:`Control`."""
+        for lane in np.flatnonzero(active).tolist():
+            imu = ImuSample(
+                t=float(t[lane]),
+                accel=accel[lane].copy(),
+                gyro=gyro[lane].copy(),
+                accel_sigma=accel_sigma,
+                gyro_sigma=gyro_sigma,
+            )
+            control = Control(thrust=float(thrust[lane]), torque=torque[lane].copy())
+            self.lanes[lane].predict(imu, control, dt)
+            self._estimates[lane] = None
+
+    def update(
+        self,
+        t: FloatArray,
+        lanes: IntArray,
+        visible: np.ndarray,
+        meas: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Call each listed lane's ``update`` with its :class:`LidarScan` (ids ascending)."""
+        for lane in np.asarray(lanes).tolist():
+            ids = np.flatnonzero(visible[lane])
+            scan = LidarScan(t=float(t[lane]), ids=ids, meas=meas[lane, ids], sigma=sigma)
+            self.lanes[lane].update(scan)
+            self._estimates[lane] = None
+
+    @property
+    def associates_unlabeled(self) -> bool:
+        """Whether the scalar estimators accept unlabeled scans (unknown association)."""
+        return bool(getattr(self.lanes[0], "associates_unlabeled", False))
+
+    def update_unlabeled(
+        self,
+        t: FloatArray,
+        lanes: IntArray,
+        count: np.ndarray,
+        returns: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Call each listed lane's ``update`` with an unlabeled :class:`LidarScan`
+        (``ids=None``) and collect its ``last_association`` (k,) into :attr:`last_association`."""
+        width = returns.shape[1]
+        if self.last_association.shape[1] < width:
+            self.last_association = np.full((self.num_lanes, width), -1, dtype=np.int64)
+        for lane in np.asarray(lanes).tolist():
+            k = int(count[lane])
+            scan = LidarScan(t=float(t[lane]), ids=None, meas=returns[lane, :k].copy(), sigma=sigma)
+            est = self.lanes[lane]
+            est.update(scan)
+            self.last_association[lane] = -1
+            self.last_association[lane, :k] = getattr(est, "last_association", -1)
+            self._estimates[lane] = None
+
+    def set_truth(self, states: FloatArray, landmarks: FloatArray, counts: np.ndarray) -> None:
+        """Feed the truth to estimators that use it (the oracle run as scalar objects)."""
+        for lane, est in enumerate(self.lanes):
+            n = int(counts[lane])
+            est.set_truth(states[lane], np.arange(n), landmarks[lane, :n])  # type: ignore[attr-defined]
+            self._estimates[lane] = None
+
+    def lane_particles(self, lane: int) -> FloatArray | None:
+        """(N, 3) particle positions of lane ``lane`` (m), or ``None`` when its estimator has
+        no particles (for display)."""
+        positions = getattr(self.lanes[lane], "particle_positions", None)
+        return None if positions is None else positions()
+
+    def lane_estimate(self, lane: int) -> Estimate:
+        """The scalar estimator's own snapshot (cached until the lane changes)."""
+        est = self._estimates[lane]
+        if est is None:
+            est = self.lanes[lane].estimate()
+            self._estimates[lane] = est
+        return est
+
+    def estimate(self) -> BatchEstimate:
+        """Stack every lane's :class:`Estimate` into the batch arrays."""
+        snaps = [self.lane_estimate(lane) for lane in range(self.num_lanes)]
+        need = id_width(snaps)
+        if need > self._out.landmark_means.shape[1]:
+            self._out = empty_batch(self.num_lanes, need)
+        fill_batch(self._out, snaps)
+        return self._out

@@ -1,0 +1,159 @@
+"""The one estimator registry: name → class (or factory), built-ins and plug-ins alike.
+
+See docs/design.md §5. The env finds every estimator here by name and never imports one: the
+built-ins are imported on first use through the module paths of ``_MODULES``, plug-ins through
+their ``quadslam.estimators`` entry points, and :func:`register` adds one in this process. A
+registered class is either batched (it implements
+:class:`~quadslam_env.estimation.protocol.BatchEstimator`) or written for one vehicle (an
+:class:`~quadslam_env.estimation.protocol.Estimator`), which :func:`make` runs through the one
+adapter, :class:`~quadslam_env.estimation.lane_loop.LaneLoop`.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import importlib.metadata
+from collections.abc import Callable
+from typing import Any
+
+from quadslam_env.estimation.lane_loop import LaneLoop
+from quadslam_env.estimation.protocol import BatchEstimator
+
+Factory = Callable[..., Any]
+"""A class or factory called as ``factory(vehicle=VehicleParams, **estimator.params)`` (plus
+``num_lanes=`` and ``landmark_capacity=`` when it is batched)."""
+
+_REGISTRY: dict[str, Factory] = {}
+# Modules imported on first use, so the registry stays cheap to import, a broken optional
+# estimator cannot break the others, and nothing below the env imports an estimator.
+_MODULES: dict[str, str] = {
+    "oracle": "estimators.oracle",
+    "ekf_slam": "estimators.ekf",
+    "fastslam": "estimators.fastslam",
+    "fastslam_kinematic": "estimators.fastslam",
+    "isam2": "estimators.isam2",  # needs the optional extra quadslam[gtsam]
+}
+
+ENTRY_POINT_GROUP = "quadslam.estimators"
+"""Entry-point group through which another distribution provides estimators.
+
+A package declares, in its ``pyproject.toml``::
+
+    [project.entry-points."quadslam.estimators"]
+    mine = "my_package.filters:MyFilter"
+
+and ``estimator.name: mine`` then builds ``MyFilter(vehicle=..., **estimator.params)``. The
+object is imported only when an env first builds that estimator.
+"""
+
+
+@functools.cache
+def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
+    """Installed ``quadslam.estimators`` entry points by name (read once per process)."""
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def register(name: str) -> Callable[[Factory], Factory]:
+    """Class decorator that makes an estimator constructible by ``make(name, …)``.
+
+    The class is batched when it has ``reset_lanes`` (a
+    :class:`~quadslam_env.estimation.protocol.BatchEstimator`), else it is one vehicle's
+    :class:`~quadslam_env.estimation.protocol.Estimator`. A name registered here is accepted by
+    the scenario's ``estimator.name`` from then on.
+
+    Raises:
+        ValueError: ``name`` is not a non-empty string.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"estimators.register: got {name!r}; allowed: a non-empty string")
+
+    def deco(cls: Factory) -> Factory:
+        _REGISTRY[name] = cls
+        return cls
+
+    return deco
+
+
+def available() -> list[str]:
+    """Names accepted by :func:`make` and by the scenario's ``estimator.name``.
+
+    The built-in estimators, those registered with :func:`register` in this process, and those
+    of installed ``quadslam.estimators`` entry points (listed without importing them).
+    """
+    return sorted(set(_REGISTRY) | set(_MODULES) | set(_entry_points()))
+
+
+def _load(name: str) -> Factory:
+    """The class registered as ``name``, importing its module or entry point on first use.
+
+    Raises:
+        ValueError: Unknown name, or a plug-in that cannot be loaded or is not callable.
+    """
+    if name not in _REGISTRY and name in _MODULES:
+        importlib.import_module(_MODULES[name])
+    entry = _entry_points().get(name)
+    if name not in _REGISTRY and entry is not None:
+        try:
+            obj = entry.load()
+        except Exception as exc:  # any import error of a third-party plug-in
+            raise ValueError(
+                f"estimator.name: {name!r} (entry point {entry.value!r} of group "
+                f"{ENTRY_POINT_GROUP!r}) cannot be loaded: {type(exc).__name__}: {exc}"
+            ) from exc
+        if not callable(obj):
+            raise ValueError(
+                f"estimator.name: {name!r} (entry point {entry.value!r}) is a "
+                f"{type(obj).__name__}; allowed: an estimator class or factory"
+            )
+        # The module may have registered itself under this name with @register; keep that.
+        _REGISTRY.setdefault(name, obj)
+    if name not in _REGISTRY:
+        raise ValueError(f"estimator.name: got {name!r}; allowed: one of {available()}")
+    return _REGISTRY[name]
+
+
+def is_batched(factory: Factory) -> bool:
+    """Whether a registered class is batched (has ``reset_lanes``) rather than one vehicle's."""
+    return callable(getattr(factory, "reset_lanes", None))
+
+
+def associates_unlabeled(name: str) -> bool:
+    """Whether the estimator ``name`` accepts unlabeled scans (``lidar.association: unknown``).
+
+    Its class says so with ``associates_unlabeled = True``: a batched one then implements
+    ``update_unlabeled`` (see :class:`~quadslam_env.estimation.protocol.BatchEstimator`), one
+    vehicle's takes a :class:`~quadslam_env.measurements.LidarScan` with ``ids=None`` and sets
+    ``last_association`` (k,), the landmark id each return was paired with (-1: none).
+    Estimators that use the truth (the oracle) need no association and accept them too.
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    cls = _load(name)
+    return bool(getattr(cls, "associates_unlabeled", False) or getattr(cls, "uses_truth", False))
+
+
+def make(name: str, num_lanes: int = 1, landmark_capacity: int = 0, **cfg: Any) -> BatchEstimator:
+    """Build the estimator ``name`` for ``num_lanes`` lanes.
+
+    Args:
+        name: Registered name (see :func:`available`).
+        num_lanes: Number of lanes B ≥ 1.
+        landmark_capacity: Lmax, an upper bound on the landmark ids the lanes will see (the
+            estimator may grow beyond it when a reset brings a larger map).
+        **cfg: Keyword settings of the estimator (``vehicle=`` and ``estimator.params``);
+            unknown keys raise ``ValueError``.
+
+    Returns:
+        The batched estimator, or B instances of one vehicle's estimator in a
+        :class:`~quadslam_env.estimation.lane_loop.LaneLoop`.
+
+    Raises:
+        ValueError: Unknown name, a plug-in that cannot be loaded, or invalid settings.
+    """
+    cls = _load(name)
+    if is_batched(cls):
+        est: BatchEstimator = cls(num_lanes=num_lanes, landmark_capacity=landmark_capacity, **cfg)
+        return est
+    return LaneLoop([cls(**cfg) for _ in range(num_lanes)], landmark_capacity)
