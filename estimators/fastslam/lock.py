@@ -2,35 +2,59 @@
 
 from __future__ import annotations
 
-from typing import Any
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from quadslam_env.types import FloatArray
 
 
-def check_lock(filt: Any, nis_per_dof: FloatArray) -> None:
-    """NIS-based loss-of-lock flag of a FastSLAM filter ``filt`` (sticky until its ``reset``).
+@dataclass
+class LockMonitor:
+    """NIS-based loss-of-lock flag of one FastSLAM filter (sticky until the filter's reset).
 
-    ``nis_per_dof`` (N,) is each particle's LiDAR NIS per degree of freedom. The mean over
-    the best 10 % of particles (lowest NIS) is ≈ 1 while the filter is locked; if it stays
-    above ``nis_divergence`` for ``nis_divergence_s`` seconds of filter time no particle
-    explains the scans any more (the weights are then only relative and the estimate is
-    silently wrong), so ``diagnostics["diverged"]`` is set. ``nis_divergence = 0`` disables
-    the check.
+    The mean NIS per degree of freedom over the best 10 % of particles (lowest NIS) is ≈ 1
+    while the filter is locked; if it stays above ``threshold`` for ``hold_s`` seconds of filter
+    time no particle explains the scans any more (the weights are then only relative and the
+    estimate is silently wrong), so the filter reports ``diagnostics["diverged"]``.
+    ``threshold = 0`` disables the check. The two settings stay the filter's
+    (``nis_divergence``, ``nis_divergence_s``) and come with each call.
+
+    Attributes:
+        n_particles: N.
+        best_nis: The last best-10 % mean NIS per degree of freedom (NaN before a scan).
+        high_since: Filter time (s) since which it has stayed above ``threshold``, or ``None``.
+        lost: Whether the lock is lost.
     """
-    k = max(1, filt.n_particles // 10)
-    best = float(np.mean(np.partition(nis_per_dof, k - 1)[:k]))
-    filt._best_nis = best
-    if filt.nis_divergence <= 0.0:
-        return
-    if not best > filt.nis_divergence:  # also catches NaN as "not high"
-        filt._nis_high_since = None
-        return
-    if filt._nis_high_since is None:
-        filt._nis_high_since = filt._time
-    if filt._time - filt._nis_high_since >= filt.nis_divergence_s:
-        if not filt._lost:
-            filt.n_divergences += 1
-        filt._lost = True
-        filt._diverged = True
+
+    n_particles: int
+    best_nis: float = math.nan
+    high_since: float | None = None
+    lost: bool = False
+
+    def check(self, nis_per_dof: FloatArray, t: float, threshold: float, hold_s: float) -> bool:
+        """Take one scan's NIS per degree of freedom (N,) at filter time ``t`` (s).
+
+        Args:
+            nis_per_dof: (N,) each particle's LiDAR NIS per degree of freedom.
+            t: Filter time in s.
+            threshold: ``nis_divergence``, NIS per degree of freedom (0: no check).
+            hold_s: ``nis_divergence_s``, s.
+
+        Returns:
+            Whether the lock was lost at this call (``lost`` turned true now).
+        """
+        k = max(1, self.n_particles // 10)
+        self.best_nis = float(np.mean(np.partition(nis_per_dof, k - 1)[:k]))
+        if threshold <= 0.0:
+            return False
+        if not self.best_nis > threshold:  # also catches NaN as "not high"
+            self.high_since = None
+            return False
+        if self.high_since is None:
+            self.high_since = t
+        if t - self.high_since < hold_s or self.lost:
+            return False
+        self.lost = True
+        return True

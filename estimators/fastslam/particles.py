@@ -17,7 +17,7 @@ import numpy as np
 from estimators.fastslam.associate import ParticleMaps, update_unlabeled
 from estimators.fastslam.gauge import add_gauge_cov, gauge_split, pin_gauge
 from estimators.fastslam.landmarks import landmark_init
-from estimators.fastslam.lock import check_lock
+from estimators.fastslam.lock import LockMonitor
 from estimators.fastslam.moments import landmark_mixture, state_moments
 from estimators.fastslam.process import perturb_particles, wrap_euler_rows
 from estimators.fastslam.progressive import scan_update
@@ -160,9 +160,7 @@ class FastSLAMBase:
         self._nis = math.nan
         self._nis_dof = 0
         self._time = 0.0
-        self._nis_high_since: float | None = None
-        self._lost = False
-        self._best_nis = math.nan
+        self._lock = LockMonitor(self.n_particles)
         self._known_map = False
         self._maps: ParticleMaps | None = None  # per-particle maps (unlabeled scans)
         self._gauge: tuple[FloatArray, FloatArray] | None = None  # (G (4, 4), anchor ρ_a (3,))
@@ -322,7 +320,7 @@ class FastSLAMBase:
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"predict: dt must be a finite number > 0, got {dt!r}")
-        self._diverged = self._lost
+        self._diverged = self._lock.lost
         self._time += dt
         self._nis = math.nan
         self._nis_dof = 0
@@ -429,8 +427,11 @@ class FastSLAMBase:
         """Hook run after resampling in :meth:`update` with the mapped observations."""
 
     def _check_lock(self, nis_per_dof: FloatArray) -> None:
-        """The NIS loss-of-lock flag: :func:`.lock.check_lock`."""
-        check_lock(self, nis_per_dof)
+        """One scan's NIS per degree of freedom (N,) to the loss-of-lock check
+        (:class:`.lock.LockMonitor`); a lost lock marks this step diverged."""
+        if self._lock.check(nis_per_dof, self._time, self.nis_divergence, self.nis_divergence_s):
+            self.n_divergences += 1
+        self._diverged = self._diverged or self._lock.lost
 
     # ---------------------------------------------------------------- estimate
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
@@ -473,8 +474,8 @@ class FastSLAMBase:
             "n_progressive_stages": float(self.n_progressive_stages),
             "nis": self._nis,
             "nis_dof": float(self._nis_dof),
-            "diverged": 1.0 if (self._diverged or self._lost) else 0.0,
-            "best_nis_per_dof": self._best_nis,
+            "diverged": 1.0 if (self._diverged or self._lock.lost) else 0.0,
+            "best_nis_per_dof": self._lock.best_nis,
             "n_divergences": float(self.n_divergences),
             **self._extra_diagnostics(),
         }
