@@ -521,8 +521,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # A command may build EKF-SLAM envs: on a cold numba cache, compile its update in a second
     # process meanwhile (a library user asks for that explicitly).
     from estimators.ekf import warmup
+    from quadslam_env.models.jit import announce_compilation
 
     warmup.enable()
+    announce_compilation()  # a cold cache: one line saying why the first step takes a while
     try:
         with sigterm_as_interrupt():
             code = int(args.func(args))

@@ -12,6 +12,7 @@ from typing import ClassVar
 import pytest
 
 from estimators.ekf import warmup
+from quadslam_env.models.jit import COMPILE_NOTICE
 
 # A fresh process with an empty cache that asks for the warm-up: the env's filter starts the
 # warm-up process, the first scan waits for it; numba's compile events say which kernels this
@@ -26,13 +27,16 @@ class Listener(event.Listener):
 event.register("numba:compile", Listener())
 import gymnasium as gym, numpy as np, quadslam_env
 from estimators.ekf import warmup
+from quadslam_env.models.jit import announce_compilation
+notices = []
+announce_compilation(notices.append)
 warmup.enable()
 env = gym.make("QuadSLAM-EKF-v0")
 started = warmup._process is not None
 env.reset(seed=0)
 for _ in range(12):  # the LiDAR scans at step 10
     env.step(np.zeros(4, dtype=np.float32))
-print(json.dumps({"started": started, "compiled": compiled}))
+print(json.dumps({"started": started, "compiled": compiled, "notices": notices}))
 """
 
 
@@ -50,9 +54,10 @@ def test_env_loads_the_update_the_warmup_process_compiled(tmp_path: Path) -> Non
     assert result["started"]
     assert "update_lanes" not in result["compiled"]  # loaded from the warm-up's cache entry
     assert "predict_lanes" in result["compiled"]  # this process did compile (cache was cold)
-    again = _probe(tmp_path)  # warm cache: no warm-up process, nothing compiled
+    assert result["notices"] == [COMPILE_NOTICE]  # one line saying why, once
+    again = _probe(tmp_path)  # warm cache: no warm-up process, nothing compiled, no notice
     assert not again["started"]
-    assert again["compiled"] == []
+    assert again["compiled"] == [] and again["notices"] == []
 
 
 class _FakePopen:

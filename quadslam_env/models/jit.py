@@ -13,12 +13,14 @@ warn once.
 
 from __future__ import annotations
 
+import sys
 import warnings
 from collections.abc import Callable
 from functools import partial
 from typing import Any, TypeVar
 
 from numba import guvectorize, njit, vectorize
+from numba.core import event
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -88,3 +90,37 @@ def generalized(signature: str, layout: str) -> Callable[[Callable[..., Any]], A
     ``Any`` (a gufunc), not the kernel's signature.
     """
     return partial(_compile, decorator=partial(guvectorize, [signature], layout))
+
+
+COMPILE_NOTICE = "compiling kernels (first run only: numba caches them for the next runs)"
+
+
+class _CompileNotice(event.Listener):
+    """Writes :data:`COMPILE_NOTICE` once, at the first compilation in this process."""
+
+    def __init__(self, write: Callable[[str], object]) -> None:
+        self.write: Callable[[str], object] | None = write
+
+    def on_start(self, ev: event.Event) -> None:
+        if self.write is not None:
+            write, self.write = self.write, None
+            write(COMPILE_NOTICE)
+
+    def on_end(self, ev: event.Event) -> None:
+        """Nothing at the end of a compilation."""
+
+
+def announce_compilation(write: Callable[[str], object] | None = None) -> None:
+    """Say in one line when this process first compiles a kernel (nothing on a warm cache).
+
+    A cold cache costs the first run tens of seconds before the first step; a command-line
+    tool calls this so that the wait has a reason on screen.
+
+    Args:
+        write: Where the line goes (default: a line on stderr).
+    """
+    event.register("numba:compile", _CompileNotice(write or _to_stderr))
+
+
+def _to_stderr(line: str) -> None:
+    print(f"quadslam: {line}", file=sys.stderr, flush=True)
