@@ -1,7 +1,7 @@
 """MkDocs hooks: fill the generated sections of the documentation pages at build time.
 
 A page asks for a generated section with an HTML comment marker (see ``MARKERS``); the content
-comes from :mod:`agents.reference`, i.e. from the validated config specs, the estimators'
+comes from :mod:`agents.cli.reference`, i.e. from the validated config specs, the estimators'
 validators and the CLI's argument parser, so the pages cannot go stale.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from agents import reference
+from agents.cli import reference
 
 MARKERS: dict[str, Callable[[], str]] = {
     "<!-- generated: scenario-settings -->": reference.scenario_settings_markdown,

@@ -1,0 +1,1 @@
+"""What every command shares with the outside: output files written atomically, process memory."""
