@@ -7,7 +7,7 @@
   vector-env adapter;
 - :mod:`agents.evaluation`: seeded episodes of a policy, their summaries, figures and videos;
 - :mod:`agents.control`: the DF-LQR baseline and the look-at heuristic;
-- :mod:`agents.io`: output files written atomically, process memory.
+- :mod:`agents.io`: output files written atomically, ``--set`` overrides, process memory.
 
 Importing a package imports none of its modules.
 """

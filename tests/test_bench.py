@@ -18,7 +18,8 @@ import pytest
 from agents.bench import process as bench_process
 from agents.bench import runner as bench
 from agents.bench.envs import VECTOR_SCENARIOS
-from agents.bench.runner import SECTION_NAMES, TINY, sections
+from agents.bench.plan import TINY
+from agents.bench.runner import SECTION_NAMES, sections
 from agents.cli.main import main
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from agents.bench.envs import _env_rate, _note, vector_rates
-from agents.bench.runner import Plan, Results
+from agents.bench.plan import Plan, Results
 
 SCENARIO = "paper_ekf_figure8_unknown"
 WIDE = {"lidar": {"azimuth_fov_deg": 90.0}}  # about 10 landmarks in view of 40

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.bench.runner import Plan, Results
+from agents.bench.plan import Plan, Results
 
 # (label, env id, make kwargs) of the vector-env scenarios.
 VECTOR_SCENARIOS: tuple[tuple[str, str, dict[str, Any]], ...] = (

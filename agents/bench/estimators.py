@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 import estimators
-from agents.bench.runner import Plan, Results
+from agents.bench.plan import Plan, Results
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.lidar import lidar_measure

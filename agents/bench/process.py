@@ -20,7 +20,7 @@ import tempfile
 import time
 from typing import Any
 
-from agents.bench.runner import Plan, Results
+from agents.bench.plan import Plan, Results
 from agents.io.memory import peak_rss_mb
 
 MEMORY_ENV_ID = "QuadSLAM-EKF-v0"  # default scenario paper_ekf_figure8: unknown map

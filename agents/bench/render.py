@@ -24,7 +24,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from agents.bench.runner import Plan, Results
+from agents.bench.plan import Plan, Results
 
 # Per plan: (timed frames per sample, warm-up s, episode s, episode repeats).
 SIZES = {"tiny": (4, 0.5, 2.0, 1), "quick": (50, 10.0, 50.0, 1), "full": (100, 10.0, 50.0, 3)}

@@ -436,8 +436,8 @@ def _clean(value: Any) -> Any:
 
 def cli_bound(args: Any) -> int:
     """``quadslam study bound``: fly, bound, print the table, write JSON and the figure."""
-    from agents.cli.main import parse_overrides
     from agents.io.outputs import Saver, check_output_dir, check_output_file
+    from agents.io.overrides import parse_overrides
 
     if args.json is not None:  # every output path before the flight
         check_output_file(args.json, "--json")

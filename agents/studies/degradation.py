@@ -31,6 +31,7 @@ from scipy.stats import chi2
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
+from agents.io.overrides import parse_overrides
 
 AFTER_S = 5.0
 """Seconds after a gap's end at which the re-lock error is read."""
@@ -187,8 +188,6 @@ def format_summary(summary: dict[str, Any]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m agents.studies.degradation``: record, summarise, print, write ``--json``."""
-    from agents.cli.main import parse_overrides
-
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.degradation", description=__doc__
     )

@@ -25,6 +25,7 @@ import numpy as np
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
+from agents.io.overrides import parse_overrides
 
 
 def split_at_instants(
@@ -72,8 +73,6 @@ def split_at_instants(
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m agents.studies.imu_instants``: print (and with ``--json`` write) the split."""
-    from agents.cli.main import parse_overrides
-
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.imu_instants", description=__doc__
     )

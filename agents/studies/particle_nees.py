@@ -29,6 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 import quadslam_env  # noqa: F401  (registers the ids)
+from agents.io.overrides import parse_overrides
 from agents.studies.degradation import save_json, seeded_lanes
 from quadslam_env.models.frames import wrap_angle
 
@@ -175,8 +176,6 @@ HEADER = (
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m agents.studies.particle_nees``: record, summarise, print, write ``--json``."""
-    from agents.cli.main import parse_overrides
-
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.particle_nees", description=__doc__
     )
