@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 
 import quadslam_env
-from agents.dflqr import DFLQRPolicy
+from agents.control.dflqr import DFLQRPolicy
 
 HEAVY = ("torch", "stable_baselines3", "tensorboard", "matplotlib")
 BIN = Path(sys.executable).parent

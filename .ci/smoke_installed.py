@@ -19,7 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 import quadslam_env
-from agents.dflqr import DFLQRPolicy
+from agents.control.dflqr import DFLQRPolicy
 
 BIN = Path(sys.executable).parent
 
@@ -85,7 +85,7 @@ def main() -> None:
     assert abs(evaluated["episodes"][0]["duration_s"] - 0.5) < 1e-6, evaluated["episodes"]
     # The example sweep specs are package data; without the `ray` extra, `quadslam sweep`
     # checks the spec and then says in one line how to get Ray.
-    from agents.sweep_spec import load_spec
+    from agents.sweep.spec import load_spec
 
     assert len(load_spec("rauniyar2023_table")) == 20
     done = subprocess.run(

@@ -108,7 +108,7 @@ def main() -> None:
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
-    from agents.dflqr import DFLQRPolicy
+    from agents.control.dflqr import DFLQRPolicy
 
     env = gym.make(
         "QuadSLAM-v0",

@@ -415,7 +415,7 @@ class SimCore:
     def true_observation(self) -> np.ndarray:
         """Observations (B, n) float32 built from the *true* state (the layout of the env's).
 
-        Privileged information for training critics only (``agents.asymmetric``); the env's
+        Privileged information for training critics only (``agents.rl.asymmetric``); the env's
         own observations come from the estimate. With ``pos_uncertainty`` its entries are 0.
         """
         if self._truth is None:

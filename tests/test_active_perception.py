@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401
-from agents.dflqr import DFLQRPolicy
-from agents.lookat import LookAtPolicy, aim_azimuth
+from agents.control.dflqr import DFLQRPolicy
+from agents.control.lookat import LookAtPolicy, aim_azimuth
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.estimation import BatchEstimate
 from quadslam_env.observation import nearest_landmarks

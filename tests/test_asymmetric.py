@@ -11,11 +11,11 @@ import pytest
 import torch
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.asymmetric import AsymmetricActorCriticPolicy
-from agents.lane_share import ACTOR_KEY, PRIVILEGED_KEY
-from agents.loading import load_model
-from agents.training import train
-from agents.vec_adapter import QuadSLAMVecEnv
+from agents.rl.asymmetric import AsymmetricActorCriticPolicy
+from agents.rl.lane_share import ACTOR_KEY, PRIVILEGED_KEY
+from agents.rl.loading import load_model
+from agents.rl.training import train
+from agents.rl.vec_adapter import QuadSLAMVecEnv
 
 SHORT = {"episode": {"duration_s": 0.3}}  # 30 steps
 

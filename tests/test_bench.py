@@ -15,10 +15,12 @@ from pathlib import Path
 
 import pytest
 
-from agents import bench, bench_process
-from agents.bench import SECTION_NAMES, TINY, sections
-from agents.bench_envs import VECTOR_SCENARIOS
-from agents.cli import main
+from agents.bench import process as bench_process
+from agents.bench import runner as bench
+from agents.bench.envs import VECTOR_SCENARIOS
+from agents.bench.plan import TINY
+from agents.bench.runner import SECTION_NAMES, sections
+from agents.cli.main import main
 
 
 @pytest.fixture(scope="module")

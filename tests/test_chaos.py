@@ -26,10 +26,10 @@ from typing import Any
 import gymnasium as gym
 import pytest
 
-import agents.outputs as outputs
+import agents.io.outputs as outputs
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli import main
-from agents.outputs import OutputWriteError, Saver, check_output_dir, check_output_file
+from agents.cli.main import main
+from agents.io.outputs import OutputWriteError, Saver, check_output_dir, check_output_file
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.config_files import available_scenarios
 
@@ -51,17 +51,17 @@ def no_work(monkeypatch: pytest.MonkeyPatch) -> None:
     def forbidden(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("the work started before the output paths were checked")
 
-    import agents.bench
-    import agents.evaluation
-    import agents.policies
-    import agents.study_cost
-    import agents.training
+    import agents.bench.runner
+    import agents.evaluation.episodes
+    import agents.rl.policies
+    import agents.rl.training
+    import agents.studies.cost
 
-    monkeypatch.setattr(agents.evaluation, "run_episodes", forbidden)
-    monkeypatch.setattr(agents.policies, "load_policy", forbidden)
-    monkeypatch.setattr(agents.bench, "run_bench", forbidden)
-    monkeypatch.setattr(agents.study_cost, "run_study", forbidden)
-    monkeypatch.setattr(agents.training, "train", forbidden)
+    monkeypatch.setattr(agents.evaluation.episodes, "run_episodes", forbidden)
+    monkeypatch.setattr(agents.rl.policies, "load_policy", forbidden)
+    monkeypatch.setattr(agents.bench.runner, "run_bench", forbidden)
+    monkeypatch.setattr(agents.studies.cost, "run_study", forbidden)
+    monkeypatch.setattr(agents.rl.training, "train", forbidden)
 
 
 def _inside(path: Any, folder: Path) -> bool:
@@ -288,14 +288,14 @@ def test_plots_and_video_on_a_full_disk_go_to_one_temp_folder(
 def test_bench_json_that_cannot_be_written_is_kept(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    import agents.bench
+    import agents.bench.runner
 
     doc = {
         "machine": {"cpu": "test", "cores": 1},
         "wall_time_s": 0.0,
         "results": [],
     }
-    monkeypatch.setattr(agents.bench, "run_bench", lambda *a, **k: doc)
+    monkeypatch.setattr(agents.bench.runner, "run_bench", lambda *a, **k: doc)
     failing_rename(monkeypatch, tmp_path)
     code, _, line = cli(capsys, ["bench", "--quick", "--json", str(tmp_path / "b.json")])
     assert code == 2 and line.startswith("quadslam bench: error: --json: could not write")
@@ -309,11 +309,11 @@ def test_study_json_that_cannot_be_written_is_kept(
     tmp_path: Path,
     temp_root: Path,
 ) -> None:
-    import agents.study_cost
+    import agents.studies.cost
 
     result: dict[str, Any] = {"rows": [], "settings": {"x": float("nan")}}
-    monkeypatch.setattr(agents.study_cost, "run_study", lambda *a, **k: result)
-    monkeypatch.setattr(agents.study_cost, "format_study", lambda r: "table")
+    monkeypatch.setattr(agents.studies.cost, "run_study", lambda *a, **k: result)
+    monkeypatch.setattr(agents.studies.cost, "format_study", lambda r: "table")
     full_disk(monkeypatch, tmp_path / "res")
     target = tmp_path / "res" / "study.json"
     argv = ["study", "cost-of-estimation", "--quick", "--out", str(tmp_path / "runs")]
@@ -389,7 +389,7 @@ def test_explicit_empty_mapping_still_means_defaults(tmp_path: Path) -> None:
 
 
 def test_duplicate_key_in_an_agent_yaml_names_key_and_file(tmp_path: Path) -> None:
-    from agents.hyperparams import load_hyperparams
+    from agents.rl.hyperparams import load_hyperparams
 
     path = tmp_path / "ppo.yaml"
     path.write_text("QuadSLAM-EKF-v0:\n  n_steps: 64\n  n_steps: 128\n")
@@ -668,9 +668,9 @@ def _default_signals() -> None:
 
 
 def start_cli(argv: list[str]) -> subprocess.Popen[str]:
-    """``python -m agents.cli ARGV`` in a child process with the default signal handling."""
+    """``python -m agents.cli.main ARGV`` in a child process with the default signal handling."""
     return subprocess.Popen(
-        [sys.executable, "-m", "agents.cli", *argv],
+        [sys.executable, "-m", "agents.cli.main", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -832,19 +832,19 @@ def test_sigterm_while_saving_is_held_until_the_run_folder_is_complete(
     the learning-curve plot: the folder is completed, then the command ends with 143."""
     from stable_baselines3 import PPO
 
-    import agents.training
+    import agents.rl.training
 
     def terminated_learn(self: Any, *args: Any, **kwargs: Any) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
-    plot = agents.training.plot_learning_curve
+    plot = agents.rl.training.plot_learning_curve
 
     def plot_with_sigterm(run_dir: Path) -> None:
         os.kill(os.getpid(), signal.SIGTERM)  # held until timing.json is written
         plot(run_dir)
 
     monkeypatch.setattr(PPO, "learn", terminated_learn)
-    monkeypatch.setattr(agents.training, "plot_learning_curve", plot_with_sigterm)
+    monkeypatch.setattr(agents.rl.training, "plot_learning_curve", plot_with_sigterm)
     before = signal.getsignal(signal.SIGTERM)
     out = tmp_path / "runs"
     assert main(train_argv(out, 256)) == 143
@@ -863,8 +863,8 @@ def test_sigterm_stops_a_study_after_its_training_saved(
     (exit 143, one line) instead of going on to its next training."""
     from stable_baselines3 import PPO
 
-    import agents.study_cost
-    from agents.training import train
+    import agents.studies.cost
+    from agents.rl.training import train
 
     def terminated_learn(self: Any, *args: Any, **kwargs: Any) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
@@ -880,7 +880,7 @@ def test_sigterm_stops_a_study_after_its_training_saved(
         raise AssertionError("the study went on after SIGTERM")
 
     monkeypatch.setattr(PPO, "learn", terminated_learn)
-    monkeypatch.setattr(agents.study_cost, "run_study", study)
+    monkeypatch.setattr(agents.studies.cost, "run_study", study)
     argv = ["study", "cost-of-estimation", "--quick", "--out", str(tmp_path / "s")]
     code, _, line = cli(capsys, argv)
     assert code == 143 and not trained

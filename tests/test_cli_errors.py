@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from agents.cli import main
+from agents.cli.main import main
 
 RUN = ["run", "--duration", "0.5", "--no-plots"]
 EVALUATE = ["evaluate", "--duration", "0.5", "--episodes", "1"]
@@ -315,13 +315,13 @@ def _gym_error() -> Exception:
 
 
 def _disk_full() -> Exception:
-    from agents.outputs import DiskFullError
+    from agents.io.outputs import DiskFullError
 
     return DiskFullError("no space left on device writing x; resume with: y")
 
 
 def _terminated() -> BaseException:
-    from agents.outputs import Terminated
+    from agents.io.outputs import Terminated
 
     return Terminated()
 
@@ -345,9 +345,9 @@ CAUGHT = [
 def test_main_reports_user_errors_and_signals_in_one_line(
     capsys, monkeypatch, make, status, fragment
 ):
-    import agents.cli
+    import agents.cli.main
 
-    monkeypatch.setattr(agents.cli, "cmd_scenarios", _raising(make()))
+    monkeypatch.setattr(agents.cli.main, "cmd_scenarios", _raising(make()))
     assert main(["scenarios"]) == status
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and fragment in lines[0], lines
@@ -356,8 +356,8 @@ def test_main_reports_user_errors_and_signals_in_one_line(
 
 @pytest.mark.parametrize("exc", [TypeError("a bug"), KeyError("a bug"), AttributeError("bug")])
 def test_main_lets_bugs_show_their_traceback(monkeypatch, exc):
-    import agents.cli
+    import agents.cli.main
 
-    monkeypatch.setattr(agents.cli, "cmd_scenarios", _raising(exc))
+    monkeypatch.setattr(agents.cli.main, "cmd_scenarios", _raising(exc))
     with pytest.raises(type(exc)):
         main(["scenarios"])

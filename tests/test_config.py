@@ -245,8 +245,8 @@ def test_vehicle_presets_and_overrides():
 
 def test_exponent_floats_without_a_dot_are_numbers(tmp_path: Path) -> None:
     """PyYAML (YAML 1.1) reads ``1e-4`` as a string; configs and overrides must not."""
-    from agents.cli import parse_overrides
-    from agents.hyperparams import parse_hyperparam_overrides
+    from agents.io.overrides import parse_overrides
+    from agents.rl.hyperparams import parse_hyperparam_overrides
 
     assert parse_overrides(["estimator.params.x=1e-4"]) == {"estimator": {"params": {"x": 1e-4}}}
     assert parse_hyperparam_overrides(["learning_rate=3E-4"]) == {"learning_rate": 3e-4}

@@ -11,7 +11,7 @@ from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 
 import quadslam_env  # noqa: F401
-from agents.dflqr import Q_TILDE, R_TILDE, DFLQRPolicy, lqr_gain
+from agents.control.dflqr import Q_TILDE, R_TILDE, DFLQRPolicy, lqr_gain
 from quadslam_env.models.flatness import inverse_mapping
 from quadslam_env.models.frames import rot1, rot2, rot3
 from quadslam_env.types import GRAVITY

@@ -12,9 +12,9 @@ import gymnasium as gym
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from agents import reference
-from agents.cli import build_parser
-from agents.dflqr import DFLQRPolicy
+from agents.cli import reference
+from agents.cli.main import build_parser
+from agents.control.dflqr import DFLQRPolicy
 from quadslam_env.config import SECTIONS
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -493,8 +493,8 @@ def test_helix_closed_loop_identifies_both_biases_within_20_percent() -> None:
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
-    from agents.dflqr import DFLQRPolicy
-    from agents.evaluation import run_episode
+    from agents.control.dflqr import DFLQRPolicy
+    from agents.evaluation.episodes import run_episode
 
     env = gym.make("QuadSLAM-v0", scenario="paper_fastslam_helix", episode={"duration_s": 20.0})
     policy = DFLQRPolicy.from_env(env)

@@ -15,8 +15,8 @@ import yaml
 from torch import nn
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli import main
-from agents.hyperparams import (
+from agents.cli.main import main
+from agents.rl.hyperparams import (
     ACTIVATIONS,
     ASYMMETRIC,
     build_policy_kwargs,
@@ -25,8 +25,8 @@ from agents.hyperparams import (
     resolve_settings,
     validate_policy_kwargs,
 )
-from agents.sweep_spec import SweepSpecError, parse_spec
-from agents.training import _build_model, _make_vec_env, resume, train
+from agents.rl.training import _build_model, _make_vec_env, resume, train
+from agents.sweep.spec import SweepSpecError, parse_spec
 from quadslam_env.config import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -239,8 +239,8 @@ def test_plain_policy_kwargs_pass_as_data() -> None:
 
 
 def test_asymmetric_policy_fixes_its_features_extractors_in_one_place() -> None:
-    from agents.asymmetric import AsymmetricActorCriticPolicy
-    from agents.lane_share import ACTOR_KEY, PRIVILEGED_KEY
+    from agents.rl.asymmetric import AsymmetricActorCriticPolicy
+    from agents.rl.lane_share import ACTOR_KEY, PRIVILEGED_KEY
 
     with pytest.raises(ConfigError, match="features_extractor_kwargs: fixed by Asymmetric"):
         validate_policy_kwargs({"features_extractor_kwargs": {}}, ASYMMETRIC)

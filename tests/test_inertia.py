@@ -150,8 +150,8 @@ def test_helix_with_inertia_plus_150_percent_matches_the_true_model() -> None:
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
-    from agents.dflqr import DFLQRPolicy
-    from agents.evaluation import run_episode
+    from agents.control.dflqr import DFLQRPolicy
+    from agents.evaluation.episodes import run_episode
 
     env = gym.make(
         "QuadSLAM-v0",

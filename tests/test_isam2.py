@@ -13,7 +13,7 @@ import pytest
 
 import estimators
 import quadslam_env  # noqa: F401  (registers the env ids)
-from agents.dflqr import DFLQRPolicy
+from agents.control.dflqr import DFLQRPolicy
 from estimators.isam2.factors import (
     known_map_error,
     landmark_error,

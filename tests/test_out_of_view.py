@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.degradation import record, summarise
-from agents.dflqr import DFLQRPolicy
+from agents.control.dflqr import DFLQRPolicy
+from agents.studies.degradation import record, summarise
 from estimators.ekf.filter import EkfSlamBatch
 from quadslam_env.config import load_scenario
 from quadslam_env.models.lidar import lidar_measure

@@ -11,8 +11,8 @@ import pytest
 from scipy.stats import chi2
 
 import quadslam_env  # noqa: F401
-from agents.dflqr import DFLQRPolicy
-from agents.evaluation import STEADY_KEYS, TRANSIENT_KEYS, run_episode, summarize
+from agents.control.dflqr import DFLQRPolicy
+from agents.evaluation.episodes import STEADY_KEYS, TRANSIENT_KEYS, run_episode, summarize
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.types import GRAVITY

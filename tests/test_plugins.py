@@ -13,7 +13,7 @@ import pytest
 
 import estimators
 import quadslam_env  # noqa: F401  (registers the env ids)
-from agents.dflqr import DFLQRPolicy
+from agents.control.dflqr import DFLQRPolicy
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.estimation import registry as base
 

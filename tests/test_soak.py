@@ -1,6 +1,6 @@
-"""Shortened soak runs (the hour-long version is ``python -m agents.soak``, see its docstring):
-long flights stay finite, covariances stay symmetric PSD, and memory does not grow per step
-beyond the map."""
+"""Shortened soak runs (the hour-long version is ``python -m agents.studies.soak``, see its
+docstring): long flights stay finite, covariances stay symmetric PSD, and memory does not grow
+per step beyond the map."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.soak import cov_health, main, run_soak
+from agents.studies.soak import cov_health, main, run_soak
 
 RSS_GROWTH_LIMIT_MB = 25.0
 """Allowed RSS growth over a shortened soak: a few MiB of map, caches and allocator slack."""

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401
-from agents.evaluation import Trace
-from agents.lookat import LookAtPolicy
-from agents.study_active import ENV_ID, fly, format_study, plot_study, row_result
-from agents.wrappers import ResidualDFLQRWrapper
+from agents.control.lookat import LookAtPolicy
+from agents.evaluation.episodes import Trace
+from agents.rl.wrappers import ResidualDFLQRWrapper
+from agents.studies.active import ENV_ID, fly, format_study, plot_study, row_result
 
 SHORT = {"episode": {"duration_s": 6.0}}  # the study's 5 s transient, then 1 s steady
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import gymnasium as gym
 import pytest
 
-import agents.study_association as study
+import agents.studies.association as study
 import quadslam_env  # noqa: F401
-from agents.dflqr import DFLQRPolicy
-from agents.evaluation import run_episodes
+from agents.control.dflqr import DFLQRPolicy
+from agents.evaluation.episodes import run_episodes
 
 
 def test_quick_study_runs_and_its_known_row_is_the_labeled_scenario(

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents import cli
-from agents.dflqr import DFLQRPolicy
-from agents.evaluation import run_episodes
-from agents.study_bound import TruthRecorder, figure_name, run_bound_study
+from agents.cli import main as cli
+from agents.control.dflqr import DFLQRPolicy
+from agents.evaluation.episodes import run_episodes
+from agents.studies.bound import TruthRecorder, figure_name, run_bound_study
 
 SCENARIO = "paper_ekf_figure8_known"
 

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from agents import cli, cli_study
-from agents.study_cost import TRAINED, run_study, write_json
+from agents.cli import main as cli
+from agents.cli import study as cli_study
+from agents.studies.cost import TRAINED, run_study, write_json
 
 
 @pytest.fixture(scope="module")

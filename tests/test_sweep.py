@@ -21,10 +21,10 @@ import yaml
 ray = pytest.importorskip("ray")
 pd = pytest.importorskip("pandas")
 
-from agents.cli import main  # noqa: E402
-from agents.evaluation import EPISODE_KEYS  # noqa: E402
-from agents.sweep import SweepError, run_sweep  # noqa: E402
-from agents.sweep_spec import load_spec  # noqa: E402
+from agents.cli.main import main  # noqa: E402
+from agents.evaluation.episodes import EPISODE_KEYS  # noqa: E402
+from agents.sweep.driver import SweepError, run_sweep  # noqa: E402
+from agents.sweep.spec import load_spec  # noqa: E402
 
 SCENARIOS = ["paper_ekf_figure8", "paper_ekf_figure8_known"]
 # Everything of an episode record but its wall-clock speed.
@@ -177,7 +177,7 @@ def _default_signals() -> None:
 def _start_sweep(spec: Path, out: Path) -> subprocess.Popen:
     argv = ["sweep", str(spec), "--out", str(out), "--workers", "1"]
     return subprocess.Popen(
-        [sys.executable, "-m", "agents.cli", *argv],
+        [sys.executable, "-m", "agents.cli.main", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -295,11 +295,11 @@ def test_full_disk_keeps_the_finished_jobs_and_says_how_to_resume(
 ):
     import errno
 
-    import agents.outputs
+    import agents.io.outputs
 
     spec = _spec(tmp_path, [{"kind": "run", "seeds": 3, "set": {"episode.duration_s": 1}}])
     out = tmp_path / "out"
-    real = agents.outputs._write_bytes
+    real = agents.io.outputs._write_bytes
     results = {"n": 0}
 
     def write(path, data):
@@ -309,7 +309,7 @@ def test_full_disk_keeps_the_finished_jobs_and_says_how_to_resume(
                 raise OSError(errno.ENOSPC, "No space left on device")
         real(path, data)
 
-    monkeypatch.setattr(agents.outputs, "_write_bytes", write)
+    monkeypatch.setattr(agents.io.outputs, "_write_bytes", write)
     code = main(["sweep", str(spec), "--out", str(out), "--workers", "1"])
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err
@@ -320,7 +320,7 @@ def test_full_disk_keeps_the_finished_jobs_and_says_how_to_resume(
     assert len(_finished(out)) == 1
     assert not list(out.rglob(".*.tmp-*"))  # no torn file anywhere
 
-    monkeypatch.setattr(agents.outputs, "_write_bytes", real)
+    monkeypatch.setattr(agents.io.outputs, "_write_bytes", real)
     report = run_sweep(spec, out, resume=True, progress=False)
     assert len(report.skipped) == 1 and len(report.ran) == 2
     assert len(pd.read_csv(out / "results.csv")) == 3

@@ -20,27 +20,27 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import VecNormalize
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents import cli
-from agents.callbacks import EstimationMetricsCallback
-from agents.dflqr import DFLQRPolicy
-from agents.evaluation import (
+from agents.cli import main as cli
+from agents.control.dflqr import DFLQRPolicy
+from agents.evaluation.episodes import (
     EPISODE_KEYS,
     STEADY_KEYS,
     SUMMARY_KEYS,
     TRANSIENT_KEYS,
     run_episode,
 )
-from agents.hyperparams import (
+from agents.rl.callbacks import EstimationMetricsCallback
+from agents.rl.hyperparams import (
     RESERVED_KEYS,
     default_config_path,
     load_hyperparams,
     resolve_settings,
 )
-from agents.loading import TrainedPolicy, load_model
-from agents.policies import load_policy
-from agents.run_folder import run_config
-from agents.training import _make_vec_env, train
-from agents.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
+from agents.rl.loading import TrainedPolicy, load_model
+from agents.rl.policies import load_policy
+from agents.rl.run_folder import run_config
+from agents.rl.training import _make_vec_env, train
+from agents.rl.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
 
 ALGOS = ("ppo", "sac")
 SHORT = {"episode": {"duration_s": 1.0}}
@@ -236,7 +236,7 @@ def test_metrics_callback_averages_finite_info_values_and_counts_failures() -> N
 
 def test_metrics_callback_reads_the_adapter_arrays_as_it_reads_the_lane_infos() -> None:
     """The batched path (``step_info`` arrays) logs the same means as the per-lane dicts."""
-    from agents.vec_adapter import QuadSLAMVecEnv
+    from agents.rl.vec_adapter import QuadSLAMVecEnv
 
     env_kwargs = {"episode": {"duration_s": 0.3}}
     adapter = QuadSLAMVecEnv(main_env(), 3, seed=4, **env_kwargs)
@@ -388,12 +388,12 @@ def test_values_sb3_rejects_fail_before_the_run_folder(
 def test_interrupted_training_exits_130(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    import agents.training
+    import agents.rl.training
 
     run = tmp_path / "run"
     run.mkdir()
     (run / "INTERRUPTED").write_text("4096\n")
-    monkeypatch.setattr(agents.training, "train", lambda *a, **k: run)
+    monkeypatch.setattr(agents.rl.training, "train", lambda *a, **k: run)
     code = cli.main(["train", "--algo", "ppo", "--out", str(tmp_path)])
     assert code == 130 and "partial" in capsys.readouterr().err
 
@@ -408,19 +408,19 @@ def test_a_second_interrupt_while_saving_leaves_a_complete_run_folder(
 
     from stable_baselines3 import PPO
 
-    import agents.training
+    import agents.rl.training
 
     def interrupted_learn(self: Any, *args: Any, **kwargs: Any) -> None:
         raise KeyboardInterrupt
 
-    plot = agents.training.plot_learning_curve
+    plot = agents.rl.training.plot_learning_curve
 
     def plot_with_second_interrupt(run_dir: Path) -> None:
         os.kill(os.getpid(), signal.SIGINT)  # delivered here, in the main thread
         plot(run_dir)
 
     monkeypatch.setattr(PPO, "learn", interrupted_learn)
-    monkeypatch.setattr(agents.training, "plot_learning_curve", plot_with_second_interrupt)
+    monkeypatch.setattr(agents.rl.training, "plot_learning_curve", plot_with_second_interrupt)
     out = tmp_path / "runs"
     args = ["train", "--algo", "ppo", "--env", main_env(), "--timesteps", "128", "--n-envs", "1"]
     args += ["--out", str(out), "--no-progress", "--hyperparams", "n_steps=64", "batch_size=32"]
@@ -436,7 +436,7 @@ def test_a_second_interrupt_while_saving_leaves_a_complete_run_folder(
 def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
     # The actions the env received inside the training pipeline (VecNormalize + residual on
     # the lanes + model) must equal TrainedPolicy.predict on the raw env.
-    from agents.hyperparams import resolve_settings as _resolve
+    from agents.rl.hyperparams import resolve_settings as _resolve
 
     config = yaml.safe_load((cli_run / "config.yaml").read_text())
     settings = _resolve("ppo", config["hyperparams"])
@@ -578,7 +578,7 @@ def test_sac_collects_from_several_lanes(tmp_path: Path) -> None:
 
 
 def test_resume_continues_from_the_latest_checkpoint(tmp_path: Path) -> None:
-    from agents.training import latest_checkpoint, resume
+    from agents.rl.training import latest_checkpoint, resume
 
     hp = tiny("ppo", checkpoint_freq=64, eval_freq=0)
     run = train("ppo", main_env(), timesteps=128, n_envs=2, out_dir=tmp_path, progress=False,
@@ -601,7 +601,7 @@ def test_resume_continues_from_the_latest_checkpoint(tmp_path: Path) -> None:
 
 
 def test_resume_needs_a_run_folder_with_something_saved(tmp_path: Path) -> None:
-    from agents.training import resume
+    from agents.rl.training import resume
 
     with pytest.raises(ValueError, match="not a run folder"):
         resume(tmp_path, progress=False)

@@ -15,10 +15,10 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv, VecCheckNan, VecMonitor, VecNormalize
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.dflqr import DFLQRPolicy
-from agents.evaluation import EPISODE_KEYS, Trace, run_episode, run_episodes
-from agents.vec_adapter import QuadSLAMVecEnv, _merge_arrays
-from agents.wrappers import ResidualDFLQRVectorWrapper, ResidualDFLQRWrapper
+from agents.control.dflqr import DFLQRPolicy
+from agents.evaluation.episodes import EPISODE_KEYS, Trace, run_episode, run_episodes
+from agents.rl.vec_adapter import QuadSLAMVecEnv, _merge_arrays
+from agents.rl.wrappers import ResidualDFLQRVectorWrapper, ResidualDFLQRWrapper
 from quadslam_env.actions import ActionError
 from quadslam_env.config import ConfigError
 
@@ -200,7 +200,7 @@ def test_merge_arrays_fills_keys_a_share_lacks():
 def test_script_without_main_guard_gets_a_clear_error(tmp_path):
     script = tmp_path / "unguarded.py"
     script.write_text(
-        "from agents.vec_adapter import QuadSLAMVecEnv\n"
+        "from agents.rl.vec_adapter import QuadSLAMVecEnv\n"
         f"QuadSLAMVecEnv({ORACLE!r}, 2, n_workers=2)\n"
     )
     env = {**os.environ, "PYTHONPATH": str(ROOT)}

@@ -11,7 +11,7 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.wrappers import vector as vector_wrappers
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.dflqr import DFLQRPolicy
+from agents.control.dflqr import DFLQRPolicy
 from quadslam_env.actions import ActionError
 from quadslam_env.config import ConfigError
 

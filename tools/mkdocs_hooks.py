@@ -1,16 +1,24 @@
 """MkDocs hooks: fill the generated sections of the documentation pages at build time.
 
 A page asks for a generated section with an HTML comment marker (see ``MARKERS``); the content
-comes from :mod:`agents.reference`, i.e. from the validated config specs, the estimators'
+comes from :mod:`agents.cli.reference`, i.e. from the validated config specs, the estimators'
 validators and the CLI's argument parser, so the pages cannot go stale.
 """
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
-from agents import reference
+# The pages document this checkout, as mkdocstrings does (`paths: ["."]`), even where another
+# copy of the package is installed (an editable install of another worktree).
+ROOT = str(Path(__file__).resolve().parent.parent)
+if ROOT not in sys.path:
+    sys.path.insert(0, ROOT)
+
+from agents.cli import reference  # noqa: E402  (after the path above)
 
 MARKERS: dict[str, Callable[[], str]] = {
     "<!-- generated: scenario-settings -->": reference.scenario_settings_markdown,

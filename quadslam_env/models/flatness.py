@@ -6,7 +6,7 @@ outputs' ``ρ̈ − g n3`` plus any feedback) written in the reference-heading f
 that points the thrust along ``u_p``: ``z = −(m/f_T) u_p``, ``φ_d = asin(−z2)``,
 ``θ_d = atan2(z1, z3)``, ``r_d = u_ψ cos θ_d / cos φ_d`` (``p_d = q_d = 0``).
 
-Two users share the one kernel: the DF-LQR baseline (``agents.dflqr``, on the feedback
+Two users share the one kernel: the DF-LQR baseline (``agents.control.dflqr``, on the feedback
 command) and the simulator's start on the reference (:func:`state_on_reference`, on
 the feed-forward alone), so a vehicle started on the reference has exactly the attitude the
 baseline would command there.

@@ -1,0 +1,240 @@
+"""``quadslam bench``: speed and scaling of the envs and the estimators.
+
+Every measurement is repeated (after a warm-up) and reported as median / min / max with its
+unit, as one JSON entry. The sections (``--only``):
+
+* ``ekf``, ``fastslam`` (:mod:`agents.bench.estimators`): filter cost vs map size and
+  particles through the :class:`estimators.Estimator` protocol with synthetic scans;
+* ``env`` (:mod:`agents.bench.envs`): scalar env (``gymnasium.make``) steps/s and real-time
+  factor, zero action and DF-LQR;
+* ``vector``, ``workers`` (:mod:`agents.bench.envs`): native vector env throughput in
+  env-steps/s vs lanes B, in one process and split over 2 worker processes;
+* ``association`` (:mod:`agents.bench.association`): unknown data association (JCBB, NN)
+  against known association, scalar and vector env;
+* ``memory``, ``compile`` (:mod:`agents.bench.process`): peak RSS vs B and numba compile time,
+  each measured in fresh subprocesses;
+* ``render`` (:mod:`agents.bench.render`): ``rgb_array`` frames/s and the time to record a
+  video of an episode (``gymnasium.wrappers.RecordVideo``).
+
+The old ``AsyncVectorEnv``/``SubprocVecEnv`` scaling section (about 2,000 steps/s for 1–4
+workers of the scalar env) was dropped: the native vector env does 5,000 steps/s with one lane
+and about 100,000 with a few hundred, so it no longer said anything useful.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from agents.bench.plan import FULL, QUICK, Plan, Results
+
+SECTION_NAMES = (
+    "ekf", "fastslam", "env", "vector", "association", "workers", "memory", "compile", "render"
+)  # fmt: skip
+
+
+# ---------------------------------------------------------------- report
+def machine_info() -> dict[str, Any]:
+    """What the numbers were measured on (CPU model, cores, load, versions)."""
+    import gymnasium
+    import numba
+    import numpy as np
+    import stable_baselines3
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "numba": numba.__version__,
+        "gymnasium": gymnasium.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "platform": platform.platform(),
+    }
+
+
+def best_batches(entries: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The fastest B of each env-steps/s series (``vector`` group).
+
+    Returns:
+        ``{series name: {"num_envs", "workers", "median"}}``.
+    """
+    best: dict[str, dict[str, Any]] = {}
+    for e in entries:
+        if e["group"] != "vector":
+            continue
+        if e["name"] not in best or e["median"] > best[e["name"]]["median"]:
+            best[e["name"]] = {
+                "num_envs": e["params"]["num_envs"],
+                "workers": e["params"]["workers"],
+                "median": e["median"],
+            }
+    return best
+
+
+def _table(rows: Sequence[Sequence[str]]) -> str:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return "\n".join(
+        "  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in rows
+    )
+
+
+def format_batch_table(entries: list[dict[str, Any]]) -> str:
+    """Medians vs lanes B of the ``vector`` and ``memory`` series (one row each); '' if none."""
+    series: dict[tuple[str, str, str], dict[int, float]] = {}
+    for e in entries:
+        if e["group"] in ("vector", "memory"):
+            key = (e["group"], e["name"], e["unit"])
+            series.setdefault(key, {})[e["params"]["num_envs"]] = e["median"]
+    if not series:
+        return ""
+    batches = sorted({b for row in series.values() for b in row})
+    best = best_batches(entries)
+    rows = [("series", *(f"B={b}" for b in batches), "unit", "best B")]
+    for (_, name, unit), row in series.items():
+        cells = tuple(_fmt(row[b]) if b in row else "-" for b in batches)
+        rows.append((name, *cells, unit, str(best[name]["num_envs"]) if name in best else ""))
+    return _table(rows)
+
+
+def format_results(entries: list[dict[str, Any]]) -> str:
+    """Plain-text table of all measurements, then the medians vs lanes B."""
+    rows = [("group", "measurement", "params", "median", "min", "max", "unit")]
+    for e in entries:
+        params = ", ".join(
+            f"{k}={v}"
+            for k, v in e["params"].items()
+            if k not in ("env_id", "kind", "policy", "estimator", "scenario")
+        )
+        rows.append(
+            (
+                e["group"],
+                e["name"],
+                params,
+                _fmt(e["median"]),
+                _fmt(e["min"]),
+                _fmt(e["max"]),
+                e["unit"],
+            )
+        )
+    text = _table(rows)
+    batch = format_batch_table(entries)
+    return f"{text}\n\nmedians vs lanes B:\n{batch}" if batch else text
+
+
+def _fmt(value: float) -> str:
+    if value == 0 or not math.isfinite(value):
+        return str(value)
+    return f"{value:.4g}"
+
+
+def sections() -> dict[str, Callable[[Results, Plan], None]]:
+    """Section name → function (imported here, so that importing this module, as ``quadslam
+    --help`` does for :data:`SECTION_NAMES`, imports no numpy)."""
+    from agents.bench.association import bench_association
+    from agents.bench.envs import bench_env, bench_vector, bench_workers
+    from agents.bench.estimators import bench_ekf, bench_fastslam
+    from agents.bench.process import bench_compile, bench_memory
+    from agents.bench.render import bench_render
+
+    return {
+        "ekf": bench_ekf,
+        "fastslam": bench_fastslam,
+        "env": bench_env,
+        "vector": bench_vector,
+        "association": bench_association,
+        "workers": bench_workers,
+        "memory": bench_memory,
+        "compile": bench_compile,
+        "render": bench_render,
+    }
+
+
+def run_bench(
+    quick: bool,
+    only: list[str] | None = None,
+    progress: bool = True,
+    plan: Plan | None = None,
+) -> dict[str, Any]:
+    """Run the benchmark sections and return the JSON document.
+
+    Args:
+        quick: Use the ``quick`` plan (else ``full``) unless ``plan`` is given.
+        only: Section names to run (default: all, in :data:`SECTION_NAMES` order).
+        progress: Show a progress bar of the sections.
+        plan: Explicit plan (e.g. :data:`agents.bench.plan.TINY` for tests).
+
+    Returns:
+        ``{"machine", "plan", "quick", "sections", "wall_time_s", "best_batch", "results"}``.
+    """
+    from tqdm import tqdm
+
+    plan = plan or (QUICK if quick else FULL)
+    table = sections()
+    results = Results()
+    names = only or list(SECTION_NAMES)
+    machine = machine_info()
+    tic = time.perf_counter()
+    for name in tqdm(names, desc="bench", unit="section", disable=not progress):
+        table[name](results, plan)
+    return {
+        "machine": machine,
+        "plan": plan.name,
+        "quick": quick,
+        "sections": names,
+        "wall_time_s": time.perf_counter() - tic,
+        "best_batch": best_batches(results.entries),
+        "results": results.entries,
+    }
+
+
+def main_bench(
+    quick: bool,
+    json_path: Path | None,
+    plots: Path | None,
+    only: list[str] | None = None,
+    plan: Plan | None = None,
+) -> dict[str, Any]:
+    """CLI body: check the output paths, run, print the table, write JSON and plots.
+
+    Raises:
+        agents.io.outputs.OutputPathError: ``--json`` or ``--plots`` cannot be written (before
+            anything is measured).
+        agents.io.outputs.OutputWriteError: A file could not be written at the end; it was saved
+            elsewhere and the message says where.
+    """
+    from agents.bench.plots import write_plots
+    from agents.io.outputs import Saver, check_output_dir, check_output_file
+
+    if json_path is not None:
+        check_output_file(json_path, "--json")
+    if plots is not None:
+        check_output_dir(plots, "--plots")
+    doc = run_bench(quick, only, plan=plan)
+    print(format_results(doc["results"]))
+    print(
+        f"machine: {doc['machine']['cpu']} ({doc['machine']['cores']} cores); "
+        f"wall time {doc['wall_time_s']:.1f} s"
+    )
+    saver = Saver()
+    if json_path is not None:
+        print(f"json: {saver.write_json(json_path, doc, '--json')}")
+    if plots is not None:
+        files = write_plots(doc["results"], plots, saver)
+        print(f"plots: {', '.join(str(f) for f in files)}")
+    saver.check()
+    return doc

@@ -1,0 +1,163 @@
+"""Reference tables generated from the code, for the documentation site.
+
+The documentation's settings and CLI pages are built from these functions at build time (a
+MkDocs hook, ``tools/mkdocs_hooks.py``), so they cannot drift from what the code validates:
+
+- :func:`scenario_settings_markdown`: every scenario setting with its default, accepted values
+  and meaning, read from the typed field specs of :mod:`quadslam_env.config`, plus the presets;
+- :func:`estimator_params_markdown`: the ``estimator.params`` keys of the built-in estimators,
+  read from their validators and parameter docstrings;
+- :func:`cli_markdown`: the ``--help`` of every ``quadslam`` command.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import os
+import re
+from typing import Any
+
+from quadslam_env.config import SECTIONS, field_rows, scenario_descriptions
+from quadslam_env.models.params import VEHICLE_PRESETS
+
+
+def _cell(value: Any) -> str:
+    """A value as it is written in a YAML scenario, escaped for a Markdown table cell."""
+    text = "null" if value is None else json.dumps(value, ensure_ascii=False)
+    if isinstance(value, float) and value != 0 and (abs(value) < 1e-3 or abs(value) >= 1e5):
+        text = f"{value:.4g}"
+    return text.replace("|", "\\|")
+
+
+def _escape(text: str) -> str:
+    """Escape table pipes and drop Sphinx roles (``:mod:`x``` becomes ```x```)."""
+    return re.sub(r":(?:mod|func|class|meth|data):", "", text).replace("|", "\\|")
+
+
+def scenario_settings_markdown() -> str:
+    """One Markdown table per scenario section (key, default, allowed, meaning) and the presets."""
+    out = []
+    for name, section in SECTIONS.items():
+        doc = inspect.getdoc(section) or ""
+        out += [f"### `{name}`", "", doc.splitlines()[0] if doc else "", ""]
+        out += ["| key | default | allowed | meaning |", "|---|---|---|---|"]
+        for row in field_rows(section):
+            out.append(
+                f"| `{row.key}` | `{_cell(row.default)}` | {_escape(row.allowed)} "
+                f"| {_escape(row.doc)} |"
+            )
+        out.append("")
+        if section.PRESETS:
+            out += [f"Presets of `{name}.preset` (explicit keys override them):", ""]
+            keys = sorted({k for values in section.PRESETS.values() for k in values})
+            out += ["| preset | " + " | ".join(f"`{k}`" for k in keys) + " |"]
+            out += ["|---" * (len(keys) + 1) + "|"]
+            for preset, values in section.PRESETS.items():
+                cells = [f"`{_cell(values[k])}`" if k in values else "–" for k in keys]
+                out.append(f"| `{preset}` | " + " | ".join(cells) + " |")
+            out.append("")
+    out += ["### Vehicle presets", "", "Values of `vehicle.preset` (SI units):", ""]
+    out += ["| preset | mass [kg] | inertia diag [kg·m²] | max thrust [N] | max torque [N·m] |"]
+    out += ["|---|---|---|---|---|"]
+    for name, params in VEHICLE_PRESETS.items():
+        inertia = [round(float(params.inertia[i][i]), 6) for i in range(3)]
+        torque = [round(float(t), 4) for t in params.max_torque]
+        out.append(
+            f"| `{name}` | {params.mass} | {inertia} | {round(float(params.max_thrust), 3)} "
+            f"| {torque} |"
+        )
+    out.append("")
+    return "\n".join(out)
+
+
+def shipped_scenarios_markdown() -> str:
+    """The shipped scenario files and their descriptions, as a Markdown table."""
+    rows = ["| scenario | description |", "|---|---|"]
+    rows += [f"| `{n}` | {_escape(d)} |" for n, d in scenario_descriptions().items()]
+    return "\n".join(rows) + "\n"
+
+
+def _rst_table_rows(doc: str) -> list[tuple[str, str, str]]:
+    """Rows ``(key, default, meaning)`` of the first RST simple table in ``doc``."""
+    lines = doc.splitlines()
+    rulers = [i for i, line in enumerate(lines) if re.fullmatch(r"\s*=+(\s+=+)+\s*", line)]
+    if len(rulers) < 3:
+        return []
+    ruler = lines[rulers[0]]
+    spans = [m.span() for m in re.finditer(r"=+", ruler)]
+    starts = [s for s, _ in spans]
+    rows: list[list[str]] = []
+    for line in lines[rulers[1] + 1 : rulers[2]]:
+        cells = [
+            line[a:b].strip() for a, b in zip(starts, [*starts[1:], len(line) + 1], strict=True)
+        ]
+        if cells[0]:
+            rows.append(cells)
+        elif rows:  # continuation of the previous row
+            rows[-1] = [f"{old} {new}".strip() for old, new in zip(rows[-1], cells, strict=True)]
+    return [(r[0].strip("`"), r[1], r[2]) for r in rows]
+
+
+def _ekf_rows() -> list[tuple[str, str, str]]:
+    """``(key, type and default, meaning)`` from the EKF settings docstring paragraphs."""
+    from estimators.ekf.settings import EkfSlamSettings
+
+    rows = []
+    for para in (inspect.getdoc(EkfSlamSettings) or "").split("\n\n"):
+        found = re.match(r"``(\w+)`` \(([^)]*)\): (.*)", " ".join(para.split()))
+        if found:
+            rows.append((found.group(1), found.group(2), found.group(3)))
+    return rows
+
+
+def estimator_param_keys() -> dict[str, set[str]]:
+    """The ``estimator.params`` keys each built-in estimator's validator accepts."""
+    from estimators.ekf.settings import _TYPES as EKF_TYPES
+    from estimators.fastslam.dynamic import DynamicFastSLAM
+
+    common = set(DynamicFastSLAM._COMMON)
+    return {
+        "ekf_slam": set(EKF_TYPES),
+        "fastslam": common | set(DynamicFastSLAM._EXTRA),
+        "fastslam_kinematic": common | {"imu_noise_scale"},
+        "oracle": set(),
+    }
+
+
+def estimator_params_markdown() -> str:
+    """Tables of the ``estimator.params`` keys of ``ekf_slam`` and ``fastslam``."""
+    from estimators.fastslam.dynamic import DynamicFastSLAM
+    from estimators.fastslam.kinematic import KinematicFastSLAM
+
+    out = ["### `ekf_slam`", "", "| key | type, default | meaning |", "|---|---|---|"]
+    out += [f"| `{k}` | {_escape(d)} | {_escape(m)} |" for k, d, m in _ekf_rows()]
+    out += ["", "### `fastslam`", "", "| key | default | meaning |", "|---|---|---|"]
+    rows = _rst_table_rows(inspect.getdoc(DynamicFastSLAM) or "")
+    out += [f"| `{k}` | {_escape(d)} | {_escape(m)} |" for k, d, m in rows]
+    kinematic = (inspect.getdoc(KinematicFastSLAM) or "").split("\n\n")
+    params = next((p for p in kinematic if p.startswith("Parameters:")), "")
+    out += ["", "### `fastslam_kinematic`", "", " ".join(params.split()), ""]
+    out += ["### `oracle`", "", "No settings (`estimator.params` must be empty).", ""]
+    return "\n".join(out)
+
+
+def cli_markdown() -> str:
+    """``quadslam --help`` and the help of every sub-command, as code blocks."""
+    from agents.cli.main import build_parser
+
+    previous = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "100"  # argparse wraps at $COLUMNS
+    try:
+        parser = build_parser()
+        out = ["### `quadslam`", "", "```text", parser.format_help().rstrip(), "```", ""]
+        sub = next(a for a in parser._actions if a.dest == "command")
+        for name, command in sub.choices.items():  # type: ignore[union-attr]
+            out += [f"### `quadslam {name}`", "", "```text", command.format_help().rstrip()]
+            out += ["```", ""]
+    finally:
+        if previous is None:
+            del os.environ["COLUMNS"]
+        else:
+            os.environ["COLUMNS"] = previous
+    return "\n".join(out)

@@ -1,0 +1,172 @@
+"""``quadslam study …``: the studies' subcommands (cost of estimation, active perception, data
+association, Cramér–Rao bound) and the writing of their ``--json``/``--plots`` outputs."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+
+def cmd_study_cost(args: argparse.Namespace) -> int:
+    """Train and evaluate the cost-of-estimation configurations; print the table."""
+    from agents.studies import cost as study_cost
+
+    return _training_study(args, study_cost, "study_cost", "cost_of_estimation.png")
+
+
+def cmd_study_active(args: argparse.Namespace) -> int:
+    """Fixed, tangent and look-at headings and residual PPO with the heading channel."""
+    from agents.studies import active as study_active
+
+    return _training_study(args, study_active, "study_active", "active_perception.png")
+
+
+def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str) -> int:
+    """Run a study that trains agents (its module's ``run_study``, ``format_study``,
+    ``write_json``, ``plot_study``): check every output path before the first training,
+    print the table and the wall clock, write ``--json`` and ``--plots`` (``png``)."""
+    from agents.io.outputs import check_output_dir, check_output_file
+
+    out = args.out or Path("runs") / f"{folder}{'_quick' if args.quick else ''}"
+    check_output_dir(out, "--out")
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.plots is not None:
+        check_output_dir(args.plots, "--plots")
+    tic = time.perf_counter()
+    result = study.run_study(out, args.quick, args.training_seeds, args.episodes)
+    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    print(study.format_study(result))
+    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
+    return _save_study(args, result, study.write_json, study.plot_study, png)
+
+
+def _save_study(
+    args: argparse.Namespace, result: dict[str, Any], write_json: Any, plot: Any, png: str
+) -> int:
+    """Write a study's ``--json`` and ``--plots`` outputs (a failed write is saved elsewhere
+    and reported by :meth:`Saver.check`)."""
+    from agents.io.outputs import Saver
+
+    saver = Saver()
+    if args.json is not None:
+        where = saver.produce(args.json, "--json", lambda target: write_json(result, target))
+        print(f"wrote {where}")
+    if args.plots is not None:
+        where = saver.produce(
+            args.plots / png, "--plots", lambda target: _plot_to(plot, result, target)
+        )
+        print(f"wrote {where}")
+    saver.check()
+    return 0
+
+
+def cmd_study_association(args: argparse.Namespace) -> int:
+    """Known vs NN vs JCBB (EKF) and known vs ML (FastSLAM), and the clutter sweep."""
+    from agents.io.outputs import check_output_dir, check_output_file
+    from agents.studies.association import format_study, plot_study, run_study, write_json
+
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.plots is not None:
+        check_output_dir(args.plots, "--plots")
+    seeds = args.seeds or (3 if args.quick else 20)
+    tic = time.perf_counter()
+    result = run_study(seeds, args.quick)
+    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    print(format_study(result))
+    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
+    return _save_study(args, result, write_json, plot_study, "association_clutter.png")
+
+
+def cmd_study_bound(args: argparse.Namespace) -> int:
+    """The posterior Cramér–Rao bound of a scenario next to its estimator's errors."""
+    from agents.studies.bound import cli_bound
+
+    return cli_bound(args)
+
+
+def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
+    """Call ``plot(result, folder)`` (which writes one PNG into ``folder``) so that the PNG
+    ends up at ``target`` (a temporary folder beside it holds the PNG until it is moved)."""
+    import shutil
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix=".plot-", dir=target.parent))
+    try:
+        os.replace(plot(result, folder), target)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _training_study_args(
+    parser: argparse.ArgumentParser,
+    positive_int: Callable[[str], int],
+    default_seeds: int,
+    plots_help: str,
+) -> None:
+    """The options of a study that trains agents: budget, seeds, episodes and outputs."""
+    parser.add_argument("--quick", action="store_true", help="1 training seed, small budget")
+    parser.add_argument(
+        "--training-seeds", type=positive_int, help=f"default {default_seeds} (quick: 1)"
+    )
+    parser.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
+    parser.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
+    parser.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    parser.add_argument("--plots", type=Path, help=plots_help)
+
+
+def add_study_parser(
+    sub: Any, positive_int: Callable[[str], int], positive_float: Callable[[str], float]
+) -> None:
+    """Add ``quadslam study`` and its subcommands to the CLI's subparsers ``sub``."""
+    study = sub.add_parser("study", help="studies that train and evaluate several agents")
+    studies = study.add_subparsers(dest="study", required=True)
+    cost = studies.add_parser(
+        "cost-of-estimation",
+        help="DF-LQR and residual PPO on truth vs EKF-SLAM vs FastSLAM, privileged critic, "
+        "uncertainty-aware observation (held-out seeds)",
+    )
+    _training_study_args(cost, positive_int, 2, "write the box plot (PNG) here")
+    cost.set_defaults(func=cmd_study_cost)
+    active = studies.add_parser(
+        "active-perception",
+        help="where to look: DF-LQR with a fixed or tangent heading, the look-at heuristic "
+        "and residual PPO with a heading channel (held-out seeds)",
+    )
+    _training_study_args(active, positive_int, 3, "write the where-it-looks figure (PNG) here")
+    active.set_defaults(func=cmd_study_active)
+    assoc = studies.add_parser(
+        "association",
+        help="unknown data association: known vs NN vs JCBB (EKF-SLAM), known vs ML "
+        "(FastSLAM), a held-out closely spaced map, and RMSE/wrong rate against clutter",
+    )
+    assoc.add_argument("--quick", action="store_true", help="3 seeds of 10 s, 3 clutter rates")
+    assoc.add_argument("--seeds", type=positive_int, help="episodes per row (default 20)")
+    assoc.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    assoc.add_argument("--plots", type=Path, help="write the clutter figure (PNG) here")
+    assoc.set_defaults(func=cmd_study_association)
+    bound = studies.add_parser(
+        "bound",
+        help="posterior Cramér–Rao bound along each seed's true trajectory vs the "
+        "scenario's estimator (position, velocity, attitude)",
+    )
+    bound.add_argument("--scenario", default="paper_ekf_figure8", help="scenario name or path")
+    bound.add_argument("--seeds", type=positive_int, default=10, help="number of seeds (10)")
+    bound.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    bound.add_argument("--duration", type=positive_float, help="episode length in s")
+    bound.add_argument("--estimator", metavar="NAME", help="replace the scenario's estimator")
+    bound.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.KEY=VALUE",
+        help="override a scenario setting (repeatable)",
+    )
+    bound.add_argument("--json", type=Path, help="write the per-seed values and summary as JSON")
+    bound.add_argument("--plots", type=Path, help="write the error-vs-bound figure (PNG) here")
+    bound.set_defaults(func=cmd_study_bound)

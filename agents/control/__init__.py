@@ -1,0 +1,1 @@
+"""Controllers: the DF-LQR baseline and the look-at heuristic (on the env and estimators only)."""

@@ -1,0 +1,1 @@
+"""Seeded episodes of a policy on the vector env: summaries, tables, figures, videos."""

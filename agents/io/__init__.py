@@ -1,0 +1,2 @@
+"""What every command shares with the outside: ``--set`` overrides, output files written
+atomically, process memory."""

@@ -1,0 +1,29 @@
+"""Load a policy by name or path for evaluation: ``dflqr`` or a saved stable-baselines3 model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from agents.control.dflqr import DFLQRPolicy
+
+
+def load_policy(spec: str, env: Any) -> tuple[Any, str]:
+    """Return ``(policy, name)`` for ``spec``.
+
+    Args:
+        spec: ``"dflqr"``, a run folder written by ``quadslam train`` or a model ``.zip``.
+        env: The evaluation env (its spaces must match the model's).
+
+    Raises:
+        FileNotFoundError: The path does not exist.
+        ValueError: The file is not a model for this env.
+    """
+    if spec == "dflqr":
+        return DFLQRPolicy.from_env(env), "dflqr"
+    from agents.rl.loading import load_model
+
+    path = Path(spec)
+    if not path.exists():
+        raise FileNotFoundError(f"--policy: {spec!r} is neither 'dflqr' nor an existing path")
+    return load_model(path, env), str(path)

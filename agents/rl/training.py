@@ -1,0 +1,656 @@
+"""Train stable-baselines3 agents on the QuadSLAM envs (docs/design.md §6).
+
+:func:`train` reads the zoo-style entry (:mod:`agents.rl.hyperparams`), builds ``n_envs`` lanes of
+the native vector env in this process (:class:`agents.rl.vec_adapter.QuadSLAMVecEnv`), trains,
+and writes a run folder (:mod:`agents.rl.run_folder`); :mod:`agents.rl.loading` loads it back.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import pickle
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import yaml
+
+from agents.io.outputs import (
+    DiskFullError,
+    Terminated,
+    atomic_produce_all,
+    commit,
+    is_disk_full,
+    signals_deferred,
+    write_text_atomic,
+)
+from agents.rl.curves import plot_learning_curve
+from agents.rl.hyperparams import (
+    ASYMMETRIC,
+    DEFAULTS,
+    algorithms,
+    build_policy_kwargs,
+    default_config_path,
+    load_hyperparams,
+    resolve_settings,
+)
+from agents.rl.run_folder import new_run_dir, read_run_config, versions
+from quadslam_env.config import deep_merge
+
+
+@contextlib.contextmanager
+def _torch_settings(threads: int | None) -> Any:
+    """Deterministic torch algorithms (and optionally a thread count) inside the block."""
+    import torch
+
+    enabled = torch.are_deterministic_algorithms_enabled()
+    warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
+    old_threads = torch.get_num_threads()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(enabled, warn_only=warn_only)
+        torch.set_num_threads(old_threads)
+
+
+# ---------------------------------------------------------------------------- training
+def _make_vec_env(
+    env_id: str,
+    settings: dict[str, Any],
+    n_envs: int,
+    seed: int,
+    monitor_dir: Path | None,
+    stagger: bool = False,
+    info_keys: tuple[str, ...] | None = (),
+    name: str = "lanes",
+) -> Any:
+    """``n_envs`` lanes of the native vector env in this process, as an SB3 ``VecEnv``.
+
+    Lane i is the env seeded ``seed + i`` (as SB3's ``make_vec_env`` seeds its envs); one
+    ``VecMonitor`` records every lane's episodes in ``monitor_dir/<name>.monitor.csv``. With
+    ``stagger`` the lanes' first episodes are cut at spread lengths (``QuadSLAMVecEnv``); the
+    asymmetric actor-critic policy gets the privileged dict observation.
+    """
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from agents.rl.vec_adapter import QuadSLAMVecEnv
+
+    wrapper = settings["wrapper"]
+    spec = None if wrapper is None else {"name": wrapper[0], **wrapper[1]}
+    # By default per-lane info dicts only for the lanes that end (SB3 reads nothing else from
+    # them; the metrics callback reads the adapter's step_info arrays): ~25% of the step at 64
+    # lanes.
+    venv = QuadSLAMVecEnv(
+        env_id,
+        n_envs,
+        seed=seed,
+        wrapper=spec,
+        info_keys=info_keys,
+        stagger=stagger,
+        privileged=settings["policy"] == ASYMMETRIC,
+        **settings["env_kwargs"],
+    )
+    filename = None
+    if monitor_dir is not None:
+        monitor_dir.mkdir(parents=True, exist_ok=True)
+        filename = str(monitor_dir / name)
+    return VecMonitor(venv, filename=filename)
+
+
+def _build_model(
+    algo: str, settings: dict[str, Any], venv: Any, seed: int, verbose: int = 0
+) -> Any:
+    """The SB3 algorithm on ``venv`` with the resolved settings."""
+    policy: Any = settings["policy"]
+    if policy == ASYMMETRIC:
+        from agents.rl.asymmetric import AsymmetricActorCriticPolicy
+
+        policy = AsymmetricActorCriticPolicy
+    return algorithms()[algo](
+        policy,
+        venv,
+        seed=seed,
+        policy_kwargs=build_policy_kwargs(settings["policy_kwargs"]) or None,
+        verbose=verbose,
+        **settings["algo_kwargs"],
+    )
+
+
+def _check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, Any]:
+    """Build the lanes and the model once, on a throwaway vector env, before any folder exists.
+
+    Building the lanes validates ``env_kwargs`` and the wrapper (their errors propagate as
+    they are). SB3 validates many values only when the model is built (``n_steps=0`` is an
+    ``AssertionError``, ``learning_rate: fast`` a ``TypeError`` from the optimizer); those
+    become a one-line ``ValueError``.
+
+    Returns:
+        The env's full resolved scenario (for the run's ``config.yaml``).
+
+    Raises:
+        ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason).
+    """
+    venv = _make_vec_env(env_id, settings, settings["n_envs"], 0, None)
+    try:
+        scenario: dict[str, Any] = venv.get_attr("scenario", [0])[0].to_dict()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            _build_model(algo, settings, venv, 0)
+    except (AssertionError, ValueError, TypeError, KeyError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"hyperparameters rejected by {algo.upper()}: {reason}") from None
+    finally:
+        venv.close()
+    return scenario
+
+
+def train(
+    algo: str,
+    env_id: str,
+    config_path: str | Path | None = None,
+    timesteps: int | None = None,
+    n_envs: int | None = None,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    progress: bool = True,
+    *,
+    hyperparams: dict[str, Any] | None = None,
+    verbose: int = 0,
+    torch_threads: int | None = 1,
+) -> Path:
+    """Train ``algo`` on ``env_id`` with the zoo-style config and write a run folder.
+
+    Args:
+        algo: ``"ppo"`` or ``"sac"`` (also ``"td3"``, ``"a2c"`` given a config file).
+        env_id: Registered env id; also the key of the config entry.
+        config_path: Config file (default ``configs/agents/<algo>.yaml``) or a run's
+            ``config.yaml``.
+        timesteps: Override ``n_timesteps``.
+        n_envs: Override ``n_envs``.
+        seed: Seeds Python, NumPy, torch (SB3 ``seed=``), the envs (``seed + rank``) and the
+            evaluation env (``seed + 10_000``); torch runs with deterministic algorithms.
+        out_dir: Parent folder of the run folder (default ``runs``).
+        progress: Show a tqdm progress bar on stderr.
+        hyperparams: Entries merged into the config entry (mappings merge recursively), e.g.
+            ``{"policy_kwargs": {"net_arch": [8]}, "env_kwargs": {"episode": {...}}}``.
+        verbose: SB3 verbosity (1 also prints the SB3 log table).
+        torch_threads: Torch threads during training, restored afterwards (``None``: torch's
+            default). Default 1: the networks are small, and with 2 threads a busy second
+            core made each PPO minibatch update ~2x slower (131k steps of the EKF residual
+            config: 71 s with torch's 2 threads vs 37 s with 1, another job running).
+
+    Returns:
+        The run folder.
+
+    Raises:
+        ValueError: Unknown algorithm/env id, bad config or env settings.
+        FileNotFoundError: Missing config file.
+
+    Note:
+        The ``n_envs`` envs are lanes of the native vector env in this process
+        (:class:`agents.rl.vec_adapter.QuadSLAMVecEnv`).
+    """
+
+    import quadslam_env  # noqa: F401  (registers the ids)
+
+    tic = time.perf_counter()
+    algo = algo.lower()
+    if env_id not in gym.registry:
+        quad = sorted(k for k in gym.registry if k.startswith("QuadSLAM"))
+        raise ValueError(f"env: got {env_id!r}; allowed: {quad} or another registered id")
+    source = Path(config_path) if config_path is not None else default_config_path(algo)
+    entry = load_hyperparams(algo, env_id, source)
+    if hyperparams:
+        entry = deep_merge(entry, hyperparams)
+    if timesteps is not None:
+        entry["n_timesteps"] = int(timesteps)
+    if n_envs is not None:
+        entry["n_envs"] = int(n_envs)
+    settings = resolve_settings(algo, entry)
+    threads = torch_threads
+
+    scenario_dict = _check_setup(algo, settings, env_id)  # before any folder is written
+    run_dir = new_run_dir(out_dir, algo, env_id, seed)
+    config = {
+        "algo": algo,
+        "env_id": env_id,
+        "seed": int(seed),
+        "config_file": str(source.resolve()),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "hyperparams": {**{k: v for k, v in DEFAULTS.items() if k not in entry}, **entry},
+        "torch_threads": threads,
+        "scenario": scenario_dict,
+    }
+    try:
+        write_text_atomic(run_dir / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+        write_text_atomic(run_dir / "seed.txt", f"{int(seed)}\n")
+        write_text_atomic(run_dir / "versions.json", json.dumps(versions(), indent=2) + "\n")
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        shutil.rmtree(run_dir, ignore_errors=True)  # just made, and holds nothing of value
+        raise DiskFullError(
+            f"no space left on device writing {exc.filename or run_dir}; nothing was trained "
+            f"(the new run folder was removed); free some space and train again"
+        ) from None
+
+    return _learn(run_dir, algo, env_id, settings, seed, progress, verbose, threads, tic)
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """Where a resumed run continues: a model zip, its VecNormalize statistics, its step."""
+
+    model: Path
+    vecnormalize: Path | None
+    steps: int
+
+
+def saved_points(run_dir: Path) -> list[Checkpoint]:
+    """Every saved point of a run, furthest first: its checkpoints and an interrupted run's
+    model (``model.zip`` with the step count in ``INTERRUPTED``)."""
+    found: list[Checkpoint] = []
+    for path in (run_dir / "checkpoints").glob("model_*_steps.zip"):
+        steps = path.stem[len("model_") : -len("_steps")]
+        if steps.isdigit():
+            pkl = path.parent / f"model_vecnormalize_{steps}_steps.pkl"
+            found.append(Checkpoint(path, pkl if pkl.is_file() else None, int(steps)))
+    marker = run_dir / "INTERRUPTED"
+    if marker.is_file() and (run_dir / "model.zip").is_file():
+        text = marker.read_text().strip()
+        if text.isdigit():
+            pkl = run_dir / "vecnormalize.pkl"
+            found.append(
+                Checkpoint(run_dir / "model.zip", pkl if pkl.is_file() else None, int(text))
+            )
+    # At equal steps the interrupted model first: it was saved after the checkpoint.
+    return sorted(found, key=lambda c: (c.steps, c.model.parent == run_dir), reverse=True)
+
+
+def latest_checkpoint(run_dir: Path) -> Checkpoint | None:
+    """The furthest saved point of a run: a checkpoint, or an interrupted run's model."""
+    points = saved_points(run_dir)
+    return points[0] if points else None
+
+
+def checkpoint_problem(point: Checkpoint, needs_vecnormalize: bool) -> str | None:
+    """Why ``point`` cannot be loaded (a truncated or damaged file), or ``None``.
+
+    The model zip is read through (every member's CRC is checked); the ``VecNormalize``
+    statistics, when the run normalises, must unpickle.
+    """
+    try:
+        with zipfile.ZipFile(point.model) as archive:
+            if "data" not in archive.namelist():  # e.g. the torch zip inside a torn one
+                return f"{point.model.name} is truncated or damaged (no 'data' member)"
+            bad = archive.testzip()
+        if bad is not None:
+            return f"{point.model.name}: {bad} is damaged"
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        return f"{point.model.name} is truncated or damaged ({exc})"
+    if needs_vecnormalize:
+        if point.vecnormalize is None:
+            return f"{point.model.name} has no VecNormalize file"
+        try:
+            with open(point.vecnormalize, "rb") as fh:
+                pickle.load(fh)  # the run's own file, as VecNormalize.load reads it
+        except Exception as exc:  # any unpickling error means "cannot be used"
+            return f"{point.vecnormalize.name} is truncated or damaged ({type(exc).__name__})"
+    return None
+
+
+def _timing_steps(run_dir: Path) -> str:
+    """The step count a finished run's ``timing.json`` records (``?`` if unreadable)."""
+    try:
+        return f"{int(json.loads((run_dir / 'timing.json').read_text())['timesteps'])}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "?"
+
+
+def resume(
+    run_dir: str | Path,
+    progress: bool = True,
+    *,
+    verbose: int = 0,
+    torch_threads: int | None = 1,
+) -> Path:
+    """Continue a run folder from its latest checkpoint up to its ``n_timesteps``.
+
+    The model, optimizer state, ``VecNormalize`` statistics and step count come from the
+    checkpoint (or an interrupted run's ``model.zip``); lane i restarts with seed
+    ``seed + steps + i`` (fresh episodes, not those of the first session). The new session's
+    episodes go to ``monitor/lanes_from_<steps>.monitor.csv``, its logs to
+    ``logs/from_<steps>/``; ``model.zip``, ``vecnormalize.pkl`` and ``timing.json`` are
+    replaced. A saved point that does not load (a truncated checkpoint) is skipped for the
+    newest one that does; ``INTERRUPTED`` stays until the new session's final save is in
+    place. A run stopped after its last step was saved is only finished (model, curve,
+    ``timing.json``).
+
+    Raises:
+        ValueError: Not a run folder, nothing saved to resume from, or already finished.
+    """
+    tic = time.perf_counter()
+    run_dir = Path(run_dir)
+    config = read_run_config(run_dir)
+    if config is None:
+        raise ValueError(f"--resume {str(run_dir)!r}: not a run folder (no readable config.yaml)")
+    algo, env_id, seed = config["algo"], config["env_id"], int(config["seed"])
+    settings = resolve_settings(algo, config["hyperparams"])
+    # Finished: timing.json (written last) and no INTERRUPTED marker.
+    if (run_dir / "timing.json").is_file() and not (run_dir / "INTERRUPTED").exists():
+        raise ValueError(
+            f"--resume {str(run_dir)!r}: already at {_timing_steps(run_dir)} of its "
+            f"{settings['n_timesteps']} steps (finished)"
+        )
+    points = saved_points(run_dir)
+    if not points:
+        raise ValueError(
+            f"--resume {str(run_dir)!r}: no checkpoint (checkpoints/model_<N>_steps.zip) and no "
+            "interrupted model.zip to continue from"
+        )
+    # A save cut short (a crash, a full disk, a kill -9 while SB3 wrote a checkpoint) leaves
+    # a truncated file: go back to the newest one that loads.
+    problems: list[str] = []
+    start = None
+    for point in points:
+        problem = checkpoint_problem(point, settings["normalize"] is not None)
+        if problem is None:
+            start = point
+            break
+        problems.append(problem)
+    if start is None:
+        raise ValueError(f"--resume {str(run_dir)!r}: no saved point loads ({'; '.join(problems)})")
+    if problems:
+        print(
+            f"resume: skipped {'; '.join(problems)}; continuing from "
+            f"{start.model.relative_to(run_dir)} ({start.steps:,} steps)",
+            file=sys.stderr,
+        )
+    for folder in (run_dir, run_dir / "checkpoints", run_dir / "eval"):
+        for stale in folder.glob(".*.tmp-*"):  # a save the killed session never finished
+            stale.unlink(missing_ok=True)
+    # The INTERRUPTED marker stays until this session's final model and timing.json are
+    # written: a session killed before then must not leave a folder that looks finished.
+    return _learn(
+        run_dir, algo, env_id, settings, seed, progress, verbose, torch_threads, tic, start
+    )
+
+
+def _callbacks(
+    run_dir: Path,
+    env_id: str,
+    settings: dict[str, Any],
+    seed: int,
+    progress: bool,
+    verbose: int,
+    label: str,
+) -> tuple[list[Any], Any, Any]:
+    """The training callbacks: ``(callbacks, eval vector env or None, eval callback or None)``.
+
+    Every file they write is written atomically (:mod:`agents.rl.callbacks`).
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.rl.callbacks import (
+        AtomicCheckpointCallback,
+        AtomicEvalCallback,
+        EstimationMetricsCallback,
+        SaveVecNormalizeCallback,
+        TqdmProgressCallback,
+    )
+
+    n, norm = settings["n_envs"], settings["normalize"]
+    callbacks: list[Any] = [EstimationMetricsCallback()]
+    eval_venv = eval_cb = None
+    if settings["eval_freq"] > 0:
+        # One lane per evaluation episode: SB3's evaluate_policy runs them in parallel.
+        n_eval = settings["n_eval_episodes"]
+        eval_venv = _make_vec_env(env_id, settings, n_eval, seed + 10_000, None)
+        if norm is not None:
+            eval_venv = VecNormalize(eval_venv, training=False, **{**norm, "norm_reward": False})
+        on_best = (
+            SaveVecNormalizeCallback(run_dir / "eval" / "best_vecnormalize.pkl")
+            if norm is not None
+            else None
+        )
+        eval_cb = AtomicEvalCallback(
+            eval_venv,
+            callback_on_new_best=on_best,
+            n_eval_episodes=settings["n_eval_episodes"],
+            eval_freq=max(settings["eval_freq"] // n, 1),
+            log_path=str(run_dir / "eval"),
+            best_model_save_path=str(run_dir / "eval"),
+            deterministic=True,
+            verbose=verbose,
+        )
+        callbacks.append(eval_cb)
+    if settings["checkpoint_freq"] > 0:
+        callbacks.append(
+            AtomicCheckpointCallback(
+                save_freq=max(settings["checkpoint_freq"] // n, 1),
+                save_path=str(run_dir / "checkpoints"),
+                name_prefix="model",
+                save_vecnormalize=True,
+            )
+        )
+    if progress:
+        callbacks.append(TqdmProgressCallback(desc=label))
+    return callbacks, eval_venv, eval_cb
+
+
+def _run_learn(
+    model: Any, callbacks: list[Any], total: int, fresh: bool
+) -> tuple[KeyboardInterrupt | None, OSError | None, float]:
+    """``model.learn`` up to ``total`` steps; ``(stop, full, seconds)``.
+
+    ``stop`` is the Ctrl-C (``KeyboardInterrupt``) or SIGTERM (:class:`Terminated`) that
+    ended it early, ``full`` the ``ENOSPC`` of a checkpoint or log write that did.
+    """
+    from stable_baselines3.common.callbacks import CallbackList
+
+    # From the loaded model's own count: a session stopped between replacing model.zip and
+    # updating INTERRUPTED resumes where the model really is.
+    remaining = total - int(model.num_timesteps)
+    tic = time.perf_counter()
+    stop: KeyboardInterrupt | None = None
+    full: OSError | None = None
+    with warnings.catch_warnings():
+        # The eval env is wrapped differently (VecNormalize with training=False).
+        warnings.filterwarnings("ignore", message="Training and eval env are not of")
+        try:
+            if remaining > 0:
+                model.learn(
+                    total_timesteps=remaining,
+                    callback=CallbackList(callbacks),
+                    reset_num_timesteps=fresh,
+                )
+        except KeyboardInterrupt as exc:
+            stop = exc
+            how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+            print(
+                f"training {how} at {model.num_timesteps} steps; saving the model",
+                file=sys.stderr,
+            )
+        except OSError as exc:
+            if not is_disk_full(exc):
+                raise
+            full = exc  # reported in one line once what fits is saved (_disk_full)
+    return stop, full, time.perf_counter() - tic
+
+
+def _learn(
+    run_dir: Path,
+    algo: str,
+    env_id: str,
+    settings: dict[str, Any],
+    seed: int,
+    progress: bool,
+    verbose: int,
+    threads: int | None,
+    tic: float,
+    start: Checkpoint | None = None,
+) -> Path:
+    """Build the lanes and the model (or load ``start``), learn, save; returns ``run_dir``.
+
+    The files are written atomically; Ctrl-C and SIGTERM are held from the moment the model
+    is saved until the learning curve and ``timing.json`` are written. ``INTERRUPTED`` (the
+    step count of an unfinished ``model.zip``) is written when training stopped early, and
+    removed only once a finished session's ``timing.json`` is in place.
+
+    Raises:
+        agents.io.outputs.Terminated: SIGTERM, after the run folder was saved (``run_dir`` set).
+        agents.io.outputs.DiskFullError: No space left; the message names the last good save.
+    """
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    done = 0 if start is None else start.steps
+    suffix = "" if start is None else f"_from_{done}"
+    norm = settings["normalize"]
+    full: OSError | None = None  # no space left on the device
+    saving = contextlib.ExitStack()  # entered when the model is saved, left after timing.json
+    try:
+        with saving, _torch_settings(threads):
+            venv = _make_vec_env(
+                env_id, settings, settings["n_envs"], seed + done, run_dir / "monitor", True,
+                name=f"lanes{suffix}",
+            )  # fmt: skip
+            eval_venv = eval_cb = None
+            try:
+                if start is not None and start.vecnormalize is not None:
+                    venv = VecNormalize.load(str(start.vecnormalize), venv)
+                    venv.training = True
+                elif norm is not None:
+                    gamma = settings["algo_kwargs"].get("gamma", 0.99)
+                    venv = VecNormalize(venv, **{"gamma": gamma, **norm})
+                if start is None:
+                    model = _build_model(algo, settings, venv, seed, verbose)
+                else:
+                    cls: Any = algorithms()[algo]
+                    model = cls.load(start.model, env=venv, device="cpu")
+                formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
+                log_dir = run_dir / "logs" / suffix.lstrip("_") if start else run_dir / "logs"
+                model.set_logger(configure(str(log_dir), formats))
+                callbacks, eval_venv, eval_cb = _callbacks(
+                    run_dir, env_id, settings, seed, progress, verbose, f"{algo} {env_id}"
+                )
+                stop, full, learn_s = _run_learn(
+                    model, callbacks, settings["n_timesteps"], start is None
+                )
+                # A second Ctrl-C (or a SIGTERM) must not leave a half-written folder.
+                saving.enter_context(signals_deferred(SAVING_NOTE))
+                try:
+                    _save_model(model, run_dir, norm is not None)
+                    if stop is not None or full is not None:
+                        write_text_atomic(run_dir / "INTERRUPTED", f"{model.num_timesteps}\n")
+                except OSError as exc:
+                    if not is_disk_full(exc):
+                        raise
+                    full = full or exc
+            finally:
+                if eval_cb is not None:
+                    eval_cb.clean_up()
+                for vec in (venv, eval_venv):
+                    # Workers may already be gone after Ctrl-C (they exit on KeyboardInterrupt).
+                    with contextlib.suppress(EOFError, BrokenPipeError, ConnectionError):
+                        if vec is not None:
+                            vec.close()
+            if full is not None:
+                raise _disk_full(run_dir, full, settings)
+            _finish(run_dir, model, learn_s, tic, settings)
+            if stop is None:  # this session finished: only now does the folder look finished
+                (run_dir / "INTERRUPTED").unlink(missing_ok=True)
+    except Terminated as exc:
+        # A SIGTERM held while saving is delivered once the folder is complete.
+        if exc.run_dir is None and (run_dir / "timing.json").is_file():
+            raise Terminated(run_dir) from None
+        raise
+    if isinstance(stop, Terminated):
+        raise Terminated(run_dir)
+    return run_dir
+
+
+def _finish(
+    run_dir: Path, model: Any, learn_s: float, tic: float, settings: dict[str, Any]
+) -> None:
+    """The learning curve, then ``timing.json`` (written last)."""
+    try:
+        _plot_curve(run_dir)
+        timing = {
+            "timesteps": int(model.num_timesteps),
+            "learn_s": round(learn_s, 2),  # model.learn: stepping, updates, evaluations
+            "wall_s": round(time.perf_counter() - tic, 2),  # all of train(), config to plot
+            "steps_per_s": round(model.num_timesteps / max(learn_s, 1e-9), 1),
+        }
+        write_text_atomic(run_dir / "timing.json", json.dumps(timing, indent=2) + "\n")
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        raise _disk_full(run_dir, exc, settings) from None
+
+
+SAVING_NOTE = "quadslam train: saving the run folder, please wait"
+
+
+def _save_model(model: Any, run_dir: Path, normalized: bool) -> None:
+    """``model.zip`` (and ``vecnormalize.pkl``), written atomically together: a failed save
+    (a full disk, a kill) leaves the previous pair whole, never a new model with old
+    statistics."""
+    items: list[tuple[Path, Any]] = [(run_dir / "model.zip", lambda tmp: model.save(tmp))]
+    if normalized:
+        vec = model.get_vec_normalize_env()
+        items.insert(0, (run_dir / "vecnormalize.pkl", lambda tmp: vec.save(str(tmp))))
+    atomic_produce_all(items)
+
+
+def _plot_curve(run_dir: Path) -> None:
+    """``learning_curve.png``, written atomically.
+
+    :func:`agents.rl.curves.plot_learning_curve` writes into the folder it is given, so it gets
+    a staging folder of the run's name whose ``monitor``, ``logs`` and ``eval`` link to the
+    run's; the PNG is then moved into place. Without symbolic links (some file systems) the
+    curve is written in place.
+    """
+    with tempfile.TemporaryDirectory(prefix=".curve-", dir=run_dir) as tmp:
+        staged = Path(tmp) / run_dir.name
+        staged.mkdir()
+        try:
+            for sub in ("monitor", "logs", "eval"):
+                if (run_dir / sub).exists():
+                    (staged / sub).symlink_to((run_dir / sub).resolve(), target_is_directory=True)
+        except OSError:
+            plot_learning_curve(run_dir)
+            return
+        plot_learning_curve(staged)
+        commit(staged / "learning_curve.png", run_dir / "learning_curve.png")
+
+
+def _disk_full(run_dir: Path, exc: OSError, settings: dict[str, Any]) -> DiskFullError:
+    """The one-line report of a full disk: the file that did not fit, the last good save."""
+    total = int(settings["n_timesteps"])
+    needs_norm = settings["normalize"] is not None
+    good = next(
+        (p for p in saved_points(run_dir) if checkpoint_problem(p, needs_norm) is None), None
+    )
+    head = f"no space left on device writing {exc.filename or 'a file'}"
+    if good is None:
+        return DiskFullError(
+            f"{head}; nothing in the run folder {run_dir} can be resumed (no checkpoint was "
+            "saved); free some space and train again"
+        )
+    return DiskFullError(
+        f"{head}; the run folder {run_dir} keeps its last good save "
+        f"({good.model.relative_to(run_dir)}, {good.steps:,} of {total:,} steps); free some "
+        f"space, then: quadslam train --resume {run_dir}"
+    )

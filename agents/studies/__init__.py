@@ -1,0 +1,2 @@
+"""The studies (``quadslam study …``) and the analyses run as
+``python -m agents.studies.<name>``."""
