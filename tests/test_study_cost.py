@@ -4,18 +4,30 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from agents.cli import main as cli
 from agents.cli import study as cli_study
+from agents.rl import hyperparams
+from agents.rl.hyperparams import load_hyperparams
 from agents.studies.cost import TRAINED, run_study, write_json
+
+
+def _tiny_ppo(*args: Any, **kwargs: Any) -> dict:
+    """The shipped entry on 2 lanes, one rollout of 64 steps and one epoch: what the pipeline
+    does with a training (save, reload, evaluate, aggregate) does not depend on its size."""
+    entry = load_hyperparams(*args, **kwargs)
+    return {**entry, "n_envs": 2, "n_steps": 32, "batch_size": 64, "n_epochs": 1}
 
 
 @pytest.fixture(scope="module")
 def tiny_study(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
     out = tmp_path_factory.mktemp("study")
-    result = run_study(out, training_seeds=2, episodes=2, timesteps=128, duration_s=0.3)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(hyperparams, "load_hyperparams", _tiny_ppo)
+        result = run_study(out, training_seeds=2, episodes=2, timesteps=64, duration_s=0.3)
     return result, out
 
 
