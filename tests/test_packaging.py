@@ -84,7 +84,7 @@ def test_resolved_scenario_rebuilds_the_same_config(name: str) -> None:
 
 
 def test_evaluate_uses_the_run_folder_config_only(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A run trained with env_kwargs overrides evaluates on the same env, without config files."""
     monkeypatch.chdir(tmp_path)
@@ -104,6 +104,14 @@ def test_evaluate_uses_the_run_folder_config_only(
     # ppo.yaml's QuadSLAM-v0 entry: the hover scenario with thrust_rates actions.
     assert result["scenario"] == "hover"
     assert result["episodes"][0]["duration_s"] == pytest.approx(0.3)
+    capsys.readouterr()
+    # Another env id keeps the run's scenario but switches the estimator: said in one note.
+    args = ["evaluate", "--policy", str(run_dir), "--env", "QuadSLAM-Oracle-v0"]
+    assert cli.main([*args, "--episodes", "1", "--json", str(out)]) == 0
+    assert "note: flying the run's scenario with QuadSLAM-Oracle-v0's estimator" in (
+        capsys.readouterr().err
+    )
+    assert json.loads(out.read_text())["estimator"] == "oracle"
 
 
 def test_citation_and_changelog_name_the_current_version() -> None:

@@ -199,6 +199,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     # The run's resolved scenario (every section, env_kwargs overrides included) rebuilds the
     # training env without the scenario files; --scenario replaces it.
     scenario = args.scenario or (cfg.get("scenario") if cfg else None)
+    if cfg and args.env and args.env != cfg["env_id"] and not args.scenario:
+        # Another env id switches the estimator, whose settings the training scenario may not
+        # hold (a run trained on the truth has none): they fall back to that estimator's
+        # defaults, which can differ from the ones its own scenarios use (e.g. IMU-bias states).
+        print(
+            f"quadslam evaluate: note: flying the run's scenario with {args.env}'s estimator at "
+            "the settings that scenario gives it (its defaults if none); pass --scenario or "
+            "--set estimator.params.<key>=... to choose them",
+            file=sys.stderr,
+        )
     env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
     check_outputs(args.plots, args.json, args.video)  # before loading and flying
     policy, name = load_policy(args.policy, env)
