@@ -2,7 +2,7 @@
 
 A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the sections ``vehicle``,
 ``imu``, ``lidar``, ``landmarks``, ``trajectory``, ``estimator``, ``reward``, ``observation``,
-``action``, ``episode`` and ``render``. Per-call overrides (``gymnasium.make(id,
+``action``, ``episode``, ``render`` and ``wind``. Per-call overrides (``gymnasium.make(id,
 episode={...})``) are merged into it key by key. Sections with a ``preset`` key start from that
 preset's values; keys given explicitly win over the preset.
 
@@ -29,7 +29,7 @@ from quadslam_env.config_files import (
 from quadslam_env.config_hardware import ImuConfig, LidarConfig, VehicleConfig
 from quadslam_env.config_schema import ConfigError, FieldRow, Section, field_rows
 from quadslam_env.config_schema import spec as _spec
-from quadslam_env.config_world import LandmarksConfig, TrajectoryConfig
+from quadslam_env.config_world import LandmarksConfig, TrajectoryConfig, WindConfig
 
 __all__ = [
     "SECTIONS",
@@ -46,6 +46,7 @@ __all__ = [
     "ScenarioConfig",
     "TrajectoryConfig",
     "VehicleConfig",
+    "WindConfig",
     "available_scenarios",
     "config_dir",
     "deep_merge",
@@ -324,6 +325,7 @@ SECTIONS: dict[str, type[Section]] = {
     "action": ActionConfig,
     "episode": EpisodeConfig,
     "render": RenderConfig,
+    "wind": WindConfig,
 }
 
 
@@ -347,6 +349,7 @@ class ScenarioConfig:
     action: ActionConfig
     episode: EpisodeConfig
     render: RenderConfig
+    wind: WindConfig
     description: str = ""
 
     @property
@@ -417,6 +420,7 @@ class ScenarioConfig:
             )
         check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
         check_heading(scenario)
+        scenario.wind.check_drag(scenario.vehicle.drag_per_s, scenario.vehicle.drag_quadratic_per_m)
         return scenario
 
     def to_dict(self) -> dict[str, Any]:

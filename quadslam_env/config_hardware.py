@@ -57,7 +57,17 @@ class VehicleConfig(Section):
         0.0,
         lo=0.0,
         hi=10.0,
-        doc="linear drag coefficient in 1/s (specific force −drag·v); 0 = none, as in the papers",
+        doc="linear drag coefficient in 1/s (specific force −drag·v_a on the velocity relative "
+        "to the air); 0 = none, as in the papers",
+    )
+    drag_quadratic_per_m: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=0.0,
+        hi=10.0,
+        doc="quadratic drag c_q per body axis in 1/m (specific force −c_q ∘ (‖v_a‖ v_a) on "
+        "the velocity relative to the air); simulator only, the estimators' models leave it out",
     )
     actuator_tau_s: float = _spec(
         0.0, lo=0.0, hi=1.0, doc="first-order lag of thrust and torques in s; 0 = instantaneous"
@@ -82,6 +92,7 @@ class VehicleConfig(Section):
             max_torque=base.max_torque if self.max_torque_nm is None else _vec(self.max_torque_nm),
             drag=self.drag_per_s,
             actuator_tau=self.actuator_tau_s,
+            drag_quadratic=_vec(self.drag_quadratic_per_m),
         )
 
     def validate(self) -> None:

@@ -1,13 +1,15 @@
-"""Scenario sections of the world the vehicle flies in: ``landmarks`` (layouts) and
-``trajectory`` (the reference); re-exported by :mod:`quadslam_env.config`."""
+"""Scenario sections of the world the vehicle flies in: ``landmarks`` (layouts),
+``trajectory`` (the reference) and ``wind``; re-exported by :mod:`quadslam_env.config`."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from quadslam_env.config_schema import ConfigError, Section
 from quadslam_env.config_schema import spec as _spec
+from quadslam_env.models.wind import W20_MPS
 
 
 @dataclass(frozen=True)
@@ -137,3 +139,103 @@ class TrajectoryConfig(Section):
         doc="start each episode on the reference (its position, velocity, attitude and yaw "
         "rate at t = 0, the estimate around it) instead of episode.initial_*: no transient",
     )
+
+
+@dataclass(frozen=True)
+class WindConfig(Section):
+    """Wind (docs/env.md "Wind"): a steady wind plus optional Dryden turbulence.
+
+    The Dryden gust is the MIL-F-8785C low-altitude model (:mod:`quadslam_env.models.wind`):
+    intensities and scale lengths from ``w20_mps`` and ``altitude_m``, a frozen field carried
+    past the vehicle at ``airspeed_mps``. A ``preset`` (the standard's light, moderate or severe
+    turbulence) sets ``turbulence: dryden`` and ``w20_mps``. The estimators never see the wind.
+    """
+
+    SECTION: ClassVar[str] = "wind"
+    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
+        name: {"turbulence": "dryden", "w20_mps": w20} for name, w20 in W20_MPS.items()
+    }
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = dict.fromkeys(
+        ("w20_mps", "altitude_m", "airspeed_mps"), ("turbulence", ("dryden",))
+    )
+    preset: str | None = _spec(
+        None,
+        kind="str",
+        choices=tuple(W20_MPS),
+        optional=True,
+        doc="Dryden turbulence of the standard's intensity (W20 = 15, 30, 45 kt); null = none",
+    )
+    steady_mps: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-100.0,
+        hi=100.0,
+        doc="steady wind velocity in NED (the air's velocity, not where it blows from), m/s",
+    )
+    turbulence: str = _spec(
+        "none",
+        kind="str",
+        choices=("none", "dryden"),
+        doc="none, or Dryden gusts (MIL-F-8785C low-altitude model) on top of the steady wind",
+    )
+    w20_mps: float = _spec(
+        W20_MPS["light"],
+        lo=0.0,
+        hi=100.0,
+        doc="wind speed at 20 ft (6.1 m), m/s: σ_w = 0.1 W20 (light 7.72, moderate 15.4, "
+        "severe 23.2)",
+    )
+    altitude_m: float = _spec(
+        2.0,
+        lo=0.0,
+        lo_open=True,
+        hi=304.8,
+        doc="height above ground for the scale lengths and intensities, m (the model's range "
+        "is 10–1000 ft; below 3.05 m the 10 ft values)",
+    )
+    airspeed_mps: float | None = _spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        hi=200.0,
+        optional=True,
+        doc="speed V at which the frozen turbulence passes the vehicle (time scales L/V), "
+        "m/s; null = the steady wind's speed",
+    )
+
+    @property
+    def enabled(self) -> bool:
+        """Whether there is any wind (a non-zero steady wind or turbulence)."""
+        return self.turbulence != "none" or any(w != 0.0 for w in self.steady_mps)
+
+    @property
+    def speed_mps(self) -> float:
+        """V in m/s: ``airspeed_mps``, or the steady wind's speed when that is null."""
+        if self.airspeed_mps is not None:
+            return self.airspeed_mps
+        return math.sqrt(sum(w * w for w in self.steady_mps))
+
+    def validate(self) -> None:
+        if self.turbulence == "dryden" and self.speed_mps <= 0.0:
+            raise ConfigError(
+                f"wind.airspeed_mps: got null with wind.steady_mps = {list(self.steady_mps)}; "
+                "allowed: a speed > 0 m/s, or a non-zero wind.steady_mps (Dryden turbulence "
+                "is a frozen field carried past the vehicle at that speed)"
+            )
+
+    def check_drag(self, drag_per_s: float, drag_quadratic_per_m: tuple[float, ...]) -> None:
+        """A wind acts through the drag: with none (``vehicle.drag_per_s`` and
+        ``vehicle.drag_quadratic_per_m`` zero) it would be silently ignored.
+
+        Raises:
+            ConfigError: Naming the keys, their values and what is allowed.
+        """
+        if self.enabled and drag_per_s == 0.0 and not any(drag_quadratic_per_m):
+            raise ConfigError(
+                f"wind: got steady_mps {list(self.steady_mps)} and turbulence "
+                f"{self.turbulence!r} with vehicle.drag_per_s = 0 and "
+                f"vehicle.drag_quadratic_per_m = {list(drag_quadratic_per_m)}, so the wind "
+                "would push on nothing; allowed: a drag with a wind (vehicle.drag_per_s > 0 "
+                "or a vehicle.drag_quadratic_per_m > 0), or no wind"
+            )

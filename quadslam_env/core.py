@@ -8,7 +8,9 @@ seeded with s + i is the scalar env seeded with s + i.
 
 Randomness: each lane has its own generator (the scalar env's ``np_random``), which spawns five
 children at every reset — landmarks, IMU, LiDAR, estimator, initial estimation error — exactly
-as the scalar env always has.
+as the scalar env always has. The wind (:mod:`quadslam_env.wind`: held over each step, reported
+in ``info``, advanced after the step; the estimators are not told) spawns its gusts' generator
+from the world child, so no other stream changes when it is on.
 
 IMU rate (``imu.rate_hz``, docs/env.md "IMU rate"): each IMU sample is the average of its
 inputs over its own period, and each prediction gets the input's white-noise std per step h,
@@ -31,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from quadslam_env.actions import ActionMap
-from quadslam_env.config import LandmarksConfig, ScenarioConfig
+from quadslam_env.config import ScenarioConfig
 from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
 from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
@@ -54,7 +56,8 @@ from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
 from quadslam_env.types import STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
-from quadslam_env.world import make_landmarks
+from quadslam_env.wind import WindBatch
+from quadslam_env.world import landmark_capacity, make_landmarks, put_landmarks
 
 # The rows of a step's (K, B) array of per-lane terms: the metrics, then the terms the core
 # adds, then the reward terms and the reward. ``info`` maps each key to its row (a contiguous
@@ -67,15 +70,6 @@ _REWARD0, _REWARD = _ROWS[REWARD_KEYS[0]], _ROWS["reward"]
 _CORE_ROWS = tuple((key, _ROWS[key]) for key in _CORE_KEYS)
 _REWARD_ROWS = tuple((key, _ROWS[key]) for key in REWARD_KEYS)
 _EPISODE_ROWS = input_columns(_ROWS)
-
-
-def landmark_capacity(cfg: LandmarksConfig) -> int:
-    """Number of landmarks the layout makes (the map's size bound Lmax)."""
-    if cfg.layout == "rauniyar2023":
-        return cfg.count
-    if cfg.layout == "poles4":
-        return 4
-    return len(cfg.positions)
 
 
 class SimCore:
@@ -107,6 +101,8 @@ class SimCore:
         self.max_steps = cfg.max_steps
         self.vehicle_params = cfg.vehicle.params()
         self.vehicle = VehicleBatch(self.vehicle_params, cfg.vehicle.physics_dt_s, b)
+        self.wind = WindBatch(cfg.wind, self.dt, b)
+        self.vehicle.wind_n = self.wind.velocity  # None in still air
         self.imu = ImuBatch(cfg.imu, self.vehicle_params, cfg.imu_rate_hz, b)
         self._imu_per_step, self._steps_per_imu = cfg.imu_per_step, cfg.steps_per_imu
         prop_hz = max(cfg.imu_rate_hz, cfg.episode.control_hz)  # 1/h, the prediction rate
@@ -197,16 +193,18 @@ class SimCore:
                 points = opts["landmarks"]
             else:
                 points = make_landmarks(cfg.landmarks, self.trajectory.center, rng_world)[1]
-            self._set_landmarks(lane, points)
+            self.landmarks = put_landmarks(self.landmarks, self.n_landmarks, lane, points)
             states0[j] = opts.get("initial_state", self._state0)
             mean0[j] = states0[j]
             if cfg.estimator.sample_initial_error:
                 mean0[j] += sigma0 * rng_init.standard_normal(STATE_DIM)
         mean0[:, 6:9] = wrap_angle(mean0[:, 6:9])
         self.vehicle.reset(lanes, states0)
+        self.wind.reset(lanes, [c[0] for c in children])
         self.imu.reset(lanes, [c[1] for c in children])
         if self._steps_per_imu > 1:  # a slower IMU's first sample, held until the next
-            self.imu.prime(lanes, states0, self.vehicle.applied_thrust[lanes])
+            vel = self.vehicle.air_velocity()[lanes]
+            self.imu.prime(lanes, vel, states0[:, 9:12], self.vehicle.applied_thrust[lanes])
         self.lidar.reset(lanes, [c[2] for c in children])
         known = None
         if cfg.estimator.known_map:
@@ -238,16 +236,6 @@ class SimCore:
         _, info = self._metrics(est, ref)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
         return obs[lanes], {key: value[lanes] for key, value in info.items()}
-
-    def _set_landmarks(self, lane: int, points: FloatArray) -> None:
-        n = points.shape[0]
-        if n > self.landmarks.shape[1]:  # a reset option brought a larger map
-            grown = np.zeros((self.num_lanes, n, 3))
-            grown[:, : self.landmarks.shape[1]] = self.landmarks
-            self.landmarks = grown
-        self.landmarks[lane, :n] = points
-        self.landmarks[lane, n:] = 0.0
-        self.n_landmarks[lane] = n
 
     # ------------------------------------------------------------------ step
     def step(
@@ -346,6 +334,7 @@ class SimCore:
                 info[key] = np.where(done, value, math.nan)
         info["termination_reason"] = reasons
         obs = self.observer.build(est, ref, self.t, self.n_visible)
+        self.wind.advance(active)  # info holds the wind of this step; now the next one's
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ IMU
@@ -367,7 +356,7 @@ class SimCore:
             taken now, or (slower IMU) the latest one held.
         """
         vehicle, imu = self.vehicle, self.imu
-        vel = vehicle.state[:, 3:6]
+        vel = vehicle.air_velocity()
         if self._steps_per_imu == 1:
             accel, gyro = imu.sample(self.t, vel, self.last_rates, vehicle.applied_thrust, active)
         else:
@@ -396,7 +385,7 @@ class SimCore:
             sub_rates = vehicle.step(thrust, torque, h, active)
             rates += sub_rates
             t_imu = self.t + (i + 1) * h
-            vel = vehicle.state[:, 3:6]
+            vel = vehicle.air_velocity()
             accel, gyro = imu.sample(t_imu, vel, sub_rates, vehicle.applied_thrust, active)
             f_t, tau = vehicle.applied_thrust.copy(), vehicle.applied_torque.copy()
             samples.append((t_imu, accel, gyro, f_t, tau))
@@ -487,6 +476,7 @@ class SimCore:
         info: dict[str, Any] = {key: values[row] for key, row in keys}
         for key, row in _CORE_ROWS:
             info[key] = values[row]
+        info.update(self.wind.info())
         if self.unlabeled:
             info["spurious_landmarks"] = self._spurious.copy()
             counts = self._assoc_counts

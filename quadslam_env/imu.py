@@ -25,7 +25,7 @@ from quadslam_env.measurements import ImuSample
 from quadslam_env.models.imu_noise import gauss_markov_discretisation, white_noise_sigma
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.models.rigid_body import specific_force_body
+from quadslam_env.models.rigid_body import aero_specific_force, specific_force_body
 from quadslam_env.sensor_lanes import LANE0 as _LANE0
 from quadslam_env.sensor_lanes import lane_generators as _generators
 from quadslam_env.sensor_lanes import lane_indices as _lanes
@@ -97,10 +97,10 @@ class ImuBatch:
         self.accel_range = math.inf if cfg.accel_range_g is None else cfg.accel_range_g * GRAVITY
         self.gyro_range = math.inf if cfg.gyro_range_dps is None else cfg.gyro_range_dps * DEG
         # The sample kernel's constants: mass, drag, σ_a, σ_ω, decay, drift driving scale,
-        # accelerometer and gyro ranges.
+        # accelerometer and gyro ranges, quadratic drag (3).
         self._coeffs = np.array(
             [vehicle.mass, vehicle.drag, self.accel_sigma, self.gyro_sigma, self._decay,
-             self._drift_scale, self.accel_range, self.gyro_range]
+             self._drift_scale, self.accel_range, self.gyro_range, *vehicle.drag_quadratic]
         )  # fmt: skip
 
     def reset(self, lanes: ArrayLike, rngs: Sequence[np.random.Generator]) -> None:
@@ -148,7 +148,8 @@ class ImuBatch:
 
         Args:
             t: Sample time(s) in s; not used by the model (kept to mirror :meth:`Imu.sample`).
-            vel_body: (B, 3) true body velocity in m/s (enters the drag specific force).
+            vel_body: (B, 3) true body velocity relative to the air in m/s (enters the drag
+                specific force; the body velocity in still air).
             rates: (B, 3) true body rates in rad/s.
             thrust: (B,) applied thrust in N.
             active: (B,) bool lanes that sample now (default: all).
@@ -187,7 +188,7 @@ class ImuBatch:
         over its own period T = m control periods (:meth:`sample_held`).
 
         Args:
-            vel_body: (B, 3) true body velocity at the end of the period in m/s.
+            vel_body: (B, 3) true air-relative body velocity at the end of the period, m/s.
             rates: (B, 3) true body rates averaged over the period in rad/s.
             thrust: (B,) applied thrust in N.
             active: (B,) bool lanes that stepped.
@@ -211,18 +212,21 @@ class ImuBatch:
         self._sums[due] = 0.0
         self._counts[due] = 0
 
-    def prime(self, lanes: ArrayLike, state: FloatArray, thrust: FloatArray) -> None:
-        """The sample at t = 0 of freshly reset ``lanes`` (k,), from their initial state (k,
-        12) and thrust (k,) N, held (the sample a slower-than-control IMU hands the filter for
-        its first period; the vehicle is taken as in that state over the IMU period before).
+    def prime(
+        self, lanes: ArrayLike, vel_body: FloatArray, rates: FloatArray, thrust: FloatArray
+    ) -> None:
+        """The sample at t = 0 of freshly reset ``lanes`` (k,), from their initial air-relative
+        velocity (k, 3) m/s, rates (k, 3) rad/s and thrust (k,) N, held (the sample a
+        slower-than-control IMU hands the filter for its first period; the vehicle is taken
+        as in that state over the IMU period before).
         """
         idx = _lanes(lanes)
         b = self.num_lanes
-        vel, rates, f_t = np.zeros((b, 3)), np.zeros((b, 3)), np.zeros(b)
-        vel[idx], rates[idx], f_t[idx] = state[:, 3:6], state[:, 9:12], thrust
+        vel, rate, f_t = np.zeros((b, 3)), np.zeros((b, 3)), np.zeros(b)
+        vel[idx], rate[idx], f_t[idx] = vel_body, rates, thrust
         due = np.zeros(b, dtype=bool)
         due[idx] = True
-        self._hold(0.0, vel, rates, f_t, due)
+        self._hold(0.0, vel, rate, f_t, due)
 
     def _hold(
         self, t: ArrayLike, vel: FloatArray, rates: FloatArray, thrust: FloatArray, due: np.ndarray
@@ -250,20 +254,25 @@ def _sample_lanes(
     """One IMU sample of each lane in ``lanes`` (see :class:`ImuBatch`), in place.
 
     ``coeffs`` = (mass kg, drag 1/s, σ_a, σ_ω, Gauss–Markov decay a, √(1 − a²), accelerometer
-    range m/s², gyro range rad/s); ``noise[i, cursor[i]]`` holds lane i's 12 normals for this
-    sample (white noise, then the drift step). Each reading saturates at ±range (after noise
-    and bias, as a real sensor's output does).
+    range m/s², gyro range rad/s, quadratic drag c_q (3) 1/m); ``noise[i, cursor[i]]`` holds
+    lane i's 12 normals for this sample (white noise, then the drift step). Each reading
+    saturates at ±range (after noise and bias, as a real sensor's output does). ``vel_body``
+    is relative to the air, so the drag the accelerometer senses is the one the body feels.
     """
     mass, drag, sigma_a, sigma_g, decay, scale = (
         coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4], coeffs[5]
     )  # fmt: skip
     a_max, g_max = coeffs[6], coeffs[7]
+    cq = (coeffs[8], coeffs[9], coeffs[10])
+    quadratic = cq[0] != 0.0 or cq[1] != 0.0 or cq[2] != 0.0
     for i in lanes:
         z = noise[i, cursor[i]]
         cursor[i] += 1
-        f_b = specific_force_body(
-            vel_body[i, 0], vel_body[i, 1], vel_body[i, 2], thrust[i], mass, drag
-        )
+        ua, va, wa = vel_body[i, 0], vel_body[i, 1], vel_body[i, 2]
+        if quadratic:
+            f_b = aero_specific_force(ua, va, wa, thrust[i], mass, drag, cq)
+        else:
+            f_b = specific_force_body(ua, va, wa, thrust[i], mass, drag)
         for k in range(3):
             a = f_b[k] + (bias0[i, k] + drift[i, k]) + sigma_a * z[k]
             g = rates[i, k] + (bias0[i, 3 + k] + drift[i, 3 + k]) + sigma_g * z[3 + k]

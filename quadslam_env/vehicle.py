@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike
 
 from quadslam_env.models.integrators import vehicle_step_lanes
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.models.rigid_body import lane_array
+from quadslam_env.models.rigid_body import air_velocity_lanes, lane_array
 from quadslam_env.types import STATE_DIM, FloatArray
 
 
@@ -21,12 +21,16 @@ class VehicleBatch:
 
     Inputs are saturated to the vehicle limits and held over the control period (zero-order
     hold); with ``actuator_tau > 0`` the applied inputs follow the command through an exact
-    first-order lag per substep.
+    first-order lag per substep. Drag acts on the velocity relative to the air: with a wind
+    (:attr:`wind_n`) or a quadratic drag (``params.drag_quadratic``) the kernel takes its
+    aerodynamic path, otherwise the still-air model (docs/design.md §3).
 
     Attributes:
         state: (B, 12) true states ``(ρ [m, N], v [m/s, B], Λ [rad], ω [rad/s, B])``.
         applied_thrust: (B,) thrust acting on each body in N (after saturation and lag).
         applied_torque: (B, 3) torque acting on each body in N·m.
+        wind_n: (B, 3) wind in N (m/s) held over the next step, or ``None`` (still air). The
+            simulator sets it to its wind's array (:class:`quadslam_env.wind.WindBatch`).
 
     Args:
         params: Vehicle parameters (shared by all lanes).
@@ -46,6 +50,10 @@ class VehicleBatch:
         self._inertia_inv = np.array(params.inertia_inv)
         self._max_torque = np.array(params.max_torque)
         self._all = np.ones(self.num_lanes, dtype=bool)
+        self.wind_n: FloatArray | None = None
+        self._drag_quadratic = np.array(params.drag_quadratic)
+        self._quadratic = bool(np.any(self._drag_quadratic != 0.0))
+        self._still_air = np.zeros((self.num_lanes, 3))
 
     def reset(self, lanes: ArrayLike, states: ArrayLike) -> None:
         """Set the true states of ``lanes``; their actuators start at hover thrust, zero torque.
@@ -98,8 +106,20 @@ class VehicleBatch:
             float(duration),
             self.physics_dt,
             mean_rates,
+            self._still_air if self.wind_n is None else self.wind_n,
+            self._drag_quadratic,
+            self.wind_n is not None or self._quadratic,
         )
         return mean_rates
+
+    def air_velocity(self) -> FloatArray:
+        """(B, 3) velocity relative to the air ``v − C_NBᵀ w`` in B, m/s (what the drag and
+        the accelerometer feel); in still air a view of the state's v."""
+        if self.wind_n is None:
+            return self.state[:, 3:6]
+        out = np.empty((self.num_lanes, 3))
+        air_velocity_lanes(self.state, self.wind_n, out)
+        return out
 
 
 class Vehicle:

@@ -8,6 +8,15 @@ from quadslam_env.config import LandmarksConfig
 from quadslam_env.types import DEG, FloatArray
 
 
+def landmark_capacity(cfg: LandmarksConfig) -> int:
+    """Number of landmarks the layout makes (the map's size bound Lmax)."""
+    if cfg.layout == "rauniyar2023":
+        return cfg.count
+    if cfg.layout == "poles4":
+        return 4
+    return len(cfg.positions)
+
+
 def make_landmarks(
     cfg: LandmarksConfig, center: FloatArray, rng: np.random.Generator
 ) -> tuple[np.ndarray, FloatArray]:
@@ -45,3 +54,23 @@ def make_landmarks(
     else:
         points = np.array(cfg.positions, dtype=float)
     return np.arange(points.shape[0]), points
+
+
+def put_landmarks(
+    landmarks: FloatArray, n_landmarks: np.ndarray, lane: int, points: FloatArray
+) -> FloatArray:
+    """Write ``points`` (L, 3) as ``lane``'s map into the lanes' ``landmarks`` (B, Lmax, 3)
+    (rows past L zeroed) and L into ``n_landmarks`` (B,).
+
+    Returns:
+        ``landmarks``, or a larger copy when L > Lmax (a reset option brought a larger map).
+    """
+    n = points.shape[0]
+    if n > landmarks.shape[1]:
+        grown = np.zeros((landmarks.shape[0], n, 3))
+        grown[:, : landmarks.shape[1]] = landmarks
+        landmarks = grown
+    landmarks[lane, :n] = points
+    landmarks[lane, n:] = 0.0
+    n_landmarks[lane] = n
+    return landmarks

@@ -51,6 +51,9 @@ def _step_lanes(params, states, thrust_cmd, torque_cmd, active, duration, dt=0.0
         duration,
         dt,
         mean_rates,
+        np.zeros((b, 3)),  # still air
+        np.array(params.drag_quadratic),
+        False,
     )
     return applied_thrust, applied_torque, mean_rates
 

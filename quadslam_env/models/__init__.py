@@ -5,12 +5,14 @@ No RNG, no state. The per-vehicle math is numba kernels lifted over a leading ba
 
 - :mod:`~quadslam_env.models.frames`: C_NB, elementary rotations, ∂C/∂Λ, D(Λ), angle wrap.
 - :mod:`~quadslam_env.models.params`: vehicle parameters and presets.
-- :mod:`~quadslam_env.models.rigid_body`: seed 001 eq. 2–3, specific force, saturation, RK4 step.
+- :mod:`~quadslam_env.models.rigid_body`: seed 001 eq. 2–3, specific force and drag on the
+  air-relative velocity, saturation, RK4 step.
 - :mod:`~quadslam_env.models.integrators`: RK4/Euler over lanes (simulator and FastSLAM).
 - :mod:`~quadslam_env.models.imu_noise`: noise density → σ, exact Gauss–Markov discretisation.
 - :mod:`~quadslam_env.models.lidar`: measurement, inverse and Jacobians (per-landmark kernels,
   gufuncs over leading axes).
 - :mod:`~quadslam_env.models.linalg`: stacked small-matrix helpers.
+- :mod:`~quadslam_env.models.wind`: Dryden turbulence (MIL-F-8785C), exact discretisation.
 """
 
 from quadslam_env.models.frames import (

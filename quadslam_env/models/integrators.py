@@ -18,6 +18,7 @@ from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import (
     INPUT_DIM,
+    NO_AIR,
     pack_bodies,
     rigid_body_derivative,
     rk4_step,
@@ -45,13 +46,17 @@ def vehicle_step_lanes(
     duration: float,
     physics_dt: float,
     mean_rates_out: FloatArray,
+    wind: FloatArray,
+    drag_quadratic: FloatArray,
+    aero: bool,
 ) -> None:
     """Advance every active vehicle lane by ``duration`` s (the simulator's physics step).
 
     Per lane: saturate the command, then ``n = substep_count(duration, physics_dt)`` RK4
     substeps with the input held (zero-order hold) or, with ``actuator_tau > 0``, following
-    the command through an exact first-order lag updated at the start of each substep. Roll
-    and yaw are wrapped to (-π, π] at the end. Inactive lanes are not touched.
+    the command through an exact first-order lag updated at the start of each substep; the
+    lane's wind is held over the period. Roll and yaw are wrapped to (-π, π] at the end.
+    Inactive lanes are not touched.
 
     Args:
         states: (B, 12) true states, updated in place.
@@ -64,6 +69,11 @@ def vehicle_step_lanes(
         duration: Control period in s. physics_dt: Maximum RK4 substep in s.
         mean_rates_out: (B, 3) body rates averaged over the period (trapezoid over the
             substep end points), rad/s — what an integrating gyro reports; active rows only.
+        wind: (B, 3) wind in N, m/s (read only with ``aero``).
+        drag_quadratic: (3,) quadratic drag coefficients c_q per body axis, 1/m.
+        aero: Drag on the air-relative velocity plus the quadratic drag
+            (:func:`~quadslam_env.models.rigid_body.aero_specific_force`); False: still air,
+            no quadratic drag, the model without wind.
     """
     n_sub = substep_count(duration, physics_dt)
     h = duration / n_sub
@@ -78,6 +88,10 @@ def vehicle_step_lanes(
         x = states[i]
         cmd_tau = (torque_cmd[i, 0], torque_cmd[i, 1], torque_cmd[i, 2])
         thrust, tau = saturate(thrust_cmd[i], cmd_tau, max_thrust, max_torque)
+        air = NO_AIR
+        if aero:
+            cq = drag_quadratic
+            air = (wind[i, 0], wind[i, 1], wind[i, 2], cq[0], cq[1], cq[2])
         # Trapezoid over the substep end points: half weight on the first and the last.
         p_sum, q_sum, r_sum = 0.5 * x[9], 0.5 * x[10], 0.5 * x[11]
         u[0], u[1], u[2], u[3] = thrust, tau[0], tau[1], tau[2]
@@ -88,7 +102,7 @@ def vehicle_step_lanes(
                     applied_torque[i, j] = tau[j] + (applied_torque[i, j] - tau[j]) * keep
                 u[0] = applied_thrust[i]
                 u[1], u[2], u[3] = applied_torque[i, 0], applied_torque[i, 1], applied_torque[i, 2]
-            rk4_step(x, u, body, False, h, work)
+            rk4_step(x, u, body, False, h, work, air, aero)
             p_sum += x[9]
             q_sum += x[10]
             r_sum += x[11]
@@ -131,9 +145,9 @@ def propagate_lanes(
         x, u, body = states[i], inputs[0 if shared_u else i], bodies[0 if shared else i]
         for _ in range(n_steps):
             if use_rk4:
-                rk4_step(x, u, body, hold_rates, h, work)
+                rk4_step(x, u, body, hold_rates, h, work, NO_AIR, False)
             else:
-                rigid_body_derivative(x, u, body, hold_rates, work[0])
+                rigid_body_derivative(x, u, body, hold_rates, work[0], NO_AIR, False)
                 for j in range(STATE_DIM):
                     x[j] = x[j] + h * work[0, j]
 
@@ -149,7 +163,8 @@ def derivative_lanes(
     shared, shared_u = bodies.shape[0] == 1, inputs.shape[0] == 1
     for i in range(states.shape[0]):
         u = inputs[0 if shared_u else i]
-        rigid_body_derivative(states[i], u, bodies[0 if shared else i], hold_rates, out[i])
+        body = bodies[0 if shared else i]
+        rigid_body_derivative(states[i], u, body, hold_rates, out[i], NO_AIR, False)
 
 
 # --------------------------------------------------------------------------------------------

@@ -21,6 +21,9 @@ class VehicleParams:
         max_torque: (3,) symmetric torque limits in N·m per body axis.
         drag: Linear drag coefficient in 1/s (``v̇ += -drag · v``); 0 disables it.
         actuator_tau: First-order actuator time constant in s; 0 disables the lag.
+        drag_quadratic: (3,) quadratic drag coefficients c_q per body axis in 1/m (specific
+            force ``−c_q ∘ (‖v_a‖ v_a)`` on the air-relative velocity v_a); zeros disable it.
+            The simulator's truth only: the estimators' process models leave it out.
         inertia_inv: (3, 3) ``J⁻¹`` in 1/(kg·m²), derived.
     """
 
@@ -31,6 +34,7 @@ class VehicleParams:
     max_torque: FloatArray
     drag: float = 0.0
     actuator_tau: float = 0.0
+    drag_quadratic: FloatArray = field(default_factory=lambda: np.zeros(3))
     inertia_inv: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -42,6 +46,9 @@ class VehicleParams:
         inv.setflags(write=False)
         object.__setattr__(self, "inertia", inertia)
         object.__setattr__(self, "max_torque", torque)
+        quadratic = np.array(self.drag_quadratic, dtype=float).reshape(3)
+        quadratic.setflags(write=False)
+        object.__setattr__(self, "drag_quadratic", quadratic)
         object.__setattr__(self, "inertia_inv", inv)
 
     @property

@@ -16,6 +16,12 @@ The kernels take the input as one vector ``u = (f_T, τ, a)`` with an extra body
 force ``a`` (m/s²), the parameters as one vector (:func:`pack_bodies`), and a ``hold_rates``
 flag: with ``f_T = 0``, ``drag = 0``, ``a = a_m`` and ``ω̇ = 0`` the same kinematics are the
 IMU strapdown model of seed 000's kinematic FastSLAM (§IV-B), so it needs no copy of them.
+
+Aerodynamics (docs/design.md §3): drag acts on the air-relative velocity ``v_a = v − C_NBᵀ w``
+for a wind ``w`` (N, m/s): a linear part ``−drag · v_a`` and a quadratic part
+``−c_q ∘ (‖v_a‖ v_a)`` (:func:`aero_specific_force`). The kernels take them as ``air = (w (3),
+c_q (3))`` with an ``aero`` flag; with ``aero`` False (still air, no quadratic drag; every
+estimator's model) they compute exactly what they did before wind existed.
 """
 
 from __future__ import annotations
@@ -31,9 +37,16 @@ from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import GRAVITY, STATE_DIM, FloatArray
 
 Vec3 = tuple[float, float, float]
+Vec4 = tuple[float, float, float, float]
+Vec9 = tuple[float, float, float, float, float, float, float, float, float]
 
 INPUT_DIM = 7
 """Input vector ``u = (f_T [N], τ [N·m] (3), a [m/s²] (3))`` of the kernels, B frame."""
+
+AirTuple = tuple[float, float, float, float, float, float]
+
+NO_AIR: AirTuple = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+"""``air`` of still air without quadratic drag (pass it with ``aero = False``)."""
 
 BODY_DIM = 20
 """Body parameter vector ``(m [kg], drag [1/s], J (9), J⁻¹ (9))``, matrices row-major."""
@@ -73,6 +86,52 @@ def specific_force_body(
 
 
 @inline_kernel
+def aero_specific_force(
+    ua: float, va: float, wa: float, thrust: float, mass: float, drag: float, cq: Vec3
+) -> Vec3:
+    """Specific force with quadratic drag, m/s² (B frame), from the air-relative velocity.
+
+    ``f_B = −(f_T/m) b3 − drag · v_a − c_q ∘ (‖v_a‖ v_a)``: :func:`specific_force_body` on
+    ``v_a = (ua, va, wa)`` (m/s, B) plus a quadratic drag with per-axis coefficients ``cq``
+    (1/m; a body at relative speed s feels ``c_q s²`` per unit mass along the flow).
+    """
+    f = specific_force_body(ua, va, wa, thrust, mass, drag)
+    speed = math.sqrt(ua * ua + va * va + wa * wa)
+    return f[0] - cq[0] * speed * ua, f[1] - cq[1] * speed * va, f[2] - cq[2] * speed * wa
+
+
+@inline_kernel
+def air_velocity_body(x: FloatArray, c: Vec9, wn: float, we: float, wd: float) -> Vec3:
+    """``v_a = v − C_NBᵀ w``: velocity relative to the air in B, m/s.
+
+    Args:
+        x: (12,) state (v read from ``x[3:6]``). c: C_NB row-major (9 entries).
+        wn, we, wd: Wind w in N (north, east, down), m/s.
+    """
+    return (
+        x[3] - (c[0] * wn + c[3] * we + c[6] * wd),
+        x[4] - (c[1] * wn + c[4] * we + c[7] * wd),
+        x[5] - (c[2] * wn + c[5] * we + c[8] * wd),
+    )
+
+
+@inline_kernel
+def kinematics_dcm(x: FloatArray, c: Vec9, trig: Vec4, f_b: Vec3, out: FloatArray) -> None:
+    """:func:`kinematics` with C_NB (row-major, 9) and ``trig = (cos φ, sin φ, cos θ, sin θ)``
+    already computed."""
+    u, v, w = x[3], x[4], x[5]
+    p, q, r = x[9], x[10], x[11]
+    out[0] = c[0] * u + c[1] * v + c[2] * w
+    out[1] = c[3] * u + c[4] * v + c[5] * w
+    out[2] = c[6] * u + c[7] * v + c[8] * w
+    # C_NBᵀ n3 is the third row of C_NB.
+    out[3] = -(q * w - r * v) + GRAVITY * c[6] + f_b[0]
+    out[4] = -(r * u - p * w) + GRAVITY * c[7] + f_b[1]
+    out[5] = -(p * v - q * u) + GRAVITY * c[8] + f_b[2]
+    out[6], out[7], out[8] = euler_rates_from_trig(trig[0], trig[1], trig[2], trig[3], p, q, r)
+
+
+@inline_kernel
 def kinematics(x: FloatArray, f_b: Vec3, out: FloatArray) -> None:
     """Rows ρ̇, v̇, Λ̇ of seed 001 eq. 2 for one state, written to ``out[0:9]``.
 
@@ -83,19 +142,10 @@ def kinematics(x: FloatArray, f_b: Vec3, out: FloatArray) -> None:
         f_b: Specific force in B, m/s².
         out: (12,) derivative; entries 9–11 are not touched.
     """
-    u, v, w = x[3], x[4], x[5]
-    p, q, r = x[9], x[10], x[11]
     cf, sf = math.cos(x[6]), math.sin(x[6])
     ct, st = math.cos(x[7]), math.sin(x[7])
     c = dcm_from_trig(cf, sf, ct, st, math.cos(x[8]), math.sin(x[8]))
-    out[0] = c[0] * u + c[1] * v + c[2] * w
-    out[1] = c[3] * u + c[4] * v + c[5] * w
-    out[2] = c[6] * u + c[7] * v + c[8] * w
-    # C_NBᵀ n3 is the third row of C_NB.
-    out[3] = -(q * w - r * v) + GRAVITY * c[6] + f_b[0]
-    out[4] = -(r * u - p * w) + GRAVITY * c[7] + f_b[1]
-    out[5] = -(p * v - q * u) + GRAVITY * c[8] + f_b[2]
-    out[6], out[7], out[8] = euler_rates_from_trig(cf, sf, ct, st, p, q, r)
+    kinematics_dcm(x, c, (cf, sf, ct, st), f_b, out)
 
 
 @kernel
@@ -134,7 +184,13 @@ def euler_equation(p: float, q: float, r: float, tau: Vec3, body: FloatArray) ->
 
 @inline_kernel
 def rigid_body_derivative(
-    x: FloatArray, u: FloatArray, body: FloatArray, hold_rates: bool, out: FloatArray
+    x: FloatArray,
+    u: FloatArray,
+    body: FloatArray,
+    hold_rates: bool,
+    out: FloatArray,
+    air: AirTuple,
+    aero: bool,
 ) -> None:
     """``ẋ`` of seed 001 eq. 2 (= seed 000 eq. 1–4) for one state, into ``out`` (12,).
 
@@ -145,9 +201,22 @@ def rigid_body_derivative(
         body: (20,) parameters from :func:`pack_bodies`.
         hold_rates: If True, ``ω̇ = 0`` (ω is an input held over the step).
         out: (12,) output.
+        air: ``(w (3) m/s in N, c_q (3) 1/m)``: the wind and the quadratic drag coefficients,
+            read only when ``aero``; then the drag acts on ``v − C_NBᵀ w``
+            (:func:`aero_specific_force`).
+        aero: False: still air and no quadratic drag (:data:`NO_AIR`).
     """
-    f = specific_force_body(x[3], x[4], x[5], u[0], body[0], body[1])
-    kinematics(x, (f[0] + u[4], f[1] + u[5], f[2] + u[6]), out)
+    if aero:
+        cf, sf = math.cos(x[6]), math.sin(x[6])
+        ct, st = math.cos(x[7]), math.sin(x[7])
+        c = dcm_from_trig(cf, sf, ct, st, math.cos(x[8]), math.sin(x[8]))
+        va = air_velocity_body(x, c, air[0], air[1], air[2])
+        cq = (air[3], air[4], air[5])
+        f = aero_specific_force(va[0], va[1], va[2], u[0], body[0], body[1], cq)
+        kinematics_dcm(x, c, (cf, sf, ct, st), (f[0] + u[4], f[1] + u[5], f[2] + u[6]), out)
+    else:
+        f = specific_force_body(x[3], x[4], x[5], u[0], body[0], body[1])
+        kinematics(x, (f[0] + u[4], f[1] + u[5], f[2] + u[6]), out)
     if hold_rates:
         out[9], out[10], out[11] = 0.0, 0.0, 0.0
     else:
@@ -156,24 +225,31 @@ def rigid_body_derivative(
 
 @kernel
 def rk4_step(
-    x: FloatArray, u: FloatArray, body: FloatArray, hold_rates: bool, h: float, work: FloatArray
+    x: FloatArray,
+    u: FloatArray,
+    body: FloatArray,
+    hold_rates: bool,
+    h: float,
+    work: FloatArray,
+    air: AirTuple,
+    aero: bool,
 ) -> None:
-    """One classical RK4 step of size ``h`` s on ``x`` (12,) in place, input ``u`` held.
+    """One classical RK4 step of size ``h`` s on ``x`` (12,) in place, input and wind held.
 
     ``work`` is (5, 12) scratch; other arguments as in :func:`rigid_body_derivative`.
     """
     k1, k2, k3, k4, tmp = work[0], work[1], work[2], work[3], work[4]
     half = 0.5 * h
-    rigid_body_derivative(x, u, body, hold_rates, k1)
+    rigid_body_derivative(x, u, body, hold_rates, k1, air, aero)
     for j in range(STATE_DIM):
         tmp[j] = x[j] + half * k1[j]
-    rigid_body_derivative(tmp, u, body, hold_rates, k2)
+    rigid_body_derivative(tmp, u, body, hold_rates, k2, air, aero)
     for j in range(STATE_DIM):
         tmp[j] = x[j] + half * k2[j]
-    rigid_body_derivative(tmp, u, body, hold_rates, k3)
+    rigid_body_derivative(tmp, u, body, hold_rates, k3, air, aero)
     for j in range(STATE_DIM):
         tmp[j] = x[j] + h * k3[j]
-    rigid_body_derivative(tmp, u, body, hold_rates, k4)
+    rigid_body_derivative(tmp, u, body, hold_rates, k4, air, aero)
     sixth = h / 6.0
     for j in range(STATE_DIM):
         x[j] = x[j] + sixth * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
@@ -187,6 +263,18 @@ def _specific_force_kernel(
         out[i, 0], out[i, 1], out[i, 2] = specific_force_body(
             vel[i, 0], vel[i, 1], vel[i, 2], thrust[i], mass, drag
         )
+
+
+@kernel
+def air_velocity_lanes(states: FloatArray, wind: FloatArray, out: FloatArray) -> None:
+    """:func:`air_velocity_body` of B lanes: states (B, 12), wind (B, 3) in N, out (B, 3)."""
+    for i in range(states.shape[0]):
+        x = states[i]
+        cf, sf = math.cos(x[6]), math.sin(x[6])
+        ct, st = math.cos(x[7]), math.sin(x[7])
+        c = dcm_from_trig(cf, sf, ct, st, math.cos(x[8]), math.sin(x[8]))
+        va = air_velocity_body(x, c, wind[i, 0], wind[i, 1], wind[i, 2])
+        out[i, 0], out[i, 1], out[i, 2] = va
 
 
 # --------------------------------------------------------------------------------------------

@@ -21,7 +21,7 @@ import numpy as np
 
 from quadslam_env.models.frames import dcm_from_trig
 from quadslam_env.models.jit import kernel
-from quadslam_env.models.rigid_body import kinematics, pack_bodies, rk4_step
+from quadslam_env.models.rigid_body import NO_AIR, kinematics, pack_bodies, rk4_step
 from quadslam_env.types import GRAVITY, POSE_DIM, FloatArray
 
 _EYE = np.eye(3)[None]
@@ -43,7 +43,7 @@ def strapdown_rk4(y: FloatArray, accel_z: float, dt: float, work: FloatArray) ->
     u = work[5, :7]
     u[:] = 0.0
     u[6] = accel_z  # input (f_T, τ, a) of the rigid body: only the extra specific force a_z b3
-    rk4_step(y, u, _BODY, True, dt, work[:5])
+    rk4_step(y, u, _BODY, True, dt, work[:5], NO_AIR, False)
 
 
 @kernel

@@ -1,0 +1,114 @@
+"""The wind of B lanes: a steady wind plus Dryden gusts, one filter state per lane.
+
+docs/design.md §2, §9 and docs/env.md "Wind". The equations (the Dryden filters, discretised
+exactly over the control period) are :mod:`quadslam_env.models.wind`; this class holds each
+lane's filter state and generator. The wind is held over a control step (the vehicle kernel
+reads :attr:`WindBatch.velocity`) and advanced once per step, after the step.
+
+Random stream per lane (the contract with the single env): with turbulence, the gusts'
+generator is spawned at reset from the lane's world child (the generator that draws the
+landmarks; spawning takes nothing from its stream, so the landmarks, the other sensors and
+every later episode draw exactly what they draw without wind); from it ``standard_normal(5)``
+for the stationary initial filter state, then per step ``standard_normal(5)``, drawn ahead in
+blocks of :attr:`WindBatch.BLOCK` steps (the same sequence). A steady wind draws nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from quadslam_env.config import WindConfig
+from quadslam_env.models.wind import (
+    GUST_STATES,
+    dryden_filter,
+    dryden_low_altitude,
+    dryden_step_lanes,
+    gust_axes,
+)
+from quadslam_env.sensor_lanes import lane_generators, lane_indices
+from quadslam_env.types import FloatArray
+
+WIND_KEYS = ("wind_n_mps", "wind_e_mps", "wind_d_mps")
+"""``info`` terms of the wind a step flew in (at reset: the first step's), N frame, m/s."""
+
+
+class WindBatch:
+    """Steady wind plus optional Dryden turbulence for B lanes (or still air: every method a
+    no-op, one check per call).
+
+    Args:
+        cfg: Wind settings.
+        period_s: Control period T in s (the wind's update and hold interval).
+        num_lanes: B.
+
+    Attributes:
+        velocity: (B, 3) wind in N (m/s) over the current step, updated in place; ``None`` in
+            still air (``cfg.enabled`` false).
+        state: (B, 5) Dryden filter states (zeros without turbulence).
+        turbulent: Whether the Dryden gusts are on.
+    """
+
+    BLOCK = 64
+    """Steps of normals drawn ahead per lane and generator call."""
+
+    def __init__(self, cfg: WindConfig, period_s: float, num_lanes: int) -> None:
+        b = int(num_lanes)
+        self.num_lanes = b
+        self.steady = np.array(cfg.steady_mps, dtype=float)
+        self.velocity: FloatArray | None = np.tile(self.steady, (b, 1)) if cfg.enabled else None
+        self.state = np.zeros((b, GUST_STATES))
+        self.turbulent = cfg.turbulence == "dryden"
+        sigma, length = dryden_low_altitude(cfg.altitude_m, cfg.w20_mps)
+        speed = cfg.speed_mps if self.turbulent else 1.0  # unused without turbulence
+        self.filter = dryden_filter(sigma, length, speed, period_s)
+        self._out_map = gust_axes(self.steady) @ self.filter.output  # state -> gust in N
+        self._rngs: list[np.random.Generator | None] = [None] * b
+        self._noise = np.zeros((b, self.BLOCK, GUST_STATES))
+        self._cursor = np.full(b, self.BLOCK)
+        self._lane_ids = np.arange(b)
+
+    def reset(self, lanes: ArrayLike, parents: Sequence[np.random.Generator]) -> None:
+        """Start the ``lanes`` (k,) with a stationary gust.
+
+        Args:
+            lanes: (k,) lane indices.
+            parents: (k,) generators the lanes' gust generators are spawned from (the world
+                children, module docstring); untouched without turbulence.
+        """
+        idx = lane_indices(lanes)
+        if self.velocity is None or not self.turbulent:
+            return
+        chol = self.filter.stationary
+        for lane, parent in zip(idx.tolist(), parents, strict=True):
+            rng = parent.spawn(1)[0]
+            self.state[lane] = chol @ rng.standard_normal(GUST_STATES)
+            self.velocity[lane] = self.steady + self._out_map @ self.state[lane]
+            self._rngs[lane] = rng
+        self._cursor[idx] = self.BLOCK  # the pre-drawn block belonged to the old generator
+
+    def advance(self, active: np.ndarray) -> None:
+        """Advance the gust of the ``active`` (B,) lanes by one period (no-op without gusts)."""
+        if self.velocity is None or not self.turbulent:
+            return
+        lanes = self._lane_ids if active.all() else np.flatnonzero(active)
+        empty = lanes[self._cursor[lanes] >= self.BLOCK]
+        if empty.size:
+            gens = lane_generators(self._rngs, empty, "WindBatch")
+            for lane, rng in zip(empty.tolist(), gens, strict=True):
+                self._noise[lane] = rng.standard_normal((self.BLOCK, GUST_STATES))
+            self._cursor[empty] = 0
+        f = self.filter
+        dryden_step_lanes(
+            lanes, self._cursor, self._noise, self.state, f.phi, f.chol, self._out_map,
+            self.steady, self.velocity,
+        )  # fmt: skip
+
+    def info(self) -> dict[str, FloatArray]:
+        """The ``info`` terms :data:`WIND_KEYS` of the current wind, (B,) copies each; none in
+        still air (terms are defined where they apply)."""
+        if self.velocity is None:
+            return {}
+        return {key: self.velocity[:, j].copy() for j, key in enumerate(WIND_KEYS)}
