@@ -12,7 +12,7 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from quadslam_env.config import ObservationConfig
+from quadslam_env.config_episode import ObservationConfig
 from quadslam_env.estimation import BatchEstimate
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_pi
 from quadslam_env.models.jit import kernel

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from quadslam_env.config import RewardConfig
+from quadslam_env.config_episode import RewardConfig
 from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.trajectories import FlatOutputs

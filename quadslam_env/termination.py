@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from quadslam_env.config import EpisodeConfig
+from quadslam_env.config_episode import EpisodeConfig
 from quadslam_env.estimation import HEALTH_PROBLEMS
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray

@@ -1,0 +1,179 @@
+"""The scenario sections of an episode: its timing, start and limits, the reward, the optional
+observation features, and the rendered frames (docs/design.md §4).
+
+Each is a frozen :class:`~quadslam_env.config_schema.Section`; :mod:`quadslam_env.config`
+assembles them with the others into a scenario.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from quadslam_env.config_schema import ConfigError, Section
+from quadslam_env.config_schema import spec as _spec
+
+
+@dataclass(frozen=True)
+class RewardConfig(Section):
+    """Reward weights; reward = alive - Σ w·term (+ termination penalty on failure)."""
+
+    SECTION: ClassVar[str] = "reward"
+    alive: float = _spec(1.0, doc="reward per step for staying in the air")
+    pos_weight: float = _spec(1.0, lo=0.0, doc="w_p on the true position error ‖ρ − ρ_d‖ (m)")
+    vel_weight: float = _spec(0.1, lo=0.0, doc="w_v on the true velocity error ‖ρ̇ − ρ̇_d‖ (m/s)")
+    yaw_weight: float = _spec(0.1, lo=0.0, doc="w_ψ on the true yaw error |wrap(ψ − ψ_d)| (rad)")
+    effort_weight: float = _spec(
+        0.01, lo=0.0, doc="w_u on the effort ‖a − a_hover‖²/4 (normalised action)"
+    )
+    termination_penalty: float = _spec(
+        100.0, lo=0.0, doc="subtracted on the step that terminates the episode"
+    )
+    pos_std_weight: float = _spec(
+        0.0,
+        lo=0.0,
+        doc="w_σ on the estimator's own position uncertainty √trace(P_ρ) (m; 0 without a "
+        "covariance): rewards looking where the filter learns",
+    )
+
+
+@dataclass(frozen=True)
+class ObservationConfig(Section):
+    """Optional observation features on top of the base 16 (see ``QuadSLAMEnv``)."""
+
+    SECTION: ClassVar[str] = "observation"
+    pos_uncertainty: bool = _spec(
+        False, kind="bool", doc="append √diag of the position covariance (3 values, m)"
+    )
+    landmark_counts: bool = _spec(
+        False, kind="bool", doc="append landmarks visible in the last scan and mapped (2 values)"
+    )
+    lookahead_s: tuple[float, ...] = _spec(
+        [],
+        kind="vec",
+        lo=0.0,
+        hi=10.0,
+        doc="append the reference displacement Δ seconds ahead (3 values each, m)",
+    )
+    landmarks_nearest: int = _spec(
+        0,
+        kind="int",
+        lo=0,
+        hi=64,
+        doc="append the K nearest mapped landmarks as the estimate sees them: LiDAR azimuth, "
+        "elevation (rad) and range (m) from the estimated pose, and 1 (0 and zeros: padding), "
+        "nearest first (4 values each)",
+    )
+    clip: float = _spec(
+        100.0, lo=1e-6, hi=1e30, doc="observations are clipped to ±clip (the Box bounds)"
+    )
+
+
+@dataclass(frozen=True)
+class EpisodeConfig(Section):
+    """Timing, initial state and termination limits."""
+
+    SECTION: ClassVar[str] = "episode"
+    duration_s: float = _spec(
+        50.0, lo=0.0, lo_open=True, hi=1e6, doc="episode length in s (truncated after it)"
+    )
+    control_hz: float = _spec(
+        100.0,
+        lo=0.0,
+        lo_open=True,
+        hi=10000.0,
+        doc="agent steps per second (env.unwrapped.dt = 1/control_hz)",
+    )
+    initial_position: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0], kind="vec", length=3, lo=-1e6, hi=1e6, doc="true start position in NED, m"
+    )
+    initial_velocity: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-1e3,
+        hi=1e3,
+        doc="true start velocity in the body frame, m/s",
+    )
+    initial_euler_deg: tuple[float, ...] = _spec(
+        [0.0, 0.0, 0.0],
+        kind="vec",
+        length=3,
+        lo=-180.0,
+        hi=180.0,
+        doc="true start attitude (φ, θ, ψ), deg",
+    )
+    max_tilt_deg: float = _spec(
+        80.0, lo=0.0, hi=89.0, lo_open=True, doc="terminate when the tilt exceeds this, deg"
+    )
+    max_pos_err_m: float = _spec(
+        10.0, lo=0.0, lo_open=True, doc="terminate when the true tracking error exceeds this, m"
+    )
+    ground_z_m: float | None = _spec(None, optional=True, doc="NED z of the ground; null = none")
+    nees_threshold: float | None = _spec(
+        1000.0, lo=0.0, lo_open=True, optional=True, doc="null disables the NEES divergence check"
+    )
+    nees_window_s: float = _spec(
+        2.0, lo=0.0, doc="terminate when the pose NEES stays above nees_threshold this long, s"
+    )
+    max_cov_trace: float | None = _spec(
+        1e6,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="terminate (estimator divergence) when the trace of the 9×9 pose covariance "
+        "(ρ m², v m²/s², Λ rad²) exceeds this; null disables the check",
+    )
+    report_step_time: bool = _spec(
+        False, kind="bool", doc="put the estimator's wall-clock time in info['est_step_time_ms']"
+    )
+    settle_s: float | None = _spec(
+        None,
+        lo=0.0,
+        hi=1e6,
+        optional=True,
+        doc="end of the transient, s: the *_steady metrics cover t > settle_s, the "
+        "*_transient ones the rest; null = 10 s, or 0 when the vehicle starts on the reference",
+    )
+
+    def validate(self) -> None:
+        if abs(self.initial_euler_deg[1]) >= 89.0:
+            raise ConfigError(
+                f"episode.initial_euler_deg[1]: got {self.initial_euler_deg[1]}; "
+                "allowed: |pitch| < 89 deg"
+            )
+        if self.settle_s is not None and self.settle_s >= self.duration_s:
+            raise ConfigError(
+                f"episode.settle_s: got {self.settle_s}; allowed: null or 0 <= settle_s < "
+                f"episode.duration_s = {self.duration_s} (a steady phase must remain)"
+            )
+
+
+@dataclass(frozen=True)
+class RenderConfig(Section):
+    """``rgb_array`` frames (:mod:`quadslam_env.render`): size, frame rate and view extents.
+
+    Only read when the env has ``render_mode="rgb_array"``; a make() kwarg
+    ``render={"width_px": 800}`` overrides it like any section.
+    """
+
+    SECTION: ClassVar[str] = "render"
+    width_px: int = _spec(640, kind="int", lo=320, hi=3840, doc="frame width in pixels")
+    height_px: int = _spec(480, kind="int", lo=240, hi=2160, doc="frame height in pixels")
+    fps: float | None = _spec(
+        10.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1000.0,
+        optional=True,
+        doc="frames drawn per simulated second; a render() call sooner than 1/fps after the "
+        "last drawn frame returns that frame again; null draws on every call",
+    )
+    view_radius_m: float = _spec(
+        8.0, lo=0.5, hi=1e4, doc="half-width of the top-down view around the vehicle, m"
+    )
+    trail_s: float = _spec(25.0, lo=0.0, hi=3600.0, doc="length of the drawn paths, s")
+    history_s: float = _spec(10.0, lo=0.5, hi=3600.0, doc="time span of the strip charts, s")
+    max_particles: int = _spec(
+        200, kind="int", lo=0, hi=100000, doc="particles drawn (an evenly strided subsample)"
+    )
