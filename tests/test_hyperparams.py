@@ -16,13 +16,11 @@ from torch import nn
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.cli.main import main
-from agents.rl.hyperparams import (
+from agents.rl.hyperparams import load_hyperparams, parse_normalize, resolve_settings
+from agents.rl.policy_kwargs import (
     ACTIVATIONS,
     ASYMMETRIC,
     build_policy_kwargs,
-    load_hyperparams,
-    parse_normalize,
-    resolve_settings,
     validate_policy_kwargs,
 )
 from agents.rl.training import _build_model, _make_vec_env, resume, train

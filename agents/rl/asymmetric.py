@@ -29,8 +29,8 @@ from stable_baselines3.common.policies import ActorCriticPolicy
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor, MlpExtractor
 from torch import nn
 
-from agents.rl.hyperparams import ASYMMETRIC, check_fixed_policy_kwargs
 from agents.rl.lane_share import ACTOR_KEY, PRIVILEGED_KEY
+from agents.rl.policy_kwargs import ASYMMETRIC, check_fixed_policy_kwargs
 
 
 class SelectKeys(BaseFeaturesExtractor):

@@ -34,14 +34,13 @@ from agents.io.outputs import (
 )
 from agents.rl.curves import plot_learning_curve
 from agents.rl.hyperparams import (
-    ASYMMETRIC,
     DEFAULTS,
     algorithms,
-    build_policy_kwargs,
     default_config_path,
     load_hyperparams,
     resolve_settings,
 )
+from agents.rl.policy_kwargs import ASYMMETRIC, build_policy_kwargs
 from agents.rl.run_folder import new_run_dir, read_run_config, versions
 from quadslam_env.config import deep_merge
 
