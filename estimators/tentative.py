@@ -49,7 +49,7 @@ def m_of_n(hits: int, age: int, confirm_hits: int, confirm_window: int) -> int:
 
 
 @kernel
-def observe_candidate(
+def observe_candidate_slot(
     pos: FloatArray,
     cov: FloatArray,
     hits: np.ndarray,
@@ -59,7 +59,7 @@ def observe_candidate(
     P: FloatArray,
     gate: float,
     confirm_hits: int,
-) -> bool:
+) -> int:
     """Feed one unassociated return, seen at ``p`` (3,) with covariance ``P`` (3, 3), to the
     candidates of one map.
 
@@ -68,8 +68,9 @@ def observe_candidate(
     free: the return is dropped).
 
     Returns:
-        True when the return confirms a candidate (its hits reach ``confirm_hits``): the
-        caller maps the return as a new landmark; the slot is freed.
+        The slot the return went to (-1: dropped). The return confirms that candidate iff
+        ``hits[slot] >= confirm_hits`` (its hits reach ``confirm_hits``): the caller maps the
+        return as a new landmark; the slot is freed.
     """
     best, slot = gate, -1
     d = np.empty(3)
@@ -90,7 +91,7 @@ def observe_candidate(
                 slot = c
                 break
         if slot < 0:
-            return False
+            return -1
         age[slot] = 0
         hits[slot] = 0
     hits[slot] += 1
@@ -99,8 +100,25 @@ def observe_candidate(
     cov[slot] = P
     if hits[slot] >= confirm_hits:
         age[slot] = FREE
-        return True
-    return False
+    return slot
+
+
+@kernel
+def observe_candidate(
+    pos: FloatArray,
+    cov: FloatArray,
+    hits: np.ndarray,
+    age: np.ndarray,
+    matched: np.ndarray,
+    p: FloatArray,
+    P: FloatArray,
+    gate: float,
+    confirm_hits: int,
+) -> bool:
+    """:func:`observe_candidate_slot`, returning True when the return confirms a candidate
+    (the caller maps the return as a new landmark; the slot is freed)."""
+    slot = observe_candidate_slot(pos, cov, hits, age, matched, p, P, gate, confirm_hits)
+    return slot >= 0 and hits[slot] >= confirm_hits
 
 
 @kernel

@@ -245,7 +245,7 @@ class ScenarioConfig:
                 raise ConfigError(
                     f"lidar.association: got 'unknown' with estimator.name = "
                     f"{scenario.estimator.name!r}, which cannot associate unlabeled returns; "
-                    "allowed: 'known', or an estimator that associates (ekf_slam, fastslam, "
+                    "allowed: 'known', or an estimator that associates (ekf_slam, fastslam, isam2, "
                     "fastslam_kinematic, oracle, or a plug-in with associates_unlabeled = True)"
                 )
         ratio = scenario.episode.control_hz / scenario.lidar.rate_hz

@@ -68,6 +68,7 @@ import numpy as np
 import pytest
 
 import estimators.isam2.estimator as isam2_estimator
+import estimators.isam2.graph as isam2_graph
 from estimators.isam2 import Isam2Slam
 from estimators.isam2.factors import ErrorFunction
 from estimators.isam2.settings import FIXED_BIAS_SIGMA, NOISE_FLOOR, PRIOR_VARIANCE_FLOOR
@@ -382,7 +383,7 @@ def test_full_smoother_equals_kalman_filter_and_rts_smoother(
     """Full iSAM2 (``window_s: null``): after each scan its last keyframe is the Kalman
     filter's estimate, halfway between scans its prediction is the filter's, and at the end
     every keyframe's smoothed mean and marginal are the RTS smoother's (module docstring)."""
-    monkeypatch.setattr(isam2_estimator, "PRIOR_VARIANCE_FLOOR", floor)
+    monkeypatch.setattr(isam2_graph, "PRIOR_VARIANCE_FLOOR", floor)
     model = LinearModel.of(estimate_bias, window_s=None)
     flight = _simulate(model, np.random.default_rng(7))
     kf = _kalman(model, flight)

@@ -9,6 +9,11 @@ from typing import Any
 import numpy as np
 from scipy.special import gammaincinv
 
+from estimators.association_settings import (
+    ASSOCIATION_DEFAULTS,
+    ASSOCIATION_TYPES,
+    association_settings,
+)
 from estimators.imu_bias_settings import (
     IMU_BIAS_DEFAULTS,
     IMU_BIAS_TYPES,
@@ -16,7 +21,6 @@ from estimators.imu_bias_settings import (
     imu_bias_settings,
 )
 from estimators.settings_check import check_kwargs
-from estimators.tentative import check_confirm_rule
 from quadslam_env.types import POSE_DIM, FloatArray
 
 BIAS_DIM = 4
@@ -28,18 +32,11 @@ PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)
 _TYPES: dict[str, type | tuple[type, ...]] = {
     "process_noise": (list, tuple, np.ndarray),
     **IMU_BIAS_TYPES,
-    "gate_probability": (float, int),
+    **ASSOCIATION_TYPES,
     "imu_noise_in_q": bool,
-    "association": str,
-    "confirm_hits": int,
-    "confirm_window": int,
-    "new_landmark_probability": (float, int),
     "relinearise_tolerance": (float, int),
     "max_iterations": int,
 }
-
-ASSOCIATION_METHODS = ("nn", "jcbb")
-"""``estimator.params.association`` choices: nearest neighbour, joint compatibility B&B."""
 
 
 @dataclass(frozen=True)
@@ -110,12 +107,12 @@ class EkfSlamSettings:
     accel_bias_sigma0: float = IMU_BIAS_DEFAULTS["accel_bias_sigma0"]
     gyro_bias_walk: float = IMU_BIAS_DEFAULTS["gyro_bias_walk"]
     accel_bias_walk: float = IMU_BIAS_DEFAULTS["accel_bias_walk"]
-    gate_probability: float = 0.99
+    gate_probability: float = ASSOCIATION_DEFAULTS["gate_probability"]
     imu_noise_in_q: bool = True
-    association: str = "jcbb"
-    confirm_hits: int = 3
-    confirm_window: int = 5
-    new_landmark_probability: float = 0.9999
+    association: str = ASSOCIATION_DEFAULTS["association"]
+    confirm_hits: int = ASSOCIATION_DEFAULTS["confirm_hits"]
+    confirm_window: int = ASSOCIATION_DEFAULTS["confirm_window"]
+    new_landmark_probability: float = ASSOCIATION_DEFAULTS["new_landmark_probability"]
     relinearise_tolerance: float = 2.0
     max_iterations: int = 10
 
@@ -135,27 +132,7 @@ class EkfSlamSettings:
             raise ValueError(
                 f"estimator.params.process_noise: got {q!r}; allowed: a list of 9 numbers >= 0"
             )
-        prob = float(params.get("gate_probability", 0.99))
-        if not 0.0 < prob <= 1.0:
-            raise ValueError(
-                f"estimator.params.gate_probability: got {prob!r}; allowed: 0 < p <= 1"
-            )
-        method = params.get("association", "jcbb")
-        if method not in ASSOCIATION_METHODS:
-            raise ValueError(
-                f"estimator.params.association: got {method!r}; allowed: one of "
-                f"{list(ASSOCIATION_METHODS)}"
-            )
-        hits, window = check_confirm_rule(
-            params.get("confirm_hits", 3), params.get("confirm_window", 5)
-        )
-        floor = prob if prob < 1.0 else 0.0  # no association gate: any p < 1
-        new_prob = float(params.get("new_landmark_probability", max(0.9999, floor)))
-        if not (floor <= new_prob < 1.0 and new_prob > 0.0):
-            raise ValueError(
-                f"estimator.params.new_landmark_probability: got {new_prob!r}; allowed: "
-                f"max(gate_probability = {prob} if < 1, 0) <= p < 1, p > 0"
-            )
+        association = association_settings(params)
         tol = float(params.get("relinearise_tolerance", 2.0))
         if not tol > 0.0:
             raise ValueError(
@@ -170,13 +147,9 @@ class EkfSlamSettings:
         return cls(
             relinearise_tolerance=tol,
             max_iterations=int(iters),
-            new_landmark_probability=new_prob,
-            association=method,
-            confirm_hits=hits,
-            confirm_window=window,
+            **association,
             process_noise=tuple(check_nonneg("process_noise", e) for e in q),
             **imu_bias_settings(params),
-            gate_probability=prob,
             imu_noise_in_q=bool(params.get("imu_noise_in_q", True)),
         )
 

@@ -5,6 +5,13 @@
   factors per return, fixed-lag or full iSAM2;
 * :mod:`estimators.isam2.factors` — the LiDAR factor's error and analytic Jacobians (seed 001
   eq. 30–31, 40) as GTSAM ``CustomFactor`` error functions;
+* :mod:`estimators.isam2.associate` — the data association front end for unlabeled scans
+  (χ² gate, JCBB or nearest neighbour on the smoother's marginals, tentative landmarks);
+* :mod:`estimators.isam2.transition` — the IMU factor's map from a keyframe's error to the
+  predicted state's (covariance between keyframes, cross-covariances for association);
+* :mod:`estimators.isam2.graph` — GTSAM's import, the first keyframe's priors and the
+  preintegration settings;
+* :mod:`estimators.isam2.snapshot` — the estimate in the env's (ρ, v_B, Λ);
 * :mod:`estimators.isam2.tangent` — the env's (ρ, v_B, Λ) against GTSAM's tangent space;
 * :mod:`estimators.isam2.settings` — :class:`Isam2Settings`, the validated parameters.
 
@@ -12,7 +19,8 @@ Importing this package does not import GTSAM: building the estimator does, and f
 :class:`~quadslam_env.config_schema.ConfigError` naming the extra when it is missing.
 """
 
-from estimators.isam2.estimator import GTSAM_INSTALL, Isam2Slam, require_gtsam
+from estimators.isam2.estimator import Isam2Slam
+from estimators.isam2.graph import GTSAM_INSTALL, require_gtsam
 from estimators.isam2.settings import Isam2Settings
 
 __all__ = ["GTSAM_INSTALL", "Isam2Settings", "Isam2Slam", "require_gtsam"]

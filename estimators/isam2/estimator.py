@@ -15,6 +15,10 @@ Registered as ``estimator.name: isam2`` (:func:`quadslam_env.estimation.register
   eq. 30–31 (:mod:`estimators.isam2.factors`). Known map: the landmarks are constants, one
   factor per scan on ``X_k``; unknown map: a ``Point3`` ``L_j`` per landmark id, added on
   first sight at the inverse LiDAR model (eq. 44–45) from the predicted pose.
+* **Unlabeled returns** (``lidar.association: unknown``): labeled before the keyframe is added,
+  by χ² gating and JCBB or nearest neighbour on the smoother's joint marginal of the predicted
+  pose and the landmarks, with tentative landmarks for the unpaired returns
+  (:mod:`estimators.isam2.associate`).
 * **Priors** on ``X_0, V_0`` (the reset's covariance mapped to GTSAM's tangent space,
   :mod:`estimators.isam2.tangent`) and on ``B_0``.
 
@@ -33,49 +37,21 @@ finite estimate and dead-reckons from it.
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
 
 import numpy as np
 
+from estimators.isam2.associate import Labeled, PosePrediction, ScanAssociation
 from estimators.isam2.factors import known_map_error, landmark_error, scan_error
-from estimators.isam2.settings import NOISE_FLOOR, PRIOR_VARIANCE_FLOOR, Isam2Settings
-from estimators.isam2.tangent import state_covariance, tangent_covariance
+from estimators.isam2.graph import first_keyframe, preintegration_params, require_gtsam
+from estimators.isam2.settings import Isam2Settings
+from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
+from estimators.isam2.transition import NAV_DIM, imu_transition
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation import Estimate, register
 from quadslam_env.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models.frames import dcm_from_euler, euler_from_dcm
 from quadslam_env.models.lidar import lidar_inverse
-from quadslam_env.types import GRAVITY, POSE_DIM, FloatArray
-
-GTSAM_INSTALL = "pip install 'quadslam[gtsam]'"
-"""How to install the optional dependency (GTSAM 4.3)."""
-
-NAV_DIM = 15
-"""Keyframe tangent (δθ, δt, δv_N, δb_a, δb_ω): Pose3 (6) + velocity (3) + biases (6)."""
-
-# Column blocks of the linearised CombinedImuFactor, keys (X_i, V_i, X_j, V_j, B_i, B_j).
-_COLS_I = np.r_[0:9, 18:24]
-_COLS_J = np.r_[9:18, 24:30]
-
-
-def require_gtsam() -> Any:
-    """Import GTSAM, or fail with the install command.
-
-    Returns:
-        The ``gtsam`` module.
-
-    Raises:
-        ConfigError: GTSAM is not installed (it is the optional extra ``quadslam[gtsam]``).
-    """
-    try:
-        return importlib.import_module("gtsam")
-    except ImportError as exc:
-        raise ConfigError(
-            "estimator.name: got 'isam2', which needs GTSAM (not installed: "
-            f"{exc}); allowed: install the optional extra with `{GTSAM_INSTALL}`, or another "
-            "estimator (ekf_slam, fastslam, fastslam_kinematic, oracle)"
-        ) from exc
+from quadslam_env.types import POSE_DIM, FloatArray
 
 
 def _symbol(gtsam: Any, char: str, index: int) -> int:
@@ -86,8 +62,9 @@ def _symbol(gtsam: Any, char: str, index: int) -> int:
 class Isam2Slam:
     """Fixed-lag (or full) iSAM2 smoothing of IMU preintegration and LiDAR factors.
 
-    Implements :class:`~quadslam_env.estimation.protocol.Estimator` with known data
-    association, in known-map (localisation) and unknown-map (SLAM) mode (module docstring).
+    Implements :class:`~quadslam_env.estimation.protocol.Estimator` in known-map
+    (localisation) and unknown-map (SLAM) mode, with labeled scans or unlabeled ones
+    (``associates_unlabeled``: :attr:`last_association` names each return's landmark).
 
     Args:
         vehicle: Nominal vehicle parameters (unused: the IMU drives the motion model).
@@ -100,7 +77,7 @@ class Isam2Slam:
     """
 
     uses_truth = False
-    associates_unlabeled = False
+    associates_unlabeled = True
 
     def __init__(self, vehicle: Any = None, **params: Any) -> None:
         self.settings = Isam2Settings.from_params(params)
@@ -108,6 +85,7 @@ class Isam2Slam:
         self.vehicle = vehicle
         self.last_error = ""
         """Message of the exception that set ``diverged`` ("" while healthy)."""
+        self._front = ScanAssociation(self.settings)
         self._reset_state()
 
     def __deepcopy__(self, memo: dict[int, Any]) -> Isam2Slam:
@@ -135,6 +113,7 @@ class Isam2Slam:
         self._known: dict[int, FloatArray] | None = None
         self._lm_means: dict[int, FloatArray] = {}
         self._lm_covs: dict[int, FloatArray] = {}
+        self._unlabeled: bool | None = None
         self._rates = np.zeros(3)
         self._gyro: FloatArray | None = None
         self._diverged = False
@@ -145,6 +124,17 @@ class Isam2Slam:
     def known_map(self) -> bool:
         """True after a reset with ``known_landmarks`` (localisation only)."""
         return self._known is not None
+
+    @property
+    def last_association(self) -> np.ndarray:
+        """(R,) int the landmark id each return of the last unlabeled scan was paired with
+        (-1: none; a return that only fed a tentative landmark too)."""
+        return self._front.last_association
+
+    @property
+    def tentative_count(self) -> int:
+        """Tentative landmarks held outside the graph (unknown association)."""
+        return self._front.tentative_count
 
     @property
     def keyframes(self) -> int:
@@ -196,6 +186,7 @@ class Isam2Slam:
             known = {int(i): pos[j].copy() for j, i in enumerate(ids.tolist())}
         self._reset_state()
         self._known = known
+        self._front.reset(known=known is not None)
         self._rates = mean0[9:12].copy()
         s = self.settings
         params = g.ISAM2Params()
@@ -205,43 +196,12 @@ class Isam2Slam:
             self._smoother = self._isam = g.ISAM2(params)
         else:
             self._smoother = g.IncrementalFixedLagSmoother(s.window_s, params)
-        euler = mean0[6:9]
-        dcm = dcm_from_euler(euler)
-        pose0 = g.Pose3(g.Rot3(dcm), mean0[0:3].copy())
-        vel0 = dcm @ mean0[3:6]
-        x0, v0, b0 = self._key("x", 0), self._key("v", 0), self._key("b", 0)
-        sigma = tangent_covariance(
-            0.5 * (cov0[:POSE_DIM, :POSE_DIM] + cov0[:POSE_DIM, :POSE_DIM].T),
-            dcm,
-            mean0[3:6],
-            euler,
-            floor=PRIOR_VARIANCE_FLOOR,
-        )
-        W = np.linalg.inv(np.linalg.cholesky(sigma))  # whitening: Wᵀ W = Σ⁻¹
-        prior = g.JacobianFactor(
-            x0, W[:, 0:6], v0, W[:, 6:9], np.zeros(POSE_DIM), g.noiseModel.Unit.Create(POSE_DIM)
-        )
-        linpoint = g.Values()
-        linpoint.insert(x0, pose0)
-        linpoint.insert(v0, vel0)
-        graph = g.NonlinearFactorGraph()
-        graph.add(g.LinearContainerFactor(prior, linpoint))
-        sa, sg = s.bias_prior_sigmas()
-        bias0 = g.imuBias.ConstantBias()
-        graph.add(
-            g.PriorFactorConstantBias(
-                b0, bias0, g.noiseModel.Diagonal.Sigmas(np.array([sa] * 3 + [sg] * 3))
-            )
-        )
-        values = g.Values()
-        values.insert(x0, pose0)
-        values.insert(v0, vel0)
-        values.insert(b0, bias0)
-        self._kf_pose, self._kf_vel, self._kf_bias = pose0, vel0, bias0
-        self._kf_cov[:POSE_DIM, :POSE_DIM] = sigma
-        self._kf_cov[POSE_DIM:, POSE_DIM:] = np.diag(np.array([sa] * 3 + [sg] * 3) ** 2)
+        keys = [self._key(c, 0) for c in "xvb"]
+        first = first_keyframe(g, s, mean0, cov0, keys)
+        self._kf_pose, self._kf_vel, self._kf_bias = first.pose, first.vel, first.bias
+        self._kf_cov = first.cov
         try:
-            self._solve(graph, values, {x0: 0.0, v0: 0.0, b0: 0.0})
+            self._solve(first.graph, first.values, dict.fromkeys(keys, 0.0))
             self._read_keyframe(0)
         except Exception as exc:  # a GTSAM failure: reported as divergence, never raised
             self._diverge(exc)
@@ -282,31 +242,38 @@ class Isam2Slam:
         """Add a keyframe at the scan with its LiDAR factors and update the smoother.
 
         Every scan makes a keyframe (an empty one too: it bounds the preintegration). Ids
-        outside the known map are ignored in known-map mode. After a divergence the scans are
-        ignored (the episode ends on that step).
+        outside the known map are ignored in known-map mode. An unlabeled scan (``ids`` None)
+        is labeled first (:mod:`estimators.isam2.associate`; :attr:`last_association`). After
+        a divergence the scans are ignored (the episode ends on that step).
 
         Args:
-            scan: Labeled scan: sorted ``ids`` (k,), ``meas`` (k, 3) = (α rad, β rad, δ m),
-                ``sigma`` (3,) noise stds.
+            scan: Labeled scan: sorted ``ids`` (k,), or ``None`` for unlabeled returns in any
+                order; ``meas`` (k, 3) = (α rad, β rad, δ m); ``sigma`` (3,) noise stds.
 
         Raises:
-            ValueError: On an unlabeled scan (``lidar.association: unknown`` is not supported)
-                or measurements that are not a finite (k, 3) array.
+            ValueError: Measurements that are not a finite (k, 3) array, or labeled and
+                unlabeled scans mixed in one SLAM run.
         """
-        if scan.ids is None:
+        unlabeled = scan.ids is None
+        ids = [] if unlabeled else [int(i) for i in np.asarray(scan.ids).reshape(-1).tolist()]
+        k = np.asarray(scan.meas).size // 3 if unlabeled else len(ids)
+        meas = np.asarray(scan.meas, dtype=float).reshape(-1, 3) if k else np.zeros((0, 3))
+        if meas.shape != (k, 3) or not np.isfinite(meas).all():
+            raise ValueError(f"update: scan.meas must be a finite ({k}, 3) array")
+        if self._known is None and self._unlabeled not in (None, unlabeled):
             raise ValueError(
-                "update: isam2 needs labeled scans (lidar.association: known); unknown data "
-                "association is not implemented"
+                "update: labeled and unlabeled scans in one SLAM run (the labels would clash "
+                "with the smoother's own landmark ids); allowed: one kind per run"
             )
-        ids = [int(i) for i in np.asarray(scan.ids).reshape(-1).tolist()]
-        meas = np.asarray(scan.meas, dtype=float).reshape(-1, 3) if ids else np.zeros((0, 3))
-        if meas.shape != (len(ids), 3) or not np.isfinite(meas).all():
-            raise ValueError(f"update: scan.meas must be a finite ({len(ids)}, 3) array")
+        self._unlabeled = unlabeled
         sigma = np.asarray(scan.sigma, dtype=float).reshape(3)
+        if unlabeled:
+            self._front.last_association = np.full(k, -1, dtype=np.int64)
         if self._diverged or self._smoother is None:
             return
         try:
-            self._keyframe(ids, meas, sigma)
+            labeled = self._associate(meas, sigma) if unlabeled else Labeled(ids, meas)
+            self._keyframe(labeled, sigma)
         except Exception as exc:  # any GTSAM failure (C++ exceptions arrive as RuntimeError)
             self._diverge(exc)
         self._cache = None
@@ -322,13 +289,15 @@ class Isam2Slam:
             ``n_keyframes``, ``n_mapped``.
         """
         if self._cache is None and self._smoother is None:  # before the first reset
-            self._cache = self._neutral()
+            self._cache = neutral(self._diagnostics(0))
         if self._cache is None:
             try:
                 est = self._build_estimate()
             except Exception as exc:  # a failed prediction or covariance: keep the last one
                 self._diverge(exc)
-                est = self._fallback()
+                est = flagged(
+                    self._last if self._last is not None else neutral(self._diagnostics(0))
+                )
             self._cache = est
             if not self._diverged:
                 self._last = est
@@ -336,27 +305,13 @@ class Isam2Slam:
 
     # ------------------------------------------------------------------ graph
     def _preintegration_params(self, accel_sigma: float, gyro_sigma: float, dt: float) -> Any:
-        """GTSAM preintegration settings (NED, gravity ``(0, 0, +g)``) for samples with the
-        white-noise stds ``accel_sigma`` (m/s²) and ``gyro_sigma`` (rad/s) per step ``dt``.
-
-        Continuous densities: accelerometer ``σ_a² dt + Q_v``, gyro ``σ_ω² dt + Q_Λ``,
-        integration ``integration_sigma² + Q_ρ``, bias walks squared (Forster et al. 2017,
-        eq. 35-38 discretise them back with the step).
-        """
+        """GTSAM preintegration settings for samples with the white-noise stds
+        ``accel_sigma`` (m/s²) and ``gyro_sigma`` (rad/s) per step ``dt`` (cached;
+        :func:`~estimators.isam2.graph.preintegration_params`)."""
         noise = (float(accel_sigma) ** 2 * dt, float(gyro_sigma) ** 2 * dt)
         if self._params is not None and self._pim_noise == noise:
             return self._params
-        s = self.settings
-        q = np.asarray(s.process_noise)
-        p = self._g.PreintegrationCombinedParams(np.array([0.0, 0.0, GRAVITY]))
-        p.setAccelerometerCovariance(np.diag(np.maximum(noise[0] + q[3:6], NOISE_FLOOR)))
-        p.setGyroscopeCovariance(np.diag(np.maximum(noise[1] + q[6:9], NOISE_FLOOR)))
-        p.setIntegrationCovariance(
-            np.diag(np.maximum(s.integration_sigma**2 + q[0:3], NOISE_FLOOR))
-        )
-        walk_a, walk_g = s.bias_walks()
-        p.setBiasAccCovariance(np.eye(3) * walk_a**2)
-        p.setBiasOmegaCovariance(np.eye(3) * walk_g**2)
+        p = preintegration_params(self._g, self.settings, *noise)
         self._params, self._pim_noise = p, noise
         return p
 
@@ -372,8 +327,44 @@ class Isam2Slam:
                 self._smoother.update()
             self._isam = self._smoother.getISAM2()
 
-    def _keyframe(self, ids: list[int], meas: FloatArray, sigma: FloatArray) -> None:
-        """Add keyframe k+1 (or, without IMU samples since keyframe k, factors on k)."""
+    def _associate(self, meas: FloatArray, sigma: FloatArray) -> Labeled:
+        """Label an unlabeled scan on the smoother's belief (:mod:`estimators.isam2.associate`)."""
+        k, pose = self._k, self._kf_pose
+        F, Q = np.eye(NAV_DIM), np.zeros((NAV_DIM, NAV_DIM))
+        if self._pim is not None and self._pim.deltaTij() > 0.0:
+            k += 1
+            pose, _, F, Q = imu_transition(
+                self._g, self._pim, self._kf_pose, self._kf_vel, self._kf_bias
+            )
+        Fp, Qp = F[:6], Q[:6, :6]  # the pose rows: (δθ, δt) of the scan's keyframe
+        pose_cov = Fp @ self._kf_cov @ Fp.T + Qp
+        pred = PosePrediction(pose.rotation().matrix(), pose.translation(), pose_cov, k)
+        nav = [self._key(c, self._k) for c in "xvb"]
+
+        def joint(ids: list[int]) -> FloatArray:
+            """(6 + 3M)² covariance of (X_k, l_ids): the keyframe's joint marginal with the
+            landmarks, mapped through the IMU transition (cross terms ``F Σ_il``)."""
+            n = 3 * len(ids)
+            out = np.zeros((6 + n, 6 + n))
+            out[:6, :6] = pose_cov
+            if self._known is None:
+                keys = nav + [self._key("l", i) for i in ids]
+                full = np.asarray(self._isam.jointMarginalCovariance(keys).fullMatrix())
+                out[:6, 6:] = Fp @ full[:NAV_DIM, NAV_DIM:]
+                out[6:, :6] = out[:6, 6:].T
+                out[6:, 6:] = full[NAV_DIM:, NAV_DIM:]
+            return out
+
+        if self._known is not None:
+            lms, covs = self._known, dict.fromkeys(self._known, np.zeros((3, 3)))
+        else:
+            lms, covs = self._lm_means, self._lm_covs
+        return self._front.associate(meas, sigma, pred, lms, covs, joint)
+
+    def _keyframe(self, scan: Labeled, sigma: FloatArray) -> None:
+        """Add keyframe k+1 (or, without IMU samples since keyframe k, factors on k) with the
+        scan's returns, and the earlier sightings of landmarks it confirms."""
+        ids, meas = scan.ids, scan.meas
         g = self._g
         graph = g.NonlinearFactorGraph()
         values = g.Values()
@@ -423,6 +414,10 @@ class Isam2Slam:
             else:
                 keys = [xk] + [self._key("l", i) for i in ids]
                 graph.add(g.CustomFactor(scan_noise, keys, scan_error(meas)))
+            for kf, i, z in scan.earlier:  # a confirmed landmark's earlier sightings
+                if self._isam.valueExists(self._key("x", kf)):
+                    lk = self._key("l", i)
+                    graph.add(g.CustomFactor(noise, [self._key("x", kf), lk], landmark_error(z)))
             # Landmarks never leave the window: a landmark seen again keeps its variable.
             stamps.update({self._key("l", i): t for i in [*self._lm_means, *new]})
         self._solve(graph, values, stamps)
@@ -440,7 +435,7 @@ class Isam2Slam:
         mapped = sorted({*self._lm_means, *(new or [])})
         means = {i: np.asarray(est.atPoint3(self._key("l", i)), float) for i in mapped}
         covs: dict[int, FloatArray] = {}
-        if self.settings.landmark_covariances:
+        if self.settings.landmark_covariances or self._unlabeled:  # the gate needs them
             for i in means:
                 covs[i] = np.asarray(self._isam.marginalCovariance(self._key("l", i)))
         finite = (
@@ -473,72 +468,20 @@ class Isam2Slam:
         pim = self._pim
         if pim is None or pim.deltaTij() <= 0.0:
             return self._kf_pose, self._kf_vel, self._kf_cov[:POSE_DIM, :POSE_DIM]
-        nav = pim.predict(g.NavState(self._kf_pose, self._kf_vel), self._kf_bias)
-        pose, vel = nav.pose(), np.asarray(nav.velocity(), dtype=float)
-        # Linearise the IMU factor from the keyframe to the prediction (its error is zero
-        # there): whitened rows A_i δx_i + A_j δx_j, so Σ_j = A_j⁻¹ (A_i Σ_i A_iᵀ + I) A_j⁻ᵀ.
-        factor = g.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)
-        values = g.Values()
-        values.insert(0, self._kf_pose)
-        values.insert(1, self._kf_vel)
-        values.insert(2, pose)
-        values.insert(3, vel)
-        values.insert(4, self._kf_bias)
-        values.insert(5, self._kf_bias)
-        A = np.asarray(factor.linearize(values).jacobian()[0])
-        Ai, Aj = A[:, _COLS_I], A[:, _COLS_J]
-        inner = Ai @ self._kf_cov @ Ai.T + np.eye(A.shape[0])
-        Aj_inv = np.linalg.inv(Aj)
-        cov = Aj_inv @ inner @ Aj_inv.T
-        return pose, vel, cov[:POSE_DIM, :POSE_DIM]
+        # The IMU factor linearised from the keyframe to the prediction:
+        # Σ_j = F Σ_i Fᵀ + Q (:mod:`estimators.isam2.transition`).
+        pose, vel, F, Q = imu_transition(g, pim, self._kf_pose, self._kf_vel, self._kf_bias)
+        Fp = F[:POSE_DIM]
+        return pose, vel, Fp @ self._kf_cov @ Fp.T + Q[:POSE_DIM, :POSE_DIM]
 
     def _build_estimate(self) -> Estimate:
         pose, vel_n, cov_t = self._predicted()
-        dcm = np.asarray(pose.rotation().matrix(), dtype=float)
-        position = np.asarray(pose.translation(), dtype=float).reshape(3)
-        euler = euler_from_dcm(dcm)
-        vel_body = dcm.T @ vel_n
-        pose_cov = state_covariance(cov_t, dcm, vel_body, euler)
-        if not (
-            np.isfinite(position).all()
-            and np.isfinite(vel_n).all()
-            and np.isfinite(euler).all()
-            and np.isfinite(pose_cov).all()
-        ):
-            raise FloatingPointError("isam2: non-finite prediction")
-        ids, means, covs = self._landmarks()
-        bias = self._kf_bias
-        accel_bias = gyro_bias = None
-        if self.settings.estimate_imu_bias:
-            accel_bias = np.asarray(bias.accelerometer(), dtype=float).copy()
-            gyro_bias = np.asarray(bias.gyroscope(), dtype=float).copy()
-        return Estimate(
-            position=position.copy(),
-            vel_body=vel_body,
-            vel_inertial=vel_n.copy(),
-            euler=euler,
-            rates=self._rates.copy(),
-            pose_cov=pose_cov,
-            landmark_ids=ids,
-            landmark_means=means,
-            landmark_covs=covs,
-            accel_bias=accel_bias,
-            gyro_bias=gyro_bias,
-            diagnostics=self._diagnostics(ids.size),
-        )
-
-    def _landmarks(self) -> tuple[np.ndarray, FloatArray, FloatArray]:
-        """``(ids (n,), means (n, 3), covs (n, 3, 3))`` sorted by id."""
         if self._known is not None:
-            ids = np.array(sorted(self._known), dtype=np.int64)
-            means = np.array([self._known[i] for i in ids.tolist()]).reshape(-1, 3)
-            return ids, means, np.zeros((ids.size, 3, 3))
-        ids = np.array(sorted(self._lm_means), dtype=np.int64)
-        means = np.array([self._lm_means[i] for i in ids.tolist()]).reshape(-1, 3)
-        covs = np.array([self._lm_covs.get(i, np.zeros((3, 3))) for i in ids.tolist()]).reshape(
-            -1, 3, 3
-        )
-        return ids, means, covs
+            lms = landmark_arrays(self._known, {})
+        else:
+            lms = landmark_arrays(self._lm_means, self._lm_covs)
+        bias = self._kf_bias if self.settings.estimate_imu_bias else None
+        return snapshot(pose, vel_n, cov_t, self._rates, lms, bias, self._diagnostics(lms[0].size))
 
     def _diagnostics(self, n_mapped: int) -> dict[str, float]:
         return {
@@ -546,37 +489,3 @@ class Isam2Slam:
             "n_keyframes": float(self._k),
             "n_mapped": float(n_mapped),
         }
-
-    def _neutral(self) -> Estimate:
-        """Zero state and covariance, no landmarks (before the first reset, as the EKF)."""
-        return Estimate(
-            position=np.zeros(3),
-            vel_body=np.zeros(3),
-            vel_inertial=np.zeros(3),
-            euler=np.zeros(3),
-            rates=np.zeros(3),
-            pose_cov=np.zeros((POSE_DIM, POSE_DIM)),
-            landmark_ids=np.zeros(0, dtype=np.int64),
-            landmark_means=np.zeros((0, 3)),
-            landmark_covs=np.zeros((0, 3, 3)),
-            diagnostics=self._diagnostics(0),
-        )
-
-    def _fallback(self) -> Estimate:
-        """The last finite estimate with the divergence flag (or a neutral one)."""
-        last = self._last if self._last is not None else self._neutral()
-        diagnostics = {**last.diagnostics, "diverged": 1.0}
-        return Estimate(
-            position=last.position.copy(),
-            vel_body=last.vel_body.copy(),
-            vel_inertial=last.vel_inertial.copy(),
-            euler=last.euler.copy(),
-            rates=last.rates.copy(),
-            pose_cov=None if last.pose_cov is None else last.pose_cov.copy(),
-            landmark_ids=last.landmark_ids.copy(),
-            landmark_means=last.landmark_means.copy(),
-            landmark_covs=last.landmark_covs.copy(),
-            accel_bias=last.accel_bias,
-            gyro_bias=last.gyro_bias,
-            diagnostics=diagnostics,
-        )

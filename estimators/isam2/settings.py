@@ -1,10 +1,11 @@
 """Validated settings of the iSAM2 estimator (``estimator.params`` with ``estimator.name: isam2``).
 
-The keys shared with EKF-SLAM (``process_noise``, ``estimate_imu_bias`` and the four bias keys)
-have the EKF's meaning and units (:class:`estimators.ekf.settings.EkfSlamSettings`), so a
-scenario written for the EKF keeps its IMU model when its estimator is swapped; the other EKF
-keys (gating, association) do not apply to a smoother with known association and are
-rejected with the list of accepted keys.
+The keys shared with EKF-SLAM (``process_noise``, ``estimate_imu_bias`` and the four bias keys;
+the five data-association keys) have the EKF's meaning, units and defaults
+(:class:`estimators.ekf.settings.EkfSlamSettings`, :mod:`estimators.association_settings`), so a
+scenario written for the EKF keeps its IMU model and its association rule when its estimator is
+swapped; the EKF's own iteration keys (``imu_noise_in_q``, ``relinearise_tolerance``,
+``max_iterations``) are rejected with the list of accepted keys.
 """
 
 from __future__ import annotations
@@ -15,6 +16,12 @@ from typing import Any
 
 import numpy as np
 
+from estimators.association import chi2_threshold
+from estimators.association_settings import (
+    ASSOCIATION_DEFAULTS,
+    ASSOCIATION_TYPES,
+    association_settings,
+)
 from estimators.imu_bias_settings import (
     IMU_BIAS_DEFAULTS,
     IMU_BIAS_TYPES,
@@ -34,6 +41,7 @@ _TYPES: dict[str, type | tuple[type, ...]] = {
     "iterations": int,
     "landmark_covariances": bool,
     "factor_per_return": bool,
+    **ASSOCIATION_TYPES,
 }
 
 FIXED_BIAS_SIGMA = 1e-5
@@ -118,6 +126,25 @@ class Isam2Settings:
     two are the same likelihood; per scan makes one Python call per scan and linearisation
     instead of one per return.
 
+    With ``lidar.association: unknown`` (unlabeled returns, :mod:`estimators.isam2.associate`),
+    EKF-SLAM's keys with EKF-SLAM's meaning and defaults (:mod:`estimators.association_settings`):
+
+    ``association`` (``nn`` | ``jcbb``, default ``jcbb``): nearest neighbour or joint
+    compatibility branch and bound (:mod:`estimators.association`) on the smoother's joint
+    marginal of the scan's pose and the landmarks in the gate.
+
+    ``gate_probability`` (float in (0, 1], default 0.99): the χ²₃ gate of a (return, landmark)
+    pair on its Mahalanobis distance (0.99 → 11.345); 1.0 disables gating.
+
+    ``new_landmark_probability`` (float ≥ gate_probability and < 1, default 0.9999 or
+    gate_probability if larger): a return starts a tentative landmark only when it is outside
+    this χ²₃ gate of every landmark; one between the two gates is dropped.
+
+    ``confirm_hits`` (int in [1, 1000], default 3), ``confirm_window`` (int in
+    [confirm_hits, 1000], default 5): a tentative landmark enters the graph once it has been
+    seen in ``confirm_hits`` of its first ``confirm_window`` scans, with a factor for every
+    sighting whose keyframe is still in the smoother (:mod:`estimators.tentative`).
+
     The measurement noise (LiDAR σ per return, IMU white noise per sample) comes with the
     data, as for the EKF (:class:`~quadslam_env.measurements.LidarScan`,
     :class:`~quadslam_env.measurements.ImuSample`).
@@ -136,6 +163,11 @@ class Isam2Settings:
     iterations: int = 1
     landmark_covariances: bool = True
     factor_per_return: bool = False
+    association: str = ASSOCIATION_DEFAULTS["association"]
+    gate_probability: float = ASSOCIATION_DEFAULTS["gate_probability"]
+    new_landmark_probability: float = ASSOCIATION_DEFAULTS["new_landmark_probability"]
+    confirm_hits: int = ASSOCIATION_DEFAULTS["confirm_hits"]
+    confirm_window: int = ASSOCIATION_DEFAULTS["confirm_window"]
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> Isam2Settings:
@@ -174,7 +206,19 @@ class Isam2Settings:
             iterations=_check_int("iterations", get("iterations"), 1, 20),
             landmark_covariances=bool(get("landmark_covariances")),
             factor_per_return=bool(get("factor_per_return")),
+            **association_settings(params),
         )
+
+    @property
+    def gate(self) -> float:
+        """The association gate ``χ²₃(gate_probability)`` on a pair's NIS (inf when p = 1)."""
+        return chi2_threshold(3, self.gate_probability)
+
+    @property
+    def new_gate(self) -> float:
+        """The new-landmark gate ``χ²₃(new_landmark_probability)`` (≥ :attr:`gate` unless the
+        association gate is off)."""
+        return chi2_threshold(3, self.new_landmark_probability)
 
     def bias_prior_sigmas(self) -> tuple[float, float]:
         """Prior std per axis of (accelerometer m/s², gyro rad/s) biases at the first keyframe

@@ -1,0 +1,140 @@
+"""Building blocks of the iSAM2 estimator's factor graph: GTSAM itself (an optional extra), the
+first keyframe's priors and the IMU preintegration settings (docs/isam2.md, "How it works")."""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from estimators.isam2.settings import NOISE_FLOOR, PRIOR_VARIANCE_FLOOR, Isam2Settings
+from estimators.isam2.tangent import tangent_covariance
+from quadslam_env.config_schema import ConfigError
+from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.types import GRAVITY, POSE_DIM, FloatArray
+
+GTSAM_INSTALL = "pip install 'quadslam[gtsam]'"
+"""How to install the optional dependency (GTSAM 4.3)."""
+
+
+def require_gtsam() -> Any:
+    """Import GTSAM, or fail with the install command.
+
+    Returns:
+        The ``gtsam`` module.
+
+    Raises:
+        ConfigError: GTSAM is not installed (it is the optional extra ``quadslam[gtsam]``).
+    """
+    try:
+        return importlib.import_module("gtsam")
+    except ImportError as exc:
+        raise ConfigError(
+            "estimator.name: got 'isam2', which needs GTSAM (not installed: "
+            f"{exc}); allowed: install the optional extra with `{GTSAM_INSTALL}`, or another "
+            "estimator (ekf_slam, fastslam, fastslam_kinematic, oracle)"
+        ) from exc
+
+
+@dataclass
+class FirstKeyframe:
+    """Keyframe 0: its factors, initial values and the state they encode.
+
+    Attributes:
+        graph: ``NonlinearFactorGraph`` with the (X_0, V_0) prior and the B_0 prior.
+        values: ``Values`` with X_0, V_0, B_0.
+        pose: ``Pose3`` X_0. vel: (3,) V_0 in N, m/s. bias: ``imuBias.ConstantBias`` B_0.
+        cov: (15, 15) prior covariance over (δθ, δt, δv_N, δb_a, δb_ω).
+    """
+
+    graph: Any
+    values: Any
+    pose: Any
+    vel: FloatArray
+    bias: Any
+    cov: FloatArray
+
+
+def first_keyframe(
+    gtsam: Any, settings: Isam2Settings, mean0: FloatArray, cov0: FloatArray, keys: list[int]
+) -> FirstKeyframe:
+    """The priors of keyframe 0 at the reset's belief.
+
+    The (9, 9) block of ``cov0`` over (ρ, v_B, Λ) is mapped to GTSAM's tangent (δθ, δt, δv_N)
+    (:func:`~estimators.isam2.tangent.tangent_covariance`, eigenvalues floored at
+    :data:`~estimators.isam2.settings.PRIOR_VARIANCE_FLOOR`) and enters as one whitened
+    Gaussian factor on ``X_0, V_0`` with its cross-covariances; ``B_0`` has a diagonal prior
+    (:meth:`~estimators.isam2.settings.Isam2Settings.bias_prior_sigmas`).
+
+    Args:
+        gtsam: The ``gtsam`` module.
+        settings: The estimator's settings.
+        mean0: (12,) initial mean (ρ m N, v_B m/s, Λ rad, ω rad/s).
+        cov0: (12, 12) initial covariance.
+        keys: ``[X_0, V_0, B_0]``.
+    """
+    g = gtsam
+    x0, v0, b0 = keys
+    euler = mean0[6:9]
+    dcm = dcm_from_euler(euler)
+    pose0 = g.Pose3(g.Rot3(dcm), mean0[0:3].copy())
+    vel0 = dcm @ mean0[3:6]
+    block = cov0[:POSE_DIM, :POSE_DIM]
+    sigma = tangent_covariance(
+        0.5 * (block + block.T), dcm, mean0[3:6], euler, floor=PRIOR_VARIANCE_FLOOR
+    )
+    W = np.linalg.inv(np.linalg.cholesky(sigma))  # whitening: Wᵀ W = Σ⁻¹
+    prior = g.JacobianFactor(
+        x0, W[:, 0:6], v0, W[:, 6:9], np.zeros(POSE_DIM), g.noiseModel.Unit.Create(POSE_DIM)
+    )
+    linpoint = g.Values()
+    linpoint.insert(x0, pose0)
+    linpoint.insert(v0, vel0)
+    graph = g.NonlinearFactorGraph()
+    graph.add(g.LinearContainerFactor(prior, linpoint))
+    sa, sg = settings.bias_prior_sigmas()
+    bias_sigmas = np.array([sa] * 3 + [sg] * 3)
+    bias0 = g.imuBias.ConstantBias()
+    graph.add(g.PriorFactorConstantBias(b0, bias0, g.noiseModel.Diagonal.Sigmas(bias_sigmas)))
+    values = g.Values()
+    values.insert(x0, pose0)
+    values.insert(v0, vel0)
+    values.insert(b0, bias0)
+    cov = np.zeros((15, 15))
+    cov[:POSE_DIM, :POSE_DIM] = sigma
+    cov[POSE_DIM:, POSE_DIM:] = np.diag(bias_sigmas**2)
+    return FirstKeyframe(graph, values, pose0, vel0, bias0, cov)
+
+
+def preintegration_params(
+    gtsam: Any, settings: Isam2Settings, accel_density: float, gyro_density: float
+) -> Any:
+    """GTSAM preintegration settings (NED, gravity ``(0, 0, +g)``).
+
+    Continuous densities: accelerometer ``σ_a² dt + Q_v``, gyro ``σ_ω² dt + Q_Λ``,
+    integration ``integration_sigma² + Q_ρ``, bias walks squared (Forster et al. 2017,
+    eq. 35–38 discretise them back with the step), each floored at
+    :data:`~estimators.isam2.settings.NOISE_FLOOR`.
+
+    Args:
+        gtsam: The ``gtsam`` module.
+        settings: The estimator's settings (``process_noise`` Q, integration noise, walks).
+        accel_density: ``σ_a² dt`` of the samples, (m/s²)²·s.
+        gyro_density: ``σ_ω² dt`` of the samples, (rad/s)²·s.
+
+    Returns:
+        A ``PreintegrationCombinedParams``.
+    """
+    q = np.asarray(settings.process_noise)
+    p = gtsam.PreintegrationCombinedParams(np.array([0.0, 0.0, GRAVITY]))
+    p.setAccelerometerCovariance(np.diag(np.maximum(accel_density + q[3:6], NOISE_FLOOR)))
+    p.setGyroscopeCovariance(np.diag(np.maximum(gyro_density + q[6:9], NOISE_FLOOR)))
+    p.setIntegrationCovariance(
+        np.diag(np.maximum(settings.integration_sigma**2 + q[0:3], NOISE_FLOOR))
+    )
+    walk_a, walk_g = settings.bias_walks()
+    p.setBiasAccCovariance(np.eye(3) * walk_a**2)
+    p.setBiasOmegaCovariance(np.eye(3) * walk_g**2)
+    return p

@@ -1,0 +1,118 @@
+"""The iSAM2 estimator's snapshots: its GTSAM state as the env's :class:`Estimate`.
+
+The smoothed (or IMU-predicted) ``Pose3`` and velocity in N and their covariance over GTSAM's
+tangent (δθ, δt, δv_N) become (ρ, v_B, Λ) and their (9, 9) covariance
+(:func:`~estimators.isam2.tangent.state_covariance`); the landmarks are reported sorted by id.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from estimators.isam2.tangent import state_covariance
+from quadslam_env.estimation import Estimate
+from quadslam_env.models.frames import euler_from_dcm
+from quadslam_env.types import POSE_DIM, FloatArray
+
+
+def landmark_arrays(
+    means: dict[int, FloatArray], covs: dict[int, FloatArray]
+) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """``(ids (n,), means (n, 3) m, covs (n, 3, 3) m²)`` sorted by id (a missing
+    covariance is reported as zero)."""
+    ids = np.array(sorted(means), dtype=np.int64)
+    out_means = np.array([means[i] for i in ids.tolist()]).reshape(-1, 3)
+    out_covs = np.array([covs.get(i, np.zeros((3, 3))) for i in ids.tolist()]).reshape(-1, 3, 3)
+    return ids, out_means, out_covs
+
+
+def snapshot(
+    pose: Any,
+    vel_n: FloatArray,
+    cov_t: FloatArray,
+    rates: FloatArray,
+    landmarks: tuple[np.ndarray, FloatArray, FloatArray],
+    bias: Any,
+    diagnostics: dict[str, float],
+) -> Estimate:
+    """The estimate of one state.
+
+    Args:
+        pose: ``gtsam.Pose3`` (``C_NB``, ρ in N, m).
+        vel_n: (3,) velocity in N, m/s.
+        cov_t: (9, 9) covariance over (δθ rad, δt m, δv_N m/s).
+        rates: (3,) body rates, rad/s.
+        landmarks: :func:`landmark_arrays`.
+        bias: ``imuBias.ConstantBias`` to report, or ``None`` (biases not estimated).
+        diagnostics: The estimator's diagnostics.
+
+    Raises:
+        FloatingPointError: A non-finite state or covariance.
+    """
+    dcm = np.asarray(pose.rotation().matrix(), dtype=float)
+    position = np.asarray(pose.translation(), dtype=float).reshape(3)
+    euler = euler_from_dcm(dcm)
+    vel_body = dcm.T @ vel_n
+    pose_cov = state_covariance(cov_t, dcm, vel_body, euler)
+    if not (
+        np.isfinite(position).all()
+        and np.isfinite(vel_n).all()
+        and np.isfinite(euler).all()
+        and np.isfinite(pose_cov).all()
+    ):
+        raise FloatingPointError("isam2: non-finite prediction")
+    ids, means, covs = landmarks
+    accel_bias = gyro_bias = None
+    if bias is not None:
+        accel_bias = np.asarray(bias.accelerometer(), dtype=float).copy()
+        gyro_bias = np.asarray(bias.gyroscope(), dtype=float).copy()
+    return Estimate(
+        position=position.copy(),
+        vel_body=vel_body,
+        vel_inertial=np.array(vel_n, dtype=float),
+        euler=euler,
+        rates=np.array(rates, dtype=float),
+        pose_cov=pose_cov,
+        landmark_ids=ids,
+        landmark_means=means,
+        landmark_covs=covs,
+        accel_bias=accel_bias,
+        gyro_bias=gyro_bias,
+        diagnostics=diagnostics,
+    )
+
+
+def neutral(diagnostics: dict[str, float]) -> Estimate:
+    """Zero state and covariance, no landmarks (before the first reset, as the EKF)."""
+    return Estimate(
+        position=np.zeros(3),
+        vel_body=np.zeros(3),
+        vel_inertial=np.zeros(3),
+        euler=np.zeros(3),
+        rates=np.zeros(3),
+        pose_cov=np.zeros((POSE_DIM, POSE_DIM)),
+        landmark_ids=np.zeros(0, dtype=np.int64),
+        landmark_means=np.zeros((0, 3)),
+        landmark_covs=np.zeros((0, 3, 3)),
+        diagnostics=diagnostics,
+    )
+
+
+def flagged(last: Estimate) -> Estimate:
+    """A copy of ``last`` (the last finite estimate) with ``diagnostics["diverged"] = 1``."""
+    return Estimate(
+        position=last.position.copy(),
+        vel_body=last.vel_body.copy(),
+        vel_inertial=last.vel_inertial.copy(),
+        euler=last.euler.copy(),
+        rates=last.rates.copy(),
+        pose_cov=None if last.pose_cov is None else last.pose_cov.copy(),
+        landmark_ids=last.landmark_ids.copy(),
+        landmark_means=last.landmark_means.copy(),
+        landmark_covs=last.landmark_covs.copy(),
+        accel_bias=last.accel_bias,
+        gyro_bias=last.gyro_bias,
+        diagnostics={**last.diagnostics, "diverged": 1.0},
+    )

@@ -1,0 +1,65 @@
+"""The keyframe-to-now transition of the smoother's navigation state through the IMU factor.
+
+Between keyframes the estimator needs the state predicted with the current preintegration and
+how its error depends on the keyframe's: for the estimate's covariance every control step, and
+for data association, where the predicted pose's cross-covariance with the landmarks enters the
+innovation covariance of each (return, landmark) pair.
+
+GTSAM's ``CombinedImuFactor`` (Forster et al. 2017, "On-Manifold Preintegration for Real-Time
+Visual-Inertial Odometry", IEEE T-RO 33(1), eq. 44–45, with the bias random walk) linearised
+at the keyframe state ``i`` and its prediction ``j`` (where its error is zero) gives whitened
+rows ``A_i δ_i + A_j δ_j = w``, ``w ~ N(0, I)``, over the 15-dim tangent
+``δ = (δθ, δt, δv_N, δb_a, δb_ω)`` (Pose3 in B, velocity in N, biases). Solved for ``δ_j``::
+
+    δ_j = F δ_i + A_j⁻¹ w,   F = −A_j⁻¹ A_i,   Q = A_j⁻¹ A_j⁻ᵀ,
+
+so ``Σ_j = F Σ_i Fᵀ + Q`` and ``Cov(δ_j, δ_l) = F Cov(δ_i, δ_l)`` for any other variable l
+(a landmark), which the IMU factor does not involve.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from quadslam_env.types import FloatArray
+
+NAV_DIM = 15
+"""Keyframe tangent (δθ, δt, δv_N, δb_a, δb_ω): Pose3 (6) + velocity (3) + biases (6)."""
+
+# Column blocks of the linearised CombinedImuFactor, keys (X_i, V_i, X_j, V_j, B_i, B_j).
+_COLS_I = np.r_[0:9, 18:24]
+_COLS_J = np.r_[9:18, 24:30]
+
+
+def imu_transition(
+    gtsam: Any, pim: Any, pose: Any, vel: FloatArray, bias: Any
+) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
+    """The keyframe state predicted with ``pim`` and the linear map of its error (module doc).
+
+    Args:
+        gtsam: The ``gtsam`` module.
+        pim: ``PreintegratedCombinedMeasurements`` since the keyframe (``deltaTij() > 0``).
+        pose: The keyframe's ``gtsam.Pose3`` (``C_NB``, ρ in N, m).
+        vel: (3,) its velocity in N, m/s.
+        bias: Its ``imuBias.ConstantBias`` (the bias held over the preintegration).
+
+    Returns:
+        ``(pose_j, vel_j (3,), F (15, 15), Q (15, 15))``: the predicted ``Pose3`` and
+        velocity (m/s, N), and ``δ_j = F δ_i + noise`` with noise covariance Q, over the
+        tangent (δθ rad, δt m, δv_N m/s, δb_a m/s², δb_ω rad/s).
+    """
+    nav = pim.predict(gtsam.NavState(pose, vel), bias)
+    pose_j, vel_j = nav.pose(), np.asarray(nav.velocity(), dtype=float)
+    factor = gtsam.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)
+    values = gtsam.Values()
+    values.insert(0, pose)
+    values.insert(1, vel)
+    values.insert(2, pose_j)
+    values.insert(3, vel_j)
+    values.insert(4, bias)
+    values.insert(5, bias)
+    A = np.asarray(factor.linearize(values).jacobian()[0])
+    Aj_inv = np.linalg.inv(A[:, _COLS_J])
+    return pose_j, vel_j, -Aj_inv @ A[:, _COLS_I], Aj_inv @ Aj_inv.T
