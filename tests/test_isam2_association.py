@@ -13,7 +13,7 @@ import pytest
 from test_unlabeled_scans import AHEAD
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from agents.dflqr import DFLQRPolicy
+from agents.control.dflqr import DFLQRPolicy
 from estimators.association import chi2_threshold
 from estimators.isam2 import Isam2Slam
 from estimators.isam2.associate import PosePrediction, ScanAssociation
