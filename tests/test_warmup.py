@@ -1,4 +1,4 @@
-"""The EKF update compiled by the warm-up process is the one the env loads (cold numba cache)."""
+"""The EKF update compiled by the warm-up process is the one the filter loads (cold numba cache)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,10 @@ import pytest
 from estimators.ekf import warmup
 from quadslam_env.models.jit import COMPILE_NOTICE
 
-# A fresh process with an empty cache that asks for the warm-up: the env's filter starts the
-# warm-up process, the first scan waits for it; numba's compile events say which kernels this
-# process compiled itself.
+# A fresh process with an empty cache that asks for the warm-up: building the filter starts the
+# warm-up process, the first update waits for it; numba's compile events say which kernels this
+# process compiled itself. The filter alone, not an env: the env's other kernels (physics,
+# sensors, metrics) would only add their compile time.
 PROBE = """
 import json
 from numba.core import event
@@ -25,17 +26,22 @@ class Listener(event.Listener):
     def on_start(self, ev): compiled.append(ev.data["dispatcher"].py_func.__qualname__)
     def on_end(self, ev): pass
 event.register("numba:compile", Listener())
-import gymnasium as gym, numpy as np, quadslam_env
-from estimators.ekf import warmup
+import numpy as np
+from estimators.ekf import EkfSlamBatch, warmup
 from quadslam_env.models.jit import announce_compilation
 notices = []
 announce_compilation(notices.append)
 warmup.enable()
-env = gym.make("QuadSLAM-EKF-v0")
+ekf = EkfSlamBatch(1, 4)
 started = warmup._process is not None
-env.reset(seed=0)
-for _ in range(12):  # the LiDAR scans at step 10
-    env.step(np.zeros(4, dtype=np.float32))
+lanes, active = np.zeros(1, dtype=np.int64), np.ones(1, dtype=bool)
+ekf.reset_lanes(lanes, np.zeros((1, 12)), np.eye(12)[None] * 1e-2, [np.random.default_rng(0)])
+hover = np.array([[0.0, 0.0, -9.81]])
+ekf.predict(np.zeros(1), hover, np.zeros((1, 3)), 0.03, 0.002, np.ones(1), np.zeros((1, 3)),
+            0.01, active)
+visible = np.array([[True, True, False, False]])
+meas = np.array([[[0.1, 0.1, 5.0], [-0.2, 0.05, 7.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]])
+ekf.update(np.zeros(1), lanes, visible, meas, np.array([0.006, 0.005, 0.1]))
 print(json.dumps({"started": started, "compiled": compiled, "notices": notices}))
 """
 
@@ -49,7 +55,7 @@ def _probe(cache_dir: Path) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_env_loads_the_update_the_warmup_process_compiled(tmp_path: Path) -> None:
+def test_filter_loads_the_update_the_warmup_process_compiled(tmp_path: Path) -> None:
     result = _probe(tmp_path)
     assert result["started"]
     assert "update_lanes" not in result["compiled"]  # loaded from the warm-up's cache entry
