@@ -273,7 +273,7 @@ def test_malformed_address(capsys, tmp_path):
 
 def test_joining_a_cluster_uses_the_token_at_hand(tmp_path, monkeypatch):
     """Ray 2.60 refuses a driver without RAY_AUTH_MODE=token on a `ray start` cluster."""
-    from agents.sweep.driver import use_cluster_token
+    from agents.sweep.cluster import use_cluster_token
 
     monkeypatch.setenv("RAY_AUTH_MODE", "placeholder")  # restored after the test
     monkeypatch.delenv("RAY_AUTH_MODE")
