@@ -14,6 +14,7 @@ from typing import Any
 from agents.sweep.spec import Job
 
 INSTALL_HINT = "install it with: pip install 'quadslam[ray]'"
+# Single-threaded BLAS in every worker (see agents/cli/main.py); set for cluster nodes too.
 _THREAD_VARS = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 

@@ -67,7 +67,6 @@ ERROR_FILE = "error.txt"
 LOCK_FILE = ".sweep.lock"
 
 
-# Single-threaded BLAS in every worker (see agents/cli/main.py); set for cluster nodes too.
 @dataclass
 class SweepReport:
     """What a sweep did.

@@ -56,7 +56,7 @@ def execute_job(kind: str, params: dict[str, Any]) -> dict[str, Any]:
 
 
 def make_env(env_id: str, scenario: Any, estimator: str | None, overrides: dict) -> Any:
-    """``gymnasium.make`` with the arguments ``agents.cli.main.make_env`` gives it."""
+    """``gymnasium.make`` with the arguments ``agents.cli.fly.make_env`` gives it."""
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
@@ -70,7 +70,7 @@ def make_env(env_id: str, scenario: Any, estimator: str | None, overrides: dict)
 
 
 def fly(env: Any, policy: Any, name: str, seeds: list[int], plots: Path | None) -> dict[str, Any]:
-    """The result document of ``quadslam run/evaluate`` (:func:`agents.cli.main.fly`), unprinted."""
+    """The result document of ``quadslam run/evaluate`` (:func:`agents.cli.fly.fly`), unprinted."""
     from agents.evaluation.episodes import Trace, run_episodes, summarize
 
     base = env.unwrapped

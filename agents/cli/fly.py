@@ -1,0 +1,200 @@
+"""``quadslam run`` and ``quadslam evaluate``: fly a policy on seeded episodes and report them.
+
+Both go through one path (:func:`fly`): the env from the command's options
+(:func:`make_env`), the output paths checked before anything flies, the episodes, the table,
+``--json``, ``--plots`` and ``--video``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from agents.io.overrides import parse_overrides
+
+
+def make_env(
+    env_id: str,
+    scenario: str | dict[str, Any] | None,
+    estimator: str | None,
+    duration: float | None,
+    overrides: Sequence[str] = (),
+) -> Any:
+    """``gymnasium.make`` with the CLI's scenario / estimator / duration / ``--set`` choices."""
+    import gymnasium as gym
+
+    import quadslam_env  # registers the ids
+    from quadslam_env.config import deep_merge
+
+    kwargs: dict[str, Any] = parse_overrides(overrides)
+    if scenario is not None:
+        kwargs["scenario"] = scenario
+    if estimator is not None:
+        kwargs["estimator_name"] = estimator
+    if duration is not None:
+        kwargs = deep_merge(kwargs, {"episode": {"duration_s": duration}})
+    if env_id not in gym.registry:
+        raise ValueError(
+            f"--env: got {env_id!r}; allowed: one of {list(quadslam_env.ENV_IDS)} "
+            "or another registered Gymnasium id"
+        )
+    return gym.make(env_id, **kwargs)
+
+
+def check_outputs(plots: Path | None, json_path: Path | None, video: Path | None) -> None:
+    """Check every output path of ``run``/``evaluate`` before anything is flown.
+
+    Raises:
+        agents.io.outputs.OutputPathError: One-line message naming the option and the path.
+    """
+    from agents.evaluation.video import check_video_path
+    from agents.io.outputs import check_output_dir, check_output_file
+    from quadslam_env.extras import require
+
+    if json_path is not None:
+        check_output_file(json_path, "--json")
+    if video is not None:
+        require("matplotlib", "plots", "--video")
+        check_video_path(video)
+    if plots is not None:
+        require("matplotlib", "plots", "--plots")
+        check_output_dir(plots, "--plots")
+
+
+def fly(
+    env: Any,
+    policy: Any,
+    policy_name: str,
+    seeds: Sequence[int],
+    plots: Path | None,
+    json_path: Path | None,
+    video: Path | None = None,
+) -> dict[str, Any]:
+    """Fly ``policy`` for each seed with a progress bar, print the table, write JSON/plots
+    (and a video of the first seed's episode).
+
+    The output paths are checked before the flight (:func:`check_outputs`); the files are
+    written atomically, and one that cannot be written at the end is saved elsewhere
+    (:class:`agents.io.outputs.Saver`).
+
+    Raises:
+        agents.io.outputs.OutputPathError: An output path cannot be written (before flying).
+        agents.io.outputs.OutputWriteError: After every result was written somewhere, when a
+            file could not be written where asked (the message says where it went).
+    """
+    from agents.evaluation.episodes import Trace, format_table, run_episodes, summarize
+    from agents.evaluation.video import LaneVideo
+    from agents.io.outputs import Saver
+
+    check_outputs(plots, json_path, video)
+    recorder = None if video is None else LaneVideo(video)
+    base = env.unwrapped
+    total = base.max_steps * len(seeds)
+    trace = Trace() if plots is not None else None
+    with tqdm(
+        total=total,
+        unit="step",
+        desc=f"{base.scenario.name} × {len(seeds)} seed(s)",
+        file=sys.stderr,
+        mininterval=0.5,
+    ) as bar:
+        # The episodes run as lanes of the native vector env (same numbers as one by one).
+        episodes = run_episodes(env, policy, seeds, trace=trace, on_step=bar.update, video=recorder)
+    summary = summarize(episodes)
+    result = {
+        "scenario": base.scenario.name,
+        "estimator": base.scenario.estimator.name,
+        "policy": policy_name,
+        "episodes": episodes,
+        "summary": summary,
+    }
+    print(format_table(episodes, summary))
+    saver = Saver()
+    if json_path is not None:  # the smallest and most precious file first
+        print(f"json: {saver.write_json(json_path, result, '--json')}")
+    if plots is not None and trace is not None:
+        from agents.evaluation.plots import write_figures
+
+        files = write_figures(
+            trace,
+            plots,
+            f"{base.scenario.name} / {base.scenario.estimator.name} / seed {seeds[0]}",
+            saver,
+        )
+        print(f"figures: {files[0].parent if files else plots} ({len(files)} PNG)")
+    if recorder is not None:
+        where = recorder.close(saver)
+        print(f"video: {where} (seed {seeds[0]}, {recorder.frames} frames)")
+    saver.check()
+    return result
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    """DF-LQR episodes on a scenario: the package's main job."""
+    from agents.control.dflqr import DFLQRPolicy
+    from agents.io.outputs import safe_name
+
+    env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
+    plots = args.plots
+    if plots is None and not args.no_plots and importlib.util.find_spec("matplotlib") is None:
+        print("quadslam run: no figures (matplotlib is not installed: pip install "
+              "'quadslam[plots]')", file=sys.stderr)  # fmt: skip
+    elif plots is None and not args.no_plots:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        # The scenario's name comes from its file: one safe folder name inside runs/.
+        plots = Path("runs") / f"run-{stamp}-{safe_name(env.unwrapped.scenario.name)}"
+    check_outputs(plots, args.json, args.video)
+    seeds = list(range(args.seed, args.seed + args.seeds))
+    fly(env, DFLQRPolicy.from_env(env), "dflqr", seeds, plots, args.json, args.video)
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Any policy (``dflqr`` or a trained model) through the same code path as ``run``."""
+    from agents.rl.policies import load_policy
+    from agents.rl.run_folder import run_config
+
+    # A trained model is evaluated on its training env id and scenario unless told otherwise.
+    cfg = run_config(args.policy) if args.policy != "dflqr" and Path(args.policy).exists() else None
+    if cfg is not None and Path(args.policy).is_dir():
+        _warn_unfinished(Path(args.policy))
+    env_id = args.env or (cfg["env_id"] if cfg else "QuadSLAM-v0")
+    # The run's resolved scenario (every section, env_kwargs overrides included) rebuilds the
+    # training env without the scenario files; --scenario replaces it.
+    scenario = args.scenario or (cfg.get("scenario") if cfg else None)
+    if cfg and args.env and args.env != cfg["env_id"] and not args.scenario:
+        # Another env id switches the estimator, whose settings the training scenario may not
+        # hold (a run trained on the truth has none): they fall back to that estimator's
+        # defaults, which can differ from the ones its own scenarios use (e.g. IMU-bias states).
+        print(
+            f"quadslam evaluate: note: flying the run's scenario with {args.env}'s estimator at "
+            "the settings that scenario gives it (its defaults if none); pass --scenario or "
+            "--set estimator.params.<key>=... to choose them",
+            file=sys.stderr,
+        )
+    env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
+    check_outputs(args.plots, args.json, args.video)  # before loading and flying
+    policy, name = load_policy(args.policy, env)
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    fly(env, policy, name, seeds, args.plots, args.json, args.video)
+    return 0
+
+
+def _warn_unfinished(run_dir: Path) -> None:
+    """One warning line when a run folder's training did not finish (its model is partial)."""
+    marker = run_dir / "INTERRUPTED"
+    if marker.is_file() or not (run_dir / "timing.json").is_file():
+        at = marker.read_text().strip() if marker.is_file() else ""
+        where = f" at {at} steps" if at.isdigit() else ""
+        print(
+            f"quadslam evaluate: warning: {run_dir} did not finish training{where}; "
+            f"resume it with: quadslam train --resume {run_dir}",
+            file=sys.stderr,
+        )
