@@ -17,6 +17,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from agents.cli.arg_types import positive_float, positive_int
 from agents.io.overrides import parse_overrides
 
 
@@ -198,3 +199,54 @@ def _warn_unfinished(run_dir: Path) -> None:
             f"resume it with: quadslam train --resume {run_dir}",
             file=sys.stderr,
         )
+
+
+def add_fly_parsers(sub: Any) -> None:
+    """The ``run`` and ``evaluate`` subcommands on the ``quadslam`` parser's ``sub``."""
+
+    def common(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--scenario", help="scenario name in configs/scenarios or a YAML path")
+        p.add_argument(
+            "--estimator",
+            metavar="NAME",
+            help="replace the scenario's estimator: ekf_slam, fastslam, fastslam_kinematic, "
+            "isam2 (extra gtsam), oracle or a registered plug-in",
+        )
+        p.add_argument("--duration", type=positive_float, help="episode length in s")
+        p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+        p.add_argument("--json", type=Path, help="write results as JSON to this file")
+        p.add_argument(
+            "--video",
+            type=Path,
+            metavar="FILE",
+            help="record the first seed's episode (.mp4 or .gif)",
+        )
+        p.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="SECTION.KEY=VALUE",
+            help="override a scenario setting (repeatable), e.g. "
+            "--set estimator.sample_initial_error=false",
+        )
+
+    run = sub.add_parser(
+        "run",
+        help="fly the DF-LQR baseline (default: seed-001 figure-8, "
+        "EKF-SLAM) and write paper-style figures",
+    )
+    common(run)
+    run.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
+    run.add_argument("--plots", type=Path, help="figure folder (default: a new runs/ folder)")
+    run.add_argument("--no-plots", action="store_true", help="skip the figures")
+    run.set_defaults(func=cmd_run)
+
+    ev = sub.add_parser("evaluate", help="evaluate dflqr or a trained model on an env id")
+    common(ev)
+    ev.add_argument("--policy", required=True, help="'dflqr', or a run folder / model .zip")
+    ev.add_argument(
+        "--env", help="env id (default: the model's training env, or QuadSLAM-v0 for dflqr)"
+    )
+    ev.add_argument("--episodes", type=positive_int, default=10, help="number of episodes")
+    ev.add_argument("--plots", type=Path, help="write figures of the first episode here")
+    ev.set_defaults(func=cmd_evaluate)

@@ -16,7 +16,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from agents.cli.fly import cmd_evaluate, cmd_run
+from agents.cli.arg_types import positive_float, positive_int
+from agents.cli.fly import add_fly_parsers
 from agents.cli.study import add_study_parser
 
 # The filters multiply matrices of a few hundred rows: multithreaded BLAS only adds hand-off
@@ -24,26 +25,6 @@ from agents.cli.study import add_study_parser
 # vectorised envs already use the cores. Set by main() before numpy is imported (nothing above
 # imports it), not at import: importing this module changes no environment; users may override.
 BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
 
 
 def cmd_scenarios(args: argparse.Namespace) -> int:
@@ -155,53 +136,20 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--scenario", help="scenario name in configs/scenarios or a YAML path")
-        p.add_argument(
-            "--estimator",
-            metavar="NAME",
-            help="replace the scenario's estimator: ekf_slam, fastslam, fastslam_kinematic, "
-            "isam2 (extra gtsam), oracle or a registered plug-in",
-        )
-        p.add_argument("--duration", type=_positive_float, help="episode length in s")
-        p.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
-        p.add_argument("--json", type=Path, help="write results as JSON to this file")
-        p.add_argument(
-            "--video",
-            type=Path,
-            metavar="FILE",
-            help="record the first seed's episode (.mp4 or .gif)",
-        )
-        p.add_argument(
-            "--set",
-            action="append",
-            default=[],
-            metavar="SECTION.KEY=VALUE",
-            help="override a scenario setting (repeatable), e.g. "
-            "--set estimator.sample_initial_error=false",
-        )
+    add_fly_parsers(sub)
+    _add_train_parser(sub)
+    add_study_parser(sub, positive_int, positive_float)
+    from agents.sweep.driver import add_sweep_parser  # light: Ray is imported when a sweep runs
 
-    run = sub.add_parser(
-        "run",
-        help="fly the DF-LQR baseline (default: seed-001 figure-8, "
-        "EKF-SLAM) and write paper-style figures",
-    )
-    common(run)
-    run.add_argument("--seeds", type=_positive_int, default=1, help="number of seeds")
-    run.add_argument("--plots", type=Path, help="figure folder (default: a new runs/ folder)")
-    run.add_argument("--no-plots", action="store_true", help="skip the figures")
-    run.set_defaults(func=cmd_run)
+    add_sweep_parser(sub, positive_int)
+    scn = sub.add_parser("scenarios", help="list the shipped scenarios with their descriptions")
+    scn.set_defaults(func=cmd_scenarios)
+    _add_bench_parser(sub)
+    return parser
 
-    ev = sub.add_parser("evaluate", help="evaluate dflqr or a trained model on an env id")
-    common(ev)
-    ev.add_argument("--policy", required=True, help="'dflqr', or a run folder / model .zip")
-    ev.add_argument(
-        "--env", help="env id (default: the model's training env, or QuadSLAM-v0 for dflqr)"
-    )
-    ev.add_argument("--episodes", type=_positive_int, default=10, help="number of episodes")
-    ev.add_argument("--plots", type=Path, help="write figures of the first episode here")
-    ev.set_defaults(func=cmd_evaluate)
 
+def _add_train_parser(sub: Any) -> None:
+    """``quadslam train``."""
     tr = sub.add_parser(
         "train",
         help="train a stable-baselines3 agent (hyperparameters from configs/agents/<algo>.yaml)",
@@ -222,8 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="hyperparameter YAML (default configs/agents/<algo>.yaml) or a run's config.yaml",
     )
-    tr.add_argument("--timesteps", type=_positive_int, help="override n_timesteps")
-    tr.add_argument("--n-envs", type=_positive_int, help="override n_envs")
+    tr.add_argument("--timesteps", type=positive_int, help="override n_timesteps")
+    tr.add_argument("--n-envs", type=positive_int, help="override n_envs")
     tr.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     tr.add_argument("--out", type=Path, help="parent folder of the run folder (default runs/)")
     tr.add_argument(
@@ -234,18 +182,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tr.add_argument(
         "--torch-threads",
-        type=_positive_int,
+        type=positive_int,
         help="torch threads while training (default 1: small networks; see agents.rl.training)",
     )
     tr.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     tr.add_argument("--verbose", type=int, default=0, choices=[0, 1, 2], help="SB3 verbosity")
     tr.set_defaults(func=cmd_train)
-    add_study_parser(sub, _positive_int, _positive_float)
-    from agents.sweep.driver import add_sweep_parser  # light: Ray is imported when a sweep runs
 
-    add_sweep_parser(sub, _positive_int)
-    scn = sub.add_parser("scenarios", help="list the shipped scenarios with their descriptions")
-    scn.set_defaults(func=cmd_scenarios)
+
+def _add_bench_parser(sub: Any) -> None:
+    """``quadslam bench``."""
     from agents.bench.runner import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy
 
     bench = sub.add_parser("bench", help="measure env and estimator speed and scaling")
@@ -259,7 +205,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="run only these sections",
     )
     bench.set_defaults(func=cmd_bench)
-    return parser
 
 
 #: What a command stopped by Ctrl-C or SIGTERM leaves behind (train and sweep say it
