@@ -176,6 +176,7 @@ HEADER = (
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m agents.particle_nees``: record, summarise, print, write ``--json``."""
     from agents.cli import parse_overrides
+    from agents.outputs import check_output_file
 
     parser = argparse.ArgumentParser(prog="python -m agents.particle_nees", description=__doc__)
     parser.add_argument("--scenario", default="paper_fastslam_helix")
@@ -186,6 +187,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    if args.json is not None:
+        check_output_file(args.json, "--json")  # before the flights
     overrides = parse_overrides(args.set)
     seeds = list(range(args.seed, args.seed + args.seeds))
     counts = [int(c) for c in args.n.split(",")] if args.n else [None]
@@ -216,7 +219,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "set": args.set,
             "rows": rows,
         }
-        save_json(args.json, out)
+        return save_json(args.json, out, parser.prog)
     return 0
 
 
