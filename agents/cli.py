@@ -514,6 +514,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     for var in BLAS_THREAD_VARS:
         os.environ.setdefault(var, "1")
+    from agents.cli_warnings import one_line_warnings
     from agents.outputs import Terminated, sigterm_as_interrupt, sigterm_received
 
     parser = build_parser()
@@ -524,7 +525,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     warmup.enable()
     try:
-        with sigterm_as_interrupt():
+        with sigterm_as_interrupt(), one_line_warnings(args.command):
             code = int(args.func(args))
     except KeyboardInterrupt as exc:
         terminated = isinstance(exc, Terminated)
