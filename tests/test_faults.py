@@ -120,6 +120,24 @@ class _Torn:
         return getattr(self.fh, name)
 
 
+def torn_writes(monkeypatch: pytest.MonkeyPatch, folder: Path) -> None:
+    """Every file opened for writing in ``folder`` takes half of its data, then the disk is
+    full (what a plain ``open(path, "w")`` leaves behind as a truncated result)."""
+    import builtins
+    import io
+
+    real_open = builtins.open
+
+    def torn_open(file: Any, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
+        fh = real_open(file, mode, *args, **kwargs)
+        if "w" in mode and isinstance(file, str | Path) and Path(file).parent == folder:
+            return _Torn(fh)
+        return fh
+
+    monkeypatch.setattr(builtins, "open", torn_open)
+    monkeypatch.setattr(io, "open", torn_open)  # pathlib's write_text opens through io
+
+
 def test_imu_instants_json_torn_by_a_full_disk_keeps_the_old_file(
     capsys: pytest.CaptureFixture[str],
     monkeypatch: pytest.MonkeyPatch,
@@ -129,22 +147,12 @@ def test_imu_instants_json_torn_by_a_full_disk_keeps_the_old_file(
     """A write that fails halfway (ENOSPC after half the data) leaves the previous result
     whole: the new one is written under another name and renamed into place only when
     complete; the result itself goes to the temporary folder."""
-    import builtins
-
     import agents.imu_instants
 
     monkeypatch.setattr(agents.imu_instants, "split_at_instants", lambda *a, **k: {"steps": 7})
     target = tmp_path / "r.json"
     target.write_text('{"old": true}\n')
-    real_open = builtins.open
-
-    def torn_open(file: Any, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
-        fh = real_open(file, mode, *args, **kwargs)
-        if "w" in mode and isinstance(file, str | Path) and Path(file).parent == tmp_path:
-            return _Torn(fh)
-        return fh
-
-    monkeypatch.setattr(builtins, "open", torn_open)
+    torn_writes(monkeypatch, tmp_path)
     code = agents.imu_instants.main(["--seeds", "1", "--json", str(target)])
     assert code == 2
     assert json.loads(target.read_text()) == {"old": True}  # never truncated
@@ -153,3 +161,21 @@ def test_imu_instants_json_torn_by_a_full_disk_keeps_the_old_file(
     saved = _saved_to(err)
     assert saved.is_relative_to(temp_root) and json.loads(saved.read_text())["steps"] == 7
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json", "tmp"]  # no leftovers
+
+
+@pytest.mark.parametrize("module", ["study_active", "study_cost", "study_association"])
+def test_a_study_json_torn_by_a_full_disk_keeps_the_old_file(
+    module: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The studies' ``write_json``, called directly (the CLI also goes through its saver),
+    writes atomically: a write that fails halfway leaves the previous file whole."""
+    import importlib
+
+    write_json = importlib.import_module(f"agents.{module}").write_json
+    target = tmp_path / "study.json"
+    target.write_text('{"old": true}\n')
+    torn_writes(monkeypatch, tmp_path)
+    with pytest.raises(OSError, match="No space left on device"):
+        write_json({"settings": {"x": 1.0}, "rows": [], "clutter": []}, target)
+    assert json.loads(target.read_text()) == {"old": True}
+    assert [p.name for p in tmp_path.iterdir()] == ["study.json"]  # no torn temporary file
