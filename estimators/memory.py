@@ -125,36 +125,60 @@ def check_ekf_map(num_lanes: int, nv: int, slots: int) -> None:
 FASTSLAM_BYTES_PER_LANDMARK = 8 * (3 + 9)
 """Bytes of one landmark in one particle: its mean (3) and covariance (3×3), float64."""
 
+FASTSLAM_BYTES_PER_PARTICLE = 8 * 64
+"""Bytes of one particle without its map, rounded up: the state and its resampling draw
+(2 × 12), the weights and their scratch arrays (6), the IMU-bias filter's state and gain
+(12 + 6) and the temporaries of a step, float64."""
+
+
+def fastslam_bytes(num_lanes: int, n_particles: int, landmarks: int) -> int:
+    """Bytes of FastSLAM's particles on B lanes: ``B × N × (512 + 96 × L)``."""
+    per_particle = FASTSLAM_BYTES_PER_PARTICLE + FASTSLAM_BYTES_PER_LANDMARK * landmarks
+    return num_lanes * n_particles * per_particle
+
 
 def check_fastslam_map(num_lanes: int, n_particles: int, landmarks: int) -> None:
-    """Reject a FastSLAM map whose per-particle landmark filters would not fit in memory.
+    """Reject FastSLAM particles and landmark filters that would not fit in memory.
 
-    Every particle carries a 3-D EKF per landmark it has seen; the bound is all ``landmarks``
-    of the layout seen by every particle of every lane.
+    Every particle carries its state and a 3-D EKF per landmark it has seen; the bound is all
+    ``landmarks`` of the layout seen by every particle of every lane. Called for one lane
+    without a map before a filter allocates its particles, and for all lanes with the map
+    before the lanes are built.
 
     Args:
-        num_lanes: B.
-        n_particles: N per lane.
-        landmarks: Landmarks the layout makes (the map's size bound).
+        num_lanes: B (``num_envs`` of a vector env).
+        n_particles: N per lane (``estimator.params.n_particles``).
+        landmarks: Landmarks the layout makes (the map's size bound; 0 for the particles
+            alone).
 
     Raises:
-        ValueError: Names the particle and landmark counts, the bytes needed, the formula and
-            the largest map that fits.
+        ValueError: Names the particle, landmark and lane counts with their keys, the bytes
+            needed, the formula, the available memory and what would fit.
     """
-    per_landmark = FASTSLAM_BYTES_PER_LANDMARK * n_particles * num_lanes
+    per_particle = FASTSLAM_BYTES_PER_PARTICLE + FASTSLAM_BYTES_PER_LANDMARK * landmarks
+    b, n = num_lanes, n_particles
 
     def allowed(avail: int) -> str:
-        return (
-            f"at most {avail // per_landmark} landmarks with {n_particles} particles on "
-            f"{num_lanes} lane(s) (landmarks.count or the layout's positions), or fewer "
-            "particles (estimator.params.n_particles) or lanes"
-        )
+        fits = []
+        room = avail // (b * n) - FASTSLAM_BYTES_PER_PARTICLE  # per particle, for its map
+        if landmarks and room >= 0:
+            most = room // FASTSLAM_BYTES_PER_LANDMARK
+            fits.append(f"at most {most} landmarks (landmarks.count or the layout's positions)")
+        if avail // (b * per_particle) >= 1:
+            most = avail // (b * per_particle)
+            fits.append(f"at most {most} particles (estimator.params.n_particles)")
+        if b > 1 and avail // (n * per_particle) >= 1:
+            fits.append(f"at most {avail // (n * per_particle)} lanes (num_envs)")
+        if not fits:
+            return "fewer particles, landmarks and lanes"
+        return ", or ".join(fits) + ", the others as they are"
 
+    the_map = f" and a map of {landmarks} landmarks (landmarks)" if landmarks else ""
+    lanes = f"on {b} lane(s) (num_envs)" if b > 1 else "on one lane"
     check_fits(
-        per_landmark * landmarks,
-        f"landmarks: a map of {landmarks} landmarks with FastSLAM, {n_particles} particles, "
-        f"on {num_lanes} lane(s)",
-        f"the landmark filters (8 bytes × (3 + 9) × B × N × L = 96 × {num_lanes} × "
-        f"{n_particles} × {landmarks})",
+        fastslam_bytes(b, n, landmarks),
+        f"FastSLAM with {n} particles (estimator.params.n_particles){the_map} {lanes}",
+        f"the particles and their landmark filters (B × N × (512 + 96 × L) bytes = "
+        f"{b} × {n} × (512 + 96 × {landmarks}))",
         allowed,
     )

@@ -492,17 +492,21 @@ def test_ekf_map_growing_beyond_memory_is_rejected_at_reset(
 def test_fastslam_map_that_cannot_fit_is_rejected_with_its_size(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """FastSLAM's landmark filters (N particles × L landmarks × 96 B per lane) are checked
-    when the env is built, for every lane of a vector env."""
-    monkeypatch.setenv("QUADSLAM_MEMORY_LIMIT_BYTES", str(2 * 96 * 500 * 40 * 4))
+    """FastSLAM's particles and landmark filters (N particles × (512 B + L landmarks × 96 B)
+    per lane) are checked when the env is built, for every lane of a vector env."""
+    monkeypatch.setenv("QUADSLAM_MEMORY_LIMIT_BYTES", str(2 * 4 * 500 * (512 + 96 * 40)))
     kwargs = {"estimator": {"params": {"n_particles": 500}},
               "landmarks": {"layout": "rauniyar2023", "count": 40}}  # fmt: skip
     gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=4, vectorization_mode="vector_entry_point",
                  **kwargs)  # fmt: skip
-    with pytest.raises(ValueError, match=r"with FastSLAM, 500 particles, on 5 lane\(s\)") as info:
+    with pytest.raises(ValueError, match=r"500 particles .* on 5 lane\(s\) \(num_envs\)") as info:
         gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=5, vectorization_mode="vector_entry_point",
                      **kwargs)  # fmt: skip
-    assert "96 × 5 × 500 × 40" in str(info.value) and "at most 32 landmarks" in str(info.value)
+    message = str(info.value)
+    assert "5 × 500 × (512 + 96 × 40)" in message and "a map of 40 landmarks" in message
+    # Half the limit, 8,704,000 B, for 5 × 500 particles: 3481 B each, 512 B for the state.
+    assert "at most 30 landmarks" in message and "at most 400 particles" in message
+    assert "at most 4 lanes" in message
 
 
 # ------------------------------------------------------- output targets that are not files

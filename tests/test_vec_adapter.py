@@ -139,8 +139,8 @@ def test_n_workers_2_equals_n_workers_1_with_lanes_ending_apart(stagger):
     np.testing.assert_array_equal(two.reset(), one.reset())
     for lane in range(lanes):
         assert_info_equal(two.reset_infos[lane], one.reset_infos[lane], f"reset lane {lane}")
-    # Stagger cuts the first episode of lanes 0..2 outside the core, which has no episode
-    # summary for such an end; every other end must carry the lane's summary.
+    # Stagger cuts the first episode of lanes 0..2 outside the core; every end, cut or not,
+    # must carry the lane's summary, and a cut says so.
     cuts = {lane: math.ceil(max_steps * (lane + 1) / lanes) for lane in range(lanes - 1)}
     cuts = cuts if stagger else {}
     ends = np.zeros(lanes, dtype=int)
@@ -169,7 +169,8 @@ def test_n_workers_2_equals_n_workers_1_with_lanes_ending_apart(stagger):
                 ends[lane] += 1
                 crashes += bool(info["termination_reason"])
             cut = done and ends[lane] == 1 and cuts.get(lane) == k + 1
-            assert ("episode_steps" in info) == (done and not cut), where
+            assert ("episode_steps" in info) == done, where
+            assert ("stagger_cut" in info) == cut, where
             summary = two.step_info.get("episode_steps", np.full(lanes, np.nan))[lane]
             assert summary == info.get("episode_steps", np.nan) or math.isnan(summary), where
         ended = [bool(done_2[:2].any()), bool(done_2[2:].any())]
@@ -179,6 +180,45 @@ def test_n_workers_2_equals_n_workers_1_with_lanes_ending_apart(stagger):
     assert min(alone) >= 3, alone  # both workers had ends the other did not share
     one.close()
     two.close()
+
+
+def test_a_stagger_cut_ends_the_episode_with_its_summary():
+    """A staggered first episode cut short ends like any other: its info has the episode
+    summary (which matches the step terms it covers), the truncation marks, and VecMonitor
+    counts it; a lane that crashed before its cut runs its next episode in full."""
+    lanes, max_steps = 3, 100
+    env = VecMonitor(QuadSLAMVecEnv(ORACLE, lanes, seed=0, stagger=True,
+                                    episode={"duration_s": 1.0}))  # fmt: skip
+    hover = np.tile(gym.make(ORACLE).unwrapped.hover_action, (lanes, 1)).astype(np.float32)
+    env.reset()
+    track: list[list[float]] = [[] for _ in range(lanes)]
+    ends: list[list[tuple[int, dict]]] = [[] for _ in range(lanes)]
+    for k in range(1, 2 * max_steps + 1):
+        act = hover.copy()
+        if not ends[1]:
+            act[1, 1] = 0.9  # lane 1 rolls until it crashes (before its cut at 67 steps)
+        _, _, dones, infos = env.step(act)
+        step_info = env.venv.step_info
+        for lane in range(lanes):
+            track[lane].append(float(step_info["track_pos_err_m"][lane]))
+            if dones[lane]:
+                ends[lane].append((k, infos[lane]))
+                info = infos[lane]
+                assert info["episode_steps"] == step_info["episode_steps"][lane]
+                assert info["episode"]["l"] == info["episode_steps"]  # VecMonitor's count
+                assert info["TimeLimit.truncated"] == (not info["termination_reason"])
+    cut_at = math.ceil(max_steps / lanes)  # lane 0's first episode: ceil(100 · 1 / 3) steps
+    (first, info), *later = ends[0]
+    assert first == cut_at and info["stagger_cut"] is True and info["termination_reason"] == ""
+    assert info["episode_steps"] == cut_at and info["TimeLimit.truncated"] is True
+    rmse = math.sqrt(np.mean(np.square(track[0][:cut_at])))
+    assert info["episode_track_pos_rmse_m"] == pytest.approx(rmse, rel=1e-12)
+    assert [k - first for k, _ in later] == [max_steps]  # the next one is not cut
+    (crash, info), (second, info_2), *_ = ends[1]
+    assert info["termination_reason"] and "stagger_cut" not in info and crash < 67
+    assert second - crash == max_steps and "stagger_cut" not in info_2
+    assert [k for k, _ in ends[2]] == [max_steps, 2 * max_steps]  # the last lane: no cut
+    env.close()
 
 
 def test_merge_arrays_fills_keys_a_share_lacks():

@@ -253,6 +253,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     for var in BLAS_THREAD_VARS:
         os.environ.setdefault(var, "1")
+    from agents.cli.warning_lines import one_line_warnings
     from agents.io.outputs import Terminated, sigterm_as_interrupt, sigterm_received
 
     parser = build_parser()
@@ -265,7 +266,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     warmup.enable()
     announce_compilation()  # a cold cache: one line saying why the first step takes a while
     try:
-        with sigterm_as_interrupt():
+        with sigterm_as_interrupt(), one_line_warnings(args.command):
             code = int(args.func(args))
     except KeyboardInterrupt as exc:
         terminated = isinstance(exc, Terminated)

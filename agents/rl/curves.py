@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from agents.io.outputs import atomic_produce
+
 
 def read_monitor_episodes(monitor_dir: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Episodes from SB3 ``*.monitor.csv`` files, in wall-clock order.
@@ -115,5 +117,5 @@ def plot_learning_curve(run_dir: str | Path) -> Path:
     ax_l.grid(alpha=0.3)
     fig.suptitle(run_dir.name, fontsize=10)
     out = run_dir / "learning_curve.png"
-    fig.savefig(out, dpi=110)
+    atomic_produce(out, lambda tmp: fig.savefig(tmp, dpi=110))
     return out

@@ -9,6 +9,7 @@ stable-baselines3 (nor torch), so workers start quickly.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import replace
 from typing import Any
@@ -24,6 +25,11 @@ from quadslam_env.vector_env import QuadSLAMVectorEnv
 # Keys of the dict observation with privileged=True (agents.rl.asymmetric reads them).
 ACTOR_KEY = "obs"
 PRIVILEGED_KEY = "privileged"
+
+STAGGER_CUT_KEY = "stagger_cut"
+"""Info key set (``True``) on the step where a staggered first episode was cut short."""
+NO_CUT = np.iinfo(np.int64).max
+"""The step count of a lane whose episode is not cut."""
 
 # Attributes that differ per lane, read from the core instead of the shared vector env.
 _LANE_ATTRS = {
@@ -48,7 +54,9 @@ class LaneShare:
         stagger: ``(g0, n)``: this share's lanes are lanes ``g0, g0+1, …`` of ``n``, and the
             first episode of lane g is cut (truncated) after ``ceil(max_steps (g+1) / n)``
             steps, so the lanes' episodes are spread over the trajectory instead of running
-            in lockstep (``None``: no cut).
+            in lockstep (``None``: no cut). A cut ends the episode like the time limit: its
+            info has the ``episode_*`` summaries, ``TimeLimit.truncated`` and
+            ``terminal_observation``, and ``stagger_cut: True``.
         privileged: Observations are dicts ``{"obs": estimate-based, "privileged": the same
             observation built from the true state}`` (for asymmetric actor-critic training).
     """
@@ -80,7 +88,7 @@ class LaneShare:
         self._obs: np.ndarray | None = None
         self.stagger = stagger
         self.privileged = privileged
-        self._cut = np.full(num_lanes, np.iinfo(np.int64).max)
+        self._cut = np.full(num_lanes, NO_CUT)
 
     def _infos(
         self, info: dict[str, Any], lanes: Iterable[int], ended: np.ndarray | None = None
@@ -116,7 +124,7 @@ class LaneShare:
             g0, n = self.stagger
             lanes_global = g0 + np.arange(len(seeds)) + 1
             cut = np.ceil(self.core.max_steps * lanes_global / n).astype(np.int64)
-            self._cut = np.where(cut < self.core.max_steps, cut, np.iinfo(np.int64).max)
+            self._cut = np.where(cut < self.core.max_steps, cut, NO_CUT)
         return self._observation(obs.copy()), infos
 
     def _observation(self, obs: np.ndarray, lanes: Any = slice(None)) -> Any:
@@ -147,12 +155,16 @@ class LaneShare:
         obs, reward, terminated, truncated, info = core.step(np.asarray(act, dtype=float))
         cut = core.steps >= self._cut  # staggered first episodes end here (truncated)
         if cut.any():
+            cut &= ~(terminated | truncated)  # an episode that ended anyway was not cut
             truncated = truncated | cut
-            self._cut[cut] = np.iinfo(np.int64).max
+            add_summaries(info, core.episode.summary(), cut)
         dones = terminated | truncated
+        self._cut[dones] = NO_CUT  # later episodes run their full length
         infos = self._infos(info, range(core.num_lanes), dones)
         for j, lane_dict in enumerate(infos):
             lane_dict["TimeLimit.truncated"] = bool(truncated[j] and not terminated[j])
+            if cut[j]:
+                lane_dict[STAGGER_CUT_KEY] = True
             if self.residual is not None:
                 self._add_residual_info(lane_dict, base[j], actions[j])
         lanes = np.flatnonzero(dones).tolist()
@@ -211,6 +223,23 @@ class LaneShare:
     def close(self) -> None:
         """Close the vector env."""
         self.vec.close()
+
+
+def add_summaries(info: dict[str, Any], summary: dict[str, np.ndarray], lanes: np.ndarray) -> None:
+    """Put the episode summaries of ``lanes`` (k,) bool into a step's ``info`` arrays.
+
+    The core adds the ``episode_*`` summaries for the lanes whose episode it ended; an episode
+    cut short here (stagger) ends like any other, so its lanes get them too. A key the core
+    already reported keeps its values on the other lanes (NaN where it was absent).
+
+    Args:
+        info: The core's info of this step, ``{key: (k,) array}`` (entries are replaced).
+        summary: ``EpisodeMetrics.summary()``, ``{key: (k,) array}`` for every lane.
+        lanes: (k,) the lanes whose episode ends here without the core knowing.
+    """
+    for key, value in summary.items():
+        before = info.get(key)
+        info[key] = np.where(lanes, value, math.nan if before is None else before)
 
 
 class InProcess:

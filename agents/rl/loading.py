@@ -21,6 +21,7 @@ from agents.control.dflqr import DFLQRPolicy
 from agents.control.lookat import LookAtPolicy
 from agents.rl.hyperparams import algorithms, parse_normalize
 from agents.rl.lane_share import ACTOR_KEY
+from agents.rl.manifest import verify_run
 from agents.rl.run_folder import find_run_dir, read_run_config, vecnormalize_path
 from agents.rl.wrappers import (
     ResidualDFLQR,
@@ -169,7 +170,10 @@ def load_model(path: str | Path, env: gym.Env) -> TrainedPolicy:
     ``eval/best_model.zip``, ``checkpoints/model_<N>_steps.zip``) uses that run's config and
     matching ``VecNormalize`` statistics; a bare zip is tried as the algorithm named in it,
     then PPO, SAC, TD3, without normalisation or wrapper. Like any pickle-based format, only
-    load files you trust.
+    load files you trust. A run folder is first checked against its ``manifest.json``
+    (:func:`agents.rl.manifest.verify_run`): a file that differs, or a model or statistics file
+    it does not list, is refused before anything is loaded; a folder without a manifest (an
+    older run) is loaded after a :class:`~agents.rl.manifest.ManifestWarning`.
 
     Args:
         path: Run folder or ``.zip``.
@@ -179,6 +183,8 @@ def load_model(path: str | Path, env: gym.Env) -> TrainedPolicy:
         FileNotFoundError: The path, or a run folder's ``model.zip``, does not exist.
         ValueError: Unreadable file, or the model's observation/action shape differs from
             ``env``'s (the message names both).
+        agents.rl.manifest.ManifestError: A run folder's file differs from its manifest or is
+            not listed (a ``ValueError``).
     """
     path = Path(path)
     if not path.exists():
@@ -196,6 +202,11 @@ def load_model(path: str | Path, env: gym.Env) -> TrainedPolicy:
         zip_path = path
         run_dir = find_run_dir(zip_path)
     config = read_run_config(run_dir) if run_dir else None
+    if config is not None and run_dir is not None:  # before anything is unpickled
+        needed = [run_dir / "config.yaml", zip_path]
+        if parse_normalize(config.get("hyperparams", {}).get("normalize", False)) is not None:
+            needed.append(vecnormalize_path(zip_path, run_dir))
+        verify_run(run_dir, needed)
     model, algo = _load_sb3(zip_path, config["algo"] if config else None)
 
     obs_shape, act_shape = actor_space(model.observation_space).shape, model.action_space.shape

@@ -3,11 +3,13 @@
 A run folder (``<out_dir>/<algo>_<env_id>_s<seed>_<time>``) holds ``config.yaml`` (the resolved
 entry, the algorithm, env id, seed and the env's full resolved scenario), ``seed.txt``,
 ``versions.json``, ``model.zip`` (+ ``vecnormalize.pkl``), ``learning_curve.png`` (returns vs env
-steps and vs wall-clock time), ``timing.json`` (wall clock, steps/s; written last),
+steps and vs wall-clock time), ``timing.json`` (wall clock, steps/s; after the model and curve),
 ``monitor/`` (``lanes.monitor.csv``: every lane's episodes), ``logs/`` (TensorBoard events +
 ``progress.csv``; the ``quadslam/*`` scalars are the env's ``est_*``/``track_*``/``reward_*``
-metrics), ``eval/`` (``evaluations.npz``, ``best_model.zip``) and ``checkpoints/``. A run's
-``config.yaml`` can be passed back as ``config_path`` to repeat it.
+metrics), ``eval/`` (``evaluations.npz``, ``best_model.zip``), ``checkpoints/`` and, written
+after everything else, ``manifest.json`` (every other file with its size and SHA-256, checked
+before the run is loaded: :mod:`agents.rl.manifest`). A run's ``config.yaml`` can be passed back
+as ``config_path`` to repeat it.
 """
 
 from __future__ import annotations

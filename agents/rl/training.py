@@ -40,6 +40,7 @@ from agents.rl.hyperparams import (
     load_hyperparams,
     resolve_settings,
 )
+from agents.rl.manifest import MANIFEST, verify_run, write_manifest
 from agents.rl.policy_kwargs import ASYMMETRIC, build_policy_kwargs
 from agents.rl.run_folder import new_run_dir, read_run_config, versions
 from quadslam_env.config import deep_merge
@@ -334,10 +335,14 @@ def resume(
     replaced. A saved point that does not load (a truncated checkpoint) is skipped for the
     newest one that does; ``INTERRUPTED`` stays until the new session's final save is in
     place. A run stopped after its last step was saved is only finished (model, curve,
-    ``timing.json``).
+    ``timing.json``). Before anything is loaded the folder is checked against its
+    ``manifest.json`` (:func:`agents.rl.manifest.verify_run`; a folder without one is accepted
+    with a warning); the manifest is removed when the new session starts and written again
+    when it has saved.
 
     Raises:
         ValueError: Not a run folder, nothing saved to resume from, or already finished.
+        agents.rl.manifest.ManifestError: A file differs from the manifest or is not listed.
     """
     tic = time.perf_counter()
     run_dir = Path(run_dir)
@@ -353,6 +358,9 @@ def resume(
             f"{settings['n_timesteps']} steps (finished)"
         )
     points = saved_points(run_dir)
+    # Before anything is unpickled: the folder's files as its last session saved them.
+    saved = [p for point in points for p in (point.model, point.vecnormalize) if p]
+    verify_run(run_dir, [run_dir / "config.yaml", *saved])
     if not points:
         raise ValueError(
             f"--resume {str(run_dir)!r}: no checkpoint (checkpoints/model_<N>_steps.zip) and no "
@@ -381,6 +389,8 @@ def resume(
             stale.unlink(missing_ok=True)
     # The INTERRUPTED marker stays until this session's final model and timing.json are
     # written: a session killed before then must not leave a folder that looks finished.
+    # This session changes the folder: its manifest is written again once it has saved.
+    (run_dir / MANIFEST).unlink(missing_ok=True)
     return _learn(
         run_dir, algo, env_id, settings, seed, progress, verbose, torch_threads, tic, start
     )
@@ -567,9 +577,7 @@ def _learn(
                             vec.close()
             if full is not None:
                 raise _disk_full(run_dir, full, settings)
-            _finish(run_dir, model, learn_s, tic, settings)
-            if stop is None:  # this session finished: only now does the folder look finished
-                (run_dir / "INTERRUPTED").unlink(missing_ok=True)
+            _finish(run_dir, model, learn_s, tic, settings, finished=stop is None)
     except Terminated as exc:
         # A SIGTERM held while saving is delivered once the folder is complete.
         if exc.run_dir is None and (run_dir / "timing.json").is_file():
@@ -581,9 +589,15 @@ def _learn(
 
 
 def _finish(
-    run_dir: Path, model: Any, learn_s: float, tic: float, settings: dict[str, Any]
+    run_dir: Path,
+    model: Any,
+    learn_s: float,
+    tic: float,
+    settings: dict[str, Any],
+    finished: bool,
 ) -> None:
-    """The learning curve, then ``timing.json`` (written last)."""
+    """The learning curve, then ``timing.json``; for a ``finished`` session the
+    ``INTERRUPTED`` marker goes; last, ``manifest.json`` (:mod:`agents.rl.manifest`)."""
     try:
         _plot_curve(run_dir)
         timing = {
@@ -597,6 +611,19 @@ def _finish(
         if not is_disk_full(exc):
             raise
         raise _disk_full(run_dir, exc, settings) from None
+    if finished:  # only now does the folder look finished
+        (run_dir / "INTERRUPTED").unlink(missing_ok=True)
+    model.logger.close()  # the TensorBoard and CSV logs are complete before they are hashed
+    try:
+        write_manifest(run_dir)
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        print(
+            f"quadslam train: warning: no space left on device for {run_dir / MANIFEST}; the "
+            "run is saved, but its files cannot be checked when it is loaded",
+            file=sys.stderr,
+        )
 
 
 SAVING_NOTE = "quadslam train: saving the run folder, please wait"

@@ -74,8 +74,12 @@ class QuadSLAMVecEnv(VecEnv):
             (``done`` with ``TimeLimit.truncated``), so the lanes' episodes are spread over the
             trajectory instead of running in lockstep (training: otherwise every rollout batch
             covers one short stretch of the reference). The last lane's first episode runs
-            its full length; later episodes of every lane are not cut. The cut is applied
-            after each ``reset()``.
+            its full length; later episodes of every lane are not cut (nor is an episode
+            that ended before its cut). The cut is applied after each ``reset()``. A cut
+            ends the episode like the time limit: the lane's info has its ``episode_*``
+            summaries (in ``step_info`` too), ``termination_reason: ""``,
+            ``TimeLimit.truncated: True``, ``terminal_observation`` and ``stagger_cut:
+            True``; ``VecMonitor`` records it as an episode (``info["episode"]``).
         privileged: Observations are dicts ``{"obs": (B, obs_dim) the env's observation,
             "privileged": (B, obs_dim) the same observation built from the true state}``
             (asymmetric actor-critic training, :mod:`agents.rl.asymmetric`), and so are

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.episodes import Trace, json_float, run_episodes, spread_cell, stats
+from agents.io.outputs import atomic_produce, write_text_atomic
 
 ENV_ID = "QuadSLAM-ActivePerception-v0"
 EVAL_SEED0 = 1000
@@ -233,7 +234,7 @@ def plot_study(result: dict[str, Any], out_dir: Path) -> Path:
     axes[0].set_ylabel("north [m]")
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "active_perception.png"
-    fig.savefig(path, dpi=110)
+    atomic_produce(path, lambda tmp: fig.savefig(tmp, dpi=110))
     return path
 
 
@@ -241,4 +242,4 @@ def write_json(result: dict[str, Any], path: Path) -> None:
     """Write the study result (NaN as null; traces left out)."""
     clean = {"settings": result["settings"], "rows": result["rows"]}
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(clean, indent=2) + "\n")
+    write_text_atomic(path, json.dumps(clean, indent=2) + "\n")

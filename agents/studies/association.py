@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.episodes import json_float, run_episodes
+from agents.io.outputs import atomic_produce, write_text_atomic
 from quadslam_env.config import available_scenarios
 
 KNOWN = {"lidar": {"association": "known", "clutter_rate": 0.0}}
@@ -205,7 +206,7 @@ def format_study(result: dict[str, Any]) -> str:
 
 def write_json(result: dict[str, Any], path: Path) -> None:
     """The result as JSON (rows with their episodes, the clutter sweep)."""
-    path.write_text(json.dumps(result, indent=1) + "\n")
+    write_text_atomic(path, json.dumps(result, indent=1) + "\n")
 
 
 def plot_study(result: dict[str, Any], folder: Path) -> Path:
@@ -242,5 +243,5 @@ def plot_study(result: dict[str, Any], folder: Path) -> Path:
     fig.suptitle("EKF-SLAM with unlabeled returns (detection 0.9): median and IQR over seeds")
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "association_clutter.png"
-    fig.savefig(path, dpi=120)
+    atomic_produce(path, lambda tmp: fig.savefig(tmp, dpi=120))
     return path

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.episodes import json_float, run_episodes, spread_cell
+from agents.io.outputs import atomic_produce, write_text_atomic
 
 SCENARIO = "ekf_figure8_biased_imu"
 EVAL_SEED0 = 1000
@@ -325,7 +326,7 @@ def plot_study(result: dict[str, Any], out_dir: Path) -> Path:
     ax.grid(axis="y", alpha=0.3)
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "cost_of_estimation.png"
-    fig.savefig(path, dpi=120)
+    atomic_produce(path, lambda tmp: fig.savefig(tmp, dpi=120))
     return path
 
 
@@ -342,4 +343,4 @@ def write_json(result: dict[str, Any], path: Path) -> None:
         return value
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(clean(result), indent=2) + "\n")
+    write_text_atomic(path, json.dumps(clean(result), indent=2) + "\n")

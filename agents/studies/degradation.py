@@ -58,11 +58,32 @@ def seeded_lanes(
     return env, policy, obs, env.unwrapped.core  # type: ignore[attr-defined]
 
 
-def save_json(path: Path, result: dict[str, Any]) -> None:
-    """Write an analysis's ``--json`` result (folders made as needed) and say where."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(result, indent=1) + "\n")
-    print(f"json: {path}")
+def save_json(path: Path, result: dict[str, Any], prog: str) -> int:
+    """Write an analysis's ``--json`` result atomically (folders made as needed), say where.
+
+    Written through :class:`agents.io.outputs.Saver`: a crash or a full disk never leaves a
+    truncated file, and a result that cannot be written where asked is saved next to it or
+    in a temporary folder.
+
+    Args:
+        path: The ``--json`` file.
+        result: The result document.
+        prog: The command's name for the error line (``python -m agents.studies.degradation``).
+
+    Returns:
+        0, or 2 after one line on stderr naming the file and where the result went instead.
+    """
+    from agents.io.outputs import OutputWriteError, Saver
+
+    saver = Saver()
+    text = json.dumps(result, indent=1) + "\n"
+    print(f"json: {saver.write_text(path, text, '--json')}")
+    try:
+        saver.check()
+    except OutputWriteError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def record(scenario: str, seeds: Sequence[int], overrides: dict[str, Any]) -> dict[str, Any]:
@@ -191,19 +212,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.degradation", description=__doc__
     )
+    from agents.io.outputs import check_output_file
+
     parser.add_argument("--scenario", default="ekf_out_of_view_600s")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0, help="first seed")
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    if args.json is not None:
+        check_output_file(args.json, "--json")  # before the flight
     overrides = parse_overrides(args.set)
     seeds = list(range(args.seed, args.seed + args.seeds))
     summary = summarise(record(args.scenario, seeds, overrides))
     summary = {"scenario": args.scenario, "seeds": seeds, "set": args.set, **summary}
     print(format_summary(summary))
     if args.json is not None:
-        save_json(args.json, summary)
+        return save_json(args.json, summary, parser.prog)
     return 0
 
 

@@ -76,17 +76,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.imu_instants", description=__doc__
     )
+    from agents.io.outputs import check_output_file
+    from agents.studies.degradation import save_json
+
     parser.add_argument("--scenario", default="paper_ekf_figure8")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    if args.json is not None:
+        check_output_file(args.json, "--json")  # before the flight
     result = split_at_instants(args.scenario, range(args.seeds), parse_overrides(args.set))
     result = {"scenario": args.scenario, "seeds": args.seeds, "set": args.set, **result}
     print(json.dumps(result, indent=1))
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
+        return save_json(args.json, result, parser.prog)  # atomic; kept on a full disk
     return 0
 
 

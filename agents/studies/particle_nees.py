@@ -179,6 +179,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.particle_nees", description=__doc__
     )
+    from agents.io.outputs import check_output_file
+
     parser.add_argument("--scenario", default="paper_fastslam_helix")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--seed", type=int, default=0, help="first seed")
@@ -187,6 +189,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    if args.json is not None:
+        check_output_file(args.json, "--json")  # before the flights
     overrides = parse_overrides(args.set)
     seeds = list(range(args.seed, args.seed + args.seeds))
     counts = [int(c) for c in args.n.split(",")] if args.n else [None]
@@ -217,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "set": args.set,
             "rows": rows,
         }
-        save_json(args.json, out)
+        return save_json(args.json, out, parser.prog)
     return 0
 
 

@@ -88,6 +88,7 @@ class FastSLAMBase:
         self.n_particles = int(params.get("n_particles", 500))
         if self.n_particles < 1:
             raise fail("n_particles", self.n_particles, "an int >= 1")
+        check_fastslam_map(1, self.n_particles, 0)  # this lane's particles, before _alloc
         self.resample_threshold = fraction(
             "resample_threshold", params.get("resample_threshold", 0.5)
         )
@@ -125,8 +126,8 @@ class FastSLAMBase:
 
     # ---------------------------------------------------------------- state
     def check_memory(self, num_lanes: int, landmark_capacity: int) -> None:
-        """Reject, before anything is allocated, a map whose landmark filters for
-        ``landmark_capacity`` landmarks in ``num_lanes`` such filters would not fit in memory
+        """Reject, before the other lanes are built, particles and landmark filters for
+        ``landmark_capacity`` landmarks on ``num_lanes`` lanes that would not fit in memory
         (:func:`estimators.memory.check_fastslam_map`).
 
         Raises:

@@ -3,7 +3,7 @@ batched boundary: a Python loop over B scalar estimators (docs/design.md §9).""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -19,6 +19,13 @@ from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.types import FloatArray
 
 
+def _check_memory(lane: Estimator, num_lanes: int, landmark_capacity: int) -> None:
+    """Ask ``lane`` whether ``num_lanes`` of it fit in memory, if it has a check."""
+    check = getattr(lane, "check_memory", None)
+    if check is not None:  # the filters of the whole batch, before they grow
+        check(num_lanes, landmark_capacity)
+
+
 class LaneLoop:
     """A :class:`BatchEstimator` over B scalar estimators, one per lane (a Python loop).
 
@@ -26,23 +33,52 @@ class LaneLoop:
     vector env; its cost is the scalar estimator's times B plus the per-lane conversion of
     samples, scans and snapshots.
 
+    An estimator with a ``check_memory(num_lanes, landmark_capacity)`` method (FastSLAM) is
+    asked whether B of it fit in memory: :meth:`build` asks the first lane before it builds
+    the others, so a batch that cannot fit fails fast with one line instead of allocating
+    lane after lane.
+
     Args:
         estimators: The B scalar estimators.
         landmark_capacity: Initial Lmax of the landmark output arrays (grows as needed).
+        check_memory: Ask the first lane whether the batch fits (:meth:`build` has asked).
     """
 
-    def __init__(self, estimators: Sequence[Estimator], landmark_capacity: int) -> None:
+    def __init__(
+        self,
+        estimators: Sequence[Estimator],
+        landmark_capacity: int,
+        *,
+        check_memory: bool = True,
+    ) -> None:
         self.lanes = list(estimators)
         self.num_lanes = len(self.lanes)
-        check_memory = getattr(self.lanes[0], "check_memory", None)
-        if check_memory is not None:  # the filters of the whole batch, before they grow
-            check_memory(self.num_lanes, landmark_capacity)
+        if check_memory:
+            _check_memory(self.lanes[0], self.num_lanes, landmark_capacity)
         self.uses_truth = bool(getattr(self.lanes[0], "uses_truth", False))
         b = self.num_lanes
         self._estimates: list[Estimate | None] = [None] * b
         self._out = empty_batch(b, max(landmark_capacity, 0))
         self.last_association = np.zeros((b, 0), dtype=np.int64)
         """(B, R) int the scalar estimators' labels of their last unlabeled scans' returns."""
+
+    @classmethod
+    def build(
+        cls, factory: Callable[[], Estimator], num_lanes: int, landmark_capacity: int
+    ) -> LaneLoop:
+        """B estimators made by ``factory()``, checked for memory before all but one exist.
+
+        The first lane is built (a filter checks its own arrays before allocating them), then
+        asked whether ``num_lanes`` of it fit with ``landmark_capacity`` landmarks; only then
+        are the other lanes built.
+
+        Raises:
+            ValueError: The batch would not fit in memory (from the estimator's check).
+        """
+        first = factory()
+        _check_memory(first, num_lanes, landmark_capacity)
+        lanes = [first, *(factory() for _ in range(num_lanes - 1))]
+        return cls(lanes, landmark_capacity, check_memory=False)
 
     def reset_lanes(
         self,

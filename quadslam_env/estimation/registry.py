@@ -147,7 +147,8 @@ def make(name: str, num_lanes: int = 1, landmark_capacity: int = 0, **cfg: Any) 
 
     Returns:
         The batched estimator, or B instances of one vehicle's estimator in a
-        :class:`~quadslam_env.estimation.lane_loop.LaneLoop`.
+        :class:`~quadslam_env.estimation.lane_loop.LaneLoop` (whose memory check runs after
+        the first instance is built, before the others).
 
     Raises:
         ValueError: Unknown name, a plug-in that cannot be loaded, or invalid settings.
@@ -156,4 +157,4 @@ def make(name: str, num_lanes: int = 1, landmark_capacity: int = 0, **cfg: Any) 
     if is_batched(cls):
         est: BatchEstimator = cls(num_lanes=num_lanes, landmark_capacity=landmark_capacity, **cfg)
         return est
-    return LaneLoop([cls(**cfg) for _ in range(num_lanes)], landmark_capacity)
+    return LaneLoop.build(lambda: cls(**cfg), num_lanes, landmark_capacity)
