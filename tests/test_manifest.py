@@ -15,7 +15,7 @@ import gymnasium as gym
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli import main
+from agents.cli.main import main
 from agents.rl.manifest import MANIFEST, ManifestError, ManifestWarning, verify_run
 
 ENV = "QuadSLAM-Oracle-v0"  # no filter to compile: the fastest training
