@@ -3,7 +3,11 @@
 ``thrust_torque`` maps ``a0`` to thrust in ``[0, max_thrust]`` and ``a1..a3`` to
 ``±max_torque``; ``thrust_rates`` maps ``a1..a3`` to body-rate commands ``±max_rate`` tracked by
 an inner P loop ``τ = J K (ω_cmd - ω̂)`` on the estimate's rates (the gyro minus the estimated
-bias for EKF-SLAM). Works on B lanes at once.
+bias for EKF-SLAM); ``rotor_thrust`` (a vehicle with rotors) maps ``a0..a3`` to the four rotors'
+thrusts ``(a_i + 1)/2 · T_max`` and returns their wrench through the mixer
+(:mod:`quadslam_env.models.rotors`), which the vehicle inverts exactly back to the same rotor
+thrusts (every action type works on a vehicle with rotors: the vehicle applies the inverse mixer
+to any thrust and torque). Works on B lanes at once.
 """
 
 from __future__ import annotations
@@ -106,7 +110,12 @@ class ActionMap:
 
     Args:
         cfg: Action settings (mode, rate limits and inner-loop gains).
-        params: Vehicle parameters (thrust and torque limits, inertia).
+        params: Vehicle parameters (thrust and torque limits, inertia; the rotors for
+            ``rotor_thrust``).
+
+    Raises:
+        ValueError: ``rotor_thrust`` on a vehicle without rotors (the scenario check raises the
+            :class:`~quadslam_env.config.ConfigError` first).
     """
 
     def __init__(self, cfg: ActionConfig, params: VehicleParams) -> None:
@@ -120,6 +129,16 @@ class ActionMap:
         self.max_heading_rate = math.radians(cfg.max_heading_rate_dps)
         self.hover_action = np.zeros(self.dim)
         self.hover_action[0] = 2.0 * params.hover_thrust / params.max_thrust - 1.0
+        if self.mode == "rotor_thrust":
+            rotors = params.rotors
+            if rotors is None:
+                raise ValueError(
+                    f"action.mode: got 'rotor_thrust' on vehicle {params.name!r} without "
+                    "rotors; allowed: 'thrust_torque' or 'thrust_rates'"
+                )
+            self._rotor_max = rotors.thrust_max
+            self._mixer_t = np.array(rotors.mixer.T)
+            self.hover_action[:ACTION_DIM] = 2.0 * params.hover_thrust / (4 * rotors.thrust_max) - 1
 
     def heading_rate(self, action: FloatArray) -> FloatArray:
         """The commanded reference heading rate ψ̇_d (B,) in rad/s of actions (B, 5)."""
@@ -134,5 +153,8 @@ class ActionMap:
         _thrust_torque(act, self._max_thrust, self._max_torque, thrust, torque)
         if self.mode == "thrust_torque":
             return thrust, torque
+        if self.mode == "rotor_thrust":
+            wrench = (0.5 * (act + 1.0) * self._rotor_max) @ self._mixer_t
+            return np.ascontiguousarray(wrench[:, 0]), np.ascontiguousarray(wrench[:, 1:])
         rates_cmd = act[:, 1:] * self.max_rate  # thrust_rates: the same thrust, a rate loop
         return thrust, (self.rate_gain * (rates_cmd - rates_hat)) @ self.params.inertia.T

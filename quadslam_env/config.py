@@ -27,7 +27,12 @@ from quadslam_env.config_files import (
     parse_yaml,
     scenario_descriptions,
 )
-from quadslam_env.config_hardware import ImuConfig, LidarConfig, VehicleConfig
+from quadslam_env.config_hardware import (
+    ImuConfig,
+    LidarConfig,
+    VehicleConfig,
+    check_rotor_action,
+)
 from quadslam_env.config_schema import ConfigError, FieldRow, Section, field_rows
 from quadslam_env.config_schema import spec as _spec
 from quadslam_env.config_world import LandmarksConfig, TrajectoryConfig, WindConfig
@@ -114,8 +119,9 @@ class ActionConfig(Section):
     mode: str = _spec(
         "thrust_torque",
         kind="str",
-        choices=("thrust_torque", "thrust_rates"),
-        doc="thrust_torque: a1..a3 are torques; thrust_rates: a1..a3 are body-rate commands",
+        choices=("thrust_torque", "thrust_rates", "rotor_thrust"),
+        doc="thrust_torque: a1..a3 are torques; thrust_rates: a1..a3 are body-rate commands; "
+        "rotor_thrust: a0..a3 are the four rotors' thrusts (a vehicle with rotors)",
     )
     max_rate_dps: tuple[float, ...] = _spec(
         [180.0, 180.0, 90.0],
@@ -256,6 +262,7 @@ class ScenarioConfig:
             )
         check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
         check_heading(scenario)
+        check_rotor_action(scenario.action.mode, scenario.vehicle)
         scenario.wind.check_drag(scenario.vehicle.drag_per_s, scenario.vehicle.drag_quadratic_per_m)
         return scenario
 

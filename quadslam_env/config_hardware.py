@@ -8,7 +8,8 @@ from typing import Any, ClassVar
 
 from quadslam_env.config_schema import ConfigError, Section
 from quadslam_env.config_schema import spec as _spec
-from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams
+from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams, rotor_vehicle
+from quadslam_env.models.rotors import LAYOUTS, RotorParams
 from quadslam_env.types import DEG, GRAVITY
 
 _MICRO_G = 1e-6 * GRAVITY
@@ -72,6 +73,48 @@ class VehicleConfig(Section):
     actuator_tau_s: float = _spec(
         0.0, lo=0.0, hi=1.0, doc="first-order lag of thrust and torques in s; 0 = instantaneous"
     )
+    rotor_layout: str | None = _spec(
+        None,
+        kind="str",
+        choices=("none", *LAYOUTS),
+        optional=True,
+        doc="rotor model: none (thrust and torque act directly), x or plus (four rotors, the "
+        'mixer and motor lag of docs/env.md "Rotors"); null = the preset\'s (crazyflie2: x)',
+    )
+    rotor_arm_m: float | None = _spec(
+        None, lo=0.0, lo_open=True, optional=True, doc="rotors: centre-to-rotor distance L, m"
+    )
+    rotor_k_f: float | None = _spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="rotors: thrust k_f in T = k_f ω², N/(rad/s)²",
+    )
+    rotor_k_m: float | None = _spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="rotors: drag torque k_m in |τ| = k_m ω², N·m/(rad/s)²",
+    )
+    rotor_motor_tau_s: float | None = _spec(
+        None,
+        lo=0.0,
+        hi=1.0,
+        optional=True,
+        doc="rotors: motor time constant of the rotor speed, s (0 = instantaneous)",
+    )
+    rotor_omega_min_rad_s: float | None = _spec(
+        None, lo=0.0, optional=True, doc="rotors: lowest rotor speed, rad/s"
+    )
+    rotor_omega_max_rad_s: float | None = _spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="rotors: highest rotor speed, rad/s (4 k_f ω_max² must exceed m g)",
+    )
     physics_dt_s: float = _spec(
         0.002,
         lo=1e-5,
@@ -79,11 +122,51 @@ class VehicleConfig(Section):
         doc="RK4 substep of the rigid body in s (the control period must be a multiple)",
     )
 
+    def rotors(self) -> RotorParams | None:
+        """The rotor model: the preset's with this section's ``rotor_*`` overrides, or ``None``.
+
+        Raises:
+            ConfigError: A rotor layout on a preset without rotors with a missing ``rotor_*``
+                setting, or inconsistent speeds.
+        """
+        base = VEHICLE_PRESETS[self.preset].rotors
+        layout = self.rotor_layout or (base.layout if base else "none")
+        if layout == "none":
+            return None
+        values = {}
+        for key, attr, fallback in _ROTOR_KEYS:
+            value = getattr(self, key)
+            if value is None:
+                value = getattr(base, attr) if base is not None else fallback
+            if value is None:
+                raise ConfigError(
+                    f"vehicle.{key}: got null with vehicle.rotor_layout = {layout!r} on preset "
+                    f"{self.preset!r}, which has no rotors; allowed: a number (see docs/env.md "
+                    '"Rotors")'
+                )
+            values[attr] = float(value)
+        if values["omega_max"] <= values["omega_min"]:
+            raise ConfigError(
+                f"vehicle.rotor_omega_max_rad_s: got {values['omega_max']}; allowed: > "
+                f"vehicle.rotor_omega_min_rad_s = {values['omega_min']}"
+            )
+        return RotorParams(layout=layout, **values)
+
     def params(self) -> VehicleParams:
         """The :class:`VehicleParams` of the preset with this section's overrides applied."""
         base = VEHICLE_PRESETS[self.preset]
         mass = base.mass if self.mass_kg is None else self.mass_kg
         inertia = base.inertia if self.inertia_diag is None else _diag(self.inertia_diag)
+        rotors = self.rotors()
+        if rotors is not None:
+            return rotor_vehicle(
+                self.preset,
+                mass,
+                inertia,
+                rotors,
+                drag=self.drag_per_s,
+                drag_quadratic=_vec(self.drag_quadratic_per_m),
+            )
         return VehicleParams(
             name=self.preset,
             mass=mass,
@@ -97,11 +180,75 @@ class VehicleConfig(Section):
 
     def validate(self) -> None:
         params = self.params()
+        if params.rotors is not None:
+            self._check_rotors(params)
+            return
+        for key, _, _ in _ROTOR_KEYS:
+            if getattr(self, key) is not None:
+                raise ConfigError(
+                    f"vehicle.{key}: got {getattr(self, key)!r} on a vehicle without rotors, "
+                    "which ignores it; allowed: null, or vehicle.rotor_layout: x or plus"
+                )
         if params.max_thrust <= params.mass * GRAVITY:
             raise ConfigError(
                 f"vehicle.max_thrust_n: got {params.max_thrust:.3f}; allowed: > m g = "
                 f"{params.mass * GRAVITY:.3f} N (the vehicle must be able to hover)"
             )
+
+    def _check_rotors(self, params: VehicleParams) -> None:
+        """Rotors: the limits and the lag are the rotors', and they must lift the vehicle."""
+        for key, default in (
+            ("max_thrust_n", None),
+            ("max_torque_nm", None),
+            ("actuator_tau_s", 0.0),
+        ):
+            value = getattr(self, key)
+            if value != default:
+                raise ConfigError(
+                    f"vehicle.{key}: got {_plain(value)!r} on a vehicle with rotors, whose "
+                    f"limits and lag are the rotors'; allowed: {_plain(default)!r} (set the "
+                    "vehicle.rotor_* settings instead)"
+                )
+        rotors = params.rotors
+        assert rotors is not None
+        weight = params.mass * GRAVITY
+        if rotors.max_collective_thrust <= weight:
+            raise ConfigError(
+                f"vehicle.rotor_omega_max_rad_s: got {rotors.omega_max:g}, so the rotors lift "
+                f"4 k_f ω_max² = {rotors.max_collective_thrust:.4g} N (thrust-to-weight "
+                f"{rotors.max_collective_thrust / weight:.3f}); allowed: thrust-to-weight > 1, "
+                f"ω_max > {rotors.hover_speed(weight):.1f} rad/s with k_f = {rotors.k_f:g} and "
+                f"m g = {weight:.4g} N"
+            )
+
+
+_ROTOR_KEYS = (
+    ("rotor_arm_m", "arm", None),
+    ("rotor_k_f", "k_f", None),
+    ("rotor_k_m", "k_m", None),
+    ("rotor_motor_tau_s", "motor_tau", 0.0),
+    ("rotor_omega_min_rad_s", "omega_min", 0.0),
+    ("rotor_omega_max_rad_s", "omega_max", None),
+)
+"""``(setting, RotorParams attribute, value when neither the setting nor the preset gives one)``."""
+
+
+def check_rotor_action(mode: str, vehicle: VehicleConfig) -> None:
+    """``action.mode: rotor_thrust`` needs a vehicle with rotors.
+
+    Raises:
+        ConfigError: Naming the key, the value and what is allowed.
+    """
+    if mode == "rotor_thrust" and vehicle.rotors() is None:
+        raise ConfigError(
+            f"action.mode: got 'rotor_thrust' on vehicle preset {vehicle.preset!r} without "
+            "rotors; allowed: 'thrust_torque' or 'thrust_rates', or a vehicle with rotors "
+            "(vehicle.preset: crazyflie2, or vehicle.rotor_layout: x or plus)"
+        )
+
+
+def _plain(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value
 
 
 def _diag(values: tuple[float, ...]) -> Any:

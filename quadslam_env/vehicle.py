@@ -2,7 +2,9 @@
 
 :class:`VehicleBatch` holds (B, …) arrays and steps them with the compiled lane kernel
 :func:`quadslam_env.models.integrators.vehicle_step_lanes`; :class:`Vehicle` is its one-lane
-case with the scalar API of the single env.
+case with the scalar API of the single env. A vehicle with rotors (``params.rotors``) steps with
+:func:`quadslam_env.models.integrators.vehicle_step_rotor_lanes` instead: the commanded thrust
+and torque go through the inverse mixer and the motor lag (:mod:`quadslam_env.models.rotors`).
 """
 
 from __future__ import annotations
@@ -10,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from quadslam_env.models.integrators import vehicle_step_lanes
+from quadslam_env.models.integrators import vehicle_step_lanes, vehicle_step_rotor_lanes
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.models.rigid_body import air_velocity_lanes, lane_array
+from quadslam_env.models.rigid_body import air_velocity_lanes, lane_array, pack_bodies
 from quadslam_env.types import STATE_DIM, FloatArray
 
 
@@ -31,6 +33,8 @@ class VehicleBatch:
         applied_torque: (B, 3) torque acting on each body in N·m.
         wind_n: (B, 3) wind in N (m/s) held over the next step, or ``None`` (still air). The
             simulator sets it to its wind's array (:class:`quadslam_env.wind.WindBatch`).
+        rotor_speed: (B, 4) rotor speeds in rad/s (rotors 1–4 of
+            :mod:`~quadslam_env.models.rotors`), or ``None`` for a vehicle without rotors.
 
     Args:
         params: Vehicle parameters (shared by all lanes).
@@ -54,9 +58,23 @@ class VehicleBatch:
         self._drag_quadratic = np.array(params.drag_quadratic)
         self._quadratic = bool(np.any(self._drag_quadratic != 0.0))
         self._still_air = np.zeros((self.num_lanes, 3))
+        self.rotor_speed: FloatArray | None = None
+        rotors = params.rotors
+        if rotors is not None:
+            self._hover_speed = rotors.hover_speed(params.hover_thrust)
+            self.rotor_speed = np.full((self.num_lanes, 4), self._hover_speed)
+            self._body = pack_bodies(
+                float(params.mass), float(params.drag), self._inertia[None], self._inertia_inv[None]
+            )[0]
+            self._mixer = np.array(rotors.mixer)
+            self._mixer_inv = np.array(rotors.mixer_inv)
+            self._rotor_coeffs = np.array(
+                [rotors.k_f, rotors.thrust_min, rotors.thrust_max, rotors.motor_tau]
+            )
 
     def reset(self, lanes: ArrayLike, states: ArrayLike) -> None:
-        """Set the true states of ``lanes``; their actuators start at hover thrust, zero torque.
+        """Set the true states of ``lanes``; their actuators start at hover thrust, zero torque
+        (rotors: all four at the hover speed).
 
         Args:
             lanes: (k,) int lane indices.
@@ -66,6 +84,8 @@ class VehicleBatch:
         self.state[idx] = np.asarray(states, dtype=float).reshape(idx.size, STATE_DIM)
         self.applied_thrust[idx] = self.params.hover_thrust
         self.applied_torque[idx] = 0.0
+        if self.rotor_speed is not None:
+            self.rotor_speed[idx] = self._hover_speed
 
     def step(
         self,
@@ -77,8 +97,9 @@ class VehicleBatch:
         """Advance the ``active`` lanes by ``duration`` seconds; other lanes are untouched.
 
         Args:
-            thrust_cmd: (B,) commanded thrust in N (saturated to [0, max_thrust]).
-            torque_cmd: (B, 3) commanded torque in N·m (saturated per axis).
+            thrust_cmd: (B,) commanded thrust in N (saturated to [0, max_thrust]; with rotors
+                the inverse mixer and the rotor limits apply instead).
+            torque_cmd: (B, 3) commanded torque in N·m (saturated per axis; rotors: as above).
             duration: Control period in s.
             active: (B,) bool lanes to step (default: all).
 
@@ -89,6 +110,29 @@ class VehicleBatch:
         b, p = self.num_lanes, self.params
         mask = self._all if active is None else np.ascontiguousarray(active, dtype=bool)
         mean_rates = np.zeros((b, 3))
+        wind = self._still_air if self.wind_n is None else self.wind_n
+        aero = self.wind_n is not None or self._quadratic
+        if self.rotor_speed is not None:
+            vehicle_step_rotor_lanes(
+                self.state,
+                self.rotor_speed,
+                self.applied_thrust,
+                self.applied_torque,
+                lane_array(thrust_cmd, b),
+                lane_array(torque_cmd, b, 3),
+                mask,
+                self._body,
+                self._mixer,
+                self._mixer_inv,
+                self._rotor_coeffs,
+                float(duration),
+                self.physics_dt,
+                mean_rates,
+                wind,
+                self._drag_quadratic,
+                aero,
+            )
+            return mean_rates
         vehicle_step_lanes(
             self.state,
             self.applied_thrust,
@@ -106,9 +150,9 @@ class VehicleBatch:
             float(duration),
             self.physics_dt,
             mean_rates,
-            self._still_air if self.wind_n is None else self.wind_n,
+            wind,
             self._drag_quadratic,
-            self.wind_n is not None or self._quadratic,
+            aero,
         )
         return mean_rates
 
@@ -125,7 +169,8 @@ class VehicleBatch:
 class Vehicle:
     """One quadcopter: the one-lane case of :class:`VehicleBatch` with scalar inputs.
 
-    ``state``, ``applied_thrust`` and ``applied_torque`` are plain attributes replaced by
+    ``state``, ``applied_thrust``, ``applied_torque`` and ``rotor_speed`` (4,) rad/s or ``None``
+    are plain attributes replaced by
     fresh objects on every step (callers may keep references to earlier states) and read
     back into the batch before stepping (callers may assign them).
 
@@ -143,6 +188,11 @@ class Vehicle:
         self.state = np.zeros(STATE_DIM)
         self.applied_thrust = params.hover_thrust
         self.applied_torque = np.zeros(3)
+        self.rotor_speed: FloatArray | None = self._rotor_row()
+
+    def _rotor_row(self) -> FloatArray | None:
+        speed = self._batch.rotor_speed
+        return None if speed is None else speed[0].copy()
 
     def reset(self, state: FloatArray) -> None:
         """Set the true state (12,); the actuators start at hover thrust and zero torque."""
@@ -154,6 +204,7 @@ class Vehicle:
         self.state = batch.state[0].copy()
         self.applied_thrust = float(batch.applied_thrust[0])
         self.applied_torque = batch.applied_torque[0].copy()
+        self.rotor_speed = self._rotor_row()
 
     def step(self, thrust_cmd: float, torque_cmd: FloatArray, duration: float) -> FloatArray:
         """Advance the true state by ``duration`` seconds.
@@ -171,6 +222,8 @@ class Vehicle:
         batch.state[0] = self.state
         batch.applied_thrust[0] = self.applied_thrust
         batch.applied_torque[0] = self.applied_torque
+        if batch.rotor_speed is not None and self.rotor_speed is not None:
+            batch.rotor_speed[0] = self.rotor_speed
         mean_rates = batch.step(thrust_cmd, np.asarray(torque_cmd, dtype=float)[None], duration)
         self._read_back()
         return mean_rates[0]

@@ -41,6 +41,11 @@ CASES = {
         "episode": {"duration_s": 0.35, "settle_s": 0.2},
         "reward": {"pos_std_weight": 0.5},
     },
+    "QuadSLAM-EKF-v0-crazyflie-rotors": {
+        **SHORT,
+        "vehicle": {"preset": "crazyflie2"},
+        "action": {"mode": "rotor_thrust"},
+    },
     "QuadSLAM-EKF-v0-unknown-imu5": {
         "episode": {"duration_s": 0.45},
         "imu": {"rate_hz": 5.0},

@@ -58,14 +58,23 @@ def scenario_settings_markdown() -> str:
                 out.append(f"| `{preset}` | " + " | ".join(cells) + " |")
             out.append("")
     out += ["### Vehicle presets", "", "Values of `vehicle.preset` (SI units):", ""]
-    out += ["| preset | mass [kg] | inertia diag [kg·m²] | max thrust [N] | max torque [N·m] |"]
-    out += ["|---|---|---|---|---|"]
+    out += [
+        "| preset | mass [kg] | inertia diag [kg·m²] | max thrust [N] | max torque [N·m] | rotors |"
+    ]
+    out += ["|---|---|---|---|---|---|"]
     for name, params in VEHICLE_PRESETS.items():
-        inertia = [round(float(params.inertia[i][i]), 6) for i in range(3)]
+        inertia = [float(f"{params.inertia[i][i]:.4g}") for i in range(3)]
         torque = [round(float(t), 4) for t in params.max_torque]
+        r = params.rotors
+        rotors = (
+            "–"
+            if r is None
+            else f"{r.layout}, L {r.arm} m, k_f {r.k_f:.4g}, k_m {r.k_m:.4g}, "
+            f"τ_m {r.motor_tau} s, ω {r.omega_min:g}–{r.omega_max:.0f} rad/s"
+        )
         out.append(
             f"| `{name}` | {params.mass} | {inertia} | {round(float(params.max_thrust), 3)} "
-            f"| {torque} |"
+            f"| {torque} | {rotors} |"
         )
     out.append("")
     return "\n".join(out)

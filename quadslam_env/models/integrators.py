@@ -25,6 +25,7 @@ from quadslam_env.models.rigid_body import (
     saturate,
     substep_count,
 )
+from quadslam_env.models.rotors import allocate, motor_lag, rotor_wrench
 from quadslam_env.types import STATE_DIM, FloatArray
 
 
@@ -110,6 +111,84 @@ def vehicle_step_lanes(
             applied_thrust[i] = thrust
             applied_torque[i, 0], applied_torque[i, 1], applied_torque[i, 2] = tau
         # Keep roll and yaw in (-π, π] so long flights don't accumulate unbounded angles.
+        x[6] = wrap_pi(x[6])
+        x[8] = wrap_pi(x[8])
+        mean_rates_out[i, 0] = (p_sum - 0.5 * x[9]) / n_sub
+        mean_rates_out[i, 1] = (q_sum - 0.5 * x[10]) / n_sub
+        mean_rates_out[i, 2] = (r_sum - 0.5 * x[11]) / n_sub
+
+
+@kernel
+def vehicle_step_rotor_lanes(
+    states: FloatArray,
+    rotor_speed: FloatArray,
+    applied_thrust: FloatArray,
+    applied_torque: FloatArray,
+    thrust_cmd: FloatArray,
+    torque_cmd: FloatArray,
+    active: np.ndarray,
+    body: FloatArray,
+    mixer: FloatArray,
+    mixer_inv: FloatArray,
+    rotor_coeffs: FloatArray,
+    duration: float,
+    physics_dt: float,
+    mean_rates_out: FloatArray,
+    wind: FloatArray,
+    drag_quadratic: FloatArray,
+    aero: bool,
+) -> None:
+    """:func:`vehicle_step_lanes` of a vehicle with rotors (:mod:`~quadslam_env.models.rotors`).
+
+    Per lane: the commanded wrench goes through the inverse mixer with the rotor limits
+    (:func:`~quadslam_env.models.rotors.allocate`) to rotor speed commands
+    ``ω_cmd = √(T/k_f)``, held over the period; at the start of each of the n RK4 substeps the
+    rotor speeds follow them through the exact motor lag and the wrench ``M k_f ω²`` is held
+    over the substep. No collective saturation: the rotor limits bound the wrench.
+
+    Args:
+        states: (B, 12) true states, updated in place.
+        rotor_speed: (B, 4) rotor speeds in rad/s, updated in place.
+        applied_thrust: (B,) thrust of the rotors in N after the step (updated in place).
+        applied_torque: (B, 3) torque of the rotors in N·m in B after the step.
+        thrust_cmd: (B,) commanded thrust in N. torque_cmd: (B, 3) commanded torque in N·m.
+        active: (B,) bool, lanes to step.
+        body: (20,) rigid-body parameters (:func:`~quadslam_env.models.rigid_body.pack_bodies`).
+        mixer, mixer_inv: (4, 4) M and M⁻¹.
+        rotor_coeffs: ``(k_f [N/(rad/s)²], T_min [N], T_max [N], τ_m [s])``.
+        duration, physics_dt, mean_rates_out, wind, drag_quadratic, aero: as in
+            :func:`vehicle_step_lanes`.
+    """
+    n_sub = substep_count(duration, physics_dt)
+    h = duration / n_sub
+    k_f, t_min, t_max, tau = rotor_coeffs[0], rotor_coeffs[1], rotor_coeffs[2], rotor_coeffs[3]
+    keep = math.exp(-h / tau) if tau > 0.0 else 0.0
+    u = np.zeros(INPUT_DIM)
+    work = np.empty((5, STATE_DIM))
+    cmd = np.empty(4)
+    for i in range(states.shape[0]):
+        if not active[i]:
+            continue
+        x = states[i]
+        w_cmd = (thrust_cmd[i], torque_cmd[i, 0], torque_cmd[i, 1], torque_cmd[i, 2])
+        allocate(w_cmd, mixer_inv, t_min, t_max, cmd)
+        for j in range(4):
+            cmd[j] = math.sqrt(cmd[j] / k_f)
+        air = NO_AIR
+        if aero:
+            cq = drag_quadratic
+            air = (wind[i, 0], wind[i, 1], wind[i, 2], cq[0], cq[1], cq[2])
+        p_sum, q_sum, r_sum = 0.5 * x[9], 0.5 * x[10], 0.5 * x[11]
+        speed = rotor_speed[i]
+        for _ in range(n_sub):
+            motor_lag(speed, cmd, keep)
+            u[0], u[1], u[2], u[3] = rotor_wrench(speed, mixer, k_f)
+            rk4_step(x, u, body, False, h, work, air, aero)
+            p_sum += x[9]
+            q_sum += x[10]
+            r_sum += x[11]
+        applied_thrust[i] = u[0]
+        applied_torque[i, 0], applied_torque[i, 1], applied_torque[i, 2] = u[1], u[2], u[3]
         x[6] = wrap_pi(x[6])
         x[8] = wrap_pi(x[8])
         mean_rates_out[i, 0] = (p_sum - 0.5 * x[9]) / n_sub

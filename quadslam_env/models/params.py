@@ -1,4 +1,5 @@
-"""Vehicle parameters and presets (docs/design.md §3; seed 001 Table 1, seed 000 §IV)."""
+"""Vehicle parameters and presets (docs/design.md §3; seed 001 Table 1, seed 000 §IV; the
+Crazyflie 2.0 of Förster 2015, see :mod:`quadslam_env.models.rotors`)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from quadslam_env.models.rotors import CRAZYFLIE2_ROTORS, RotorParams
 from quadslam_env.types import GRAVITY, FloatArray
 
 
@@ -24,6 +26,11 @@ class VehicleParams:
         drag_quadratic: (3,) quadratic drag coefficients c_q per body axis in 1/m (specific
             force ``−c_q ∘ (‖v_a‖ v_a)`` on the air-relative velocity v_a); zeros disable it.
             The simulator's truth only: the estimators' process models leave it out.
+        rotors: The rotor model (:class:`~quadslam_env.models.rotors.RotorParams`), or
+            ``None``: thrust and torque act directly (through ``actuator_tau``). With rotors,
+            ``max_thrust`` and ``max_torque`` are the rotors' (all at full speed; half at the
+            top and half at the bottom of their range) and ``actuator_tau`` is 0 (the motor lag
+            is the rotors').
         inertia_inv: (3, 3) ``J⁻¹`` in 1/(kg·m²), derived.
     """
 
@@ -35,6 +42,7 @@ class VehicleParams:
     drag: float = 0.0
     actuator_tau: float = 0.0
     drag_quadratic: FloatArray = field(default_factory=lambda: np.zeros(3))
+    rotors: RotorParams | None = None
     inertia_inv: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -74,16 +82,48 @@ def _preset(
     )
 
 
+def rotor_vehicle(
+    name: str,
+    mass: float,
+    inertia: FloatArray,
+    rotors: RotorParams,
+    drag: float = 0.0,
+    drag_quadratic: FloatArray | None = None,
+) -> VehicleParams:
+    """A vehicle with rotors: its thrust and torque limits are the rotors'
+    (:attr:`RotorParams.max_collective_thrust`, :attr:`RotorParams.max_torque`).
+
+    Args:
+        name: Preset name. mass: kg. inertia: (3, 3) kg·m² in B. rotors: The rotor model.
+        drag: Linear drag in 1/s. drag_quadratic: (3,) in 1/m, or ``None`` (zeros).
+    """
+    return VehicleParams(
+        name=name,
+        mass=mass,
+        inertia=inertia,
+        max_thrust=rotors.max_collective_thrust,
+        max_torque=rotors.max_torque,
+        drag=drag,
+        drag_quadratic=np.zeros(3) if drag_quadratic is None else drag_quadratic,
+        rotors=rotors,
+    )
+
+
 VEHICLE_PRESETS: dict[str, VehicleParams] = {
     # Seed 001 Table 1. Torque limits: ~0.25 m arm with a quarter of the thrust margin.
     "rauniyar2023": _preset("rauniyar2023", 1.56, (0.1147, 0.0576, 0.1712), 2.0, 1.0),
     # Seed 000 §IV (Hector quadrotor): smaller inertia, so smaller torque limits.
     "sadeghzadeh2021": _preset("sadeghzadeh2021", 1.477, (0.01152, 0.01152, 0.0218), 0.5, 0.25),
+    # Förster 2015 (ETH Zürich BSc thesis), Crazyflie 2.0: 27 g, inertia Table of the thesis,
+    # rotors of quadslam_env.models.rotors (thrust-to-weight 2.25).
+    "crazyflie2": rotor_vehicle(
+        "crazyflie2", 0.027, np.diag([1.395e-5, 1.436e-5, 2.173e-5]), CRAZYFLIE2_ROTORS
+    ),
 }
 
 
 def vehicle_preset(name: str) -> VehicleParams:
-    """Return the vehicle preset ``name`` (``rauniyar2023`` or ``sadeghzadeh2021``).
+    """Return the vehicle preset ``name`` (``rauniyar2023``, ``sadeghzadeh2021``, ``crazyflie2``).
 
     Raises:
         ValueError: If the name is unknown; the message lists the allowed names.
