@@ -29,7 +29,8 @@ import pytest
 import agents.io.outputs as outputs
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.cli.main import main
-from agents.io.outputs import OutputWriteError, Saver, check_output_dir, check_output_file
+from agents.io.outputs import OutputWriteError, Saver
+from agents.io.paths import check_output_dir, check_output_file
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.config_files import available_scenarios
 

@@ -321,7 +321,7 @@ def _disk_full() -> Exception:
 
 
 def _terminated() -> BaseException:
-    from agents.io.outputs import Terminated
+    from agents.io.signals import Terminated
 
     return Terminated()
 

@@ -218,7 +218,8 @@ def main_bench(
             elsewhere and the message says where.
     """
     from agents.bench.plots import write_plots
-    from agents.io.outputs import Saver, check_output_dir, check_output_file
+    from agents.io.outputs import Saver
+    from agents.io.paths import check_output_dir, check_output_file
 
     if json_path is not None:
         check_output_file(json_path, "--json")

@@ -56,7 +56,7 @@ def check_outputs(plots: Path | None, json_path: Path | None, video: Path | None
         agents.io.outputs.OutputPathError: One-line message naming the option and the path.
     """
     from agents.evaluation.video import check_video_path
-    from agents.io.outputs import check_output_dir, check_output_file
+    from agents.io.paths import check_output_dir, check_output_file
     from quadslam_env.extras import require
 
     if json_path is not None:
@@ -140,7 +140,7 @@ def fly(
 def cmd_run(args: argparse.Namespace) -> int:
     """DF-LQR episodes on a scenario: the package's main job."""
     from agents.control.dflqr import DFLQRPolicy
-    from agents.io.outputs import safe_name
+    from agents.io.paths import safe_name
 
     env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
     plots = args.plots

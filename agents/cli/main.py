@@ -62,7 +62,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train an SB3 agent with ``configs/agents/<algo>.yaml`` and print the run folder."""
-    from agents.io.outputs import Terminated, check_output_dir
+    from agents.io.paths import check_output_dir
+    from agents.io.signals import Terminated
     from agents.rl.hyperparams import parse_hyperparam_overrides
     from agents.rl.training import resume, train
     from quadslam_env.config_files import check_config_file
@@ -254,7 +255,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     for var in BLAS_THREAD_VARS:
         os.environ.setdefault(var, "1")
     from agents.cli.warning_lines import one_line_warnings
-    from agents.io.outputs import Terminated, sigterm_as_interrupt, sigterm_received
+    from agents.io.signals import Terminated, sigterm_as_interrupt, sigterm_received
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -29,7 +29,7 @@ def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str)
     """Run a study that trains agents (its module's ``run_study``, ``format_study``,
     ``write_json``, ``plot_study``): check every output path before the first training,
     print the table and the wall clock, write ``--json`` and ``--plots`` (``png``)."""
-    from agents.io.outputs import check_output_dir, check_output_file
+    from agents.io.paths import check_output_dir, check_output_file
 
     out = args.out or Path("runs") / f"{folder}{'_quick' if args.quick else ''}"
     check_output_dir(out, "--out")
@@ -67,7 +67,7 @@ def _save_study(
 
 def cmd_study_association(args: argparse.Namespace) -> int:
     """Known vs NN vs JCBB (EKF) and known vs ML (FastSLAM), and the clutter sweep."""
-    from agents.io.outputs import check_output_dir, check_output_file
+    from agents.io.paths import check_output_dir, check_output_file
     from agents.studies.association import format_study, plot_study, run_study, write_json
 
     if args.json is not None:

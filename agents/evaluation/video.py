@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from agents.io.outputs import Saver, check_output_file
+from agents.io.outputs import Saver
+from agents.io.paths import check_output_file
 
 FORMATS = (".gif", ".mp4")
 
@@ -27,7 +28,7 @@ def check_video_path(path: Path) -> None:
     """Fail early (before anything is flown) on a video path that cannot be written.
 
     Missing parent folders are created, as for ``--json``; the folder must accept a new file
-    (see :func:`agents.io.outputs.check_output_file`).
+    (see :func:`agents.io.paths.check_output_file`).
 
     Raises:
         ValueError: One-line message: an extension other than :data:`FORMATS`, a folder at

@@ -13,48 +13,40 @@ or made read-only during the run), the file is written next to the intended plac
 name or, failing that, into a fresh temporary folder; :meth:`Saver.check` then raises one
 :class:`OutputWriteError` that says what could not be written and where it went instead.
 
-Only a regular file is ever replaced. An existing FIFO or character device (``--json
-/dev/stdout``, ``/dev/null``, a named pipe) is written through, in place; a symbolic link keeps
-its place and the regular file it points to is replaced atomically (a link into ``/proc`` or
-``/dev/fd``, as ``/dev/stdout`` is, is written through); anything else (a folder, a block
-device, a socket, a dangling link) is refused with a one-line :class:`OutputPathError`.
+Which targets are written through or refused, and the checks before the work, are
+:mod:`agents.io.paths`.
 
 A full disk (``ENOSPC``) never truncates a good file, since the new one is complete before
 the rename; the commands that keep work across sessions (``train``, ``sweep``) turn it into
 one :class:`DiskFullError` line saying where the work is and how to resume.
 
-SIGTERM (a scheduler, ``docker stop``) is turned into :class:`Terminated`, a
-``KeyboardInterrupt``, inside :func:`sigterm_as_interrupt`, so every command stops, saves and
-reports on SIGTERM as it does on Ctrl-C.
+SIGTERM handling (a scheduler, ``docker stop``) is :mod:`agents.io.signals`.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
-import hashlib
 import io
 import json
 import os
-import re
 import secrets
 import shutil
-import signal
 import stat
 import sys
 import tempfile
-import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-#: Longest file name (bytes of one path component) and path that Linux file systems accept.
-NAME_MAX = 255
-PATH_MAX = 4096
-
-
-class OutputPathError(ValueError):
-    """An output path that cannot be written (found before the work; one-line message)."""
+from agents.io.paths import (
+    THROUGH,
+    OutputPathError,
+    kind_name,
+    output_target,
+    own_descriptor,
+    reason,
+)
 
 
 class OutputWriteError(ValueError):
@@ -70,269 +62,6 @@ def is_disk_full(exc: BaseException) -> bool:
     return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
 
 
-def _reason(exc: BaseException) -> str:
-    return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-
-
-def _short(text: str, limit: int = 60) -> str:
-    """``text`` cut to ``limit`` characters (a 300-character name must not flood the line)."""
-    return text if len(text) <= limit else f"{text[: limit - 1]}…"
-
-
-def _probe(folder: Path) -> None:
-    """Create and remove a temporary file in ``folder`` (what an atomic write needs).
-
-    Raises:
-        OSError: The folder does not accept new files.
-    """
-    fd, name = tempfile.mkstemp(prefix=".quadslam-probe-", dir=folder)
-    os.close(fd)
-    os.unlink(name)
-
-
-def check_name_lengths(path: Path, option: str) -> None:
-    """Every name in ``path`` fits the file system (255 bytes), and so does the whole path.
-
-    Checked first, so that a 300-character name gives this line instead of the
-    ``ENAMETOOLONG`` of whichever call meets it first.
-
-    Raises:
-        OutputPathError: A name or the path is too long.
-    """
-    for part in path.parts:
-        size = len(os.fsencode(part))
-        if size > NAME_MAX:
-            raise OutputPathError(
-                f"{option}: the name {_short(part)!r} in the path is {size} bytes long; "
-                f"allowed: at most {NAME_MAX} bytes per file or folder name"
-            )
-    size = len(os.fsencode(os.path.abspath(path)))
-    if size >= PATH_MAX:
-        raise OutputPathError(
-            f"{option}: the path {_short(str(path))!r} is {size} bytes long; "
-            f"allowed: less than {PATH_MAX} bytes"
-        )
-
-
-def safe_name(text: str, limit: int = 80) -> str:
-    """``text`` (a scenario or env name) as one harmless file or folder name.
-
-    Anything but letters, digits, ``.``, ``_`` and ``-`` becomes ``_`` (no separator, so no
-    ``..`` can leave the intended folder); leading and trailing dots and underscores go; a
-    name longer than ``limit`` keeps its start and gets a hash of the whole, so long names
-    stay apart.
-    """
-    name = re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._") or "unnamed"
-    if len(name) > limit:
-        digest = hashlib.sha1(text.encode("utf-8", "surrogatepass")).hexdigest()[:10]
-        name = f"{name[: limit - 11].rstrip('._')}-{digest}"
-    return name
-
-
-def _check_ancestors(path: Path, option: str) -> None:
-    """The nearest existing ancestor of ``path`` must be a folder (not a file)."""
-    for ancestor in path.parents:
-        if ancestor.exists():
-            if not ancestor.is_dir():
-                raise OutputPathError(
-                    f"{option}: cannot write {str(path)!r}: {str(ancestor)!r} is a file, "
-                    "not a folder; allowed: a path inside a writable folder"
-                )
-            return
-
-
-# ------------------------------------------------------------------ what is at the target
-NEW, FILE, THROUGH = "new", "file", "through"
-_ALLOWED = "allowed: a regular file name, a FIFO or a character device such as /dev/stdout"
-
-
-def _kind_name(mode: int) -> str:
-    for test, name in (
-        (stat.S_ISDIR, "a folder"),
-        (stat.S_ISBLK, "a block device"),
-        (stat.S_ISSOCK, "a socket"),
-        (stat.S_ISFIFO, "a FIFO"),
-        (stat.S_ISCHR, "a character device"),
-    ):
-        if test(mode):
-            return name
-    return "not a regular file"
-
-
-def _link_chain(path: Path) -> Iterator[str]:
-    """The absolute path and each link it leads through, in order (at most 40: the kernel's
-    own limit on links followed)."""
-    here = os.path.abspath(path)
-    for _ in range(40):
-        yield here
-        try:
-            link = os.readlink(here)
-        except OSError:
-            return
-        here = os.path.normpath(os.path.join(os.path.dirname(here), link))
-
-
-def _via_proc(path: Path) -> bool:
-    """The path or a link on the way is a process's file descriptor (``/dev/stdout`` →
-    ``/proc/self/fd/1``): writing to it means writing to that descriptor, never replacing
-    what it points to (a shell's ``> out.json``)."""
-    return any(
-        here.startswith(("/proc/", "/dev/fd/")) or here in ("/dev/stdout", "/dev/stderr")
-        for here in _link_chain(path)
-    )
-
-
-_FD_LINK = re.compile(r"^/(?:proc/(self|thread-self|\d+)/fd|dev/fd)/(\d+)$")
-_STD_NAMES = {"/dev/stdin": 0, "/dev/stdout": 1, "/dev/stderr": 2}
-
-
-def _own_descriptor(path: Path) -> int | None:
-    """The descriptor of this process that ``path`` names (``/dev/stdout`` → 1,
-    ``/proc/self/fd/5`` → 5), or ``None``.
-
-    Written through that descriptor, the output lands where this process's own writes to
-    it go: opening the file again would start at its own offset, and with a shell's
-    ``> out.json`` the printed lines and the document would overwrite each other.
-    """
-    for here in _link_chain(path):
-        if here in _STD_NAMES:
-            return _STD_NAMES[here]
-        match = _FD_LINK.match(here)
-        if match:
-            owner = match.group(1)
-            if owner is None or owner in ("self", "thread-self") or int(owner) == os.getpid():
-                return int(match.group(2))
-            return None
-    return None
-
-
-def output_target(path: Path, option: str) -> tuple[str, Path]:
-    """How ``path`` is written: ``(kind, destination)``.
-
-    Returns:
-        ``("new", path)`` for a missing file; ``("file", path)`` for a regular file (replaced
-        atomically); ``("file", real path)`` for a link to a regular file (the file it points
-        to is replaced, the link stays); ``("through", path)`` for a FIFO, a character device
-        or a process's file descriptor (written in place, appended to a regular file).
-
-    Raises:
-        OutputPathError: A folder, a block device, a socket, a dangling or looping link.
-    """
-    try:
-        st = os.lstat(path)
-    except (FileNotFoundError, NotADirectoryError):
-        return NEW, path  # a file in the path is reported by _check_ancestors
-    except OSError as exc:
-        raise OutputPathError(
-            f"{option}: cannot examine {_short(str(path))!r} ({_reason(exc)}); {_ALLOWED}"
-        ) from None
-    if stat.S_ISREG(st.st_mode):
-        return FILE, path
-    mode = st.st_mode
-    if stat.S_ISLNK(mode):
-        try:
-            mode = os.stat(path).st_mode
-        except OSError as exc:
-            what = "a missing file" if isinstance(exc, FileNotFoundError) else _reason(exc)
-            raise OutputPathError(
-                f"{option}: {str(path)!r} is a symbolic link to {what}; {_ALLOWED}"
-            ) from None
-        if _via_proc(path):
-            if stat.S_ISREG(mode) or stat.S_ISFIFO(mode) or stat.S_ISCHR(mode):
-                return THROUGH, path
-        elif stat.S_ISREG(mode):
-            return FILE, Path(os.path.realpath(path))
-    if stat.S_ISDIR(mode):
-        raise OutputPathError(f"{option}: {str(path)!r} is a folder; allowed: a file name")
-    if stat.S_ISFIFO(mode) or stat.S_ISCHR(mode):
-        return THROUGH, path
-    raise OutputPathError(f"{option}: {str(path)!r} is {_kind_name(mode)}; {_ALLOWED}")
-
-
-def check_output_file(path: Path, option: str) -> None:
-    """Fail early on a result file that could not be written.
-
-    Missing parent folders are created; the folder must accept a new file (a temporary probe
-    file is created and removed), since the result is written there and renamed into place.
-    A FIFO or character device (``/dev/stdout``) must be writable; it is written through.
-
-    Args:
-        path: The file the command will write.
-        option: The command-line option that named it (e.g. ``"--json"``), for the message.
-
-    Raises:
-        OutputPathError: ``path`` is a folder, a block device, a socket or a dangling link,
-            a name in it is too long, its parent is a file or cannot be created, or the parent
-            folder is not writable.
-    """
-    check_name_lengths(path, option)
-    kind, dest = output_target(path, option)
-    if kind == THROUGH:
-        if option == "--video" and path.suffix.lower() == ".mp4":
-            # The MP4 encoder streams into its own temporary file and renames it into place
-            # (agents/evaluation/video.py), which would replace the device or link.
-            raise OutputPathError(
-                f"{option}: {str(path)!r} is not a regular file, and an MP4 is renamed into "
-                "place; allowed: a regular .mp4 file name, or a .gif (written through)"
-            )
-        if not os.access(path, os.W_OK):
-            raise OutputPathError(f"{option}: {str(path)!r} is not writable; {_ALLOWED}")
-        return
-    if option == "--video" and dest != path:
-        raise OutputPathError(
-            f"{option}: {str(path)!r} is a symbolic link, which the video writer would "
-            "replace; allowed: the file it points to, or a regular file name"
-        )
-    _check_ancestors(dest, option)
-    parent = dest.parent
-    try:
-        parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputPathError(
-            f"{option}: cannot create the folder {str(parent)!r} for {str(path)!r} "
-            f"({_reason(exc)}); allowed: a file in a writable folder"
-        ) from None
-    try:
-        _probe(parent)
-    except OSError as exc:
-        raise OutputPathError(
-            f"{option}: cannot write {str(path)!r}: the folder {str(parent)!r} is not writable "
-            f"({_reason(exc)}); allowed: a file in a writable folder"
-        ) from None
-
-
-def check_output_dir(path: Path, option: str) -> None:
-    """Fail early on a result folder that could not be written (created when missing).
-
-    Args:
-        path: The folder the command will write files into.
-        option: The command-line option that named it (e.g. ``"--plots"``).
-
-    Raises:
-        OutputPathError: ``path`` is a file, a name in it is too long, it cannot be created
-            or is not writable.
-    """
-    check_name_lengths(path, option)
-    if path.exists() and not path.is_dir():
-        raise OutputPathError(f"{option}: {str(path)!r} is a file; allowed: a folder")
-    _check_ancestors(path, option)
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputPathError(
-            f"{option}: cannot create the folder {str(path)!r} ({_reason(exc)}); "
-            "allowed: a writable folder"
-        ) from None
-    try:
-        _probe(path)
-    except OSError as exc:
-        raise OutputPathError(
-            f"{option}: the folder {str(path)!r} is not writable ({_reason(exc)}); "
-            "allowed: a writable folder"
-        ) from None
-
-
-# ------------------------------------------------------------------------- atomic writes
 def _temp_name(path: Path) -> Path:
     """A fresh hidden name in ``path``'s folder that keeps its extension (format detection)."""
     return path.with_name(f".{path.stem}.tmp-{secrets.token_hex(4)}{path.suffix}")
@@ -378,7 +107,7 @@ def commit(tmp: Path, path: Path) -> None:
     with contextlib.suppress(FileNotFoundError):
         mode = os.lstat(path).st_mode
         if not stat.S_ISREG(mode):
-            kind = "a symbolic link" if stat.S_ISLNK(mode) else _kind_name(mode)
+            kind = "a symbolic link" if stat.S_ISLNK(mode) else kind_name(mode)
             raise OutputPathError(f"{str(path)!r} is {kind} now; it is not replaced")
     os.replace(tmp, path)
     _fsync_dir(path.parent)
@@ -397,7 +126,7 @@ def _write_through(path: Path, produce: Callable[[Path], Any]) -> None:
         for stream in (sys.stdout, sys.stderr):  # what was printed before comes first
             with contextlib.suppress(OSError, ValueError, AttributeError):
                 stream.flush()
-        fd = _own_descriptor(path)
+        fd = own_descriptor(path)
         with open(staged, "rb") as src:
             if fd is None:
                 with open(path, "ab") as dst:
@@ -494,91 +223,6 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 
 # ------------------------------------------------------------------------------- SIGTERM
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread as Ctrl-C raises ``KeyboardInterrupt``: every
-    ``except KeyboardInterrupt`` that saves partial work saves it on SIGTERM too.
-
-    Attributes:
-        run_dir: The run folder a training saved before passing this on (or ``None``).
-    """
-
-    def __init__(self, run_dir: Path | None = None) -> None:
-        super().__init__("terminated (SIGTERM)")
-        self.run_dir = run_dir
-
-
-_sigterm = threading.Event()
-
-
-def _raise_terminated(signum: int, frame: Any) -> None:
-    _sigterm.set()
-    raise Terminated()
-
-
-def sigterm_received() -> bool:
-    """Whether a SIGTERM arrived inside the latest :func:`sigterm_as_interrupt` block."""
-    return _sigterm.is_set()
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Inside the block, SIGTERM raises :class:`Terminated` (a ``KeyboardInterrupt``).
-
-    An ignored SIGTERM (inherited ``SIG_IGN``) stays ignored; outside the main thread
-    nothing changes (signals are delivered to the main thread only).
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    _sigterm.clear()  # one command per block: an earlier SIGTERM (in a test) is not this one's
-    previous = signal.getsignal(signal.SIGTERM)
-    if previous is signal.SIG_IGN:
-        yield
-        return
-    signal.signal(signal.SIGTERM, _raise_terminated)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-@contextlib.contextmanager
-def signals_deferred(note: str) -> Iterator[None]:
-    """Hold Ctrl-C and SIGTERM while a set of files that belong together is written.
-
-    A Ctrl-C inside the block only prints ``note``; a SIGTERM prints it and is delivered
-    again when the block ends (the files are complete by then), so the process still stops.
-    Outside the main thread nothing changes.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: list[int] = []
-
-    def hold(signum: int, frame: Any) -> None:
-        print(note, file=sys.stderr)
-        if signum == signal.SIGTERM:
-            held.append(signum)
-
-    previous = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    for sig, handler in previous.items():
-        if handler is not signal.SIG_IGN:
-            signal.signal(sig, hold)
-
-    def restore() -> None:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
-
-    try:
-        yield
-    except BaseException:
-        restore()  # the error ends the work anyway; it is not replaced by the held signal
-        raise
-    restore()
-    if held:
-        signal.raise_signal(signal.SIGTERM)
-
-
 def json_text(obj: Any) -> str:
     """Pretty JSON text of a result document (two-space indent, trailing newline)."""
     return json.dumps(obj, indent=2) + "\n"
@@ -673,12 +317,12 @@ class Saver:
         """Remember that ``path`` could not be written and where the result is instead."""
         if saved_to is None:
             self.failures.append(
-                f"{option}: could not write {str(path)!r} ({_reason(exc)}), nor a copy next "
+                f"{option}: could not write {str(path)!r} ({reason(exc)}), nor a copy next "
                 "to it or in the temporary folder"
             )
             return
         self.failures.append(
-            f"{option}: could not write {str(path)!r} ({_reason(exc)}); "
+            f"{option}: could not write {str(path)!r} ({reason(exc)}); "
             f"saved to {str(saved_to)!r} instead"
         )
         self.written.append(saved_to)

@@ -48,9 +48,9 @@ def new_run_dir(out_dir: str | Path | None, algo: str, env_id: str, seed: int) -
 
     Race-free: the folder is claimed by ``mkdir`` itself (``exist_ok=False``), so two trainings
     started in the same second get different folders. The name is made of letters, digits,
-    ``._-`` only (:func:`agents.io.outputs.safe_name`).
+    ``._-`` only (:func:`agents.io.paths.safe_name`).
     """
-    from agents.io.outputs import safe_name
+    from agents.io.paths import safe_name
 
     parent = Path(out_dir) if out_dir is not None else Path("runs")
     parent.mkdir(parents=True, exist_ok=True)

@@ -25,13 +25,12 @@ import yaml
 
 from agents.io.outputs import (
     DiskFullError,
-    Terminated,
     atomic_produce_all,
     commit,
     is_disk_full,
-    signals_deferred,
     write_text_atomic,
 )
+from agents.io.signals import Terminated, signals_deferred
 from agents.rl.curves import plot_learning_curve
 from agents.rl.hyperparams import (
     DEFAULTS,
@@ -518,7 +517,7 @@ def _learn(
     removed only once a finished session's ``timing.json`` is in place.
 
     Raises:
-        agents.io.outputs.Terminated: SIGTERM, after the run folder was saved (``run_dir`` set).
+        agents.io.signals.Terminated: SIGTERM, after the run folder was saved (``run_dir`` set).
         agents.io.outputs.DiskFullError: No space left; the message names the last good save.
     """
     from stable_baselines3.common.logger import configure

@@ -436,8 +436,9 @@ def _clean(value: Any) -> Any:
 
 def cli_bound(args: Any) -> int:
     """``quadslam study bound``: fly, bound, print the table, write JSON and the figure."""
-    from agents.io.outputs import Saver, check_output_dir, check_output_file
+    from agents.io.outputs import Saver
     from agents.io.overrides import parse_overrides
+    from agents.io.paths import check_output_dir, check_output_file
 
     if args.json is not None:  # every output path before the flight
         check_output_file(args.json, "--json")

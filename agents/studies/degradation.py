@@ -212,7 +212,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.degradation", description=__doc__
     )
-    from agents.io.outputs import check_output_file
+    from agents.io.paths import check_output_file
 
     parser.add_argument("--scenario", default="ekf_out_of_view_600s")
     parser.add_argument("--seeds", type=int, default=5)

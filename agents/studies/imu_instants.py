@@ -76,7 +76,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.imu_instants", description=__doc__
     )
-    from agents.io.outputs import check_output_file
+    from agents.io.paths import check_output_file
     from agents.studies.degradation import save_json
 
     parser.add_argument("--scenario", default="paper_ekf_figure8")

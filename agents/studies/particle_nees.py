@@ -179,7 +179,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m agents.studies.particle_nees", description=__doc__
     )
-    from agents.io.outputs import check_output_file
+    from agents.io.paths import check_output_file
 
     parser.add_argument("--scenario", default="paper_fastslam_helix")
     parser.add_argument("--seeds", type=int, default=10)

@@ -42,7 +42,8 @@ import numpy as np  # noqa: E402
 
 from agents.evaluation.episodes import json_float  # noqa: E402
 from agents.io.memory import peak_rss_mb, rss_mb  # noqa: E402
-from agents.io.outputs import OutputWriteError, Saver, check_output_file  # noqa: E402
+from agents.io.outputs import OutputWriteError, Saver  # noqa: E402
+from agents.io.paths import check_output_file  # noqa: E402
 
 SCENARIOS: dict[str, tuple[str, dict[str, Any]]] = {
     "ekf_slam": ("paper_ekf_figure8", {}),

@@ -44,13 +44,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from agents.io.outputs import (
-    DiskFullError,
-    check_output_dir,
-    is_disk_full,
-    json_text,
-    write_bytes_atomic,
-)
+from agents.io.outputs import DiskFullError, is_disk_full, json_text, write_bytes_atomic
+from agents.io.paths import check_output_dir
 from agents.sweep.cluster import (
     SweepError,
     check_address,
@@ -184,7 +179,7 @@ def run_jobs(
             raise
         # The jobs in flight end with the Ray session, as after Ctrl-C.
         report.disk_full = exc
-    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (agents.io.outputs.Terminated)
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (agents.io.signals.Terminated)
         # The jobs in flight are not cancelled one by one (a forced ray.cancel racing with a
         # task's completion can abort Ray's core worker); they end with the driver's Ray
         # session: ray.shutdown() for a local Ray, the job's end on a cluster.
