@@ -165,7 +165,7 @@ def test_imu_instants_json_torn_by_a_full_disk_keeps_the_old_file(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json", "tmp"]  # no leftovers
 
 
-@pytest.mark.parametrize("module", ["study_active", "study_cost", "study_association"])
+@pytest.mark.parametrize("module", ["active", "cost", "association"])
 def test_a_study_json_torn_by_a_full_disk_keeps_the_old_file(
     module: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
@@ -173,7 +173,7 @@ def test_a_study_json_torn_by_a_full_disk_keeps_the_old_file(
     writes atomically: a write that fails halfway leaves the previous file whole."""
     import importlib
 
-    write_json = importlib.import_module(f"agents.{module}").write_json
+    write_json = importlib.import_module(f"agents.studies.{module}").write_json
     target = tmp_path / "study.json"
     target.write_text('{"old": true}\n')
     torn_writes(monkeypatch, tmp_path)
