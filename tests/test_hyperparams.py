@@ -16,6 +16,7 @@ from torch import nn
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.cli.main import main
+from agents.rl.building import build_model, make_vec_env
 from agents.rl.hyperparams import load_hyperparams, parse_normalize, resolve_settings
 from agents.rl.policy_kwargs import (
     ACTIVATIONS,
@@ -23,7 +24,7 @@ from agents.rl.policy_kwargs import (
     build_policy_kwargs,
     validate_policy_kwargs,
 )
-from agents.rl.training import _build_model, _make_vec_env, resume, train
+from agents.rl.training import resume, train
 from agents.sweep.spec import SweepSpecError, parse_spec
 from quadslam_env.config import ConfigError
 
@@ -169,9 +170,9 @@ def test_activation_names_resolve_to_the_torch_class_when_the_model_is_built(
         "activation_fn": "tanh",
     }
     assert build_policy_kwargs(settings["policy_kwargs"])["activation_fn"] is nn.Tanh
-    venv = _make_vec_env(ENV, settings, 1, 0, None)
+    venv = make_vec_env(ENV, settings, 1, 0, None)
     try:
-        model = _build_model("ppo", settings, venv, 0)
+        model = build_model("ppo", settings, venv, 0)
     finally:
         venv.close()
     assert model.policy.activation_fn is nn.Tanh

@@ -29,6 +29,7 @@ from agents.evaluation.episodes import (
     TRANSIENT_KEYS,
     run_episode,
 )
+from agents.rl.building import make_vec_env
 from agents.rl.callbacks import EstimationMetricsCallback
 from agents.rl.hyperparams import (
     RESERVED_KEYS,
@@ -39,7 +40,7 @@ from agents.rl.hyperparams import (
 from agents.rl.loading import TrainedPolicy, load_model
 from agents.rl.policies import load_policy
 from agents.rl.run_folder import run_config
-from agents.rl.training import _make_vec_env, train
+from agents.rl.training import train
 from agents.rl.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
 
 ALGOS = ("ppo", "sac")
@@ -440,7 +441,7 @@ def test_trained_policy_reproduces_training_time_actions(cli_run: Path) -> None:
 
     config = yaml.safe_load((cli_run / "config.yaml").read_text())
     settings = _resolve("ppo", config["hyperparams"])
-    venv = _make_vec_env(config["env_id"], settings, 1, 11, None, info_keys=None)
+    venv = make_vec_env(config["env_id"], settings, 1, 11, None, info_keys=None)
     venv = VecNormalize.load(str(cli_run / "vecnormalize.pkl"), venv)
     venv.training, venv.norm_reward = False, False
     model = PPO.load(cli_run / "model.zip", device="cpu")
@@ -578,7 +579,8 @@ def test_sac_collects_from_several_lanes(tmp_path: Path) -> None:
 
 
 def test_resume_continues_from_the_latest_checkpoint(tmp_path: Path) -> None:
-    from agents.rl.training import latest_checkpoint, resume
+    from agents.rl.checkpoints import latest_checkpoint
+    from agents.rl.training import resume
 
     hp = tiny("ppo", checkpoint_freq=64, eval_freq=0)
     run = train("ppo", main_env(), timesteps=128, n_envs=2, out_dir=tmp_path, progress=False,

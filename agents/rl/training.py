@@ -9,14 +9,11 @@ from __future__ import annotations
 
 import contextlib
 import json
-import pickle
 import shutil
 import sys
 import tempfile
 import time
 import warnings
-import zipfile
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +28,8 @@ from agents.io.outputs import (
     write_text_atomic,
 )
 from agents.io.signals import Terminated, signals_deferred
+from agents.rl.building import build_model, make_vec_env, torch_settings, training_callbacks
+from agents.rl.checkpoints import Checkpoint, checkpoint_problem, saved_points
 from agents.rl.curves import plot_learning_curve
 from agents.rl.hyperparams import (
     DEFAULTS,
@@ -40,90 +39,8 @@ from agents.rl.hyperparams import (
     resolve_settings,
 )
 from agents.rl.manifest import MANIFEST, verify_run, write_manifest
-from agents.rl.policy_kwargs import ASYMMETRIC, build_policy_kwargs
 from agents.rl.run_folder import new_run_dir, read_run_config, versions
 from quadslam_env.config import deep_merge
-
-
-@contextlib.contextmanager
-def _torch_settings(threads: int | None) -> Any:
-    """Deterministic torch algorithms (and optionally a thread count) inside the block."""
-    import torch
-
-    enabled = torch.are_deterministic_algorithms_enabled()
-    warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
-    old_threads = torch.get_num_threads()
-    torch.use_deterministic_algorithms(True, warn_only=True)
-    if threads is not None:
-        torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.use_deterministic_algorithms(enabled, warn_only=warn_only)
-        torch.set_num_threads(old_threads)
-
-
-# ---------------------------------------------------------------------------- training
-def _make_vec_env(
-    env_id: str,
-    settings: dict[str, Any],
-    n_envs: int,
-    seed: int,
-    monitor_dir: Path | None,
-    stagger: bool = False,
-    info_keys: tuple[str, ...] | None = (),
-    name: str = "lanes",
-) -> Any:
-    """``n_envs`` lanes of the native vector env in this process, as an SB3 ``VecEnv``.
-
-    Lane i is the env seeded ``seed + i`` (as SB3's ``make_vec_env`` seeds its envs); one
-    ``VecMonitor`` records every lane's episodes in ``monitor_dir/<name>.monitor.csv``. With
-    ``stagger`` the lanes' first episodes are cut at spread lengths (``QuadSLAMVecEnv``); the
-    asymmetric actor-critic policy gets the privileged dict observation.
-    """
-    from stable_baselines3.common.vec_env import VecMonitor
-
-    from agents.rl.vec_adapter import QuadSLAMVecEnv
-
-    wrapper = settings["wrapper"]
-    spec = None if wrapper is None else {"name": wrapper[0], **wrapper[1]}
-    # By default per-lane info dicts only for the lanes that end (SB3 reads nothing else from
-    # them; the metrics callback reads the adapter's step_info arrays): ~25% of the step at 64
-    # lanes.
-    venv = QuadSLAMVecEnv(
-        env_id,
-        n_envs,
-        seed=seed,
-        wrapper=spec,
-        info_keys=info_keys,
-        stagger=stagger,
-        privileged=settings["policy"] == ASYMMETRIC,
-        **settings["env_kwargs"],
-    )
-    filename = None
-    if monitor_dir is not None:
-        monitor_dir.mkdir(parents=True, exist_ok=True)
-        filename = str(monitor_dir / name)
-    return VecMonitor(venv, filename=filename)
-
-
-def _build_model(
-    algo: str, settings: dict[str, Any], venv: Any, seed: int, verbose: int = 0
-) -> Any:
-    """The SB3 algorithm on ``venv`` with the resolved settings."""
-    policy: Any = settings["policy"]
-    if policy == ASYMMETRIC:
-        from agents.rl.asymmetric import AsymmetricActorCriticPolicy
-
-        policy = AsymmetricActorCriticPolicy
-    return algorithms()[algo](
-        policy,
-        venv,
-        seed=seed,
-        policy_kwargs=build_policy_kwargs(settings["policy_kwargs"]) or None,
-        verbose=verbose,
-        **settings["algo_kwargs"],
-    )
 
 
 def _check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, Any]:
@@ -140,12 +57,12 @@ def _check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, 
     Raises:
         ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason).
     """
-    venv = _make_vec_env(env_id, settings, settings["n_envs"], 0, None)
+    venv = make_vec_env(env_id, settings, settings["n_envs"], 0, None)
     try:
         scenario: dict[str, Any] = venv.get_attr("scenario", [0])[0].to_dict()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            _build_model(algo, settings, venv, 0)
+            build_model(algo, settings, venv, 0)
     except (AssertionError, ValueError, TypeError, KeyError) as exc:
         reason = " ".join(str(exc).split()) or type(exc).__name__
         raise ValueError(f"hyperparameters rejected by {algo.upper()}: {reason}") from None
@@ -247,68 +164,6 @@ def train(
     return _learn(run_dir, algo, env_id, settings, seed, progress, verbose, threads, tic)
 
 
-@dataclass(frozen=True)
-class Checkpoint:
-    """Where a resumed run continues: a model zip, its VecNormalize statistics, its step."""
-
-    model: Path
-    vecnormalize: Path | None
-    steps: int
-
-
-def saved_points(run_dir: Path) -> list[Checkpoint]:
-    """Every saved point of a run, furthest first: its checkpoints and an interrupted run's
-    model (``model.zip`` with the step count in ``INTERRUPTED``)."""
-    found: list[Checkpoint] = []
-    for path in (run_dir / "checkpoints").glob("model_*_steps.zip"):
-        steps = path.stem[len("model_") : -len("_steps")]
-        if steps.isdigit():
-            pkl = path.parent / f"model_vecnormalize_{steps}_steps.pkl"
-            found.append(Checkpoint(path, pkl if pkl.is_file() else None, int(steps)))
-    marker = run_dir / "INTERRUPTED"
-    if marker.is_file() and (run_dir / "model.zip").is_file():
-        text = marker.read_text().strip()
-        if text.isdigit():
-            pkl = run_dir / "vecnormalize.pkl"
-            found.append(
-                Checkpoint(run_dir / "model.zip", pkl if pkl.is_file() else None, int(text))
-            )
-    # At equal steps the interrupted model first: it was saved after the checkpoint.
-    return sorted(found, key=lambda c: (c.steps, c.model.parent == run_dir), reverse=True)
-
-
-def latest_checkpoint(run_dir: Path) -> Checkpoint | None:
-    """The furthest saved point of a run: a checkpoint, or an interrupted run's model."""
-    points = saved_points(run_dir)
-    return points[0] if points else None
-
-
-def checkpoint_problem(point: Checkpoint, needs_vecnormalize: bool) -> str | None:
-    """Why ``point`` cannot be loaded (a truncated or damaged file), or ``None``.
-
-    The model zip is read through (every member's CRC is checked); the ``VecNormalize``
-    statistics, when the run normalises, must unpickle.
-    """
-    try:
-        with zipfile.ZipFile(point.model) as archive:
-            if "data" not in archive.namelist():  # e.g. the torch zip inside a torn one
-                return f"{point.model.name} is truncated or damaged (no 'data' member)"
-            bad = archive.testzip()
-        if bad is not None:
-            return f"{point.model.name}: {bad} is damaged"
-    except (OSError, EOFError, zipfile.BadZipFile) as exc:
-        return f"{point.model.name} is truncated or damaged ({exc})"
-    if needs_vecnormalize:
-        if point.vecnormalize is None:
-            return f"{point.model.name} has no VecNormalize file"
-        try:
-            with open(point.vecnormalize, "rb") as fh:
-                pickle.load(fh)  # the run's own file, as VecNormalize.load reads it
-        except Exception as exc:  # any unpickling error means "cannot be used"
-            return f"{point.vecnormalize.name} is truncated or damaged ({type(exc).__name__})"
-    return None
-
-
 def _timing_steps(run_dir: Path) -> str:
     """The step count a finished run's ``timing.json`` records (``?`` if unreadable)."""
     try:
@@ -395,68 +250,6 @@ def resume(
     )
 
 
-def _callbacks(
-    run_dir: Path,
-    env_id: str,
-    settings: dict[str, Any],
-    seed: int,
-    progress: bool,
-    verbose: int,
-    label: str,
-) -> tuple[list[Any], Any, Any]:
-    """The training callbacks: ``(callbacks, eval vector env or None, eval callback or None)``.
-
-    Every file they write is written atomically (:mod:`agents.rl.callbacks`).
-    """
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    from agents.rl.callbacks import (
-        AtomicCheckpointCallback,
-        AtomicEvalCallback,
-        EstimationMetricsCallback,
-        SaveVecNormalizeCallback,
-        TqdmProgressCallback,
-    )
-
-    n, norm = settings["n_envs"], settings["normalize"]
-    callbacks: list[Any] = [EstimationMetricsCallback()]
-    eval_venv = eval_cb = None
-    if settings["eval_freq"] > 0:
-        # One lane per evaluation episode: SB3's evaluate_policy runs them in parallel.
-        n_eval = settings["n_eval_episodes"]
-        eval_venv = _make_vec_env(env_id, settings, n_eval, seed + 10_000, None)
-        if norm is not None:
-            eval_venv = VecNormalize(eval_venv, training=False, **{**norm, "norm_reward": False})
-        on_best = (
-            SaveVecNormalizeCallback(run_dir / "eval" / "best_vecnormalize.pkl")
-            if norm is not None
-            else None
-        )
-        eval_cb = AtomicEvalCallback(
-            eval_venv,
-            callback_on_new_best=on_best,
-            n_eval_episodes=settings["n_eval_episodes"],
-            eval_freq=max(settings["eval_freq"] // n, 1),
-            log_path=str(run_dir / "eval"),
-            best_model_save_path=str(run_dir / "eval"),
-            deterministic=True,
-            verbose=verbose,
-        )
-        callbacks.append(eval_cb)
-    if settings["checkpoint_freq"] > 0:
-        callbacks.append(
-            AtomicCheckpointCallback(
-                save_freq=max(settings["checkpoint_freq"] // n, 1),
-                save_path=str(run_dir / "checkpoints"),
-                name_prefix="model",
-                save_vecnormalize=True,
-            )
-        )
-    if progress:
-        callbacks.append(TqdmProgressCallback(desc=label))
-    return callbacks, eval_venv, eval_cb
-
-
 def _run_learn(
     model: Any, callbacks: list[Any], total: int, fresh: bool
 ) -> tuple[KeyboardInterrupt | None, OSError | None, float]:
@@ -529,8 +322,8 @@ def _learn(
     full: OSError | None = None  # no space left on the device
     saving = contextlib.ExitStack()  # entered when the model is saved, left after timing.json
     try:
-        with saving, _torch_settings(threads):
-            venv = _make_vec_env(
+        with saving, torch_settings(threads):
+            venv = make_vec_env(
                 env_id, settings, settings["n_envs"], seed + done, run_dir / "monitor", True,
                 name=f"lanes{suffix}",
             )  # fmt: skip
@@ -543,14 +336,14 @@ def _learn(
                     gamma = settings["algo_kwargs"].get("gamma", 0.99)
                     venv = VecNormalize(venv, **{"gamma": gamma, **norm})
                 if start is None:
-                    model = _build_model(algo, settings, venv, seed, verbose)
+                    model = build_model(algo, settings, venv, seed, verbose)
                 else:
                     cls: Any = algorithms()[algo]
                     model = cls.load(start.model, env=venv, device="cpu")
                 formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
                 log_dir = run_dir / "logs" / suffix.lstrip("_") if start else run_dir / "logs"
                 model.set_logger(configure(str(log_dir), formats))
-                callbacks, eval_venv, eval_cb = _callbacks(
+                callbacks, eval_venv, eval_cb = training_callbacks(
                     run_dir, env_id, settings, seed, progress, verbose, f"{algo} {env_id}"
                 )
                 stop, full, learn_s = _run_learn(

@@ -1,0 +1,152 @@
+"""What a training session is built from: torch's settings, the lanes of the native vector
+env as an SB3 ``VecEnv``, the SB3 model and its callbacks (docs/design.md §6).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+from typing import Any
+
+from agents.rl.hyperparams import algorithms
+from agents.rl.policy_kwargs import ASYMMETRIC, build_policy_kwargs
+
+
+@contextlib.contextmanager
+def torch_settings(threads: int | None) -> Any:
+    """Deterministic torch algorithms (and optionally a thread count) inside the block."""
+    import torch
+
+    enabled = torch.are_deterministic_algorithms_enabled()
+    warn_only = torch.is_deterministic_algorithms_warn_only_enabled()
+    old_threads = torch.get_num_threads()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    if threads is not None:
+        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(enabled, warn_only=warn_only)
+        torch.set_num_threads(old_threads)
+
+
+def make_vec_env(
+    env_id: str,
+    settings: dict[str, Any],
+    n_envs: int,
+    seed: int,
+    monitor_dir: Path | None,
+    stagger: bool = False,
+    info_keys: tuple[str, ...] | None = (),
+    name: str = "lanes",
+) -> Any:
+    """``n_envs`` lanes of the native vector env in this process, as an SB3 ``VecEnv``.
+
+    Lane i is the env seeded ``seed + i`` (as SB3's ``make_vec_env`` seeds its envs); one
+    ``VecMonitor`` records every lane's episodes in ``monitor_dir/<name>.monitor.csv``. With
+    ``stagger`` the lanes' first episodes are cut at spread lengths (``QuadSLAMVecEnv``); the
+    asymmetric actor-critic policy gets the privileged dict observation.
+    """
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    from agents.rl.vec_adapter import QuadSLAMVecEnv
+
+    wrapper = settings["wrapper"]
+    spec = None if wrapper is None else {"name": wrapper[0], **wrapper[1]}
+    # By default per-lane info dicts only for the lanes that end (SB3 reads nothing else from
+    # them; the metrics callback reads the adapter's step_info arrays): ~25% of the step at 64
+    # lanes.
+    venv = QuadSLAMVecEnv(
+        env_id,
+        n_envs,
+        seed=seed,
+        wrapper=spec,
+        info_keys=info_keys,
+        stagger=stagger,
+        privileged=settings["policy"] == ASYMMETRIC,
+        **settings["env_kwargs"],
+    )
+    filename = None
+    if monitor_dir is not None:
+        monitor_dir.mkdir(parents=True, exist_ok=True)
+        filename = str(monitor_dir / name)
+    return VecMonitor(venv, filename=filename)
+
+
+def build_model(algo: str, settings: dict[str, Any], venv: Any, seed: int, verbose: int = 0) -> Any:
+    """The SB3 algorithm on ``venv`` with the resolved settings."""
+    policy: Any = settings["policy"]
+    if policy == ASYMMETRIC:
+        from agents.rl.asymmetric import AsymmetricActorCriticPolicy
+
+        policy = AsymmetricActorCriticPolicy
+    return algorithms()[algo](
+        policy,
+        venv,
+        seed=seed,
+        policy_kwargs=build_policy_kwargs(settings["policy_kwargs"]) or None,
+        verbose=verbose,
+        **settings["algo_kwargs"],
+    )
+
+
+def training_callbacks(
+    run_dir: Path,
+    env_id: str,
+    settings: dict[str, Any],
+    seed: int,
+    progress: bool,
+    verbose: int,
+    label: str,
+) -> tuple[list[Any], Any, Any]:
+    """The training callbacks: ``(callbacks, eval vector env or None, eval callback or None)``.
+
+    Every file they write is written atomically (:mod:`agents.rl.callbacks`).
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.rl.callbacks import (
+        AtomicCheckpointCallback,
+        AtomicEvalCallback,
+        EstimationMetricsCallback,
+        SaveVecNormalizeCallback,
+        TqdmProgressCallback,
+    )
+
+    n, norm = settings["n_envs"], settings["normalize"]
+    callbacks: list[Any] = [EstimationMetricsCallback()]
+    eval_venv = eval_cb = None
+    if settings["eval_freq"] > 0:
+        # One lane per evaluation episode: SB3's evaluate_policy runs them in parallel.
+        n_eval = settings["n_eval_episodes"]
+        eval_venv = make_vec_env(env_id, settings, n_eval, seed + 10_000, None)
+        if norm is not None:
+            eval_venv = VecNormalize(eval_venv, training=False, **{**norm, "norm_reward": False})
+        on_best = (
+            SaveVecNormalizeCallback(run_dir / "eval" / "best_vecnormalize.pkl")
+            if norm is not None
+            else None
+        )
+        eval_cb = AtomicEvalCallback(
+            eval_venv,
+            callback_on_new_best=on_best,
+            n_eval_episodes=settings["n_eval_episodes"],
+            eval_freq=max(settings["eval_freq"] // n, 1),
+            log_path=str(run_dir / "eval"),
+            best_model_save_path=str(run_dir / "eval"),
+            deterministic=True,
+            verbose=verbose,
+        )
+        callbacks.append(eval_cb)
+    if settings["checkpoint_freq"] > 0:
+        callbacks.append(
+            AtomicCheckpointCallback(
+                save_freq=max(settings["checkpoint_freq"] // n, 1),
+                save_path=str(run_dir / "checkpoints"),
+                name_prefix="model",
+                save_vecnormalize=True,
+            )
+        )
+    if progress:
+        callbacks.append(TqdmProgressCallback(desc=label))
+    return callbacks, eval_venv, eval_cb
