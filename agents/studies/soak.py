@@ -159,7 +159,6 @@ def run_soak(
     from agents.control.dflqr import DFLQRPolicy
     from agents.studies.consistency import truth_observation
     from estimators.oracle import OracleBatch
-    from quadslam_env.estimation.health import health_problem
 
     if control not in ("estimate", "truth"):
         raise ValueError(f"control: got {control!r}; allowed: 'estimate' or 'truth'")
@@ -167,84 +166,41 @@ def run_soak(
     base = env.unwrapped
     policy = DFLQRPolicy.from_env(env)
     full_state = getattr(base.estimator, "full_state", None)
-    total_steps = base.max_steps
     oracle = OracleBatch(num_lanes=1, landmark_capacity=0) if control == "truth" else None
 
-    pose = _Extremes()
-    landmarks = _Extremes()
-    full = _Extremes()
-    rss_steps: list[int] = []
-    rss_values: list[float] = []
-    non_finite_steps = 0
-    first_problem = ""
-    max_pos_err = max_att_err = 0.0
-    sq_pos = sq_att = 0.0
-
+    record = _SoakRecord()
     obs, info = env.reset(seed=seed)
-    rss_start = rss_mb()
+    record.rss_start = rss_mb()
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(
-            total=total_steps,
+            total=base.max_steps,
             unit="step",
             desc=f"soak {estimator}",
             file=sys.stderr,
             mininterval=2.0,
         )
     tic = time.perf_counter()
-    steps = 0
     terminated = truncated = False
     while not (terminated or truncated):
         action, _ = policy.predict(obs if oracle is None else truth_observation(env, oracle))
         obs, _, terminated, truncated, info = env.step(action)
-        steps += 1
-        est = base.last_estimate
-        if not (
-            math.isfinite(info["est_pos_err_m"])
-            and math.isfinite(info["est_att_err_deg"])
-            and np.isfinite(obs).all()
-        ):
-            non_finite_steps += 1
-        pos_err, att_err = info["est_pos_err_m"], info["est_att_err_deg"]
-        max_pos_err = max(max_pos_err, pos_err)
-        max_att_err = max(max_att_err, att_err)
-        sq_pos += pos_err * pos_err
-        sq_att += att_err * att_err
-        if steps % sample_every == 0 or terminated or truncated:
-            problem = health_problem(est)
-            if problem is not None and not first_problem:
-                first_problem = f"step {steps}: {problem}"
-            pose.add(est.pose_cov)
-            landmarks.add(est.landmark_covs)
-            if full_state is not None:
-                full.add(full_state()[1])
-            rss_steps.append(steps)
-            rss_values.append(rss_mb())
+        record.step(info, obs)
+        if record.steps % sample_every == 0 or terminated or truncated:
+            record.sample(base.last_estimate, full_state)
             if bar is not None:
-                bar.update(steps - bar.n)
+                bar.update(record.steps - bar.n)
     wall = time.perf_counter() - tic
     if bar is not None:
-        bar.update(steps - bar.n)
+        bar.update(record.steps - bar.n)
         bar.close()
     rss_end = rss_mb()
     env.close()
-
-    # Growth is fitted after a warm-up (the first 10% of the flight, at least one lap), during
-    # which the map fills and buffers grow to their final size.
-    steps_arr = np.array(rss_steps, dtype=float)
-    rss_arr = np.array(rss_values)
-    warm = steps_arr >= max(0.1 * steps, 3000.0)
-    growth_kb = math.nan
-    rss_warm = math.nan
-    if warm.sum() >= 3:
-        slope = np.polyfit(steps_arr[warm], rss_arr[warm], 1)[0]
-        growth_kb = float(slope * 1000.0 * 1024.0)
-        rss_warm = float(rss_arr[warm][0])
-    reason = str(info.get("termination_reason", "")) if terminated else ""
+    steps = record.steps
     params = base.scenario.estimator.params
-    report: dict[str, Any] = {
+    return {
         "estimator": estimator,
         "scenario": scenario,
         "overrides": overrides,
@@ -257,29 +213,14 @@ def run_soak(
         "wall_time_s": wall,
         "steps_per_s": steps / wall if wall > 0 else None,
         "terminated": bool(terminated),
-        "termination_reason": reason,
+        "termination_reason": str(info.get("termination_reason", "")) if terminated else "",
         "truncated": bool(truncated),
-        "non_finite_steps": non_finite_steps,
-        "any_non_finite": non_finite_steps > 0,
-        "health_problem": first_problem,
-        "rss_start_mb": rss_start,
-        "rss_after_warmup_mb": json_float(rss_warm),
-        "rss_end_mb": rss_end,
-        # ru_maxrss is updated lazily by the kernel: never report a peak below a sample.
-        "rss_peak_mb": max(peak_rss_mb(), rss_end, *rss_values),
-        "rss_growth_kb_per_1000_steps": json_float(growth_kb),
-        "pose_cov": pose.as_dict(),
-        "landmark_covs": landmarks.as_dict(),
-        "full_cov": full.as_dict() if full.samples else None,
+        **record.report(rss_end),
         "final_est_pos_err_m": json_float(info["est_pos_err_m"]),
         "final_est_att_err_deg": json_float(info["est_att_err_deg"]),
         "final_track_pos_err_m": json_float(info["track_pos_err_m"]),
         "final_map_rmse_m": json_float(info.get("est_map_rmse_m", math.nan)),
         "final_n_mapped": json_float(info["est_n_mapped"]),
-        "max_est_pos_err_m": max_pos_err,
-        "max_est_att_err_deg": max_att_err,
-        "rms_est_pos_err_m": math.sqrt(sq_pos / max(steps, 1)),
-        "rms_est_att_err_deg": math.sqrt(sq_att / max(steps, 1)),
         "sample_every": sample_every,
         "machine": {
             "python": platform.python_version(),
@@ -289,7 +230,77 @@ def run_soak(
             "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
         },
     }
-    return report
+
+
+class _SoakRecord:
+    """What a soak flight accumulates: errors every step; covariance health and RSS samples."""
+
+    def __init__(self) -> None:
+        self.steps = 0
+        self.pose, self.landmarks, self.full = _Extremes(), _Extremes(), _Extremes()
+        self.rss_start = math.nan
+        self.rss_steps: list[int] = []
+        self.rss_values: list[float] = []
+        self.non_finite_steps = 0
+        self.first_problem = ""
+        self.max_pos_err = self.max_att_err = 0.0
+        self.sq_pos = self.sq_att = 0.0
+
+    def step(self, info: dict[str, Any], obs: np.ndarray) -> None:
+        """One step's estimation errors (and whether anything was non-finite)."""
+        self.steps += 1
+        pos_err, att_err = info["est_pos_err_m"], info["est_att_err_deg"]
+        if not (math.isfinite(pos_err) and math.isfinite(att_err) and np.isfinite(obs).all()):
+            self.non_finite_steps += 1
+        self.max_pos_err = max(self.max_pos_err, pos_err)
+        self.max_att_err = max(self.max_att_err, att_err)
+        self.sq_pos += pos_err * pos_err
+        self.sq_att += att_err * att_err
+
+    def sample(self, est: Any, full_state: Any) -> None:
+        """The health of the estimate's covariances and the process's RSS, now."""
+        from quadslam_env.estimation.health import health_problem
+
+        problem = health_problem(est)
+        if problem is not None and not self.first_problem:
+            self.first_problem = f"step {self.steps}: {problem}"
+        self.pose.add(est.pose_cov)
+        self.landmarks.add(est.landmark_covs)
+        if full_state is not None:
+            self.full.add(full_state()[1])
+        self.rss_steps.append(self.steps)
+        self.rss_values.append(rss_mb())
+
+    def report(self, rss_end: float) -> dict[str, Any]:
+        """The health, memory and error entries of the soak report."""
+        # Growth is fitted after a warm-up (the first 10% of the flight, at least one lap),
+        # during which the map fills and buffers grow to their final size.
+        steps_arr = np.array(self.rss_steps, dtype=float)
+        rss_arr = np.array(self.rss_values)
+        warm = steps_arr >= max(0.1 * self.steps, 3000.0)
+        growth_kb = rss_warm = math.nan
+        if warm.sum() >= 3:
+            growth_kb = float(np.polyfit(steps_arr[warm], rss_arr[warm], 1)[0] * 1000.0 * 1024.0)
+            rss_warm = float(rss_arr[warm][0])
+        n = max(self.steps, 1)
+        return {
+            "non_finite_steps": self.non_finite_steps,
+            "any_non_finite": self.non_finite_steps > 0,
+            "health_problem": self.first_problem,
+            "rss_start_mb": self.rss_start,
+            "rss_after_warmup_mb": json_float(rss_warm),
+            "rss_end_mb": rss_end,
+            # ru_maxrss is updated lazily by the kernel: never report a peak below a sample.
+            "rss_peak_mb": max(peak_rss_mb(), rss_end, *self.rss_values),
+            "rss_growth_kb_per_1000_steps": json_float(growth_kb),
+            "pose_cov": self.pose.as_dict(),
+            "landmark_covs": self.landmarks.as_dict(),
+            "full_cov": self.full.as_dict() if self.full.samples else None,
+            "max_est_pos_err_m": self.max_pos_err,
+            "max_est_att_err_deg": self.max_att_err,
+            "rms_est_pos_err_m": math.sqrt(self.sq_pos / n),
+            "rms_est_att_err_deg": math.sqrt(self.sq_att / n),
+        }
 
 
 def format_report(rep: dict[str, Any]) -> str:
