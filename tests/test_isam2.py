@@ -10,6 +10,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import fly_dflqr
 
 import estimators
 import quadslam_env  # noqa: F401  (registers the env ids)
@@ -236,16 +237,8 @@ def _make(params: dict[str, Any] | None = None, duration: float = 5.0, **kw: Any
 
 
 def _fly(env: gym.Env, seed: int, steps: int | None = None) -> list[dict[str, Any]]:
-    policy = DFLQRPolicy.from_env(env)
-    obs, _ = env.reset(seed=seed)
-    infos: list[dict[str, Any]] = []
-    done = False
-    while not done and (steps is None or len(infos) < steps):
-        obs, reward, terminated, truncated, info = env.step(policy.predict(obs)[0])
-        assert np.isfinite(obs).all() and np.isfinite(reward)
-        infos.append(info)
-        done = terminated or truncated
-        assert not terminated, info["termination_reason"]
+    infos, terminated = fly_dflqr(env, seed, steps)
+    assert not terminated, infos[-1]["termination_reason"]
     return infos
 
 

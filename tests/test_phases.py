@@ -8,6 +8,7 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import fly_dflqr
 from scipy.stats import chi2
 
 import quadslam_env  # noqa: F401
@@ -20,15 +21,8 @@ from quadslam_env.types import GRAVITY
 
 def _fly(env: gym.Env, seed: int) -> tuple[list[dict], dict]:
     """DF-LQR for one episode: the per-step infos and the last one."""
-    policy = DFLQRPolicy.from_env(env)
-    obs, _ = env.reset(seed=seed)
-    steps = []
-    while True:
-        action, _ = policy.predict(obs)
-        obs, _, terminated, truncated, info = env.step(action)
-        steps.append(info)
-        if terminated or truncated:
-            return steps, info
+    steps, _ = fly_dflqr(env, seed)
+    return steps, steps[-1]
 
 
 def _rms(values: np.ndarray) -> float:

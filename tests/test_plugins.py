@@ -10,6 +10,7 @@ from types import ModuleType
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import fly_dflqr
 
 import estimators
 import quadslam_env  # noqa: F401  (registers the env ids)
@@ -38,14 +39,8 @@ def _load_example(name: str = "complementary_filter") -> ModuleType:
 
 
 def _fly(env: gym.Env, steps: int) -> list[dict]:
-    policy = DFLQRPolicy.from_env(env)
-    obs, _ = env.reset(seed=3)
-    infos = []
-    for _ in range(steps):
-        obs, reward, terminated, truncated, info = env.step(policy.predict(obs)[0])
-        assert not (terminated or truncated), info.get("termination_reason")
-        assert np.isfinite(obs).all() and np.isfinite(reward)
-        infos.append(info)
+    infos, _ = fly_dflqr(env, 3, steps)
+    assert len(infos) == steps, infos[-1].get("termination_reason")  # no early end
     return infos
 
 

@@ -8,9 +8,9 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import fly_dflqr
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.control.dflqr import DFLQRPolicy
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.models.params import vehicle_preset
 from quadslam_env.models.rotors import (
@@ -151,17 +151,9 @@ def test_rotor_settings_on_a_vehicle_without_rotors() -> None:
 
 
 def _fly(env: gym.Env, seed: int) -> np.ndarray:
-    policy = DFLQRPolicy.from_env(env)
-    obs, _ = env.reset(seed=seed)
-    errors = []
-    while True:
-        action, _ = policy.predict(obs)
-        obs, _, terminated, truncated, info = env.step(action)
-        errors.append(info["track_pos_err_m"])
-        if terminated or truncated:
-            break
+    infos, terminated = fly_dflqr(env, seed)
     assert not terminated
-    return np.array(errors)
+    return np.array([info["track_pos_err_m"] for info in infos])
 
 
 def test_dflqr_hovers_the_crazyflie_through_the_inverse_mixer() -> None:
