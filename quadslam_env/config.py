@@ -2,9 +2,9 @@
 
 A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the sections ``vehicle``,
 ``imu``, ``lidar``, ``landmarks``, ``trajectory``, ``estimator``, ``reward``, ``observation``,
-``action``, ``episode``, ``render`` and ``wind``. Per-call overrides (``gymnasium.make(id,
-episode={...})``) are merged into it key by key. Sections with a ``preset`` key start from that
-preset's values; keys given explicitly win over the preset.
+``action``, ``episode``, ``render``, ``wind`` and ``randomize``. Per-call overrides
+(``gymnasium.make(id, episode={...})``) are merged into it key by key. Sections with a
+``preset`` key start from that preset's values; keys given explicitly win over the preset.
 
 Every unknown key, wrong type or out-of-range value raises :class:`ConfigError` (a
 ``ValueError``) whose message names the dotted key, the bad value and what is allowed.
@@ -33,6 +33,7 @@ from quadslam_env.config_hardware import (
     VehicleConfig,
     check_rotor_action,
 )
+from quadslam_env.config_randomize import RandomizeConfig
 from quadslam_env.config_schema import ConfigError, FieldRow, Section, field_rows
 from quadslam_env.config_schema import spec as _spec
 from quadslam_env.config_world import LandmarksConfig, TrajectoryConfig, WindConfig
@@ -48,6 +49,7 @@ __all__ = [
     "LandmarksConfig",
     "LidarConfig",
     "ObservationConfig",
+    "RandomizeConfig",
     "RewardConfig",
     "ScenarioConfig",
     "TrajectoryConfig",
@@ -168,6 +170,7 @@ SECTIONS: dict[str, type[Section]] = {
     "episode": EpisodeConfig,
     "render": RenderConfig,
     "wind": WindConfig,
+    "randomize": RandomizeConfig,
 }
 
 
@@ -192,6 +195,7 @@ class ScenarioConfig:
     episode: EpisodeConfig
     render: RenderConfig
     wind: WindConfig
+    randomize: RandomizeConfig
     description: str = ""
 
     @property
@@ -264,6 +268,7 @@ class ScenarioConfig:
         check_heading(scenario)
         check_rotor_action(scenario.action.mode, scenario.vehicle)
         scenario.wind.check_drag(scenario.vehicle.drag_per_s, scenario.vehicle.drag_quadratic_per_m)
+        scenario.randomize.check_feasible(scenario.vehicle.params())
         return scenario
 
     def to_dict(self) -> dict[str, Any]:

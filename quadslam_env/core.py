@@ -10,7 +10,9 @@ Randomness: each lane has its own generator (the scalar env's ``np_random``), wh
 children at every reset — landmarks, IMU, LiDAR, estimator, initial estimation error — exactly
 as the scalar env always has. The wind (:mod:`quadslam_env.wind`: held over each step, reported
 in ``info``, advanced after the step; the estimators are not told) spawns its gusts' generator
-from the world child, so no other stream changes when it is on.
+from the world child, and domain randomisation (:mod:`quadslam_env.randomize`, the truth's
+parameters scaled per lane and episode) its generator from the initial-error child, so no
+other stream changes when either is on.
 
 IMU rate (``imu.rate_hz``, docs/env.md "IMU rate"): each IMU sample is the average of its
 inputs over its own period, and each prediction gets the input's white-noise std per step h,
@@ -50,6 +52,7 @@ from quadslam_env.metrics import (
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.observation import ObservationBuilder
+from quadslam_env.randomize import Randomizer
 from quadslam_env.reward import REWARD_KEYS, Reward, tracking_errors
 from quadslam_env.sensors import ImuBatch, LidarBatch
 from quadslam_env.termination import Termination
@@ -103,6 +106,7 @@ class SimCore:
         self.vehicle = VehicleBatch(self.vehicle_params, cfg.vehicle.physics_dt_s, b)
         self.wind = WindBatch(cfg.wind, self.dt, b)
         self.vehicle.wind_n = self.wind.velocity  # None in still air
+        self.randomizer = Randomizer(cfg.randomize, self.vehicle_params, b)
         self.imu = ImuBatch(cfg.imu, self.vehicle_params, cfg.imu_rate_hz, b)
         self._imu_per_step, self._steps_per_imu = cfg.imu_per_step, cfg.steps_per_imu
         prop_hz = max(cfg.imu_rate_hz, cfg.episode.control_hz)  # 1/h, the prediction rate
@@ -158,14 +162,15 @@ class SimCore:
         self,
         lanes: Sequence[int] | np.ndarray,
         rngs: Sequence[np.random.Generator],
-        options: dict[str, FloatArray] | None = None,
+        options: dict[str, Any] | None = None,
     ) -> tuple[np.ndarray, dict[str, FloatArray]]:
         """Start new episodes in ``lanes`` (k,).
 
         Args:
             lanes: Lane indices.
             rngs: Each lane's generator (k,); five children are spawned from it.
-            options: Parsed options (:func:`parse_reset_options`) applied to every lane.
+            options: Parsed options (:func:`parse_reset_options`) applied to every lane
+                (``randomized``: scales pinned, :mod:`quadslam_env.randomize`).
 
         Returns:
             ``(obs (k, n) float32, info)`` with info values (k,) (NaN where a term does not
@@ -175,6 +180,7 @@ class SimCore:
         opts = options or {}
         lanes = np.asarray(lanes, dtype=np.int64)
         k = lanes.shape[0]
+        self.randomizer.check_pins(opts.get("randomized"))
         replay = self._replay
         if replay is not None and replay.output is not self.estimator:  # a user swapped it
             replay = self._replay = self._new_replay()
@@ -199,13 +205,16 @@ class SimCore:
             if cfg.estimator.sample_initial_error:
                 mean0[j] += sigma0 * rng_init.standard_normal(STATE_DIM)
         mean0[:, 6:9] = wrap_angle(mean0[:, 6:9])
+        rand = self.randomizer
+        rand.begin(lanes, [c[4] for c in children], opts.get("randomized"), self.vehicle)
         self.vehicle.reset(lanes, states0)
         self.wind.reset(lanes, [c[0] for c in children])
         self.imu.reset(lanes, [c[1] for c in children])
+        self.lidar.reset(lanes, [c[2] for c in children])
+        rand.finish(self.imu, self.lidar, self.wind)
         if self._steps_per_imu > 1:  # a slower IMU's first sample, held until the next
             vel = self.vehicle.air_velocity()[lanes]
             self.imu.prime(lanes, vel, states0[:, 9:12], self.vehicle.applied_thrust[lanes])
-        self.lidar.reset(lanes, [c[2] for c in children])
         known = None
         if cfg.estimator.known_map:
             known = [
@@ -477,6 +486,7 @@ class SimCore:
         for key, row in _CORE_ROWS:
             info[key] = values[row]
         info.update(self.wind.info())
+        info.update(self.randomizer.info())
         if self.unlabeled:
             info["spurious_landmarks"] = self._spurious.copy()
             counts = self._assoc_counts

@@ -208,7 +208,8 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start an episode; options: ``initial_state`` (12,), ``landmarks`` (L, 3).
+        """Start an episode; options: ``initial_state`` (12,), ``landmarks`` (L, 3),
+        ``randomized`` (domain-randomisation scales to pin, e.g. ``{"mass_scale": 1.2}``).
 
         Raises:
             ConfigError: ``seed`` is not ``None`` or an integer >= 0 (NumPy integers are

@@ -98,10 +98,34 @@ class ImuBatch:
         self.gyro_range = math.inf if cfg.gyro_range_dps is None else cfg.gyro_range_dps * DEG
         # The sample kernel's constants: mass, drag, σ_a, σ_ω, decay, drift driving scale,
         # accelerometer and gyro ranges, quadratic drag (3).
-        self._coeffs = np.array(
+        # One row per lane (domain randomisation scales a lane's mass and noise: set_scales).
+        self._nominal = np.array(
             [vehicle.mass, vehicle.drag, self.accel_sigma, self.gyro_sigma, self._decay,
              self._drift_scale, self.accel_range, self.gyro_range, *vehicle.drag_quadratic]
         )  # fmt: skip
+        self._coeffs = np.tile(self._nominal, (self.num_lanes, 1))
+        self._lane_drift_sigma = np.tile(self._drift_sigma, (self.num_lanes, 1))
+
+    def set_scales(
+        self, lanes: ArrayLike, mass: ArrayLike, bias: ArrayLike, noise: ArrayLike
+    ) -> None:
+        """Scale the IMU of ``lanes`` (k,) for the episode that :meth:`reset` just started.
+
+        Args:
+            lanes: (k,) lane indices (already reset: their drawn biases are scaled here).
+            mass: (k,) scale of the vehicle's mass (the specific force the IMU senses).
+            bias: (k,) scale of the constant bias and of the drift (its std and its state).
+            noise: (k,) scale of the white-noise std of both sensors.
+        """
+        idx = _lanes(lanes)
+        ms, bs = np.asarray(mass, dtype=float), np.asarray(bias, dtype=float)
+        ns = np.asarray(noise, dtype=float)
+        self._coeffs[idx, 0] = self._nominal[0] * ms
+        self._coeffs[idx, 2] = self._nominal[2] * ns
+        self._coeffs[idx, 3] = self._nominal[3] * ns
+        self.bias0[idx] *= bs[:, None]
+        self.drift[idx] *= bs[:, None]
+        self._lane_drift_sigma[idx] = self._drift_sigma * bs[:, None]
 
     def reset(self, lanes: ArrayLike, rngs: Sequence[np.random.Generator]) -> None:
         """Draw each lane's constant bias signs (if random) and a stationary initial drift.
@@ -173,7 +197,7 @@ class ImuBatch:
             np.ascontiguousarray(rates, dtype=float),
             np.ascontiguousarray(thrust, dtype=float),
             self._coeffs,
-            self._drift_sigma,
+            self._lane_drift_sigma,
             accel,
             gyro,
         )
@@ -253,19 +277,19 @@ def _sample_lanes(
 ) -> None:
     """One IMU sample of each lane in ``lanes`` (see :class:`ImuBatch`), in place.
 
-    ``coeffs`` = (mass kg, drag 1/s, σ_a, σ_ω, Gauss–Markov decay a, √(1 − a²), accelerometer
-    range m/s², gyro range rad/s, quadratic drag c_q (3) 1/m); ``noise[i, cursor[i]]`` holds
+    ``coeffs`` (B, 11) per lane = (mass kg, drag 1/s, σ_a, σ_ω, Gauss–Markov decay a,
+    √(1 − a²), accelerometer range m/s², gyro range rad/s, quadratic drag c_q (3) 1/m);
+    ``drift_sigma`` (B, 6) per lane the drift's stationary std; ``noise[i, cursor[i]]`` holds
     lane i's 12 normals for this sample (white noise, then the drift step). Each reading
     saturates at ±range (after noise and bias, as a real sensor's output does). ``vel_body``
     is relative to the air, so the drag the accelerometer senses is the one the body feels.
     """
-    mass, drag, sigma_a, sigma_g, decay, scale = (
-        coeffs[0], coeffs[1], coeffs[2], coeffs[3], coeffs[4], coeffs[5]
-    )  # fmt: skip
-    a_max, g_max = coeffs[6], coeffs[7]
-    cq = (coeffs[8], coeffs[9], coeffs[10])
-    quadratic = cq[0] != 0.0 or cq[1] != 0.0 or cq[2] != 0.0
     for i in lanes:
+        c = coeffs[i]
+        mass, drag, sigma_a, sigma_g, decay, scale = c[0], c[1], c[2], c[3], c[4], c[5]
+        a_max, g_max = c[6], c[7]
+        cq = (c[8], c[9], c[10])
+        quadratic = cq[0] != 0.0 or cq[1] != 0.0 or cq[2] != 0.0
         z = noise[i, cursor[i]]
         cursor[i] += 1
         ua, va, wa = vel_body[i, 0], vel_body[i, 1], vel_body[i, 2]
@@ -279,7 +303,7 @@ def _sample_lanes(
             accel[i, k] = min(max(a, -a_max), a_max)
             gyro[i, k] = min(max(g, -g_max), g_max)
         for k in range(6):
-            drift[i, k] = decay * drift[i, k] + scale * drift_sigma[k] * z[6 + k]
+            drift[i, k] = decay * drift[i, k] + scale * drift_sigma[i, k] * z[6 + k]
 
 
 class Imu:

@@ -9,9 +9,10 @@ from typing import Any
 import numpy as np
 
 from quadslam_env.config import ConfigError
+from quadslam_env.config_randomize import parse_pins
 from quadslam_env.types import STATE_DIM, FloatArray
 
-RESET_OPTIONS = ("initial_state", "landmarks")
+RESET_OPTIONS = ("initial_state", "landmarks", "randomized")
 RESET_MASK = "reset_mask"
 _SEED_ALLOWED = "None or an integer >= 0"
 
@@ -94,8 +95,9 @@ def split_reset_mask(
     return mask.copy(), rest or None
 
 
-def parse_reset_options(options: dict[str, Any] | None) -> dict[str, FloatArray]:
-    """Validate ``reset`` options: ``initial_state`` (12,), ``landmarks`` (L, 3).
+def parse_reset_options(options: dict[str, Any] | None) -> dict[str, Any]:
+    """Validate ``reset`` options: ``initial_state`` (12,), ``landmarks`` (L, 3), ``randomized``
+    (a mapping of domain-randomisation scales to pin, :func:`parse_pins`).
 
     Raises:
         ConfigError: Not a dict, an unknown key, or a value of the wrong shape or range.
@@ -106,10 +108,13 @@ def parse_reset_options(options: dict[str, Any] | None) -> dict[str, FloatArray]
         raise ConfigError(
             f"reset options: got {options!r}; allowed: a dict with keys {list(RESET_OPTIONS)}"
         )
-    out: dict[str, FloatArray] = {}
+    out: dict[str, Any] = {}
     for key, value in options.items():
         if key not in RESET_OPTIONS:
             raise ConfigError(f"reset options.{key}: unknown key; allowed: {list(RESET_OPTIONS)}")
+        if key == "randomized":
+            out[key] = parse_pins(value)
+            continue
         arr = _as_float_array(value)
         if key == "initial_state":
             if arr is None or arr.shape != (STATE_DIM,) or not np.all(np.isfinite(arr)):
@@ -132,7 +137,7 @@ def parse_reset_options(options: dict[str, Any] | None) -> dict[str, FloatArray]
                 f"reset options.landmarks: got {value!r}; allowed: a non-empty "
                 "(L, 3) list of finite NED positions in m"
             )
-        out[key] = arr  # type: ignore[assignment]
+        out[key] = arr
     return out
 
 

@@ -65,7 +65,8 @@ def _add_noise(
     true: FloatArray, mask: np.ndarray, noise: FloatArray, sigma: FloatArray, out: FloatArray
 ) -> None:
     """``out[mask]`` (k, Lmax, 3) = ``true[mask] + sigma · noise`` with the azimuth wrapped,
-    taking the rows of ``noise`` (Σ mask, 3) in lane-major, ascending-id order; other slots 0."""
+    taking the rows of ``noise`` (Σ mask, 3) in lane-major, ascending-id order; other slots 0.
+    ``sigma`` (k, 3) is each lane's noise std."""
     r = 0
     for j in range(mask.shape[0]):
         for m in range(mask.shape[1]):
@@ -73,7 +74,7 @@ def _add_noise(
                 out[j, m, 0] = out[j, m, 1] = out[j, m, 2] = 0.0
                 continue
             for i in range(3):
-                out[j, m, i] = true[j, m, i] + sigma[i] * noise[r, i]
+                out[j, m, i] = true[j, m, i] + sigma[j, i] * noise[r, i]
             out[j, m, 0] = wrap_pi(out[j, m, 0])
             r += 1
 
@@ -95,7 +96,9 @@ class LidarBatch:
     defaults draw exactly the first call, as before these settings existed.
 
     Attributes:
-        sigma: (3,) noise std (σ_α rad, σ_β rad, σ_δ m).
+        sigma: (3,) nominal noise std (σ_α rad, σ_β rad, σ_δ m), what the estimators are told.
+        lane_sigma: (B, 3) each lane's true noise std (the nominal one times the lane's
+            ``lidar_noise_scale`` under domain randomisation).
 
     Args:
         cfg: LiDAR settings.
@@ -108,6 +111,7 @@ class LidarBatch:
         self.sigma = np.array(
             [cfg.sigma_azimuth_deg * DEG, cfg.sigma_elevation_deg * DEG, cfg.sigma_range_m]
         )
+        self.lane_sigma = np.tile(self.sigma, (self.num_lanes, 1))
         self._az_max = cfg.azimuth_fov_deg * DEG
         self._el_max = cfg.elevation_fov_deg * DEG
         self._limits = np.array([self._az_max, self._el_max, cfg.range_min_m, cfg.range_max_m])
@@ -122,6 +126,11 @@ class LidarBatch:
         """Take the generators of ``lanes`` (k,) for their episodes (k generators)."""
         for lane, rng in zip(_lanes(lanes).tolist(), rngs, strict=True):
             self._rngs[lane] = rng
+
+    def set_scales(self, lanes: ArrayLike, noise: ArrayLike) -> None:
+        """Scale the noise std of ``lanes`` (k,) by ``noise`` (k,) (domain randomisation)."""
+        idx = _lanes(lanes)
+        self.lane_sigma[idx] = self.sigma * np.asarray(noise, dtype=float)[:, None]
 
     def _in_view(
         self,
@@ -148,7 +157,7 @@ class LidarBatch:
         draws = [rng.standard_normal((n, MEAS_DIM)) for rng, n in zip(gens, counts, strict=True)]
         noise = draws[0] if k == 1 else np.concatenate(draws)
         meas = np.empty((k, lmax, MEAS_DIM))
-        _add_noise(true, mask, noise, self.sigma, meas)
+        _add_noise(true, mask, noise, self.lane_sigma[idx], meas)
         return mask, meas, gens
 
     def _detected(self, rng: np.random.Generator, k: int) -> np.ndarray | None:

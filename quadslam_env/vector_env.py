@@ -160,8 +160,9 @@ class QuadSLAMVectorEnv(VectorEnv):
         Args:
             seed: ``None``, an integer >= 0 or a list of B entries, each ``None`` or an
                 integer >= 0 (NumPy integers are accepted, bools are not).
-            options: ``initial_state`` (12,), ``landmarks`` (L, 3) (applied to every lane
-                reset) and ``reset_mask`` (B,) bool, the lanes to reset (at least one).
+            options: ``initial_state`` (12,), ``landmarks`` (L, 3), ``randomized`` (scales
+                to pin) (applied to every lane reset) and ``reset_mask`` (B,) bool, the lanes
+                to reset (at least one).
 
         Returns:
             ``(obs (B, n) float32, info)``: info as in :meth:`step`, for the lanes reset.

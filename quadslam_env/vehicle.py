@@ -49,28 +49,82 @@ class VehicleBatch:
         self.state = np.zeros((self.num_lanes, STATE_DIM))
         self.applied_thrust = np.full(self.num_lanes, params.hover_thrust)
         self.applied_torque = np.zeros((self.num_lanes, 3))
-        # Writable contiguous copies: the kernel is compiled for one array type.
-        self._inertia = np.array(params.inertia)
-        self._inertia_inv = np.array(params.inertia_inv)
-        self._max_torque = np.array(params.max_torque)
-        self._all = np.ones(self.num_lanes, dtype=bool)
+        b = self.num_lanes
+        inertia, inertia_inv = np.array(params.inertia)[None], np.array(params.inertia_inv)[None]
+        body = pack_bodies(float(params.mass), float(params.drag), inertia, inertia_inv)
+        self._nominal_body = body[0].copy()
+        self._bodies = np.tile(self._nominal_body, (b, 1))  # (B, 20) per-lane bodies
+        self._hover_thrust = np.full(b, float(params.hover_thrust))
+        self._all = np.ones(b, dtype=bool)
         self.wind_n: FloatArray | None = None
         self._drag_quadratic = np.array(params.drag_quadratic)
         self._quadratic = bool(np.any(self._drag_quadratic != 0.0))
-        self._still_air = np.zeros((self.num_lanes, 3))
+        self._still_air = np.zeros((b, 3))
         self.rotor_speed: FloatArray | None = None
         rotors = params.rotors
         if rotors is not None:
-            self._hover_speed = rotors.hover_speed(params.hover_thrust)
-            self.rotor_speed = np.full((self.num_lanes, 4), self._hover_speed)
-            self._body = pack_bodies(
-                float(params.mass), float(params.drag), self._inertia[None], self._inertia_inv[None]
-            )[0]
+            self._hover_speed = np.full(b, rotors.hover_speed(params.hover_thrust))
+            self.rotor_speed = np.tile(self._hover_speed[:, None], (1, 4))
             self._mixer = np.array(rotors.mixer)
             self._mixer_inv = np.array(rotors.mixer_inv)
-            self._rotor_coeffs = np.array(
-                [rotors.k_f, rotors.thrust_min, rotors.thrust_max, rotors.motor_tau]
-            )
+            k_f, tau = rotors.k_f, rotors.motor_tau
+            coeffs = [k_f, rotors.thrust_min, rotors.thrust_max, tau, k_f]
+            self._nominal_coeffs = np.array(coeffs, dtype=float)
+            self._coeffs = np.tile(self._nominal_coeffs, (b, 1))  # (B, 5) per lane
+        else:
+            limits = [params.max_thrust, *params.max_torque, params.actuator_tau, 1.0]
+            self._nominal_coeffs = np.array(limits, dtype=float)
+            self._coeffs = np.tile(self._nominal_coeffs, (b, 1))  # (B, 6) per lane
+
+    @property
+    def lane_mass(self) -> FloatArray:
+        """(B,) true mass of each lane in kg (the nominal mass times its drawn scale)."""
+        return self._bodies[:, 0].copy()
+
+    @property
+    def lane_inertia(self) -> FloatArray:
+        """(B, 3, 3) true inertia of each lane in kg·m²."""
+        return self._bodies[:, 2:11].reshape(-1, 3, 3).copy()
+
+    def set_scales(
+        self,
+        lanes: ArrayLike,
+        mass: ArrayLike,
+        inertia: ArrayLike,
+        thrust: ArrayLike,
+        lag: ArrayLike,
+    ) -> None:
+        """Set the true parameters of ``lanes`` (k,) to the nominal ones times the scales.
+
+        Applies until the next call for those lanes (the simulator calls it at every reset
+        with domain randomisation, :mod:`quadslam_env.randomize`). Call before :meth:`reset`:
+        the actuators start at the lane's own hover thrust.
+
+        Args:
+            lanes: (k,) lane indices.
+            mass, inertia: (k,) scales of m and J (J⁻¹ scales by the inverse), > 0.
+            thrust: (k,) scale of the thrust and torque produced for a command (collective:
+                the gain on the saturated command; rotors: k_f and k_m), > 0.
+            lag: (k,) scale of the actuator or motor time constant, ≥ 0.
+        """
+        idx = np.asarray(lanes, dtype=int).reshape(-1)
+        ms, js = np.asarray(mass, dtype=float), np.asarray(inertia, dtype=float)
+        ts, ls = np.asarray(thrust, dtype=float), np.asarray(lag, dtype=float)
+        nominal = self._nominal_body
+        self._bodies[idx, 0] = nominal[0] * ms
+        self._bodies[idx, 2:11] = nominal[2:11] * js[:, None]
+        self._bodies[idx, 11:20] = nominal[11:20] / js[:, None]
+        self._hover_thrust[idx] = self.params.hover_thrust * ms
+        c = self._nominal_coeffs
+        if self.params.rotors is not None:
+            self._coeffs[idx, 3] = c[3] * ls
+            self._coeffs[idx, 4] = c[4] * ts
+            rotors = self.params.rotors
+            need = self._hover_thrust[idx] / ts  # the nominal-k_f thrust of the true hover
+            self._hover_speed[idx] = [rotors.hover_speed(float(f)) for f in need]
+        else:
+            self._coeffs[idx, 4] = c[4] * ls
+            self._coeffs[idx, 5] = c[5] * ts
 
     def reset(self, lanes: ArrayLike, states: ArrayLike) -> None:
         """Set the true states of ``lanes``; their actuators start at hover thrust, zero torque
@@ -82,10 +136,10 @@ class VehicleBatch:
         """
         idx = np.asarray(lanes, dtype=int).reshape(-1)
         self.state[idx] = np.asarray(states, dtype=float).reshape(idx.size, STATE_DIM)
-        self.applied_thrust[idx] = self.params.hover_thrust
+        self.applied_thrust[idx] = self._hover_thrust[idx]
         self.applied_torque[idx] = 0.0
         if self.rotor_speed is not None:
-            self.rotor_speed[idx] = self._hover_speed
+            self.rotor_speed[idx] = self._hover_speed[idx, None]
 
     def step(
         self,
@@ -107,7 +161,7 @@ class VehicleBatch:
             (B, 3) body rates averaged over the period (trapezoid over substeps), rad/s: what
             an integrating IMU reports for this sample; zero rows for inactive lanes.
         """
-        b, p = self.num_lanes, self.params
+        b = self.num_lanes
         mask = self._all if active is None else np.ascontiguousarray(active, dtype=bool)
         mean_rates = np.zeros((b, 3))
         wind = self._still_air if self.wind_n is None else self.wind_n
@@ -121,10 +175,10 @@ class VehicleBatch:
                 lane_array(thrust_cmd, b),
                 lane_array(torque_cmd, b, 3),
                 mask,
-                self._body,
+                self._bodies,
                 self._mixer,
                 self._mixer_inv,
-                self._rotor_coeffs,
+                self._coeffs,
                 float(duration),
                 self.physics_dt,
                 mean_rates,
@@ -140,13 +194,8 @@ class VehicleBatch:
             lane_array(thrust_cmd, b),
             lane_array(torque_cmd, b, 3),
             mask,
-            float(p.mass),
-            float(p.drag),
-            self._inertia,
-            self._inertia_inv,
-            float(p.max_thrust),
-            self._max_torque,
-            float(p.actuator_tau),
+            self._bodies,
+            self._coeffs,
             float(duration),
             self.physics_dt,
             mean_rates,

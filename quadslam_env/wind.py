@@ -69,6 +69,22 @@ class WindBatch:
         self._noise = np.zeros((b, self.BLOCK, GUST_STATES))
         self._cursor = np.full(b, self.BLOCK)
         self._lane_ids = np.arange(b)
+        self.scale: FloatArray | None = None  # (B,) per-lane scales, once set_scales is called
+
+    def set_scales(self, lanes: ArrayLike, scale: ArrayLike) -> None:
+        """Scale the whole wind (steady part and gust) of ``lanes`` (k,) by ``scale`` (k,) for
+        the episode :meth:`reset` just started (domain randomisation; no-op in still air)."""
+        if self.velocity is None:
+            return
+        idx = lane_indices(lanes)
+        if self.scale is None:
+            self.scale = np.ones(self.num_lanes)
+        s = np.asarray(scale, dtype=float)
+        self.scale[idx] = s
+        if self.turbulent:  # reset wrote steady + gust
+            self.velocity[idx] *= s[:, None]
+        else:
+            self.velocity[idx] = self.steady * s[:, None]
 
     def reset(self, lanes: ArrayLike, parents: Sequence[np.random.Generator]) -> None:
         """Start the ``lanes`` (k,) with a stationary gust.
@@ -105,6 +121,8 @@ class WindBatch:
             lanes, self._cursor, self._noise, self.state, f.phi, f.chol, self._out_map,
             self.steady, self.velocity,
         )  # fmt: skip
+        if self.scale is not None:
+            self.velocity[lanes] *= self.scale[lanes, None]
 
     def info(self) -> dict[str, FloatArray]:
         """The ``info`` terms :data:`WIND_KEYS` of the current wind, (B,) copies each; none in

@@ -16,6 +16,7 @@ import pytest
 from quadslam_env.config import ImuConfig, LidarConfig
 from quadslam_env.models import VEHICLE_PRESETS, VehicleParams, dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.integrators import RigidBodyLanes, vehicle_step_lanes
+from quadslam_env.models.rigid_body import pack_bodies
 from quadslam_env.sensors import Imu, ImuBatch, Lidar, LidarBatch
 from quadslam_env.types import GRAVITY
 from quadslam_env.vehicle import Vehicle, VehicleBatch
@@ -26,6 +27,12 @@ TUMBLER = replace(
     _HECTOR, name="custom", inertia=np.diag([0.02, 0.03, 0.05]) + 0.001 * (1 - np.eye(3)), drag=0.3
 )
 LAGGED = replace(_HECTOR, name="custom", actuator_tau=0.03)
+
+
+def _body(params):
+    """The (20,) packed rigid-body row of ``params``."""
+    j, j_inv = np.array(params.inertia)[None], np.array(params.inertia_inv)[None]
+    return pack_bodies(params.mass, params.drag, j, j_inv)[0]
 
 
 def _step_lanes(params, states, thrust_cmd, torque_cmd, active, duration, dt=0.002):
@@ -41,13 +48,8 @@ def _step_lanes(params, states, thrust_cmd, torque_cmd, active, duration, dt=0.0
         thrust_cmd,
         torque_cmd,
         active,
-        params.mass,
-        params.drag,
-        np.array(params.inertia),
-        np.array(params.inertia_inv),
-        params.max_thrust,
-        np.array(params.max_torque),
-        params.actuator_tau,
+        np.tile(_body(params), (b, 1)),
+        np.tile([params.max_thrust, *params.max_torque, params.actuator_tau, 1.0], (b, 1)),
         duration,
         dt,
         mean_rates,

@@ -37,13 +37,8 @@ def vehicle_step_lanes(
     thrust_cmd: FloatArray,
     torque_cmd: FloatArray,
     active: np.ndarray,
-    mass: float,
-    drag: float,
-    J: FloatArray,
-    J_inv: FloatArray,
-    max_thrust: float,
-    max_torque: FloatArray,
-    actuator_tau: float,
+    bodies: FloatArray,
+    actuators: FloatArray,
     duration: float,
     physics_dt: float,
     mean_rates_out: FloatArray,
@@ -53,11 +48,13 @@ def vehicle_step_lanes(
 ) -> None:
     """Advance every active vehicle lane by ``duration`` s (the simulator's physics step).
 
-    Per lane: saturate the command, then ``n = substep_count(duration, physics_dt)`` RK4
-    substeps with the input held (zero-order hold) or, with ``actuator_tau > 0``, following
-    the command through an exact first-order lag updated at the start of each substep; the
-    lane's wind is held over the period. Roll and yaw are wrapped to (-π, π] at the end.
-    Inactive lanes are not touched.
+    Per lane: saturate the command to the (nominal) limits and multiply it by the lane's
+    actuator gain (the thrust and torque the actuators produce for it), then
+    ``n = substep_count(duration, physics_dt)`` RK4 substeps with the input held (zero-order
+    hold) or, with ``actuator_tau > 0``, following the command through an exact first-order lag
+    updated at the start of each substep; the lane's wind is held over the period. Roll and
+    yaw are wrapped to (-π, π] at the end. Inactive lanes are not touched. Every parameter is
+    per lane (the nominal vehicle: the same row in every lane, gain 1).
 
     Args:
         states: (B, 12) true states, updated in place.
@@ -65,8 +62,10 @@ def vehicle_step_lanes(
         applied_torque: (B, 3) torque acting on the body in N·m, updated in place.
         thrust_cmd: (B,) commanded thrust in N. torque_cmd: (B, 3) commanded torque in N·m.
         active: (B,) bool, lanes to step.
-        mass: kg. drag: 1/s. J, J_inv: (3, 3) kg·m² and inverse.
-        max_thrust: N. max_torque: (3,) N·m. actuator_tau: s (0 = no lag).
+        bodies: (B, 20) rigid-body parameters per lane
+            (:func:`~quadslam_env.models.rigid_body.pack_bodies`: m kg, drag 1/s, J, J⁻¹).
+        actuators: (B, 6) per lane ``(max_thrust [N], max_torque (3) [N·m], actuator_tau [s]
+            (0 = no lag), gain [-])``.
         duration: Control period in s. physics_dt: Maximum RK4 substep in s.
         mean_rates_out: (B, 3) body rates averaged over the period (trapezoid over the
             substep end points), rad/s — what an integrating gyro reports; active rows only.
@@ -78,17 +77,19 @@ def vehicle_step_lanes(
     """
     n_sub = substep_count(duration, physics_dt)
     h = duration / n_sub
-    lag = actuator_tau > 0.0
-    keep = math.exp(-h / actuator_tau) if lag else 0.0
-    body = pack_bodies(mass, drag, J.reshape(1, 3, 3), J_inv.reshape(1, 3, 3))[0]
     u = np.zeros(INPUT_DIM)  # (f_T, τ, a = 0)
     work = np.empty((5, STATE_DIM))
     for i in range(states.shape[0]):
         if not active[i]:
             continue
-        x = states[i]
+        x, body, act = states[i], bodies[i], actuators[i]
+        actuator_tau, gain = act[4], act[5]
+        lag = actuator_tau > 0.0
+        keep = math.exp(-h / actuator_tau) if lag else 0.0
         cmd_tau = (torque_cmd[i, 0], torque_cmd[i, 1], torque_cmd[i, 2])
-        thrust, tau = saturate(thrust_cmd[i], cmd_tau, max_thrust, max_torque)
+        thrust, sat = saturate(thrust_cmd[i], cmd_tau, act[0], act[1:4])
+        thrust = gain * thrust
+        tau = (gain * sat[0], gain * sat[1], gain * sat[2])
         air = NO_AIR
         if aero:
             cq = drag_quadratic
@@ -127,7 +128,7 @@ def vehicle_step_rotor_lanes(
     thrust_cmd: FloatArray,
     torque_cmd: FloatArray,
     active: np.ndarray,
-    body: FloatArray,
+    bodies: FloatArray,
     mixer: FloatArray,
     mixer_inv: FloatArray,
     rotor_coeffs: FloatArray,
@@ -144,7 +145,9 @@ def vehicle_step_rotor_lanes(
     (:func:`~quadslam_env.models.rotors.allocate`) to rotor speed commands
     ``ω_cmd = √(T/k_f)``, held over the period; at the start of each of the n RK4 substeps the
     rotor speeds follow them through the exact motor lag and the wrench ``M k_f ω²`` is held
-    over the substep. No collective saturation: the rotor limits bound the wrench.
+    over the substep. No collective saturation: the rotor limits bound the wrench. The speed
+    commands use the nominal k_f (what the motor controller believes) and the wrench the
+    lane's true one (k_f and k_m scaled together, so the mixer is unchanged).
 
     Args:
         states: (B, 12) true states, updated in place.
@@ -153,23 +156,25 @@ def vehicle_step_rotor_lanes(
         applied_torque: (B, 3) torque of the rotors in N·m in B after the step.
         thrust_cmd: (B,) commanded thrust in N. torque_cmd: (B, 3) commanded torque in N·m.
         active: (B,) bool, lanes to step.
-        body: (20,) rigid-body parameters (:func:`~quadslam_env.models.rigid_body.pack_bodies`).
+        bodies: (B, 20) rigid-body parameters per lane
+            (:func:`~quadslam_env.models.rigid_body.pack_bodies`).
         mixer, mixer_inv: (4, 4) M and M⁻¹.
-        rotor_coeffs: ``(k_f [N/(rad/s)²], T_min [N], T_max [N], τ_m [s])``.
+        rotor_coeffs: (B, 5) per lane ``(k_f [N/(rad/s)²] nominal, T_min [N], T_max [N],
+            τ_m [s], k_f [N/(rad/s)²] true)``.
         duration, physics_dt, mean_rates_out, wind, drag_quadratic, aero: as in
             :func:`vehicle_step_lanes`.
     """
     n_sub = substep_count(duration, physics_dt)
     h = duration / n_sub
-    k_f, t_min, t_max, tau = rotor_coeffs[0], rotor_coeffs[1], rotor_coeffs[2], rotor_coeffs[3]
-    keep = math.exp(-h / tau) if tau > 0.0 else 0.0
     u = np.zeros(INPUT_DIM)
     work = np.empty((5, STATE_DIM))
     cmd = np.empty(4)
     for i in range(states.shape[0]):
         if not active[i]:
             continue
-        x = states[i]
+        x, body, c = states[i], bodies[i], rotor_coeffs[i]
+        k_f, t_min, t_max, tau, k_true = c[0], c[1], c[2], c[3], c[4]
+        keep = math.exp(-h / tau) if tau > 0.0 else 0.0
         w_cmd = (thrust_cmd[i], torque_cmd[i, 0], torque_cmd[i, 1], torque_cmd[i, 2])
         allocate(w_cmd, mixer_inv, t_min, t_max, cmd)
         for j in range(4):
@@ -182,7 +187,7 @@ def vehicle_step_rotor_lanes(
         speed = rotor_speed[i]
         for _ in range(n_sub):
             motor_lag(speed, cmd, keep)
-            u[0], u[1], u[2], u[3] = rotor_wrench(speed, mixer, k_f)
+            u[0], u[1], u[2], u[3] = rotor_wrench(speed, mixer, k_true)
             rk4_step(x, u, body, False, h, work, air, aero)
             p_sum += x[9]
             q_sum += x[10]

@@ -1,0 +1,162 @@
+"""The ``randomize`` section: per-episode domain randomisation of the physics and sensors.
+
+docs/env.md "Domain randomisation". Each setting is a range ``[lo, hi]`` of a multiplicative
+scale on a nominal parameter, drawn uniformly per lane and episode
+(:mod:`quadslam_env.randomize`); ``[1, 1]`` (every default) leaves the parameter nominal, and a
+section whose ranges are all ``[1, 1]`` is off (no draw at all).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from quadslam_env.config_schema import ConfigError, Section
+from quadslam_env.config_schema import spec as _spec
+from quadslam_env.models.params import VehicleParams
+from quadslam_env.types import GRAVITY
+
+SCALE_KEYS = (
+    "mass_scale",
+    "inertia_scale",
+    "thrust_scale",
+    "lag_scale",
+    "imu_bias_scale",
+    "imu_noise_scale",
+    "lidar_noise_scale",
+    "wind_scale",
+)
+"""The randomised scales, in draw order (one uniform each, always all of them)."""
+
+SCALE_MAX = 10.0
+"""Largest scale a range or a pinned value may reach."""
+
+
+def _range(doc: str) -> Any:
+    return _spec([1.0, 1.0], kind="vec", length=2, lo=0.0, hi=SCALE_MAX, doc=doc)
+
+
+@dataclass(frozen=True)
+class RandomizeConfig(Section):
+    """Per-episode scales of the true vehicle, sensors and wind (the estimators keep the
+    nominal model). Each ``*_scale`` is ``[lo, hi]``: a uniform draw on that interval
+    multiplies the nominal parameter; ``lo == hi`` fixes it."""
+
+    SECTION: ClassVar[str] = "randomize"
+    mass_scale: tuple[float, ...] = _range("range of the scale on the vehicle's mass")
+    inertia_scale: tuple[float, ...] = _range(
+        "range of the scale on the inertia matrix (all axes together)"
+    )
+    thrust_scale: tuple[float, ...] = _range(
+        "range of the scale on the actuators' effect: thrust and torque produced for a command "
+        "(collective models: max thrust and max torque; rotors: k_f and k_m together)"
+    )
+    lag_scale: tuple[float, ...] = _range(
+        "range of the scale on the actuator time constant (vehicle.actuator_tau_s or the "
+        "rotors' motor lag)"
+    )
+    imu_bias_scale: tuple[float, ...] = _range(
+        "range of the scale on the IMU's constant biases and drift std"
+    )
+    imu_noise_scale: tuple[float, ...] = _range(
+        "range of the scale on the IMU's white-noise std (accelerometer and gyro)"
+    )
+    lidar_noise_scale: tuple[float, ...] = _range(
+        "range of the scale on the LiDAR's noise std (all three channels)"
+    )
+    wind_scale: tuple[float, ...] = _range(
+        "range of the scale on the wind (steady part and gusts; no effect in still air)"
+    )
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any range differs from ``[1, 1]`` (otherwise nothing is drawn)."""
+        return any(getattr(self, key) != (1.0, 1.0) for key in SCALE_KEYS)
+
+    def validate(self) -> None:
+        """Inverted ranges and mass or inertia scales of 0 are errors.
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        for key in SCALE_KEYS:
+            lo, hi = getattr(self, key)
+            if lo > hi:
+                raise ConfigError(
+                    f"randomize.{key}: got {[lo, hi]}; allowed: [lo, hi] with 0 <= lo <= hi <= "
+                    f"{SCALE_MAX} (a range of scales, lower bound first)"
+                )
+        for key in ("mass_scale", "inertia_scale"):
+            if getattr(self, key)[0] <= 0.0:
+                raise ConfigError(
+                    f"randomize.{key}: got {list(getattr(self, key))}; allowed: [lo, hi] with "
+                    f"0 < lo <= hi <= {SCALE_MAX} (a body needs a mass and an inertia)"
+                )
+
+    def check_feasible(self, vehicle: VehicleParams) -> None:
+        """The worst corner of the ranges (least thrust, most mass) must still hover.
+
+        Raises:
+            ConfigError: ``thrust_scale`` lo × max thrust ≤ ``mass_scale`` hi × m g.
+        """
+        check_thrust_to_weight(vehicle, self.thrust_scale[0], self.mass_scale[1], "randomize")
+
+
+def check_thrust_to_weight(
+    vehicle: VehicleParams, thrust_scale: float, mass_scale: float, where: str
+) -> None:
+    """Thrust-to-weight ``thrust_scale f_max / (mass_scale m g)`` must exceed 1.
+
+    Args:
+        vehicle: The nominal vehicle. thrust_scale, mass_scale: The scales to check.
+        where: ``randomize`` (the ranges' worst corner) or the reset option's name.
+
+    Raises:
+        ConfigError: Naming both keys, the values and what is allowed.
+    """
+    ratio = thrust_scale * vehicle.max_thrust / (mass_scale * vehicle.mass * GRAVITY)
+    if not math.isfinite(ratio) or ratio <= 1.0:
+        need = mass_scale * vehicle.mass * GRAVITY / vehicle.max_thrust
+        raise ConfigError(
+            f"{where}.thrust_scale: got {thrust_scale} with {where}.mass_scale {mass_scale}: "
+            f"thrust-to-weight {ratio:.3f} (max thrust {vehicle.max_thrust:.3f} N, mass "
+            f"{vehicle.mass:.4f} kg); allowed: a thrust scale > {need:.4f} at that mass scale "
+            "(thrust-to-weight > 1, so the vehicle can hover)"
+        )
+
+
+def parse_pins(value: Any) -> dict[str, float]:
+    """Validate the reset option ``randomized``: a mapping of some :data:`SCALE_KEYS` to scales.
+
+    Returns:
+        ``{key: scale}`` as floats.
+
+    Raises:
+        ConfigError: Not a mapping, an unknown key, or a value that is not a finite number in
+            [0, 10] (mass and inertia scales > 0).
+    """
+    if not isinstance(value, dict):
+        raise ConfigError(
+            f"reset options.randomized: got {value!r}; allowed: a mapping of some of "
+            f"{list(SCALE_KEYS)} to scales"
+        )
+    out: dict[str, float] = {}
+    for key, v in value.items():
+        if key not in SCALE_KEYS:
+            raise ConfigError(
+                f"reset options.randomized.{key}: unknown key; allowed: {list(SCALE_KEYS)}"
+            )
+        positive = key in ("mass_scale", "inertia_scale")
+        ok = isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool)
+        num = float(v) if ok else math.nan
+        if not (math.isfinite(num) and (num > 0.0 if positive else num >= 0.0)) or num > SCALE_MAX:
+            low = "> 0" if positive else ">= 0"
+            raise ConfigError(
+                f"reset options.randomized.{key}: got {v!r}; allowed: a number {low} and "
+                f"<= {SCALE_MAX} (a scale on the nominal parameter)"
+            )
+        out[key] = num
+    return out

@@ -1,0 +1,133 @@
+"""Domain randomisation: per-lane, per-episode scales of the true vehicle, sensors and wind.
+
+docs/env.md "Domain randomisation". The ``randomize`` section
+(:class:`~quadslam_env.config_randomize.RandomizeConfig`) gives a range ``[lo, hi]`` per scale;
+at every reset of a lane (autoresets included) each scale of :data:`SCALE_KEYS` is drawn
+uniformly on its range, or pinned by ``reset(options={"randomized": {...}})``. The scales act on
+the truth only: the vehicle kernels, the IMU, the LiDAR and the wind take per-lane parameter
+arrays (the nominal case is the same kernels with the nominal rows). The estimators, the action
+map and the controllers keep the scenario's nominal parameters: the mismatch is the point.
+
+Random stream per lane (the contract with the single env): at each reset, with randomisation
+on, one generator is spawned from the lane's initial-error child (the fifth child the simulator
+spawns from the lane's generator, :class:`~quadslam_env.core.SimCore`; nothing else spawns from
+it, and spawning draws nothing from its stream, so the landmarks, the sensors' noise, the
+estimator and the initial error draw exactly what they draw without randomisation), and from it
+one ``random(8)``: the uniforms of :data:`SCALE_KEYS` in that order, all eight whatever the
+ranges. With every range ``[1, 1]`` (the default) nothing is spawned or drawn.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from quadslam_env.config_randomize import SCALE_KEYS, RandomizeConfig, check_thrust_to_weight
+from quadslam_env.imu import ImuBatch
+from quadslam_env.models.params import VehicleParams
+from quadslam_env.sensors import LidarBatch
+from quadslam_env.types import FloatArray
+from quadslam_env.vehicle import VehicleBatch
+from quadslam_env.wind import WindBatch
+
+RANDOMIZED_KEYS = tuple(f"rand_{key}" for key in SCALE_KEYS)
+"""``info`` terms of the episode's scales (where randomisation applies), in :data:`SCALE_KEYS`
+order: ``rand_mass_scale``, ``rand_inertia_scale``, …"""
+
+_COLUMN = {key: j for j, key in enumerate(SCALE_KEYS)}
+
+
+class Randomizer:
+    """The scales of B lanes and their draws (module docstring).
+
+    Args:
+        cfg: The ``randomize`` section.
+        vehicle: The nominal vehicle (for the thrust-to-weight check of pinned scales).
+        num_lanes: B.
+
+    Attributes:
+        values: (B, 8) each lane's current scales, columns :data:`SCALE_KEYS` (1 = nominal).
+        enabled: Whether the section draws (some range is not ``[1, 1]``).
+    """
+
+    def __init__(self, cfg: RandomizeConfig, vehicle: VehicleParams, num_lanes: int) -> None:
+        b = int(num_lanes)
+        self.cfg = cfg
+        self.vehicle = vehicle
+        self.enabled = cfg.enabled
+        self.values = np.ones((b, len(SCALE_KEYS)))
+        ranges = np.array([getattr(cfg, key) for key in SCALE_KEYS], dtype=float)
+        self._lo, self._span = ranges[:, 0], ranges[:, 1] - ranges[:, 0]
+        self._reported = np.zeros(b, dtype=bool)  # lanes whose episode was randomised or pinned
+        self._pending: np.ndarray | None = None
+
+    def check_pins(self, pins: Mapping[str, float] | None) -> None:
+        """Pinned scales must hover against the worst corner of the ranges left to draw.
+
+        Raises:
+            ConfigError: Thrust-to-weight ≤ 1 possible (names the option and the values).
+        """
+        if not pins or not ({"mass_scale", "thrust_scale"} & set(pins)):
+            return
+        thrust = pins.get("thrust_scale", self.cfg.thrust_scale[0])
+        mass = pins.get("mass_scale", self.cfg.mass_scale[1])
+        check_thrust_to_weight(self.vehicle, thrust, mass, "reset options.randomized")
+
+    def begin(
+        self,
+        lanes: np.ndarray,
+        parents: Sequence[np.random.Generator],
+        pins: Mapping[str, float] | None,
+        vehicle: VehicleBatch,
+    ) -> None:
+        """Draw (or pin) the scales of ``lanes`` (k,) and set the vehicle's; call before the
+        vehicle's reset (its actuators start at the lane's own hover).
+
+        Args:
+            lanes: (k,) lane indices.
+            parents: (k,) the lanes' initial-error children (module docstring).
+            pins: Scales fixed for every lane reset (``reset`` options), or ``None``.
+            vehicle: The true vehicles.
+        """
+        self._pending = None
+        if not (self.enabled or pins or (self.values[lanes] != 1.0).any()):
+            return  # nominal lanes stay nominal: nothing drawn, nothing set
+        k = lanes.shape[0]
+        out = np.ones((k, len(SCALE_KEYS)))
+        if self.enabled:
+            for j, parent in enumerate(parents):
+                out[j] = self._lo + self._span * parent.spawn(1)[0].random(len(SCALE_KEYS))
+        for key, value in (pins or {}).items():
+            out[:, _COLUMN[key]] = value
+        self.values[lanes] = out
+        self._reported[lanes] = self.enabled or bool(pins)
+        c = _COLUMN
+        vehicle.set_scales(
+            lanes, out[:, c["mass_scale"]], out[:, c["inertia_scale"]],
+            out[:, c["thrust_scale"]], out[:, c["lag_scale"]],
+        )  # fmt: skip
+        self._pending = lanes
+
+    def finish(self, imu: ImuBatch, lidar: LidarBatch, wind: WindBatch) -> None:
+        """Scale the sensors and the wind of the lanes of the last :meth:`begin`; call after
+        their resets (the IMU's drawn biases and the wind's first gust are scaled here)."""
+        lanes = self._pending
+        if lanes is None:
+            return
+        v, c = self.values[lanes], _COLUMN
+        imu.set_scales(
+            lanes, v[:, c["mass_scale"]], v[:, c["imu_bias_scale"]], v[:, c["imu_noise_scale"]]
+        )
+        lidar.set_scales(lanes, v[:, c["lidar_noise_scale"]])
+        wind.set_scales(lanes, v[:, c["wind_scale"]])
+        self._pending = None
+
+    def info(self) -> dict[str, FloatArray]:
+        """The ``info`` terms :data:`RANDOMIZED_KEYS`, (B,) copies each, NaN in lanes whose
+        episode is nominal; none when no lane is randomised."""
+        if not self._reported.any():
+            return {}
+        shown = np.where(self._reported[:, None], self.values, math.nan)
+        return {key: shown[:, j].copy() for j, key in enumerate(RANDOMIZED_KEYS)}
