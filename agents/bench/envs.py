@@ -26,6 +26,33 @@ VECTOR_SCENARIOS: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("oracle", "QuadSLAM-Oracle-v0", {}),
     ("ekf_known_map", "QuadSLAM-EKF-v0", {"scenario": "paper_ekf_figure8_known"}),
     ("ekf_unknown_map", "QuadSLAM-EKF-v0", {}),  # paper_ekf_figure8: 40 landmarks, 100/10 Hz
+    # The same figure-8 and map with everything the simulator adds on: four rotors on the paper
+    # vehicle (its 38.3 N of thrust at 1000 rad/s), drag, a steady wind with Dryden gusts, and
+    # mass, inertia, thrust, lag and sensor noise drawn per episode.
+    (
+        "ekf_rotors_wind_randomized",
+        "QuadSLAM-EKF-v0",
+        {
+            "scenario": "ekf_figure8_wind",
+            "vehicle": {
+                "rotor_layout": "x",
+                "rotor_arm_m": 0.225,
+                "rotor_k_f": 9.56e-6,
+                "rotor_k_m": 1.5e-7,
+                "rotor_motor_tau_s": 0.02,
+                "rotor_omega_min_rad_s": 0.0,
+                "rotor_omega_max_rad_s": 1000.0,
+            },
+            "randomize": {
+                "mass_scale": [0.9, 1.1],
+                "inertia_scale": [0.9, 1.1],
+                "thrust_scale": [0.95, 1.05],
+                "lag_scale": [0.8, 1.2],
+                "imu_noise_scale": [0.8, 1.2],
+                "lidar_noise_scale": [0.8, 1.2],
+            },
+        },
+    ),
 )
 
 
