@@ -238,7 +238,8 @@ def bench_workers(results: Results, plan: Plan) -> None:
     cases: list[tuple[str, str, dict[str, Any], tuple[str, ...] | None]] = [
         (*scenario, ()) for scenario in VECTOR_SCENARIOS
     ]
-    cases.append((*VECTOR_SCENARIOS[-1], None))
+    unknown_map = next(case for case in VECTOR_SCENARIOS if case[0] == "ekf_unknown_map")
+    cases.append((*unknown_map, None))
     for label, env_id, kwargs, info_keys in cases:
         probe = make_vector(env_id, 1, **kwargs)
         policy, dt, scenario = DFLQRPolicy.from_env(probe), probe.dt, probe.scenario.name
