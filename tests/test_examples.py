@@ -124,3 +124,20 @@ def test_readme_sb3_example_is_the_scripts_core() -> None:
     source = (EXAMPLES / "sb3_workers.py").read_text(encoding="utf-8")
     core = source.split("# --8<-- [start:train]\n", 1)[1].split("\n\n# --8<-- [end:train]", 1)[0]
     assert block.strip() == core.strip()
+
+
+def test_reward_figure_terms_sum_to_the_reward(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    spec = importlib.util.spec_from_file_location(
+        "reward_figure", ROOT / "tools" / "reward_figure.py"
+    )
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    terms = tool.episode_terms(seed=0, duration_s=0.5)
+    assert terms["t"].size == 50
+    total = sum(terms[term] for term in tool.TERMS)
+    assert total == pytest.approx(terms["reward"], abs=1e-9)
+    assert terms["pos"][0] == pytest.approx(-2.0, abs=0.05)  # starts 2 m below the figure-8
+    tool.plot(terms, tmp_path / "r.png")
+    assert (tmp_path / "r.png").stat().st_size > 0
