@@ -141,3 +141,16 @@ def test_reward_figure_terms_sum_to_the_reward(tmp_path: Path) -> None:
     assert terms["pos"][0] == pytest.approx(-2.0, abs=0.05)  # starts 2 m below the figure-8
     tool.plot(terms, tmp_path / "r.png")
     assert (tmp_path / "r.png").stat().st_size > 0
+
+
+def test_skrl_ppo_stores_one_transition_per_step_and_no_reset_step() -> None:
+    pytest.importorskip("skrl")
+    import torch
+
+    example = _load("skrl_ppo")
+    agent = example.train(40, num_envs=2, duration_s=0.2, rollouts=40)
+    memory = agent.memory
+    ended = memory.get_tensor_by_name("terminated") | memory.get_tensor_by_name("truncated")
+    # 0.2 s at 100 Hz = 20 steps: with same-step autoreset every lane's episodes end on the
+    # 20th and 40th stored transitions; a reset step stored as a transition would shift them.
+    assert torch.nonzero(ended[:, :, 0]).tolist() == [[19, 0], [19, 1], [39, 0], [39, 1]]
