@@ -1,0 +1,156 @@
+"""The examples run, with tiny budgets, and count what they claim to count.
+
+``examples/cleanrl_loop.py`` runs in this process; ``examples/sb3_workers.py`` starts worker
+processes, so it runs as a script (its ``if __name__ == "__main__":`` guard is the real one).
+The counts are checked against facts the examples do not compute: the episode length fixed by
+``episode.duration_s``, the scalar env flown lane by lane, the stagger's cut steps.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import gymnasium as gym
+import pytest
+
+import quadslam_env  # noqa: F401  (registers the ids)
+from agents.control.dflqr import DFLQRPolicy
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+
+
+def _load(name: str) -> ModuleType:
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def _scalar_episodes(
+    env_id: str, seed: int, steps: int, duration_s: float
+) -> list[tuple[float, int]]:
+    """(return, length) of the episodes the scalar env seeded ``seed`` ends within ``steps``."""
+    env = gym.make(env_id, episode={"duration_s": duration_s})
+    policy = DFLQRPolicy.from_env(env)
+    obs, _ = env.reset(seed=seed)
+    out, ret, length = [], 0.0, 0
+    for _ in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(policy.predict(obs)[0])
+        ret, length = ret + float(reward), length + 1
+        if terminated or truncated:
+            out.append((ret, length))
+            obs, _ = env.reset()
+            ret, length = 0.0, 0
+    env.close()
+    return out
+
+
+def test_cleanrl_same_step_loop_counts_every_episode_once() -> None:
+    example = _load("cleanrl_loop")
+    lanes, steps, duration_s, seed = 3, 250, 0.4, 7
+    episodes = example.rollout(
+        "QuadSLAM-EKF-v0", num_envs=lanes, steps=steps, duration_s=duration_s, seed=seed
+    )
+    # 0.4 s at 100 Hz: DF-LQR flies every episode to its time limit, 40 steps, so each lane
+    # ends on steps 40, 80, ..., 240: 6 episodes per lane, none of them doubled by the reset.
+    n_steps = round(duration_s * 100)
+    per_lane = steps // n_steps
+    assert len(episodes) == lanes * per_lane
+    for lane in range(lanes):
+        mine = [ep for ep in episodes if ep.lane == lane]
+        assert [ep.length for ep in mine] == [n_steps] * per_lane
+        assert [ep.reported_steps for ep in mine] == [n_steps] * per_lane
+        assert all(ep.reason == "" for ep in mine)
+        # Lane i is the scalar env seeded seed + i, through its resets.
+        scalar = _scalar_episodes("QuadSLAM-EKF-v0", seed + lane, steps, duration_s)
+        assert [ep.length for ep in mine] == [n for _, n in scalar]
+        assert [ep.ret for ep in mine] == pytest.approx([r for r, _ in scalar], rel=1e-9)
+
+
+def _readme_block(heading: str) -> str:
+    """The first ```python block after ``heading`` in the README."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    section = text.split(heading, 1)[1]
+    match = re.search(r"```python\n(.*?)```", section, re.S)
+    assert match is not None
+    return match.group(1)
+
+
+def test_sb3_with_two_workers_trains_with_lanes_ending_on_different_steps(
+    tmp_path: Path,
+) -> None:
+    lanes, n_steps, duration_s, timesteps = 4, 64, 0.5, 256
+    done = subprocess.run(
+        [
+            sys.executable,
+            str(EXAMPLES / "sb3_workers.py"),
+            f"--timesteps={timesteps}",
+            f"--lanes={lanes}",
+            f"--n-steps={n_steps}",
+            f"--duration={duration_s}",
+        ],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (tmp_path / "ppo_residual_ekf.zip").is_file()
+    # One rollout of 64 steps per lane. Episodes last 50 steps (0.5 s at 100 Hz) and the
+    # stagger cuts lane i's first one after ceil(50 (i + 1) / 4) = 13, 25, 38, 50 steps: lanes
+    # 0-1 (worker 0) and 2-3 (worker 1) end on different steps. Within 64 steps lane i ends
+    # 1 + (64 - cut_i) // 50 times (none of these short episodes is terminated early).
+    max_steps, per_lane = round(duration_s * 100), (timesteps // (lanes * n_steps)) * n_steps
+    cuts = [math.ceil(max_steps * (i + 1) / lanes) for i in range(lanes)]
+    expected = sum(1 + (per_lane - cut) // max_steps for cut in cuts)
+    assert expected == 5
+    assert done.stdout.strip().splitlines()[-1] == f"finished episodes: {expected}"
+
+
+def test_readme_sb3_example_is_the_scripts_core() -> None:
+    block = _readme_block("## stable-baselines3 on the vector env")
+    source = (EXAMPLES / "sb3_workers.py").read_text(encoding="utf-8")
+    core = source.split("# --8<-- [start:train]\n", 1)[1].split("\n\n# --8<-- [end:train]", 1)[0]
+    assert block.strip() == core.strip()
+
+
+def test_reward_figure_terms_sum_to_the_reward(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    spec = importlib.util.spec_from_file_location(
+        "reward_figure", ROOT / "tools" / "reward_figure.py"
+    )
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    terms = tool.episode_terms(seed=0, duration_s=0.5)
+    assert terms["t"].size == 50
+    total = sum(terms[term] for term in tool.TERMS)
+    assert total == pytest.approx(terms["reward"], abs=1e-9)
+    assert terms["pos"][0] == pytest.approx(-2.0, abs=0.05)  # starts 2 m below the figure-8
+    tool.plot(terms, tmp_path / "r.png")
+    assert (tmp_path / "r.png").stat().st_size > 0
+
+
+def test_skrl_ppo_stores_one_transition_per_step_and_no_reset_step() -> None:
+    pytest.importorskip("skrl")
+    import torch
+
+    example = _load("skrl_ppo")
+    agent = example.train(40, num_envs=2, duration_s=0.2, rollouts=40)
+    memory = agent.memory
+    ended = memory.get_tensor_by_name("terminated") | memory.get_tensor_by_name("truncated")
+    # 0.2 s at 100 Hz = 20 steps: with same-step autoreset every lane's episodes end on the
+    # 20th and 40th stored transitions; a reset step stored as a transition would shift them.
+    assert torch.nonzero(ended[:, :, 0]).tolist() == [[19, 0], [19, 1], [39, 0], [39, 1]]
