@@ -1,4 +1,4 @@
-"""Graceful degradation (issue 18, item 4): EKF-SLAM dead-reckons honestly with no landmark in
+"""Graceful degradation: EKF-SLAM dead-reckons honestly with no landmark in
 view and re-locks when they return, through the iterated update (estimators.ekf.correction)."""
 
 from __future__ import annotations
