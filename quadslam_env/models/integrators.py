@@ -14,11 +14,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from quadslam_env.models.frames import wrap_pi
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import (
     INPUT_DIM,
     NO_AIR,
+    AirTuple,
     pack_bodies,
     rigid_body_derivative,
     rk4_step,
@@ -27,6 +28,36 @@ from quadslam_env.models.rigid_body import (
 )
 from quadslam_env.models.rotors import allocate, motor_lag, rotor_wrench
 from quadslam_env.types import STATE_DIM, FloatArray
+
+
+@inline_kernel
+def _lane_air(wind: FloatArray, drag_quadratic: FloatArray, i: int, aero: bool) -> AirTuple:
+    """Lane ``i``'s air for :func:`~quadslam_env.models.rigid_body.rk4_step`: its wind (N,
+    m/s) and the quadratic drag coefficients, or still air without ``aero``."""
+    if not aero:
+        return NO_AIR
+    cq = drag_quadratic
+    return (wind[i, 0], wind[i, 1], wind[i, 2], cq[0], cq[1], cq[2])
+
+
+@inline_kernel
+def _end_period(
+    x: FloatArray,
+    p_sum: float,
+    q_sum: float,
+    r_sum: float,
+    n_sub: int,
+    mean_rates_out: FloatArray,
+    i: int,
+) -> None:
+    """End lane ``i``'s control period: roll and yaw wrapped to (-π, π] (long flights must not
+    accumulate unbounded angles) and the rates' trapezoid over the substep end points (the sums
+    hold half the first point and every later one) into ``mean_rates_out[i]``."""
+    x[6] = wrap_pi(x[6])
+    x[8] = wrap_pi(x[8])
+    mean_rates_out[i, 0] = (p_sum - 0.5 * x[9]) / n_sub
+    mean_rates_out[i, 1] = (q_sum - 0.5 * x[10]) / n_sub
+    mean_rates_out[i, 2] = (r_sum - 0.5 * x[11]) / n_sub
 
 
 @kernel
@@ -90,10 +121,7 @@ def vehicle_step_lanes(
         thrust, sat = saturate(thrust_cmd[i], cmd_tau, act[0], act[1:4])
         thrust = gain * thrust
         tau = (gain * sat[0], gain * sat[1], gain * sat[2])
-        air = NO_AIR
-        if aero:
-            cq = drag_quadratic
-            air = (wind[i, 0], wind[i, 1], wind[i, 2], cq[0], cq[1], cq[2])
+        air = _lane_air(wind, drag_quadratic, i, aero)
         # Trapezoid over the substep end points: half weight on the first and the last.
         p_sum, q_sum, r_sum = 0.5 * x[9], 0.5 * x[10], 0.5 * x[11]
         u[0], u[1], u[2], u[3] = thrust, tau[0], tau[1], tau[2]
@@ -111,12 +139,7 @@ def vehicle_step_lanes(
         if not lag:
             applied_thrust[i] = thrust
             applied_torque[i, 0], applied_torque[i, 1], applied_torque[i, 2] = tau
-        # Keep roll and yaw in (-π, π] so long flights don't accumulate unbounded angles.
-        x[6] = wrap_pi(x[6])
-        x[8] = wrap_pi(x[8])
-        mean_rates_out[i, 0] = (p_sum - 0.5 * x[9]) / n_sub
-        mean_rates_out[i, 1] = (q_sum - 0.5 * x[10]) / n_sub
-        mean_rates_out[i, 2] = (r_sum - 0.5 * x[11]) / n_sub
+        _end_period(x, p_sum, q_sum, r_sum, n_sub, mean_rates_out, i)
 
 
 @kernel
@@ -179,10 +202,7 @@ def vehicle_step_rotor_lanes(
         allocate(w_cmd, mixer_inv, t_min, t_max, cmd)
         for j in range(4):
             cmd[j] = math.sqrt(cmd[j] / k_f)
-        air = NO_AIR
-        if aero:
-            cq = drag_quadratic
-            air = (wind[i, 0], wind[i, 1], wind[i, 2], cq[0], cq[1], cq[2])
+        air = _lane_air(wind, drag_quadratic, i, aero)
         p_sum, q_sum, r_sum = 0.5 * x[9], 0.5 * x[10], 0.5 * x[11]
         speed = rotor_speed[i]
         for _ in range(n_sub):
@@ -194,11 +214,7 @@ def vehicle_step_rotor_lanes(
             r_sum += x[11]
         applied_thrust[i] = u[0]
         applied_torque[i, 0], applied_torque[i, 1], applied_torque[i, 2] = u[1], u[2], u[3]
-        x[6] = wrap_pi(x[6])
-        x[8] = wrap_pi(x[8])
-        mean_rates_out[i, 0] = (p_sum - 0.5 * x[9]) / n_sub
-        mean_rates_out[i, 1] = (q_sum - 0.5 * x[10]) / n_sub
-        mean_rates_out[i, 2] = (r_sum - 0.5 * x[11]) / n_sub
+        _end_period(x, p_sum, q_sum, r_sum, n_sub, mean_rates_out, i)
 
 
 @kernel
