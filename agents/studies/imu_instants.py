@@ -20,12 +20,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.control.dflqr import DFLQRPolicy
 from agents.io.overrides import parse_overrides
+from agents.studies.degradation import save_json, seeded_lanes
 
 
 def split_at_instants(
@@ -37,16 +36,7 @@ def split_at_instants(
         ``{"steps_per_imu", "at_imu" {...}, "between" {...}}`` with, per set, the median over
         seeds of the position RMSE (m) and attitude RMSE (deg), and the pooled pose ANEES.
     """
-    env = gym.make_vec(
-        "QuadSLAM-v0",
-        num_envs=len(seeds),
-        vectorization_mode="vector_entry_point",
-        scenario=scenario,
-        **overrides,
-    )
-    policy = DFLQRPolicy.from_env(env)
-    core: Any = env.unwrapped.core  # type: ignore[attr-defined]
-    obs, _ = env.reset(seed=list(seeds))  # type: ignore[arg-type]
+    env, policy, obs, core = seeded_lanes(scenario, seeds, overrides)
     pos, att, nees = [], [], []
     for _ in range(core.max_steps):
         obs, _, term, trunc, info = env.step(policy.predict(obs)[0])
@@ -77,7 +67,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="python -m agents.studies.imu_instants", description=__doc__
     )
     from agents.io.paths import check_output_file
-    from agents.studies.degradation import save_json
 
     parser.add_argument("--scenario", default="paper_ekf_figure8")
     parser.add_argument("--seeds", type=int, default=10)
