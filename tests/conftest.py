@@ -1,11 +1,15 @@
-"""Helpers shared by the test modules (imported as ``from conftest import ...``)."""
+"""Fixtures and helpers shared by the test modules (helpers imported as ``from conftest import
+...``)."""
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 from agents.control.dflqr import DFLQRPolicy
 
@@ -28,3 +32,12 @@ def fly_dflqr(
         assert np.isfinite(obs).all() and np.isfinite(reward)
         infos.append(info)
     return infos, bool(terminated)
+
+
+@pytest.fixture
+def temp_root(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
+    """The temporary folder (a failed write's last fallback) inside the test's folder."""
+    root = tmp_path / "tmp"
+    root.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(root))
+    return root

@@ -127,15 +127,6 @@ def failing_rename(monkeypatch: pytest.MonkeyPatch, folder: Path) -> None:
     monkeypatch.setattr(outputs.os, "replace", replace)
 
 
-@pytest.fixture
-def temp_root(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
-    """Point the temporary folder (the last fallback) into the test's folder."""
-    root = tmp_path / "tmp"
-    root.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(root))
-    return root
-
-
 def no_temp_files(folder: Path) -> bool:
     return not [p for p in folder.rglob(".*") if ".tmp-" in p.name or "probe" in p.name]
 

@@ -17,18 +17,6 @@ from test_chaos import full_disk
 
 import quadslam_env  # noqa: F401  (registers the ids)
 
-
-@pytest.fixture
-def temp_root(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
-    """The temporary folder (a failed write's last fallback) inside the test's folder."""
-    import tempfile
-
-    root = tmp_path / "tmp"
-    root.mkdir()
-    monkeypatch.setattr(tempfile, "tempdir", str(root))
-    return root
-
-
 # ------------------------------------------------------------ FastSLAM lanes that cannot fit
 
 
