@@ -1,6 +1,7 @@
 # Two entry points: `make demo` and `make test`. Both create .venv if missing and install the package
-# (with the `ray` extra, so the sweep tests run). `make test-rllib` runs the RLlib test in its own
-# venv, .venv-rllib: ray[rllib] pins gymnasium 1.2.2, and .venv keeps the newest gymnasium.
+# (with the `ray`, `gtsam` and `clients` extras, so the sweep, iSAM2 and client-library tests run).
+# `make test-rllib` runs the RLlib test in its own venv, .venv-rllib: ray[rllib] pins gymnasium
+# 1.2.2, and .venv keeps the newest gymnasium.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -22,7 +23,7 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python pyproject.toml constraints.txt
 	$(BIN)/pip install --quiet -c constraints.txt torch==2.13.0
-	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray,gtsam]"
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray,gtsam,clients]"
 	touch $(STAMP)
 
 install: $(STAMP)

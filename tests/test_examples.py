@@ -154,3 +154,34 @@ def test_skrl_ppo_stores_one_transition_per_step_and_no_reset_step() -> None:
     # 0.2 s at 100 Hz = 20 steps: with same-step autoreset every lane's episodes end on the
     # 20th and 40th stored transitions; a reset step stored as a transition would shift them.
     assert torch.nonzero(ended[:, :, 0]).tolist() == [[19, 0], [19, 1], [39, 0], [39, 1]]
+
+
+def test_tianshou_ppo_held_out_episodes_equal_the_scalar_env_flown_by_hand() -> None:
+    pytest.importorskip("tianshou")
+    import numpy as np
+    import torch
+
+    example = _load("tianshou_ppo")
+    duration_s, episodes, seed = 0.4, 3, 1000
+    algorithm, _ = example.train(256, num_envs=2, duration_s=duration_s, seed=0)
+    stats = example.evaluate(algorithm, episodes, duration_s, seed)
+    # tianshou seeds lane i by resetting it with seed + i, then resets it again before it
+    # collects: each held-out episode is the second of the scalar env seeded seed + i, flown
+    # with the actor's mean clipped to the action box [-1, 1].
+    expected = []
+    for lane in range(episodes):
+        env = gym.make("QuadSLAM-EKF-v0", episode={"duration_s": duration_s})
+        env.reset(seed=seed + lane)
+        obs, _ = env.reset()
+        ret, length, done = 0.0, 0, False
+        while not done:
+            with torch.no_grad():
+                (loc, _), _ = algorithm.policy.actor(obs[None].astype(np.float32))
+            action = np.clip(loc.numpy()[0], -1.0, 1.0)
+            obs, reward, terminated, truncated, _ = env.step(action)
+            ret, length, done = ret + float(reward), length + 1, terminated or truncated
+        expected.append((ret, length))
+        env.close()
+    got = sorted(zip(stats.returns.tolist(), stats.lens.tolist(), strict=True))
+    assert [n for _, n in got] == [n for _, n in sorted(expected)]
+    assert [r for r, _ in got] == pytest.approx([r for r, _ in sorted(expected)], rel=1e-5)

@@ -69,3 +69,18 @@ def test_ppo_one_iteration(local_ray, env_id, runners, vectorize):
     assert runners_res["episode_len_mean"] <= 100
     learner = result["learners"]["default_policy"]
     assert all(v == v for v in (learner["total_loss"], learner["policy_loss"]))  # not NaN
+
+
+def test_readme_rllib_block_trains_one_iteration(local_ray):
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    section = text.split("## Other RL libraries", 1)[1]
+    block = section.split("```python\n", 1)[1].split("```", 1)[0]
+    scope: dict[str, object] = {}
+    exec(compile(block, "README.md", "exec"), scope)  # the README's own code
+    result = scope["result"]
+    assert isinstance(result, dict)
+    assert result["training_iteration"] == 1
+    # 2 envs x 100-step fragments: 200 steps, and the 1 s episodes (100 steps) end within them.
+    runners = result["env_runners"]
+    assert runners["num_env_steps_sampled_lifetime"] >= 200
+    assert runners["episode_len_mean"] <= 100
