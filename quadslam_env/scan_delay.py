@@ -49,6 +49,11 @@ def copies_for(
         scenario: The validated scenario.
         estimator: The env's estimator right after construction or a swap.
         params: The nominal :class:`~quadslam_env.models.params.VehicleParams`.
+
+    Returns:
+        A :class:`ScanDelay` (``lidar.delay_steps`` > 0), an
+        :class:`~quadslam_env.imu_replay.ImuReplay` (``imu.rate_hz`` below the control rate)
+        or ``None``; the core steps either through its ``step``.
     """
     dt, m = 1.0 / scenario.episode.control_hz, scenario.imu_per_step
     if (delay := scenario.lidar.delay_steps) > 0:
