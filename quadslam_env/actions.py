@@ -158,3 +158,39 @@ class ActionMap:
             return np.ascontiguousarray(wrench[:, 0]), np.ascontiguousarray(wrench[:, 1:])
         rates_cmd = act[:, 1:] * self.max_rate  # thrust_rates: the same thrust, a rate loop
         return thrust, (self.rate_gain * (rates_cmd - rates_hat)) @ self.params.inertia.T
+
+
+class ActionDelay:
+    """Actions applied ``action.delay_steps`` = d control steps after the agent gives them
+    (docs/env.md "Latency"): each lane's last d actions in a ring, slot (own step) % d, so a
+    lane keeps its own phase after an autoreset.
+
+    A reset fills a lane's ring with the hover action (:attr:`ActionMap.hover_action`): the
+    command that holds the nominal vehicle still, which flight software sends before the
+    first command of its controller arrives (a zero action would be zero thrust: a drop).
+
+    Args:
+        delay_steps: d ≥ 1.
+        num_lanes: B.
+        hover: (dim,) the hover action.
+    """
+
+    def __init__(self, delay_steps: int, num_lanes: int, hover: FloatArray) -> None:
+        self.hover = np.asarray(hover, dtype=float)
+        self._ring = np.zeros((int(delay_steps), int(num_lanes), self.hover.shape[0]))
+
+    def reset(self, lanes: np.ndarray) -> None:
+        """Fill ``lanes`` (k,) with hover: the commands in flight belong to the old episode."""
+        self._ring[:, lanes] = self.hover
+
+    def apply(self, action: FloatArray, active: np.ndarray, steps: np.ndarray) -> FloatArray:
+        """The actions (B, dim) the ``active`` (B,) lanes apply this period (``steps`` (B,) their
+        steps since reset, before it): each the one given d of its steps ago; ``action``
+        (B, dim) takes its place. Rows of inactive lanes are ``action``'s."""
+        ring = self._ring
+        lanes = np.flatnonzero(active)
+        slots = steps[lanes] % ring.shape[0]
+        applied = action.copy()
+        applied[lanes] = ring[slots, lanes]
+        ring[slots, lanes] = action[lanes]
+        return applied

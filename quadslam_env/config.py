@@ -150,6 +150,13 @@ class ActionConfig(Section):
     max_heading_rate_dps: float = _spec(
         90.0, lo=0.0, lo_open=True, hi=3600.0, doc="heading: ψ̇_d at |a4| = 1, deg/s"
     )
+    delay_steps: int = _spec(
+        0,
+        kind="int",
+        lo=0,
+        doc="control steps between an action and its application (the hover action over "
+        "an episode's first steps; less than the episode's steps)",
+    )
 
     @property
     def dim(self) -> int:
@@ -265,6 +272,7 @@ class ScenarioConfig:
                 f"episode.control_hz = {scenario.episode.control_hz} (integer ratio >= 1)"
             )
         check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
+        check_delays(scenario)
         check_heading(scenario)
         check_rotor_action(scenario.action.mode, scenario.vehicle)
         scenario.wind.check_drag(scenario.vehicle.drag_per_s, scenario.vehicle.drag_quadratic_per_m)
@@ -299,6 +307,47 @@ def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
             f"imu.rate_hz: got {rate_hz}; allowed: null (= episode.control_hz), or a rate "
             f"that is an integer multiple or an integer fraction of episode.control_hz = "
             f"{control_hz} (e.g. {control_hz / 10:g} or {control_hz * 10:g})"
+        )
+
+
+def check_delays(scenario: ScenarioConfig) -> None:
+    """``action.delay_steps`` and ``lidar.delay_steps`` must be shorter than an episode, and
+    a delayed LiDAR needs an estimator the env can run twice from copies (docs/env.md
+    "Latency").
+
+    Raises:
+        ConfigError: Naming the key, the value and what is allowed.
+    """
+    steps = scenario.max_steps
+    for key, value in (
+        ("action.delay_steps", scenario.action.delay_steps),
+        ("lidar.delay_steps", scenario.lidar.delay_steps),
+    ):
+        if value >= steps:
+            raise ConfigError(
+                f"{key}: got {value}; allowed: an integer from 0 to {steps - 1} (an episode "
+                f"has episode.duration_s × episode.control_hz = {steps} steps)"
+            )
+    delay = scenario.lidar.delay_steps
+    if delay == 0:
+        return
+    if scenario.steps_per_imu > 1:
+        raise ConfigError(
+            f"lidar.delay_steps: got {delay} with imu.rate_hz = {scenario.imu.rate_hz} < "
+            f"episode.control_hz = {scenario.episode.control_hz}; allowed: lidar.delay_steps: "
+            "0 with an IMU slower than the control, or imu.rate_hz null or >= "
+            "episode.control_hz with a delayed LiDAR"
+        )
+    if scenario.lidar.association == "unknown":
+        raise ConfigError(
+            f"lidar.delay_steps: got {delay} with lidar.association = 'unknown'; allowed: 0 "
+            "with unlabeled returns, or lidar.association: known with a delayed LiDAR"
+        )
+    if scenario.estimator.name == "isam2":
+        raise ConfigError(
+            f"lidar.delay_steps: got {delay} with estimator.name = 'isam2', whose GTSAM "
+            "smoother cannot be copied (a delayed scan is applied to a copy of the estimator "
+            "at the scan's time); allowed: 0 with isam2, or another estimator"
         )
 
 

@@ -460,6 +460,14 @@ class LidarConfig(Section):
         doc="mean number of false returns per scan (Poisson), uniform over the FOV volume "
         "within range; needs association: unknown",
     )
+    delay_steps: int = _spec(
+        0,
+        kind="int",
+        lo=0,
+        doc="control steps between a scan's measurement and its arrival at the estimator, "
+        "which updates the belief of the scan's own time and re-propagates (less than the "
+        "episode's steps)",
+    )
 
     def validate(self) -> None:
         if self.range_max_m <= self.range_min_m:

@@ -21,6 +21,11 @@ and one prediction over dt per step. An IMU m times faster: the vehicle is integ
 sub-periods (command held), the IMU samples after each, and the estimator predicts m times over
 dt/m. An IMU m times slower: it samples every m-th step and the estimator runs as a filter at
 the IMU instants plus an output predicted at the control rate (:mod:`quadslam_env.imu_replay`).
+
+Latency (docs/env.md "Latency"): an action is applied ``action.delay_steps`` steps after the
+agent gives it (:class:`~quadslam_env.actions.ActionDelay`; the estimator is told the thrust and
+torque applied), and a scan reaches the estimator ``lidar.delay_steps`` steps after it is
+measured, which then updates the belief of the scan's time (:mod:`quadslam_env.scan_delay`).
 """
 
 from __future__ import annotations
@@ -34,11 +39,11 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.actions import ActionMap
+from quadslam_env.actions import ActionDelay, ActionMap
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
-from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
+from quadslam_env.imu_replay import ImuReplay
 from quadslam_env.measurements import ScanReturns
 from quadslam_env.metrics import (
     ASSOCIATION_KEYS,
@@ -52,8 +57,10 @@ from quadslam_env.metrics import (
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.observation import ObservationBuilder
+from quadslam_env.period_log import Sample, Scan, apply_scan, predict_samples
 from quadslam_env.randomize import Randomizer
 from quadslam_env.reward import REWARD_KEYS, Reward, tracking_errors
+from quadslam_env.scan_delay import copies_for
 from quadslam_env.sensors import ImuBatch, LidarBatch
 from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
@@ -125,11 +132,12 @@ class SimCore:
             cfg.estimator.name, b, capacity, vehicle=self.vehicle_params, **cfg.estimator.params
         )
         self._truth: BatchEstimator | None = None  # privileged observations, built on demand
-        # A slower IMU: the filter at IMU instants, replayed when a sample arrives.
-        self._replay: ImuReplay | None = None
-        if self._steps_per_imu > 1:
-            self._replay = self._new_replay()
+        # A second run of the estimator from copies: the filter at the IMU instants of a
+        # slower IMU, or at each lane's newest delivered scan of a delayed LiDAR.
+        self._copies = copies_for(cfg, self.estimator, self.vehicle_params)
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
+        delay = cfg.action.delay_steps  # a delayed action: the agent's last d in a ring
+        self._actions = ActionDelay(delay, b, self.action_map.hover_action) if delay else None
         # A free heading (action.heading): the reference's ψ_d and ψ̇_d are lane state, set by
         # the action's heading channel; None when the trajectory prescribes the heading.
         self._heading: tuple[FloatArray, FloatArray] | None = None
@@ -181,14 +189,14 @@ class SimCore:
         lanes = np.asarray(lanes, dtype=np.int64)
         k = lanes.shape[0]
         self.randomizer.check_pins(opts.get("randomized"))
-        replay = self._replay
-        if replay is not None and replay.output is not self.estimator:  # a user swapped it
-            replay = self._replay = self._new_replay()
+        copies = self._copies
+        if copies is not None and copies.output is not self.estimator:  # a user swapped it
+            copies = self._copies = copies_for(cfg, self.estimator, self.vehicle_params)
         reserve = getattr(self.estimator, "reserve_landmarks", None)
         if "landmarks" in opts and reserve is not None:
             reserve(len(opts["landmarks"]))  # a larger map must fit before anything changes
-            if replay is not None:
-                replay.reserve_landmarks(len(opts["landmarks"]))
+            if copies is not None:
+                copies.reserve_landmarks(len(opts["landmarks"]))
         children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
         states0 = np.empty((k, STATE_DIM))
         mean0 = np.empty((k, STATE_DIM))
@@ -223,9 +231,11 @@ class SimCore:
             ]
         cov0 = np.broadcast_to(self._cov0, (k, STATE_DIM, STATE_DIM)).copy()
         est_rngs = [c[3] for c in children]
-        if replay is not None:  # copies taken before the output's reset draws from them
-            replay.reset_lanes(lanes, mean0, cov0, copy.deepcopy(est_rngs), known)
+        if copies is not None:  # rng copies taken before the output's reset draws from them
+            copies.reset_lanes(lanes, mean0, cov0, copy.deepcopy(est_rngs), known)
         self.estimator.reset_lanes(lanes, mean0, cov0, est_rngs, known)
+        if self._actions is not None:
+            self._actions.reset(lanes)
         self.steps[lanes] = 0
         self.t[lanes] = 0.0
         if self.last_scan is not None:  # a reset lane's last scan belongs to its old episode
@@ -266,10 +276,11 @@ class SimCore:
         b = self.num_lanes
         act = action if active is None else np.where(active[:, None], action, 0.0)
         active = self._all_lanes if active is None else active
-        thrust, torque = self.action_map.inputs(act, self.est.rates)
+        applied = act if self._actions is None else self._actions.apply(act, active, self.steps)
+        thrust, torque = self.action_map.inputs(applied, self.est.rates)
         if self._heading is not None:  # the reference heading turns at the commanded rate
             heading, rate = self._heading
-            np.copyto(rate, self.action_map.heading_rate(act), where=active)
+            np.copyto(rate, self.action_map.heading_rate(applied), where=active)
             np.copyto(heading, wrap_angle(heading + rate * self.dt), where=active)
         vehicle = self.vehicle
         if self._imu_per_step == 1:
@@ -300,25 +311,23 @@ class SimCore:
             scan = (self.unlabeled, scanning, labels, meas)
         timed = self.scenario.episode.report_step_time
         tic = time.perf_counter() if timed else 0.0
-        sigma_a, sigma_g = self.imu_input_sigma
-        if self._replay is None:
+        copies = self._copies
+        if copies is None:
             h = self.dt / self._imu_per_step
-            for t_imu, accel, gyro, f_t, tau in samples:
-                self.estimator.predict(t_imu, accel, gyro, sigma_a, sigma_g, f_t, tau, h, active)
+            predict_samples(self.estimator, samples, self.imu_input_sigma, h, active)
             if scan is not None:
                 apply_scan(self.estimator, self.t, scan, self.lidar.sigma)
-        else:
-            _, accel, gyro, f_t, tau = samples[0]
-            self.estimator = self._replay.step(
-                self.estimator, self.steps, active, self.t, (accel, gyro),
-                self.imu_input_sigma, (f_t, tau), scan, self.lidar.sigma,
+        else:  # the filter copy run beside the output
+            self.estimator = copies.step(
+                self.estimator, self.steps, active, samples, self.imu_input_sigma, scan,
+                self.lidar.sigma,
             )  # fmt: skip
         est = self._snapshot()
         if self.unlabeled:
             rematch = np.zeros(b, dtype=bool)
             rematch[scanning] = True
-            if self._replay is not None:
-                rematch |= self._replay.last_due
+            if isinstance(copies, ImuReplay):
+                rematch |= copies.last_due
             self._associated(est, returns if scan is not None else None, rematch)
         toc = time.perf_counter() if timed else 0.0
         ref = self.reference()
@@ -347,17 +356,7 @@ class SimCore:
         return obs, reward, terminated, truncated, info
 
     # ------------------------------------------------------------------ IMU
-    def _new_replay(self) -> ImuReplay:
-        """The slow-IMU filter for the current estimator. Over a lane's first IMU period the
-        output's input error is taken as uniform over what the actuators can reach: the
-        specific force over [0, f_max/m], the rates over ±T max(τ_max/J) (variance span²/3)."""
-        p, period = self.vehicle_params, 1.0 / self.scenario.imu_rate_hz
-        reach_g = period * float(np.max(np.asarray(p.max_torque) / np.diag(p.inertia)))
-        reach_a = p.max_thrust / p.mass
-        var0 = (reach_a**2 / 3.0, reach_g**2 / 3.0)
-        return ImuReplay(self.estimator, self._steps_per_imu, self.dt, var0)
-
-    def _imu_sample(self, active: np.ndarray) -> tuple[FloatArray, ...]:
+    def _imu_sample(self, active: np.ndarray) -> Sample:
         """The IMU input of this control period (IMU at or below the control rate).
 
         Returns:
@@ -378,7 +377,7 @@ class SimCore:
 
     def _fast_imu_samples(
         self, thrust: FloatArray, torque: FloatArray, active: np.ndarray
-    ) -> list[tuple[FloatArray, ...]]:
+    ) -> list[Sample]:
         """Integrate the vehicle over the m sub-periods of the control period (command held)
         with an IMU sample after each (an IMU m times faster than the control); sets
         :attr:`last_rates` to the rates averaged over the whole period.
@@ -389,7 +388,7 @@ class SimCore:
         vehicle, imu, m = self.vehicle, self.imu, self._imu_per_step
         h = self.dt / m
         rates = np.zeros((self.num_lanes, 3))
-        samples: list[tuple[FloatArray, ...]] = []
+        samples: list[Sample] = []
         for i in range(m):
             sub_rates = vehicle.step(thrust, torque, h, active)
             rates += sub_rates

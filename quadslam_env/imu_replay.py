@@ -46,31 +46,12 @@ from typing import Any
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
+from quadslam_env.period_log import PeriodLog, Sample, Scan, apply_scan
 from quadslam_env.types import FloatArray
 
 CHANGE_MEMORY = 0.5
 """Weight of the previous estimate in the running mean square of the sample-to-sample change
 (the latest change gets 1 − this: a memory of about two IMU periods)."""
-
-Scan = tuple[bool, np.ndarray, np.ndarray, FloatArray]
-"""``(unlabeled, lanes (k,), visible (B, L) bool or count (B,), meas (B, L, 3))``: one step's
-scans, in the form :func:`apply_scan` hands to the estimator."""
-
-
-def apply_scan(estimator: BatchEstimator, t: FloatArray, scan: Scan, sigma: FloatArray) -> None:
-    """Correct ``estimator`` with the scans of ``scan``'s lanes (labeled or unlabeled).
-
-    Args:
-        estimator: The batch estimator.
-        t: (B,) scan times in s.
-        scan: See :data:`Scan`.
-        sigma: (3,) LiDAR noise stds (σ_α rad, σ_β rad, σ_δ m).
-    """
-    unlabeled, lanes, visible_or_count, meas = scan
-    if unlabeled:
-        estimator.update_unlabeled(t, lanes, visible_or_count, meas, sigma)  # type: ignore[attr-defined]
-    else:
-        estimator.update(t, lanes, visible_or_count, meas, sigma)
 
 
 class ImuReplay:
@@ -106,14 +87,22 @@ class ImuReplay:
         self.dt = float(dt)
         b = estimator.num_lanes
         self.num_lanes = b
-        # Ring of each lane's last m control periods, slot (own step - 1) % m.
-        self._active = np.zeros((self.m, b), dtype=bool)
-        self._t = np.zeros((self.m, b))
-        self._thrust = np.zeros((self.m, b))
-        self._torque = np.zeros((self.m, b, 3))
-        self._scans: list[dict[int, tuple[bool, Any, FloatArray]]] = [{} for _ in range(self.m)]
+        self.log = PeriodLog(self.m, b)  # each lane's last m control periods
         self._previous = np.zeros((b, 6))  # the sample before the held one
         self._change_var = np.zeros((b, 2))  # (accel m²/s⁴, gyro rad²/s²)
+
+    @classmethod
+    def for_vehicle(
+        cls, estimator: BatchEstimator, steps_per_imu: int, dt: float, params: Any, rate_hz: float
+    ) -> ImuReplay:
+        """The filter for ``params``' vehicle (:class:`~quadslam_env.models.params.VehicleParams`)
+        and an IMU at ``rate_hz``: over a lane's first IMU period T the output's input error is
+        taken as uniform over what the actuators can reach, the specific force over
+        [0, f_max/m] and the rates over ±T max(τ_max/J) (variance span²/3)."""
+        torque_per_inertia = np.asarray(params.max_torque) / np.diag(params.inertia)
+        reach_g = float(np.max(torque_per_inertia)) / rate_hz
+        reach_a = params.max_thrust / params.mass
+        return cls(estimator, steps_per_imu, dt, (reach_a**2 / 3.0, reach_g**2 / 3.0))
 
     def reset_lanes(
         self,
@@ -129,10 +118,7 @@ class ImuReplay:
         before that reset drew from them, so that filter and output draw the same numbers.
         """
         self.anchor.reset_lanes(lanes, mean0, cov0, rngs, known)
-        self._active[:, lanes] = False
-        for slot in self._scans:
-            for lane in np.asarray(lanes).tolist():
-                slot.pop(lane, None)
+        self.log.forget(lanes)
 
     def reserve_landmarks(self, count: int) -> None:
         """Pass a reset's map size on to the filter (see ``EkfSlamBatch.reserve_landmarks``)."""
@@ -145,10 +131,8 @@ class ImuReplay:
         output: BatchEstimator,
         steps: np.ndarray,
         active: np.ndarray,
-        t: FloatArray,
-        held: tuple[FloatArray, FloatArray],
+        samples: list[Sample],
         sigma: tuple[float, float],
-        controls: tuple[FloatArray, FloatArray],
         scan: Scan | None,
         lidar_sigma: FloatArray,
     ) -> BatchEstimator:
@@ -160,17 +144,19 @@ class ImuReplay:
             output: The env's estimator.
             steps: (B,) control steps since each lane's reset (after this one).
             active: (B,) bool lanes that stepped.
-            t: (B,) times in s.
-            held: ``(accel (B, 3) m/s², gyro (B, 3) rad/s)``, each lane's latest IMU sample.
+            samples: One :data:`~quadslam_env.period_log.Sample`: the times (B,) in s, each
+                lane's latest IMU sample (held) and the thrust and torque applied over the
+                period.
             sigma: White-noise std per control period (accel m/s², gyro rad/s).
-            controls: ``(thrust (B,) N, torque (B, 3) N·m)`` applied over the period.
             scan: This period's scans, or ``None``.
             lidar_sigma: (3,) LiDAR noise stds.
 
         Returns:
             The estimator to report from now on (``output``, or the filter's fresh copy).
         """
-        self._log(steps, active, t, controls, scan)
+        self.log.record(steps, active, samples, scan)
+        ((t, accel, gyro, thrust, torque),) = samples
+        held, controls = (accel, gyro), (thrust, torque)
         due = self.last_due = active & (steps % self.m == 0)
         self._track_changes(steps, due, held)
         if not due.any():
@@ -189,33 +175,6 @@ class ImuReplay:
         return output
 
     # ------------------------------------------------------------------ internals
-    def _log(
-        self,
-        steps: np.ndarray,
-        active: np.ndarray,
-        t: FloatArray,
-        controls: tuple[FloatArray, FloatArray],
-        scan: Scan | None,
-    ) -> None:
-        lanes = np.flatnonzero(active)
-        slots = (steps[lanes] - 1) % self.m
-        self._active[slots, lanes] = True
-        self._t[slots, lanes] = t[lanes]
-        self._thrust[slots, lanes] = controls[0][lanes]
-        self._torque[slots, lanes] = controls[1][lanes]
-        for lane, slot in zip(lanes.tolist(), slots.tolist(), strict=True):
-            self._scans[slot].pop(lane, None)
-        if scan is None:
-            return
-        unlabeled, scanned, visible_or_count, meas = scan
-        for lane in np.asarray(scanned).tolist():
-            slot = int((steps[lane] - 1) % self.m)
-            if unlabeled:
-                k = int(visible_or_count[lane])
-                self._scans[slot][lane] = (True, k, meas[lane, :k].copy())
-            else:
-                self._scans[slot][lane] = (False, visible_or_count[lane].copy(), meas[lane].copy())
-
     def _track_changes(
         self, steps: np.ndarray, due: np.ndarray, held: tuple[FloatArray, FloatArray]
     ) -> None:
@@ -266,37 +225,16 @@ class ImuReplay:
     ) -> None:
         """Predict and correct ``lanes`` (B,) bool over their logged slots ``0 … count-1``
         (per lane only the first ``upto[lane]`` when given), in time order."""
+        log = self.log
         for slot in range(count):
-            act = lanes & self._active[slot]
+            act = lanes & log.active[slot]
             if upto is not None:
                 act &= slot < upto
             if not act.any():
                 continue
-            t = self._t[slot]
-            controls = (self._thrust[slot], self._torque[slot])
+            t = log.t[slot, 0]
+            controls = (log.thrust[slot, 0], log.torque[slot, 0])
             self._predict(estimator, act, t, held, sigma, controls, output=upto is not None)
-            scan = self._slot_scan(slot, act)
+            scan = log.scan(np.full(self.num_lanes, slot), act)
             if scan is not None:
                 apply_scan(estimator, t, scan, lidar_sigma)
-
-    def _slot_scan(self, slot: int, lanes: np.ndarray) -> Scan | None:
-        """The logged scans of ``lanes`` (B,) bool in ``slot`` as one :data:`Scan`."""
-        rows = {lane: row for lane, row in self._scans[slot].items() if lanes[lane]}
-        if not rows:
-            return None
-        b = self.num_lanes
-        scanned = np.array(sorted(rows), dtype=np.int64)
-        unlabeled = next(iter(rows.values()))[0]
-        width = max(row[2].shape[0] for row in rows.values())
-        meas = np.zeros((b, width, 3))
-        if unlabeled:
-            count = np.zeros(b, dtype=np.int64)
-            for lane, (_, k, returns) in rows.items():
-                count[lane] = k
-                meas[lane, :k] = returns
-            return True, scanned, count, meas
-        visible = np.zeros((b, width), dtype=bool)
-        for lane, (_, vis, values) in rows.items():
-            visible[lane, : vis.shape[0]] = vis
-            meas[lane, : values.shape[0]] = values
-        return False, scanned, visible, meas

@@ -46,6 +46,19 @@ CASES = {
         "vehicle": {"preset": "crazyflie2"},
         "action": {"mode": "rotor_thrust"},
     },
+    # A LiDAR and actions delayed by whole steps (docs/env.md "Latency"): the filter copy
+    # lags each lane by its own phase; a delay longer than the scan interval and a fast IMU.
+    "QuadSLAM-EKF-v0-latency": {
+        **SHORT,
+        "lidar": {"delay_steps": 3},
+        "action": {"delay_steps": 2, "mode": "thrust_rates"},
+    },
+    "QuadSLAM-FastSLAM-v0-latency-imu1000": {
+        **FAST_FASTSLAM,
+        "imu": {"rate_hz": 1000.0},
+        "lidar": {"delay_steps": 12},
+        "action": {"delay_steps": 1},
+    },
     "QuadSLAM-EKF-v0-unknown-imu5": {
         "episode": {"duration_s": 0.45},
         "imu": {"rate_hz": 5.0},

@@ -1,0 +1,174 @@
+"""A per-lane log of the last control periods and the estimator calls that replay it
+(docs/design.md §3; docs/env.md "IMU rate" and "Latency").
+
+Two parts of the core run an estimator over periods it has already seen once, from a copy:
+the slow-IMU filter (:mod:`quadslam_env.imu_replay`) when a sample covering the last periods
+arrives, and the delayed-LiDAR filter (:mod:`quadslam_env.scan_delay`) when a scan measured
+some steps ago arrives. Both keep what they need in a :class:`PeriodLog`: a ring of each
+lane's last n control periods, slot ``(own step − 1) % n``, so lanes keep their own phase
+after an autoreset (lane i of a vector env equals the scalar env).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from quadslam_env.estimation import BatchEstimator
+from quadslam_env.types import FloatArray
+
+Scan = tuple[bool, np.ndarray, np.ndarray, FloatArray]
+"""``(unlabeled, lanes (k,), visible (B, L) bool or count (B,), meas (B, L, 3))``: one step's
+scans, in the form :func:`apply_scan` hands to the estimator."""
+
+Sample = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+"""``(t (B,) s, accel (B, 3) m/s², gyro (B, 3) rad/s, thrust (B,) N, torque (B, 3) N·m)``: one
+IMU sample of every lane and the thrust and torque applied over its period."""
+
+
+def apply_scan(estimator: BatchEstimator, t: FloatArray, scan: Scan, sigma: FloatArray) -> None:
+    """Correct ``estimator`` with the scans of ``scan``'s lanes (labeled or unlabeled).
+
+    Args:
+        estimator: The batch estimator.
+        t: (B,) scan times in s.
+        scan: See :data:`Scan`.
+        sigma: (3,) LiDAR noise stds (σ_α rad, σ_β rad, σ_δ m).
+    """
+    unlabeled, lanes, visible_or_count, meas = scan
+    if unlabeled:
+        estimator.update_unlabeled(t, lanes, visible_or_count, meas, sigma)  # type: ignore[attr-defined]
+    else:
+        estimator.update(t, lanes, visible_or_count, meas, sigma)
+
+
+def predict_samples(
+    estimator: BatchEstimator,
+    samples: list[Sample],
+    sigma: tuple[float, float],
+    h: float,
+    lanes: np.ndarray,
+) -> None:
+    """Propagate ``lanes`` (B,) bool over one control period: one prediction of ``h`` s per
+    sample of ``samples`` (m of them with an IMU m times faster than the control), in order.
+
+    Args:
+        estimator: The batch estimator.
+        samples: The period's samples (:data:`Sample`).
+        sigma: White-noise std of the input per step h (accel m/s², gyro rad/s).
+        h: Prediction step in s.
+        lanes: (B,) bool lanes to propagate.
+    """
+    for t, accel, gyro, thrust, torque in samples:
+        estimator.predict(t, accel, gyro, sigma[0], sigma[1], thrust, torque, h, lanes)
+
+
+class PeriodLog:
+    """Each lane's last ``size`` control periods: their IMU samples, controls and scans.
+
+    Args:
+        size: n, periods kept per lane.
+        num_lanes: B.
+        per_period: IMU samples per control period (m ≥ 1 with an IMU m times faster).
+
+    Attributes:
+        active: (n, B) bool, slot holds a period of the lane's current episode.
+        t, thrust: (n, m, B) sample times (s) and thrusts (N).
+        accel, gyro, torque: (n, m, B, 3) samples (m/s², rad/s) and torques (N·m).
+    """
+
+    def __init__(self, size: int, num_lanes: int, per_period: int = 1) -> None:
+        n, b, m = int(size), int(num_lanes), int(per_period)
+        self.size, self.num_lanes, self.per_period = n, b, m
+        self.active = np.zeros((n, b), dtype=bool)
+        self.t = np.zeros((n, m, b))
+        self.accel = np.zeros((n, m, b, 3))
+        self.gyro = np.zeros((n, m, b, 3))
+        self.thrust = np.zeros((n, m, b))
+        self.torque = np.zeros((n, m, b, 3))
+        self._scans: list[dict[int, tuple[bool, Any, FloatArray]]] = [{} for _ in range(n)]
+        self._lane = np.arange(b)
+
+    def forget(self, lanes: np.ndarray) -> None:
+        """Drop every logged period (and scan) of ``lanes`` (k,): their episodes restart."""
+        self.active[:, lanes] = False
+        for slot in self._scans:
+            for lane in np.asarray(lanes).tolist():
+                slot.pop(lane, None)
+
+    def slots(self, steps: np.ndarray) -> np.ndarray:
+        """The ring slots (same shape, int) of each lane's own step numbers ``steps`` ≥ 1."""
+        return (np.asarray(steps) - 1) % self.size
+
+    def record(
+        self, steps: np.ndarray, active: np.ndarray, samples: list[Sample], scan: Scan | None
+    ) -> None:
+        """Log the period just stepped by the ``active`` (B,) lanes (``steps`` (B,) their step
+        numbers after it): its ``samples`` and the lanes' scans of ``scan``."""
+        lanes = np.flatnonzero(active)
+        slots = self.slots(steps[lanes])
+        self.active[slots, lanes] = True
+        for j, (t, accel, gyro, thrust, torque) in enumerate(samples):
+            self.t[slots, j, lanes] = t[lanes]
+            self.accel[slots, j, lanes] = accel[lanes]
+            self.gyro[slots, j, lanes] = gyro[lanes]
+            self.thrust[slots, j, lanes] = thrust[lanes]
+            self.torque[slots, j, lanes] = torque[lanes]
+        for lane, slot in zip(lanes.tolist(), slots.tolist(), strict=True):
+            self._scans[slot].pop(lane, None)
+        if scan is None:
+            return
+        unlabeled, scanned, visible_or_count, meas = scan
+        for lane in np.asarray(scanned).tolist():
+            slot = int(self.slots(steps[lane]))
+            if unlabeled:
+                k = int(visible_or_count[lane])
+                self._scans[slot][lane] = (True, k, meas[lane, :k].copy())
+            else:
+                self._scans[slot][lane] = (False, visible_or_count[lane].copy(), meas[lane].copy())
+
+    def has_scan(self, slots: np.ndarray) -> np.ndarray:
+        """(B,) bool: lane i logged a scan in its slot ``slots[i]``."""
+        return np.array([lane in self._scans[int(s)] for lane, s in enumerate(slots.tolist())])
+
+    def samples(self, slots: np.ndarray) -> list[Sample]:
+        """The logged samples of each lane's slot ``slots`` (B,) int, as m :data:`Sample`."""
+        lane = self._lane
+        return [
+            (
+                self.t[slots, j, lane],
+                self.accel[slots, j, lane],
+                self.gyro[slots, j, lane],
+                self.thrust[slots, j, lane],
+                self.torque[slots, j, lane],
+            )
+            for j in range(self.per_period)
+        ]
+
+    def scan(self, slots: np.ndarray, lanes: np.ndarray) -> Scan | None:
+        """The logged scans of ``lanes`` (B,) bool, each from its slot ``slots`` (B,) int, as
+        one :data:`Scan` (``None``: none of them scanned there)."""
+        rows = {}
+        for lane in np.flatnonzero(lanes).tolist():
+            row = self._scans[int(slots[lane])].get(lane)
+            if row is not None:
+                rows[lane] = row
+        if not rows:
+            return None
+        b = self.num_lanes
+        scanned = np.array(sorted(rows), dtype=np.int64)
+        unlabeled = next(iter(rows.values()))[0]
+        width = max(row[2].shape[0] for row in rows.values())
+        meas = np.zeros((b, width, 3))
+        if unlabeled:
+            count = np.zeros(b, dtype=np.int64)
+            for lane, (_, k, returns) in rows.items():
+                count[lane] = k
+                meas[lane, :k] = returns
+            return True, scanned, count, meas
+        visible = np.zeros((b, width), dtype=bool)
+        for lane, (_, vis, values) in rows.items():
+            visible[lane, : vis.shape[0]] = vis
+            meas[lane, : values.shape[0]] = values
+        return False, scanned, visible, meas

@@ -1,0 +1,194 @@
+"""An estimator fed by a LiDAR whose scans arrive late: the scan updates the belief of its own
+time, and the output is re-propagated from there (docs/design.md §3; docs/env.md "Latency").
+
+A scan measured at a lane's step s reaches the estimator at step s + d (``lidar.delay_steps``
+= d). Applying it then as if it were current puts a measurement of the pose d periods ago on
+the pose of now, an error the filter's covariance knows nothing about. Instead the estimator
+is run twice from copies, by re-propagation (the out-of-sequence measurement handling of flight
+software that keeps a short buffer of its inputs):
+
+- **the filter** (:attr:`ScanDelay.filter`) lags: each lane has processed every control period
+  up to the time of its newest delivered scan, that scan included. When the scan of step
+  s − d arrives, the filter is advanced over the lane's logged periods up to step s − d (the
+  predictions it skipped, with the IMU samples and applied controls of their time) and
+  corrected with the scan.
+- **the output** (the env's estimator: what it reports and the controller flies on) becomes a
+  copy of the filter carried forward over the logged periods since, predictions only (the
+  scans in that window have not arrived). Between arrivals it predicts one period a step.
+
+So at a step with no scan in flight the output has done exactly the operations, in the same
+order, that an undelayed filter would have done: the same belief (tests/test_latency.py).
+Scans still in flight when an episode ends are dropped with the lane's log. Every lane keeps
+its own phase (its own step count since reset), so lane i of a vector env equals the scalar
+env. The estimator must be deep-copyable (the EKF, FastSLAM, the oracle; not iSAM2's GTSAM
+smoother).
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from quadslam_env.config import ScenarioConfig
+from quadslam_env.estimation import BatchEstimator
+from quadslam_env.imu_replay import ImuReplay
+from quadslam_env.period_log import PeriodLog, Sample, Scan, apply_scan, predict_samples
+from quadslam_env.types import FloatArray
+
+
+def copies_for(
+    scenario: ScenarioConfig, estimator: BatchEstimator, params: Any
+) -> ImuReplay | ScanDelay | None:
+    """The second run of ``estimator`` (the env's output) a scenario needs: the delayed-LiDAR
+    filter, the slow-IMU filter, or none (never both: ``config.check_delays``).
+
+    Args:
+        scenario: The validated scenario.
+        estimator: The env's estimator right after construction or a swap.
+        params: The nominal :class:`~quadslam_env.models.params.VehicleParams`.
+
+    Returns:
+        A :class:`ScanDelay` (``lidar.delay_steps`` > 0), an
+        :class:`~quadslam_env.imu_replay.ImuReplay` (``imu.rate_hz`` below the control rate)
+        or ``None``; the core steps either through its ``step``.
+    """
+    dt, m = 1.0 / scenario.episode.control_hz, scenario.imu_per_step
+    if (delay := scenario.lidar.delay_steps) > 0:
+        return ScanDelay(estimator, delay, scenario.lidar_every, dt / m, m)
+    if scenario.steps_per_imu == 1:
+        return None
+    rate = scenario.imu_rate_hz
+    return ImuReplay.for_vehicle(estimator, scenario.steps_per_imu, dt, params, rate)
+
+
+class ScanDelay:
+    """The lagging filter, its log of the periods since, and the output it re-propagates
+    (module docstring).
+
+    Args:
+        estimator: The env's (output) estimator right after construction; the filter starts
+            as a deep copy of it.
+        delay_steps: d ≥ 1, control steps between a scan's measurement and its arrival.
+        lidar_every: L ≥ 1, control steps between scans (the log keeps L + d periods: the
+            most a lane's filter can lag behind its present).
+        h: Prediction step in s (the control period over the IMU samples per period).
+        per_period: IMU samples per control period.
+
+    Attributes:
+        filter: Every lane's belief at the time of its newest delivered scan.
+        output: The output estimator :meth:`step` last returned (the env's).
+        filter_step: (B,) int, the step (since the lane's reset) the filter's lane is at.
+        last_delivered: (B,) bool lanes whose delayed scan arrived in the last :meth:`step`.
+    """
+
+    def __init__(
+        self,
+        estimator: BatchEstimator,
+        delay_steps: int,
+        lidar_every: int,
+        h: float,
+        per_period: int = 1,
+    ) -> None:
+        self.filter = copy.deepcopy(estimator)
+        self.output = estimator
+        self.delay = int(delay_steps)
+        self.h = float(h)
+        b = estimator.num_lanes
+        self.log = PeriodLog(int(lidar_every) + self.delay, b, per_period)
+        self.filter_step = np.zeros(b, dtype=np.int64)
+        self.last_delivered = np.zeros(b, dtype=bool)
+
+    def reset_lanes(
+        self,
+        lanes: np.ndarray,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rngs: Sequence[np.random.Generator],
+        known: Any,
+    ) -> None:
+        """Reset the filter's ``lanes`` (k,) as the output's were; their scans in flight and
+        their log are dropped.
+
+        ``rngs`` must be copies of the generators the output's lanes were reset with, taken
+        before that reset drew from them, so that filter and output draw the same numbers.
+        """
+        self.filter.reset_lanes(lanes, mean0, cov0, rngs, known)
+        self.log.forget(lanes)
+        self.filter_step[lanes] = 0
+        self.last_delivered[lanes] = False
+
+    def reserve_landmarks(self, count: int) -> None:
+        """Pass a reset's map size on to the filter (see ``EkfSlamBatch.reserve_landmarks``)."""
+        reserve = getattr(self.filter, "reserve_landmarks", None)
+        if reserve is not None:
+            reserve(count)
+
+    def step(
+        self,
+        output: BatchEstimator,
+        steps: np.ndarray,
+        active: np.ndarray,
+        samples: list[Sample],
+        sigma: tuple[float, float],
+        scan: Scan | None,
+        lidar_sigma: FloatArray,
+    ) -> BatchEstimator:
+        """Log this control period and its scans (measured now, delivered d steps later),
+        then advance: the output by one period, or — when a lane's delayed scan arrives — the
+        filter to that scan's time, the output then becoming a copy of it carried forward.
+
+        Args:
+            output: The env's estimator.
+            steps: (B,) control steps since each lane's reset (after this one).
+            active: (B,) bool lanes that stepped.
+            samples: This period's IMU samples and applied controls (:data:`Sample`).
+            sigma: White-noise std of the input per prediction step (accel m/s², gyro rad/s).
+            scan: The scans measured this period, or ``None``.
+            lidar_sigma: (3,) LiDAR noise stds.
+
+        Returns:
+            The estimator to report from now on (``output``, or the filter's fresh copy).
+        """
+        log = self.log
+        log.record(steps, active, samples, scan)
+        measured = steps - self.delay  # the step whose scan would arrive now
+        due = active & (measured >= 1)
+        if due.any():
+            due &= log.has_scan(log.slots(np.maximum(measured, 1)))
+        self.last_delivered = due
+        if not due.any():
+            predict_samples(output, samples, sigma, self.h, active)
+            return output
+        self._advance(self.filter, due, measured, sigma, lidar_sigma)
+        self.filter_step[due] = measured[due]
+        output = self.output = copy.deepcopy(self.filter)
+        # Every lane (not only those whose scan arrived: the copy replaced them all) from its
+        # filter's time to now, without the scans in flight.
+        self._advance(output, steps > self.filter_step, steps, sigma, None)
+        return output
+
+    def _advance(
+        self,
+        estimator: BatchEstimator,
+        lanes: np.ndarray,
+        until: np.ndarray,
+        sigma: tuple[float, float],
+        lidar_sigma: FloatArray | None,
+    ) -> None:
+        """Run ``lanes`` (B,) bool of ``estimator`` over their logged periods after
+        :attr:`filter_step` up to their steps ``until`` (B,), in time order; with
+        ``lidar_sigma`` each period's logged scans are applied after its predictions."""
+        count = np.where(lanes, until - self.filter_step, 0)
+        for j in range(int(count.max())):
+            act = j < count
+            slots = self.log.slots(self.filter_step + j + 1)
+            samples = self.log.samples(slots)
+            predict_samples(estimator, samples, sigma, self.h, act)
+            if lidar_sigma is None:
+                continue
+            scan = self.log.scan(slots, act)
+            if scan is not None:
+                apply_scan(estimator, samples[-1][0], scan, lidar_sigma)
