@@ -30,7 +30,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -38,6 +38,7 @@ from quadslam_env.actions import ActionMap
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
+from quadslam_env.estimation.protocol import AssociatesUnlabeled, ReservesLandmarks, UsesTruth
 from quadslam_env.imu_replay import ImuReplay, Scan, apply_scan
 from quadslam_env.measurements import ScanReturns
 from quadslam_env.metrics import (
@@ -184,9 +185,9 @@ class SimCore:
         replay = self._replay
         if replay is not None and replay.output is not self.estimator:  # a user swapped it
             replay = self._replay = self._new_replay()
-        reserve = getattr(self.estimator, "reserve_landmarks", None)
-        if "landmarks" in opts and reserve is not None:
-            reserve(len(opts["landmarks"]))  # a larger map must fit before anything changes
+        if "landmarks" in opts and isinstance(self.estimator, ReservesLandmarks):
+            # a larger map must fit before anything changes
+            self.estimator.reserve_landmarks(len(opts["landmarks"]))
             if replay is not None:
                 replay.reserve_landmarks(len(opts["landmarks"]))
         children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
@@ -403,8 +404,8 @@ class SimCore:
 
     # ------------------------------------------------------------------ helpers
     def _snapshot(self) -> BatchEstimate:
-        if self.estimator.uses_truth:
-            self.estimator.set_truth(  # type: ignore[attr-defined]
+        if self.estimator.uses_truth:  # then it UsesTruth (registry.make checks)
+            cast(UsesTruth, self.estimator).set_truth(
                 self.vehicle.state, self.landmarks, self.n_landmarks
             )
         self.est = self.estimator.estimate()
@@ -418,8 +419,7 @@ class SimCore:
         """
         if self._truth is None:
             self._truth = make("oracle", self.num_lanes, self.landmarks.shape[1])
-        truth_source: Any = self._truth  # OracleBatch: takes the truth through set_truth
-        truth_source.set_truth(self.vehicle.state, self.landmarks, self.n_landmarks)
+        cast(UsesTruth, self._truth).set_truth(self.vehicle.state, self.landmarks, self.n_landmarks)
         truth = self._truth.estimate()
         return self.observer.build(truth, self.reference(), self.t, self.n_visible)
 
@@ -458,7 +458,8 @@ class SimCore:
         if returns is None:
             self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(self.num_lanes))
         else:
-            labels = self.estimator.last_association  # type: ignore[attr-defined]
+            # unknown association: the scenario check let only such an estimator through
+            labels = cast(AssociatesUnlabeled, self.estimator).last_association
             self._assoc_counts = association_counts(
                 returns.truth, labels, returns.count, self._match
             )

@@ -41,11 +41,12 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation.protocol import AssociatesUnlabeled, ReservesLandmarks
 from quadslam_env.types import FloatArray
 
 CHANGE_MEMORY = 0.5
@@ -67,8 +68,10 @@ def apply_scan(estimator: BatchEstimator, t: FloatArray, scan: Scan, sigma: Floa
         sigma: (3,) LiDAR noise stds (σ_α rad, σ_β rad, σ_δ m).
     """
     unlabeled, lanes, visible_or_count, meas = scan
-    if unlabeled:
-        estimator.update_unlabeled(t, lanes, visible_or_count, meas, sigma)  # type: ignore[attr-defined]
+    if unlabeled:  # the scenario check let only an estimator that AssociatesUnlabeled through
+        cast(AssociatesUnlabeled, estimator).update_unlabeled(
+            t, lanes, visible_or_count, meas, sigma
+        )
     else:
         estimator.update(t, lanes, visible_or_count, meas, sigma)
 
@@ -135,10 +138,10 @@ class ImuReplay:
                 slot.pop(lane, None)
 
     def reserve_landmarks(self, count: int) -> None:
-        """Pass a reset's map size on to the filter (see ``EkfSlamBatch.reserve_landmarks``)."""
-        reserve = getattr(self.anchor, "reserve_landmarks", None)
-        if reserve is not None:
-            reserve(count)
+        """Pass a reset's map size on to a filter that
+        :class:`~quadslam_env.estimation.protocol.ReservesLandmarks`."""
+        if isinstance(self.anchor, ReservesLandmarks):
+            self.anchor.reserve_landmarks(count)
 
     def step(
         self,

@@ -31,6 +31,7 @@ import numpy as np
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.io.overrides import parse_overrides
 from agents.studies.degradation import save_json, seeded_lanes
+from quadslam_env.estimation import HasParticles, LaneLoop
 from quadslam_env.models.frames import wrap_angle
 
 BLOCKS = {"pos": slice(0, 3), "vel": slice(3, 6), "att": slice(6, 9)}
@@ -74,7 +75,7 @@ def record(
         }
     b = len(seeds)
     env, policy, obs, core = seeded_lanes(scenario, seeds, overrides)
-    lanes = getattr(core.estimator, "lanes", [None] * b)
+    lanes = core.estimator.lanes if isinstance(core.estimator, LaneLoop) else [None] * b
     recs: list[dict[str, Any]] = [
         {"t": [], "nees": {k: [] for k in ("pose", *BLOCKS)}, "pos_err": [], "map_err": [],
          "pos_sd": [], "yaw_err": [], "yaw_sd": [], "lineages": [], "end": ""}
@@ -104,8 +105,9 @@ def record(
                 rec["map_err"].append((est.landmark_means[ok] - truth).mean(axis=0))
             else:
                 rec["map_err"].append(np.full(3, math.nan))
-            lineage = getattr(lanes[lane], "lineage", None)
-            rec["lineages"].append(-1 if lineage is None else int(np.unique(lineage).size))
+            filt = lanes[lane]
+            count = np.unique(filt.lineage).size if isinstance(filt, HasParticles) else -1
+            rec["lineages"].append(int(count))
         for lane in np.flatnonzero(live & term).tolist():
             recs[lane]["end"] = str(info["termination_reason"][lane])
         live &= ~(term | trunc)
