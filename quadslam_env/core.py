@@ -58,7 +58,7 @@ from quadslam_env.reward import REWARD_KEYS, Reward, tracking_errors
 from quadslam_env.sensors import ImuBatch, LidarBatch
 from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
-from quadslam_env.types import STATE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, RATE, STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
 from quadslam_env.wind import WindBatch
 from quadslam_env.world import landmark_capacity, make_landmarks, put_landmarks
@@ -205,7 +205,7 @@ class SimCore:
             mean0[j] = states0[j]
             if cfg.estimator.sample_initial_error:
                 mean0[j] += sigma0 * rng_init.standard_normal(STATE_DIM)
-        mean0[:, 6:9] = wrap_angle(mean0[:, 6:9])
+        mean0[:, EUL] = wrap_angle(mean0[:, EUL])
         rand = self.randomizer
         rand.begin(lanes, [c[4] for c in children], opts.get("randomized"), self.vehicle)
         self.vehicle.reset(lanes, states0)
@@ -215,7 +215,7 @@ class SimCore:
         rand.finish(self.imu, self.lidar, self.wind)
         if self._steps_per_imu > 1:  # a slower IMU's first sample, held until the next
             vel = self.vehicle.air_velocity()[lanes]
-            self.imu.prime(lanes, vel, states0[:, 9:12], self.vehicle.applied_thrust[lanes])
+            self.imu.prime(lanes, vel, states0[:, RATE], self.vehicle.applied_thrust[lanes])
         known = None
         if cfg.estimator.known_map:
             known = [
@@ -287,8 +287,8 @@ class SimCore:
         self.last_scan = None
         scan: Scan | None = None
         if scanning.size:
-            dcm = dcm_from_euler_batch(state[:, 6:9])
-            where = (state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning)
+            dcm = dcm_from_euler_batch(state[:, EUL])
+            where = (state[:, POS], dcm, self.landmarks, self.n_landmarks, scanning)
             if self.unlabeled:
                 returns = self.lidar.returns(*where)
                 visible = np.arange(returns.meas.shape[1]) < returns.count[:, None]
@@ -445,7 +445,7 @@ class SimCore:
             state = self.vehicle.state
             match = match_landmarks(
                 est.landmark_means, est.landmark_mapped, np.hstack((est.position, est.euler)),
-                self.landmarks, self.n_landmarks, np.hstack((state[:, 0:3], state[:, 6:9])),
+                self.landmarks, self.n_landmarks, np.hstack((state[:, POS], state[:, EUL])),
             )  # fmt: skip
             if self._match.shape == match.shape:
                 match = np.where(rematch[:, None], match, self._match)

@@ -33,6 +33,7 @@ from agents.io.overrides import parse_overrides
 from agents.studies.degradation import save_json, seeded_lanes
 from quadslam_env.estimation import HasParticles, LaneLoop
 from quadslam_env.models.frames import wrap_angle
+from quadslam_env.types import EUL, POS, VEL
 
 BLOCKS = {"pos": slice(0, 3), "vel": slice(3, 6), "att": slice(6, 9)}
 """The 3-DOF blocks of the 9-DOF pose ``(ρ m, v_B m/s, Λ rad)``."""
@@ -88,13 +89,13 @@ def record(
             rec, est = recs[lane], core.estimator.lane_estimate(lane)
             x = core.vehicle.state[lane]
             err = np.r_[
-                est.position - x[0:3], est.vel_body - x[3:6], wrap_angle(est.euler - x[6:9])
+                est.position - x[POS], est.vel_body - x[VEL], wrap_angle(est.euler - x[EUL])
             ]
             for k, v in block_nees(err, est.pose_cov).items():
                 rec["nees"][k].append(v)
             rec["t"].append(float(core.t[lane]))
-            rec["pos_err"].append(err[0:3])
-            rec["pos_sd"].append(math.sqrt(np.trace(est.pose_cov[0:3, 0:3]) / 3.0))
+            rec["pos_err"].append(err[POS])
+            rec["pos_sd"].append(math.sqrt(np.trace(est.pose_cov[POS, POS]) / 3.0))
             rec["yaw_err"].append(float(err[8]))
             rec["yaw_sd"].append(math.sqrt(est.pose_cov[8, 8]))
             ids = np.asarray(est.landmark_ids, dtype=int)

@@ -16,7 +16,7 @@ from quadslam_env.estimation.protocol import ShowsParticles
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.linalg import psd_sqrt
 from quadslam_env.render.history import LaneHistory
-from quadslam_env.types import FloatArray
+from quadslam_env.types import EUL, POS, FloatArray
 
 ESTIMATOR_LABELS = {
     "ekf_slam": "EKF-SLAM",
@@ -107,11 +107,11 @@ def gather(core: Any, lane: int, history: LaneHistory, span_s: float, max_partic
     return Scene(
         t=t,
         label=estimator_label(core.scenario),
-        true_pos=state[0:3].copy(),
-        true_heading=heading_of(state[6:9]),
+        true_pos=state[POS].copy(),
+        true_heading=heading_of(state[EUL]),
         est_pos=est.position,
         est_heading=heading_of(est.euler),
-        est_pos_cov=None if est.pose_cov is None else est.pose_cov[0:3, 0:3],
+        est_pos_cov=None if est.pose_cov is None else est.pose_cov[POS, POS],
         rows=history.rows(since=t - span_s),
         ref=core.trajectory.batch(times).pos,
         landmarks=core.landmarks[lane, :n_lm].copy(),
