@@ -13,9 +13,10 @@ Abilities that only some estimators have are protocols of their own, checked wit
 :class:`ShowsParticles` and :class:`HasFullState`; of one vehicle's estimator (what
 :class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its lanes), :class:`ChecksMemory`,
 :class:`LabelsReturns` and :class:`HasParticles`. A runtime-checkable protocol's
-``isinstance`` only checks that the names exist, not their signatures or types: mypy checks
-those where a class is declared to implement the protocol, the tests of
-``tests/test_estimator_abilities.py`` which built-in has which ability.
+``isinstance`` only checks that the names exist, not their signatures or types, and no
+estimator names these protocols as bases, so nothing checks an implementation's signature
+against them; the call sites are typed by the protocol, and
+``tests/test_estimator_abilities.py`` checks which built-in has which ability.
 """
 
 from __future__ import annotations
