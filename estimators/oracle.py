@@ -15,7 +15,7 @@ import numpy as np
 from estimators.settings_check import check_kwargs
 from quadslam_env.estimation import BatchEstimate, Estimate, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler_batch
-from quadslam_env.types import FloatArray
+from quadslam_env.types import EUL, POS, RATE, VEL, FloatArray
 
 
 @register("oracle")
@@ -62,12 +62,12 @@ class OracleBatch:
 
     def _write_state(self, lanes: np.ndarray | slice, states: FloatArray) -> None:
         out = self._out
-        out.position[lanes] = states[:, 0:3]
-        out.vel_body[lanes] = states[:, 3:6]
-        out.euler[lanes] = states[:, 6:9]
-        out.rates[lanes] = states[:, 9:12]
-        dcm = dcm_from_euler_batch(states[:, 6:9])
-        out.vel_inertial[lanes] = np.einsum("bij,bj->bi", dcm, states[:, 3:6])
+        out.position[lanes] = states[:, POS]
+        out.vel_body[lanes] = states[:, VEL]
+        out.euler[lanes] = states[:, EUL]
+        out.rates[lanes] = states[:, RATE]
+        dcm = dcm_from_euler_batch(states[:, EUL])
+        out.vel_inertial[lanes] = np.einsum("bij,bj->bi", dcm, states[:, VEL])
 
     def set_truth(self, states: FloatArray, landmarks: FloatArray, counts: np.ndarray) -> None:
         """Receive the true states (B, 12) and maps (B, L, 3) with ``counts`` (B,) landmarks."""

@@ -69,7 +69,7 @@ from estimators.ekf.kernels import (
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.ekf.update import stacked_model
 from quadslam_env.models.strapdown import process_jacobians
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, POSE_DIM, FloatArray
 
 # ----------------------------------------------------------------- the generic recursion
 
@@ -328,8 +328,8 @@ def error_transforms(state: FloatArray) -> tuple[FloatArray, FloatArray]:
         :mod:`quadslam_env.metrics` reports).
     """
     F, G = process_jacobians(np.asarray(state[:POSE_DIM], dtype=float), 0.0, np.zeros(3))
-    T_a = np.asarray(np.linalg.inv(G[6:9, 1:4]), dtype=float)
-    return F[0:3, 3:9].copy(), T_a
+    T_a = np.asarray(np.linalg.inv(G[EUL, 1:4]), dtype=float)
+    return F[POS, 3:9].copy(), T_a
 
 
 def error_bounds(state: FloatArray, pose_cov: FloatArray) -> dict[str, FloatArray]:
@@ -351,8 +351,8 @@ def error_bounds(state: FloatArray, pose_cov: FloatArray) -> dict[str, FloatArra
     for k in range(K):
         T_v, T_a = error_transforms(state[k])
         vel[k] = T_v @ pose_cov[k, 3:9, 3:9] @ T_v.T
-        att[k] = T_a @ pose_cov[k, 6:9, 6:9] @ T_a.T
-    pos_axes = np.diagonal(pose_cov[:, 0:3, 0:3], axis1=1, axis2=2)
+        att[k] = T_a @ pose_cov[k, EUL, EUL] @ T_a.T
+    pos_axes = np.diagonal(pose_cov[:, POS, POS], axis1=1, axis2=2)
     vel_axes = np.diagonal(vel, axis1=1, axis2=2)
     return {
         "pos_m2": pos_axes.sum(axis=1),
@@ -360,5 +360,5 @@ def error_bounds(state: FloatArray, pose_cov: FloatArray) -> dict[str, FloatArra
         "att_rad2": np.trace(att, axis1=1, axis2=2),
         "pos_var_axes": pos_axes.copy(),
         "vel_var_axes": vel_axes.copy(),
-        "euler_var_axes": np.diagonal(pose_cov[:, 6:9, 6:9], axis1=1, axis2=2).copy(),
+        "euler_var_axes": np.diagonal(pose_cov[:, EUL, EUL], axis1=1, axis2=2).copy(),
     }

@@ -35,7 +35,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -43,6 +43,7 @@ from quadslam_env.actions import ActionDelay, ActionMap
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
+from quadslam_env.estimation.protocol import AssociatesUnlabeled, ReservesLandmarks, UsesTruth
 from quadslam_env.imu_replay import ImuReplay
 from quadslam_env.measurements import ScanReturns
 from quadslam_env.metrics import (
@@ -64,7 +65,7 @@ from quadslam_env.scan_delay import copies_for
 from quadslam_env.sensors import ImuBatch, LidarBatch
 from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
-from quadslam_env.types import STATE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, RATE, STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
 from quadslam_env.wind import WindBatch
 from quadslam_env.world import landmark_capacity, make_landmarks, put_landmarks
@@ -192,9 +193,9 @@ class SimCore:
         copies = self._copies
         if copies is not None and copies.output is not self.estimator:  # a user swapped it
             copies = self._copies = copies_for(cfg, self.estimator, self.vehicle_params)
-        reserve = getattr(self.estimator, "reserve_landmarks", None)
-        if "landmarks" in opts and reserve is not None:
-            reserve(len(opts["landmarks"]))  # a larger map must fit before anything changes
+        if "landmarks" in opts and isinstance(self.estimator, ReservesLandmarks):
+            # a larger map must fit before anything changes
+            self.estimator.reserve_landmarks(len(opts["landmarks"]))
             if copies is not None:
                 copies.reserve_landmarks(len(opts["landmarks"]))
         children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
@@ -212,7 +213,7 @@ class SimCore:
             mean0[j] = states0[j]
             if cfg.estimator.sample_initial_error:
                 mean0[j] += sigma0 * rng_init.standard_normal(STATE_DIM)
-        mean0[:, 6:9] = wrap_angle(mean0[:, 6:9])
+        mean0[:, EUL] = wrap_angle(mean0[:, EUL])
         rand = self.randomizer
         rand.begin(lanes, [c[4] for c in children], opts.get("randomized"), self.vehicle)
         self.vehicle.reset(lanes, states0)
@@ -222,7 +223,7 @@ class SimCore:
         rand.finish(self.imu, self.lidar, self.wind)
         if self._steps_per_imu > 1:  # a slower IMU's first sample, held until the next
             vel = self.vehicle.air_velocity()[lanes]
-            self.imu.prime(lanes, vel, states0[:, 9:12], self.vehicle.applied_thrust[lanes])
+            self.imu.prime(lanes, vel, states0[:, RATE], self.vehicle.applied_thrust[lanes])
         known = None
         if cfg.estimator.known_map:
             known = [
@@ -297,8 +298,8 @@ class SimCore:
         self.last_scan = None
         scan: Scan | None = None
         if scanning.size:
-            dcm = dcm_from_euler_batch(state[:, 6:9])
-            where = (state[:, 0:3], dcm, self.landmarks, self.n_landmarks, scanning)
+            dcm = dcm_from_euler_batch(state[:, EUL])
+            where = (state[:, POS], dcm, self.landmarks, self.n_landmarks, scanning)
             if self.unlabeled:
                 returns = self.lidar.returns(*where)
                 visible = np.arange(returns.meas.shape[1]) < returns.count[:, None]
@@ -402,8 +403,8 @@ class SimCore:
 
     # ------------------------------------------------------------------ helpers
     def _snapshot(self) -> BatchEstimate:
-        if self.estimator.uses_truth:
-            self.estimator.set_truth(  # type: ignore[attr-defined]
+        if self.estimator.uses_truth:  # then it UsesTruth (registry.make checks)
+            cast(UsesTruth, self.estimator).set_truth(
                 self.vehicle.state, self.landmarks, self.n_landmarks
             )
         self.est = self.estimator.estimate()
@@ -417,8 +418,7 @@ class SimCore:
         """
         if self._truth is None:
             self._truth = make("oracle", self.num_lanes, self.landmarks.shape[1])
-        truth_source: Any = self._truth  # OracleBatch: takes the truth through set_truth
-        truth_source.set_truth(self.vehicle.state, self.landmarks, self.n_landmarks)
+        cast(UsesTruth, self._truth).set_truth(self.vehicle.state, self.landmarks, self.n_landmarks)
         truth = self._truth.estimate()
         return self.observer.build(truth, self.reference(), self.t, self.n_visible)
 
@@ -444,7 +444,7 @@ class SimCore:
             state = self.vehicle.state
             match = match_landmarks(
                 est.landmark_means, est.landmark_mapped, np.hstack((est.position, est.euler)),
-                self.landmarks, self.n_landmarks, np.hstack((state[:, 0:3], state[:, 6:9])),
+                self.landmarks, self.n_landmarks, np.hstack((state[:, POS], state[:, EUL])),
             )  # fmt: skip
             if self._match.shape == match.shape:
                 match = np.where(rematch[:, None], match, self._match)
@@ -457,7 +457,8 @@ class SimCore:
         if returns is None:
             self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(self.num_lanes))
         else:
-            labels = self.estimator.last_association  # type: ignore[attr-defined]
+            # unknown association: the scenario check let only such an estimator through
+            labels = cast(AssociatesUnlabeled, self.estimator).last_association
             self._assoc_counts = association_counts(
                 returns.truth, labels, returns.count, self._match
             )

@@ -15,7 +15,7 @@ from quadslam_env.config import ScenarioConfig
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.trajectories import Trajectory
-from quadslam_env.types import STATE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, STATE_DIM, VEL, FloatArray
 
 DEFAULT_SETTLE_S = 10.0
 """The transient of a scenario that starts off the reference, when ``episode.settle_s`` is
@@ -45,9 +45,9 @@ def initial_state(scenario: ScenarioConfig, trajectory: Trajectory, mass: float)
         )
     ep = scenario.episode
     state = np.zeros(STATE_DIM)
-    state[0:3] = ep.initial_position
-    state[3:6] = ep.initial_velocity
-    state[6:9] = np.radians(ep.initial_euler_deg)
+    state[POS] = ep.initial_position
+    state[VEL] = ep.initial_velocity
+    state[EUL] = np.radians(ep.initial_euler_deg)
     return state
 
 
@@ -62,9 +62,9 @@ def settle_time(scenario: ScenarioConfig, trajectory: Trajectory, state0: FloatA
     if scenario.episode.settle_s is not None:
         return float(scenario.episode.settle_s)
     ref = trajectory(0.0)
-    vel_nav = dcm_from_euler(state0[6:9]) @ state0[3:6]
+    vel_nav = dcm_from_euler(state0[EUL]) @ state0[VEL]
     on_ref = (
-        np.linalg.norm(state0[0:3] - ref.pos) <= ON_REFERENCE_POS_M
+        np.linalg.norm(state0[POS] - ref.pos) <= ON_REFERENCE_POS_M
         and np.linalg.norm(vel_nav - ref.vel) <= ON_REFERENCE_POS_M
     )
     return 0.0 if on_ref else DEFAULT_SETTLE_S

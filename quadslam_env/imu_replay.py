@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation.protocol import ReservesLandmarks
 from quadslam_env.period_log import PeriodLog, Sample, Scan, apply_scan
 from quadslam_env.types import FloatArray
 
@@ -121,10 +122,10 @@ class ImuReplay:
         self.log.forget(lanes)
 
     def reserve_landmarks(self, count: int) -> None:
-        """Pass a reset's map size on to the filter (see ``EkfSlamBatch.reserve_landmarks``)."""
-        reserve = getattr(self.anchor, "reserve_landmarks", None)
-        if reserve is not None:
-            reserve(count)
+        """Pass a reset's map size on to a filter that
+        :class:`~quadslam_env.estimation.protocol.ReservesLandmarks`."""
+        if isinstance(self.anchor, ReservesLandmarks):
+            self.anchor.reserve_landmarks(count)
 
     def step(
         self,

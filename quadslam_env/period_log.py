@@ -11,11 +11,12 @@ after an autoreset (lane i of a vector env equals the scalar env).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation.protocol import AssociatesUnlabeled
 from quadslam_env.types import FloatArray
 
 Scan = tuple[bool, np.ndarray, np.ndarray, FloatArray]
@@ -38,7 +39,10 @@ def apply_scan(estimator: BatchEstimator, t: FloatArray, scan: Scan, sigma: Floa
     """
     unlabeled, lanes, visible_or_count, meas = scan
     if unlabeled:
-        estimator.update_unlabeled(t, lanes, visible_or_count, meas, sigma)  # type: ignore[attr-defined]
+        # the scenario check let only an estimator that AssociatesUnlabeled through
+        cast(AssociatesUnlabeled, estimator).update_unlabeled(
+            t, lanes, visible_or_count, meas, sigma
+        )
     else:
         estimator.update(t, lanes, visible_or_count, meas, sigma)
 

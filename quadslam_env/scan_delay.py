@@ -34,6 +34,7 @@ import numpy as np
 
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation.protocol import ReservesLandmarks
 from quadslam_env.imu_replay import ImuReplay
 from quadslam_env.period_log import PeriodLog, Sample, Scan, apply_scan, predict_samples
 from quadslam_env.types import FloatArray
@@ -122,9 +123,8 @@ class ScanDelay:
 
     def reserve_landmarks(self, count: int) -> None:
         """Pass a reset's map size on to the filter (see ``EkfSlamBatch.reserve_landmarks``)."""
-        reserve = getattr(self.filter, "reserve_landmarks", None)
-        if reserve is not None:
-            reserve(count)
+        if isinstance(self.filter, ReservesLandmarks):
+            self.filter.reserve_landmarks(count)
 
     def step(
         self,

@@ -27,7 +27,9 @@ POSE_DIM = 9
 """Pose part ``s = (ρ, v, Λ)`` of the state (the EKF-SLAM vehicle state, seed 001 §2.3)."""
 
 POS, VEL, EUL, RATE = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)
-"""Slices of ρ, v, Λ and ω in the 12-state."""
+"""Slices of ρ, v, Λ and ω in the 12-state, and of ρ, v, Λ in everything laid out like its
+leading :data:`POSE_DIM` entries (pose means, pose covariances, pose process noise). Numba
+kernels may use them too (a global slice is a compile-time constant there)."""
 
 MEAS_DIM = 3
 """LiDAR measurement ``y = (α [rad], β [rad], δ [m])`` per landmark (seed 001 §2.3.3)."""

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike
 from quadslam_env.models.integrators import vehicle_step_lanes, vehicle_step_rotor_lanes
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import air_velocity_lanes, lane_array, pack_bodies
-from quadslam_env.types import STATE_DIM, FloatArray
+from quadslam_env.types import STATE_DIM, VEL, FloatArray
 
 
 class VehicleBatch:
@@ -209,7 +209,7 @@ class VehicleBatch:
         """(B, 3) velocity relative to the air ``v − C_NBᵀ w`` in B, m/s (what the drag and
         the accelerometer feel); in still air a view of the state's v."""
         if self.wind_n is None:
-            return self.state[:, 3:6]
+            return self.state[:, VEL]
         out = np.empty((self.num_lanes, 3))
         air_velocity_lanes(self.state, self.wind_n, out)
         return out

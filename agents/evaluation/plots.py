@@ -12,6 +12,7 @@ from agents.evaluation.episodes import Trace
 from agents.io.outputs import Saver
 from quadslam_env.extras import require
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
+from quadslam_env.types import EUL, POS, VEL
 
 
 def write_figures(
@@ -46,16 +47,16 @@ def write_figures(
     std = np.array(trace.pose_std)
     paths = [_save(saver, _path_figure(plt, trace, title), out_dir / "path_3d.png")]
     panels = (
-        ("position", ["x", "y", "z"], 0, np.array(trace.est_pos), "m", 1.0, False),
-        ("velocity_body", ["u", "v", "w"], 3, np.array(trace.est_vel_body), "m/s", 1.0, False),
-        ("attitude", ["φ", "θ", "ψ"], 6, est_euler, "deg", 180.0 / np.pi, True),
+        ("position", ["x", "y", "z"], POS, np.array(trace.est_pos), "m", 1.0, False),
+        ("velocity_body", ["u", "v", "w"], VEL, np.array(trace.est_vel_body), "m/s", 1.0, False),
+        ("attitude", ["φ", "θ", "ψ"], EUL, est_euler, "deg", 180.0 / np.pi, True),
     )
-    for name, labels, first, est, unit, scale, wrap in panels:
-        truth, sigma = true[:, first : first + 3], std[:, first : first + 3]
+    for name, labels, part, est, unit, scale, wrap in panels:
+        truth, sigma = true[:, part], std[:, part]  # pose_std (ρ, v_B, Λ): the state's layout
         fig = _state_panel(plt, t, labels, truth, est, sigma, unit, scale, wrap)
         fig.suptitle(f"{title}: {name}")
         paths.append(_save(saver, fig, out_dir / f"{name}.png"))
-    true_vel_n = np.einsum("nij,nj->ni", dcm_from_euler_batch(true[:, 6:9]), true[:, 3:6])
+    true_vel_n = np.einsum("nij,nj->ni", dcm_from_euler_batch(true[:, EUL]), true[:, VEL])
     est_vel_n = np.einsum(
         "nij,nj->ni", dcm_from_euler_batch(est_euler), np.array(trace.est_vel_body)
     )

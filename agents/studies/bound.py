@@ -37,7 +37,7 @@ from estimators.pcrb import BoundModel, TruthRecord, error_bounds, slam_bound
 from quadslam_env.metrics import step_metrics
 from quadslam_env.models.frames import dcm_from_euler, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, POSE_DIM, VEL, FloatArray
 
 BLOCKS = (("pos", "m", 1.0), ("vel", "mps", 1.0), ("att", "deg", math.degrees(1.0)))
 """The error blocks: name, unit suffix of the JSON keys, factor from SI (rad → deg)."""
@@ -112,9 +112,9 @@ class TruthRecorder:
             rec.err_axes.append(
                 np.concatenate(
                     [
-                        est.position[lane] - x[0:3],
-                        est.vel_inertial[lane] - dcm_from_euler(x[6:9]) @ x[3:6],
-                        np.asarray(wrap_angle(est.euler[lane] - x[6:9])),
+                        est.position[lane] - x[POS],
+                        est.vel_inertial[lane] - dcm_from_euler(x[EUL]) @ x[VEL],
+                        np.asarray(wrap_angle(est.euler[lane] - x[EUL])),
                     ]
                 )
             )
@@ -206,9 +206,9 @@ class SeedBound:
         """Trace of the filter's own covariance for the position and attitude blocks (its
         claimed mean-square error; velocity is reported in N and the filter's in B)."""
         if block == 0:
-            return self.filter_var[:, 0:3].sum(axis=1)
+            return self.filter_var[:, POS].sum(axis=1)
         if block == 2:  # Euler variances: close to the rotation angle's at small tilt
-            return self.filter_var[:, 6:9].sum(axis=1)
+            return self.filter_var[:, EUL].sum(axis=1)
         return None
 
 

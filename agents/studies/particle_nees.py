@@ -31,7 +31,9 @@ import numpy as np
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.io.overrides import parse_overrides
 from agents.studies.degradation import save_json, seeded_lanes
+from quadslam_env.estimation import HasParticles, LaneLoop
 from quadslam_env.models.frames import wrap_angle
+from quadslam_env.types import EUL, POS, VEL
 
 BLOCKS = {"pos": slice(0, 3), "vel": slice(3, 6), "att": slice(6, 9)}
 """The 3-DOF blocks of the 9-DOF pose ``(ρ m, v_B m/s, Λ rad)``."""
@@ -74,7 +76,7 @@ def record(
         }
     b = len(seeds)
     env, policy, obs, core = seeded_lanes(scenario, seeds, overrides)
-    lanes = getattr(core.estimator, "lanes", [None] * b)
+    lanes = core.estimator.lanes if isinstance(core.estimator, LaneLoop) else [None] * b
     recs: list[dict[str, Any]] = [
         {"t": [], "nees": {k: [] for k in ("pose", *BLOCKS)}, "pos_err": [], "map_err": [],
          "pos_sd": [], "yaw_err": [], "yaw_sd": [], "lineages": [], "end": ""}
@@ -87,13 +89,13 @@ def record(
             rec, est = recs[lane], core.estimator.lane_estimate(lane)
             x = core.vehicle.state[lane]
             err = np.r_[
-                est.position - x[0:3], est.vel_body - x[3:6], wrap_angle(est.euler - x[6:9])
+                est.position - x[POS], est.vel_body - x[VEL], wrap_angle(est.euler - x[EUL])
             ]
             for k, v in block_nees(err, est.pose_cov).items():
                 rec["nees"][k].append(v)
             rec["t"].append(float(core.t[lane]))
-            rec["pos_err"].append(err[0:3])
-            rec["pos_sd"].append(math.sqrt(np.trace(est.pose_cov[0:3, 0:3]) / 3.0))
+            rec["pos_err"].append(err[POS])
+            rec["pos_sd"].append(math.sqrt(np.trace(est.pose_cov[POS, POS]) / 3.0))
             rec["yaw_err"].append(float(err[8]))
             rec["yaw_sd"].append(math.sqrt(est.pose_cov[8, 8]))
             ids = np.asarray(est.landmark_ids, dtype=int)
@@ -104,8 +106,9 @@ def record(
                 rec["map_err"].append((est.landmark_means[ok] - truth).mean(axis=0))
             else:
                 rec["map_err"].append(np.full(3, math.nan))
-            lineage = getattr(lanes[lane], "lineage", None)
-            rec["lineages"].append(-1 if lineage is None else int(np.unique(lineage).size))
+            filt = lanes[lane]
+            count = np.unique(filt.lineage).size if isinstance(filt, HasParticles) else -1
+            rec["lineages"].append(int(count))
         for lane in np.flatnonzero(live & term).tolist():
             recs[lane]["end"] = str(info["termination_reason"][lane])
         live &= ~(term | trunc)

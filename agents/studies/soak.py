@@ -159,13 +159,14 @@ def run_soak(
     from agents.control.dflqr import DFLQRPolicy
     from agents.studies.consistency import truth_observation
     from estimators.oracle import OracleBatch
+    from quadslam_env.estimation import HasFullState
 
     if control not in ("estimate", "truth"):
         raise ValueError(f"control: got {control!r}; allowed: 'estimate' or 'truth'")
     env, scenario, overrides = make_soak_env(estimator, sim_seconds, n_particles)
     base = env.unwrapped
     policy = DFLQRPolicy.from_env(env)
-    full_state = getattr(base.estimator, "full_state", None)
+    full_state = base.estimator.full_state if isinstance(base.estimator, HasFullState) else None
     oracle = OracleBatch(num_lanes=1, landmark_capacity=0) if control == "truth" else None
 
     record = _SoakRecord()

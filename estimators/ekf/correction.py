@@ -30,7 +30,7 @@ from quadslam_env.models.frames import dcm_and_partials, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_models
 from quadslam_env.models.linalg import cholesky_lower
-from quadslam_env.types import FloatArray
+from quadslam_env.types import POS, FloatArray
 
 CONVERGED = 0.01
 """An iterate that moves every predicted measurement by less than this many noise stds ends
@@ -44,7 +44,7 @@ def predicted_measurements(xb: FloatArray, lms: FloatArray, h: FloatArray, H: Fl
     C = np.empty((3, 3))
     dC = np.empty((3, 3, 3))
     dcm_and_partials(xb[6], xb[7], xb[8], C, dC)
-    lidar_models(xb[0:3], C, dC, lms, h, H)
+    lidar_models(xb[POS], C, dC, lms, h, H)
 
 
 @kernel

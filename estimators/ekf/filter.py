@@ -36,12 +36,12 @@ from estimators.ekf.kernels import (
     fill_outputs,
     predict_lanes,
 )
-from estimators.ekf.settings import EkfSlamSettings
+from estimators.ekf.settings import ACCEL_BIAS_Z, GYRO_BIAS, EkfSlamSettings
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.memory import check_ekf_map
 from quadslam_env.estimation import BatchEstimate, Estimate, IntArray, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, POSE_DIM, RATE, VEL, FloatArray
 
 _AR3 = np.arange(3)
 
@@ -242,7 +242,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
                 P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(self.settings.initial_bias_variances())
             self._n[lane] = nv
             self._stale[lane] = False
-            self._rates[lane] = mean0[j, 9:12]
+            self._rates[lane] = mean0[j, RATE]
             self._diag[:, lane] = 0.0
             self._diag[D_NIS, lane] = math.nan
             self._slot_of_id[lane] = -1
@@ -426,13 +426,13 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         if out is None:  # views stay valid until the buffers are reallocated
             gyro_bias = accel_bias = None
             if self.estimate_imu_bias:
-                gyro_bias = x[:, 9:12]
+                gyro_bias = x[:, GYRO_BIAS]
                 accel_bias = self._accel_bias
             out = BatchEstimate(
-                position=x[:, 0:3],
-                vel_body=x[:, 3:6],
+                position=x[:, POS],
+                vel_body=x[:, VEL],
                 vel_inertial=self._vel_inertial,
-                euler=x[:, 6:9],
+                euler=x[:, EUL],
                 rates=self._rates,
                 pose_cov=self._P[:, :POSE_DIM, :POSE_DIM],
                 landmark_means=self._landmark_means,
@@ -443,7 +443,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             )
             self._batch_estimate = out
         if self.estimate_imu_bias:
-            self._accel_bias[:, 2] = x[:, 12]
+            self._accel_bias[:, 2] = x[:, ACCEL_BIAS_Z]
         np.logical_and(self._mapped, ~self._tentative, out=self._reported)
         return out
 
@@ -467,13 +467,13 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             lm_covs = P[idx[:, None, None] + _AR3[:, None], idx[:, None, None] + _AR3]
         gyro_bias = accel_bias = None
         if self.estimate_imu_bias:
-            gyro_bias = x[9:12].copy()
-            accel_bias = np.array([0.0, 0.0, x[12]])
+            gyro_bias = x[GYRO_BIAS].copy()
+            accel_bias = np.array([0.0, 0.0, x[ACCEL_BIAS_Z]])
         return Estimate(
-            position=x[0:3].copy(),
-            vel_body=x[3:6].copy(),
-            vel_inertial=dcm_from_euler(x[6:9]) @ x[3:6],
-            euler=x[6:9].copy(),
+            position=x[POS].copy(),
+            vel_body=x[VEL].copy(),
+            vel_inertial=dcm_from_euler(x[EUL]) @ x[VEL],
+            euler=x[EUL].copy(),
             rates=self._rates[lane].copy(),
             pose_cov=P[:POSE_DIM, :POSE_DIM].copy(),
             landmark_ids=lm_ids,

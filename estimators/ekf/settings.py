@@ -26,6 +26,11 @@ from quadslam_env.types import POSE_DIM, FloatArray
 BIAS_DIM = 4
 """Size of the bias block b = (b_ω (3), b_az (1)) when biases are estimated."""
 
+GYRO_BIAS, ACCEL_BIAS_Z = slice(POSE_DIM, POSE_DIM + 3), POSE_DIM + 3
+"""Where b_ω (rad/s) and b_az (m/s²) sit in the filter's state ``x = (s, b, m)``: after the pose
+``s = (ρ, v_B, Λ)``, whose entries sit as in the vehicle's 12-state
+(:data:`~quadslam_env.types.POS`, ``VEL``, ``EUL``), but where the vehicle state has ω."""
+
 PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)
 """Seed 001 Table 7: diagonal of Q over (ρ, v_B, Λ) for the unknown-map case."""
 

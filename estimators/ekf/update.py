@@ -42,7 +42,7 @@ from estimators.ekf.kernels import (
 from quadslam_env.models.frames import dcm_and_partials, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_inverse_models
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, POSE_DIM, FloatArray
 
 _DIAG_FLOOR = -1e-9
 """Most negative posterior variance accepted as round-off."""
@@ -69,8 +69,8 @@ def stacked_model(
     predicted_measurements(xb, np.ascontiguousarray(lms, dtype=float), h, blocks)
     cols = np.arange(POSE_DIM) if lm_cols is None else np.r_[np.arange(POSE_DIM), lm_cols]
     H = np.zeros((k, 3, cols.shape[0]))
-    H[:, :, 0:3] = blocks[:, :, 0:3]
-    H[:, :, 6:9] = blocks[:, :, 3:6]
+    H[:, :, POS] = blocks[:, :, 0:3]
+    H[:, :, EUL] = blocks[:, :, 3:6]
     if lm_cols is not None:
         for i in range(k):
             H[i, :, POSE_DIM + 3 * i : POSE_DIM + 3 * i + 3] = blocks[i, :, 6:9]
@@ -240,7 +240,7 @@ def inverse_measurements(
     G_eul = np.empty((kn, 3, 3))
     G_y = np.empty((kn, 3, 3))
     P6, P7, P8 = Pb[6], Pb[7], Pb[8]
-    lidar_inverse_models(xb[0:3], C, dC, y, lms, G_eul, G_y)
+    lidar_inverse_models(xb[POS], C, dC, y, lms, G_eul, G_y)
     for i in range(kn):
         for r in range(3):
             g0, g1, g2 = G_eul[i, r, 0], G_eul[i, r, 1], G_eul[i, r, 2]

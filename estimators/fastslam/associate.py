@@ -56,7 +56,7 @@ from quadslam_env.measurements import LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import body_from_measure
-from quadslam_env.types import MEAS_DIM, FloatArray
+from quadslam_env.types import EUL, MEAS_DIM, POS, FloatArray
 
 
 @kernel
@@ -178,7 +178,7 @@ def associate_particles(
     paired = np.empty(r, dtype=np.int64)
     near = np.empty(r, dtype=np.bool_)
     for i in range(n_particles):
-        pos = x[i, 0:3]
+        pos = x[i, POS]
         C = particle_dcm(x[i])
         m = n_lm[i]
         unexplained[i, :r] = True
@@ -364,7 +364,7 @@ class ParticleMaps:
         if self.known:
             return mu, sigma  # unpaired returns are dropped
         cols = np.flatnonzero(self._unexplained[:, :k].any(axis=0))
-        new_mu, new_sigma = landmark_init(x[:, 0:3], dcm_from_euler_batch(x[:, 6:9]), meas[cols], R)
+        new_mu, new_sigma = landmark_init(x[:, POS], dcm_from_euler_batch(x[:, EUL]), meas[cols], R)
         cand = self.candidates.at_least(max(CANDIDATE_SLOTS, 2 * k))
         self.candidates = cand
         add_tentative(

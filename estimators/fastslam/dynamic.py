@@ -24,7 +24,7 @@ from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.linalg import chol3, inv3_sym, mv
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.types import FloatArray
+from quadslam_env.types import EUL, POS, RATE, FloatArray
 
 
 @register("fastslam")
@@ -316,7 +316,7 @@ class DynamicFastSLAM(FastSLAMBase):
             return
         bias = self.xb[:, 3:6] + self.xb[:, 9:12]
         sg = float(imu.gyro_sigma)
-        self.x[:, 9:12] = (
+        self.x[:, RATE] = (
             np.asarray(imu.gyro, dtype=float)
             - bias
             + sg * self._rng.standard_normal((self.n_particles, 3))
@@ -331,7 +331,7 @@ class DynamicFastSLAM(FastSLAMBase):
         """
         if not (self.stage2 and self.stage2_position):
             return
-        dcm = dcm_from_euler_batch(self.x[:, 6:9])
+        dcm = dcm_from_euler_batch(self.x[:, EUL])
         rho = self.mu[:, idx] - offset_in_inertial(dcm, meas)  # (N, m, 3)
         cov = self.sigma[:, idx] + inverse_model_cov(dcm, meas, R)
         info, _ = inv3_sym(cov)  # (N, m, 3, 3)
@@ -340,7 +340,7 @@ class DynamicFastSLAM(FastSLAMBase):
         fused_cov, _ = inv3_sym(info_sum)
         fused = np.einsum("nij,nj->ni", fused_cov, eta)
         draw = mv(chol3(fused_cov), self._rng.standard_normal((self.n_particles, 3)))
-        self.x[:, 0:3] = fused + draw
+        self.x[:, POS] = fused + draw
 
     def _extra_diagnostics(self) -> dict[str, float]:
         """The model's principal moments of inertia in kg·m² (identified or nominal)."""

@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from quadslam_env.models.jit import kernel
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import POS, POSE_DIM, FloatArray
 
 GAUGE_INDEX = np.array([0, 1, 2, 8])
 """State indices of the gauge ``(ρ_x, ρ_y, ρ_z, ψ)`` in the 12-state ``(ρ, v_B, Λ, ω)``."""
@@ -203,13 +203,13 @@ def pin_gauge(
     Returns:
         ``(G', ρ̄)``: the gauge covariance (4, 4) about the new centre ``ρ̄`` (3,).
     """
-    pos = x[:, 0:3]
+    pos = x[:, POS]
     mean = w @ pos
     psi = math.atan2(float(w @ np.sin(x[:, 8])), float(w @ np.cos(x[:, 8])))
     dev = np.empty((x.shape[0], 4))
     dev[:, 0:3] = pos - mean
     dev[:, 3] = (x[:, 8] - psi + math.pi) % (2.0 * math.pi) - math.pi
     spread = (dev * w[:, None]).T @ dev
-    x[:, 0:3] = mean
+    x[:, POS] = mean
     x[:, 8] = psi
     return move_anchor(G, anchor, mean) + spread, mean

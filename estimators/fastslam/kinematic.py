@@ -12,7 +12,7 @@ from quadslam_env.estimation import register
 from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.integrators import kinematic_propagate
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.types import FloatArray
+from quadslam_env.types import RATE, FloatArray
 
 
 @register("fastslam_kinematic")
@@ -57,7 +57,7 @@ class KinematicFastSLAM(FastSLAMBase):
             + (float(imu.accel_sigma) * self.imu_noise_scale) * noise[:, 0:3]
         )
         x = self.x.copy()
-        x[:, 9:12] = (
+        x[:, RATE] = (
             np.asarray(imu.gyro, dtype=float)
             + (float(imu.gyro_sigma) * self.imu_noise_scale) * noise[:, 3:6]
         )

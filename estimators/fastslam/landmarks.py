@@ -21,7 +21,7 @@ from quadslam_env.models.lidar import (
     spherical_jacobian,
 )
 from quadslam_env.models.linalg import LOG_2PI, inv3_sym_one, swap
-from quadslam_env.types import MEAS_DIM, FloatArray
+from quadslam_env.types import MEAS_DIM, POS, FloatArray
 
 Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
@@ -268,7 +268,7 @@ def landmark_ekf_particles(
         ll_sum, nis_sum = 0.0, 0.0
         for j in range(slots.shape[0]):
             s = slots[j]
-            ll, q = landmark_ekf_one(mu[i, s], sigma[i, s], x[i, 0:3], C, meas[j], noise)
+            ll, q = landmark_ekf_one(mu[i, s], sigma[i, s], x[i, POS], C, meas[j], noise)
             ll_sum += ll
             nis_sum += q
         loglik[i], nis[i] = ll_sum, nis_sum

@@ -45,7 +45,7 @@ from quadslam_env.estimation import Estimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.linalg import psd_sqrt
-from quadslam_env.types import MEAS_DIM, POSE_DIM, STATE_DIM, FloatArray
+from quadslam_env.types import EUL, MEAS_DIM, POS, POSE_DIM, RATE, STATE_DIM, VEL, FloatArray
 
 
 class FastSLAMBase:
@@ -202,7 +202,7 @@ class FastSLAMBase:
             # SLAM: the initial position and yaw are the gauge (:mod:`.gauge`), kept
             # analytically; the particles start from the prior given the gauge.
             gauge_cov, cov = gauge_split(cov)
-            self._gauge = (gauge_cov, mean[0:3].copy())
+            self._gauge = (gauge_cov, mean[POS].copy())
         self.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
         wrap_euler_rows(self.x)
         if known_landmarks is not None:
@@ -249,7 +249,7 @@ class FastSLAMBase:
 
     def particle_positions(self) -> FloatArray:
         """(N, 3) particle positions ρ in N, m (a copy; for display)."""
-        return self.x[:, 0:3].copy()
+        return self.x[:, POS].copy()
 
     def _apply_loglik(self, loglik: FloatArray, scale: float = 1.0) -> None:
         """``log w ← log w + log p(z | particle) / scale``, normalised; flags divergence (eq. 28).
@@ -287,7 +287,7 @@ class FastSLAMBase:
             w = self._w
             mean = w @ self.x
             dev = self.x - mean
-            dev[:, 6:9] = wrap_angle(dev[:, 6:9])
+            dev[:, EUL] = wrap_angle(dev[:, EUL])
             spread = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
             scale = self.roughening * spread * self.n_particles ** (-1.0 / STATE_DIM)
         if self.regularisation > 0.0:
@@ -410,8 +410,8 @@ class FastSLAMBase:
             if self._gauge is not None and not self._slot_ids:  # the map is born: pin
                 self._gauge = pin_gauge(self.x, self._w, *self._gauge)
             new_ids = scan_ids[~old]
-            pos = self.x[:, 0:3]
-            dcm = dcm_from_euler_batch(self.x[:, 6:9])
+            pos = self.x[:, POS]
+            dcm = dcm_from_euler_batch(self.x[:, EUL])
             mu0, sig0 = landmark_init(pos, dcm, meas[~old], R)
             self.mu = np.concatenate([self.mu, mu0], axis=1)
             self.sigma = np.concatenate([self.sigma, sig0], axis=1)
@@ -467,7 +467,7 @@ class FastSLAMBase:
         elif n_lm:
             landmark_mixture(self.mu, self.sigma, w, self._order, lm_mean, lm_cov)
         if self._gauge is not None:  # the SLAM gauge's share (:mod:`.gauge`)
-            add_gauge_cov(self._gauge, mean[0:3], pose_cov, lm_mean, lm_cov)
+            add_gauge_cov(self._gauge, mean[POS], pose_cov, lm_mean, lm_cov)
         accel_bias, gyro_bias = self._bias_estimate(w)
         diagnostics = {
             "ess": self._ess,
@@ -481,11 +481,11 @@ class FastSLAMBase:
             **self._extra_diagnostics(),
         }
         return Estimate(
-            position=mean[0:3],  # views of this call's fresh array
-            vel_body=mean[3:6],
+            position=mean[POS],  # views of this call's fresh array
+            vel_body=mean[VEL],
             vel_inertial=vel_inertial,
-            euler=mean[6:9],
-            rates=mean[9:12],
+            euler=mean[EUL],
+            rates=mean[RATE],
             pose_cov=pose_cov,
             landmark_ids=ids.copy(),
             landmark_means=lm_mean,

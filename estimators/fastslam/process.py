@@ -21,7 +21,7 @@ from quadslam_env.models.integrators import RigidBodyLanes, kinematic_derivative
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import pack_bodies, specific_force_lanes
-from quadslam_env.types import FloatArray
+from quadslam_env.types import VEL, FloatArray
 
 _EYE3 = np.eye(3)
 
@@ -72,7 +72,7 @@ class DynamicsModel(RigidBodyLanes):
 
     def specific_force(self, x: FloatArray, thrust: float) -> FloatArray:
         """``f_B = −(f_T/m) b3 − drag v`` (..., 3) in m/s² for states (..., 12)."""
-        return specific_force_lanes(x[..., 3:6], thrust, self.mass, self.drag)
+        return specific_force_lanes(x[..., VEL], thrust, self.mass, self.drag)
 
 
 def dynamics_derivative_batch(
@@ -90,7 +90,7 @@ kinematic_derivative_batch = kinematic_derivative
 
 @kernel
 def wrap_euler_rows(x: FloatArray) -> None:
-    """Wrap the Euler angles ``x[:, 6:9]`` of states (N, 12) to (-π, π] in place."""
+    """Wrap the Euler angles ``x[:, EUL]`` of states (N, 12) to (-π, π] in place."""
     for i in range(x.shape[0]):
         for j in range(6, 9):
             x[i, j] = wrap_pi(x[i, j])

@@ -39,7 +39,7 @@ from estimators.fastslam.resampling import (
     systematic_resample,
 )
 from quadslam_env.models.frames import wrap_angle
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import EUL, POSE_DIM, FloatArray
 
 MAX_STAGES = 30
 """Tempered stages per scan at most; the rest of the likelihood is then applied at once."""
@@ -108,7 +108,7 @@ def pose_covariance(x: FloatArray, w: FloatArray) -> FloatArray:
         ``Σ_i w_i d_i d_iᵀ`` with ``d_i`` the deviation from the weighted mean (angles wrapped).
     """
     dev = x[:, 0:POSE_DIM] - w @ x[:, 0:POSE_DIM]
-    dev[:, 6:9] = wrap_angle(dev[:, 6:9])
+    dev[:, EUL] = wrap_angle(dev[:, EUL])
     return (dev * w[:, None]).T @ dev
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.linalg import psd_sqrt
-from quadslam_env.types import FloatArray
+from quadslam_env.types import EUL, POSE_DIM, FloatArray
 
 
 @kernel
@@ -176,11 +176,11 @@ def pose_moments(x: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray, 
         ``(mean (9,), dev (N, 9), cov (9, 9))``: the Euler angles' mean is circular and their
         deviations are wrapped to (-π, π].
     """
-    pose = x[:, 0:9]
+    pose = x[:, :POSE_DIM]
     mean = w @ pose
-    mean[6:9] = np.arctan2(w @ np.sin(pose[:, 6:9]), w @ np.cos(pose[:, 6:9]))
+    mean[EUL] = np.arctan2(w @ np.sin(pose[:, EUL]), w @ np.cos(pose[:, EUL]))
     dev = pose - mean
-    dev[:, 6:9] = (dev[:, 6:9] + np.pi) % (2.0 * np.pi) - np.pi
+    dev[:, EUL] = (dev[:, EUL] + np.pi) % (2.0 * np.pi) - np.pi
     return mean, dev, (dev * w[:, None]).T @ dev
 
 
@@ -209,6 +209,6 @@ def regularise_pose(
     mean, dev, cov = pose_moments(x, w)
     out = x[idx]
     a = math.sqrt(1.0 - h * h)
-    out[:, 0:9] = mean + a * dev[idx] + regularisation_jitter(cov, h, idx.shape[0], rng)
-    out[:, 6:9] = (out[:, 6:9] + np.pi) % (2.0 * np.pi) - np.pi
+    out[:, :POSE_DIM] = mean + a * dev[idx] + regularisation_jitter(cov, h, idx.shape[0], rng)
+    out[:, EUL] = (out[:, EUL] + np.pi) % (2.0 * np.pi) - np.pi
     return out

@@ -51,7 +51,7 @@ from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation import Estimate, register
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.lidar import lidar_inverse
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import POSE_DIM, RATE, FloatArray
 
 
 def _symbol(gtsam: Any, char: str, index: int) -> int:
@@ -187,7 +187,7 @@ class Isam2Slam:
         self._reset_state()
         self._known = known
         self._front.reset(known=known is not None)
-        self._rates = mean0[9:12].copy()
+        self._rates = mean0[RATE].copy()
         s = self.settings
         params = g.ISAM2Params()
         params.setRelinearizeThreshold(s.relinearize_threshold)

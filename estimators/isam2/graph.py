@@ -13,7 +13,7 @@ from estimators.isam2.settings import NOISE_FLOOR, PRIOR_VARIANCE_FLOOR, Isam2Se
 from estimators.isam2.tangent import tangent_covariance
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.frames import dcm_from_euler
-from quadslam_env.types import GRAVITY, POSE_DIM, FloatArray
+from quadslam_env.types import EUL, GRAVITY, POS, POSE_DIM, VEL, FloatArray
 
 GTSAM_INSTALL = "pip install 'quadslam[gtsam]'"
 """How to install the optional dependency (GTSAM 4.3)."""
@@ -77,13 +77,13 @@ def first_keyframe(
     """
     g = gtsam
     x0, v0, b0 = keys
-    euler = mean0[6:9]
+    euler = mean0[EUL]
     dcm = dcm_from_euler(euler)
-    pose0 = g.Pose3(g.Rot3(dcm), mean0[0:3].copy())
-    vel0 = dcm @ mean0[3:6]
+    pose0 = g.Pose3(g.Rot3(dcm), mean0[POS].copy())
+    vel0 = dcm @ mean0[VEL]
     block = cov0[:POSE_DIM, :POSE_DIM]
     sigma = tangent_covariance(
-        0.5 * (block + block.T), dcm, mean0[3:6], euler, floor=PRIOR_VARIANCE_FLOOR
+        0.5 * (block + block.T), dcm, mean0[VEL], euler, floor=PRIOR_VARIANCE_FLOOR
     )
     W = np.linalg.inv(np.linalg.cholesky(sigma))  # whitening: Wᵀ W = Σ⁻¹
     prior = g.JacobianFactor(
@@ -129,10 +129,10 @@ def preintegration_params(
     """
     q = np.asarray(settings.process_noise)
     p = gtsam.PreintegrationCombinedParams(np.array([0.0, 0.0, GRAVITY]))
-    p.setAccelerometerCovariance(np.diag(np.maximum(accel_density + q[3:6], NOISE_FLOOR)))
-    p.setGyroscopeCovariance(np.diag(np.maximum(gyro_density + q[6:9], NOISE_FLOOR)))
+    p.setAccelerometerCovariance(np.diag(np.maximum(accel_density + q[VEL], NOISE_FLOOR)))
+    p.setGyroscopeCovariance(np.diag(np.maximum(gyro_density + q[EUL], NOISE_FLOOR)))
     p.setIntegrationCovariance(
-        np.diag(np.maximum(settings.integration_sigma**2 + q[0:3], NOISE_FLOOR))
+        np.diag(np.maximum(settings.integration_sigma**2 + q[POS], NOISE_FLOOR))
     )
     walk_a, walk_g = settings.bias_walks()
     p.setBiasAccCovariance(np.eye(3) * walk_a**2)

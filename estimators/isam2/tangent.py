@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from quadslam_env.models.frames import euler_rate_matrix, skew
-from quadslam_env.types import POSE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, POSE_DIM, VEL, FloatArray
 
 
 def state_jacobian(dcm: FloatArray, vel_body: FloatArray, euler: FloatArray) -> FloatArray:
@@ -36,10 +36,10 @@ def state_jacobian(dcm: FloatArray, vel_body: FloatArray, euler: FloatArray) -> 
         (9, 9) Jacobian; rows (ρ m, v_B m/s, Λ rad), columns (δθ rad, δt m, δv_N m/s).
     """
     J = np.zeros((POSE_DIM, POSE_DIM))
-    J[0:3, 3:6] = dcm
-    J[3:6, 0:3] = skew(vel_body)
-    J[3:6, 6:9] = dcm.T
-    J[6:9, 0:3] = euler_rate_matrix(euler)
+    J[POS, 3:6] = dcm  # rows: the pose's entries; columns: (δθ, δt, δv_N)
+    J[VEL, 0:3] = skew(vel_body)
+    J[VEL, 6:9] = dcm.T
+    J[EUL, 0:3] = euler_rate_matrix(euler)
     return J
 
 

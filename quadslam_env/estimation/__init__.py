@@ -1,14 +1,27 @@
 """The estimator boundary (docs/design.md §5): the belief the env reads, the protocols an
-estimator implements, the one adapter for an estimator of one vehicle, the registry that finds
-estimators by name, and the health check of a belief.
+estimator implements and those of its optional abilities, the one adapter for an estimator of
+one vehicle, the registry that finds estimators by name, and the health check of a belief.
 
 This package belongs to the ground floor: it imports the models and measurement types only,
 never an estimator or the env, so estimators and the env both build on it.
 """
 
 from quadslam_env.estimation.health import HEALTH_PROBLEMS, health_codes, position_std
-from quadslam_env.estimation.lane_loop import LaneLoop
-from quadslam_env.estimation.protocol import BatchEstimator, Estimator, IntArray, KnownMaps
+from quadslam_env.estimation.lane_loop import LaneLoop, ParticleLaneLoop
+from quadslam_env.estimation.protocol import (
+    AssociatesUnlabeled,
+    BatchEstimator,
+    ChecksMemory,
+    Estimator,
+    HasFullState,
+    HasParticles,
+    IntArray,
+    KnownMaps,
+    LabelsReturns,
+    ReservesLandmarks,
+    ShowsParticles,
+    UsesTruth,
+)
 from quadslam_env.estimation.registry import (
     ENTRY_POINT_GROUP,
     associates_unlabeled,
@@ -21,13 +34,22 @@ from quadslam_env.estimation.snapshot import BatchEstimate, Estimate, batch_from
 __all__ = [
     "ENTRY_POINT_GROUP",
     "HEALTH_PROBLEMS",
+    "AssociatesUnlabeled",
     "BatchEstimate",
     "BatchEstimator",
+    "ChecksMemory",
     "Estimate",
     "Estimator",
+    "HasFullState",
+    "HasParticles",
     "IntArray",
     "KnownMaps",
+    "LabelsReturns",
     "LaneLoop",
+    "ParticleLaneLoop",
+    "ReservesLandmarks",
+    "ShowsParticles",
+    "UsesTruth",
     "associates_unlabeled",
     "available",
     "batch_from_estimates",

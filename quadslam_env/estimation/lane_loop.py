@@ -7,7 +7,14 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from quadslam_env.estimation.protocol import Estimator, IntArray, KnownMaps
+from quadslam_env.estimation.protocol import (
+    ChecksMemory,
+    Estimator,
+    HasParticles,
+    IntArray,
+    KnownMaps,
+    LabelsReturns,
+)
 from quadslam_env.estimation.snapshot import (
     BatchEstimate,
     Estimate,
@@ -21,9 +28,8 @@ from quadslam_env.types import FloatArray
 
 def _check_memory(lane: Estimator, num_lanes: int, landmark_capacity: int) -> None:
     """Ask ``lane`` whether ``num_lanes`` of it fit in memory, if it has a check."""
-    check = getattr(lane, "check_memory", None)
-    if check is not None:  # the filters of the whole batch, before they grow
-        check(num_lanes, landmark_capacity)
+    if isinstance(lane, ChecksMemory):  # the filters of the whole batch, before they grow
+        lane.check_memory(num_lanes, landmark_capacity)
 
 
 class LaneLoop:
@@ -33,16 +39,21 @@ class LaneLoop:
     vector env; its cost is the scalar estimator's times B plus the per-lane conversion of
     samples, scans and snapshots.
 
-    An estimator with a ``check_memory(num_lanes, landmark_capacity)`` method (FastSLAM) is
+    An estimator that :class:`~quadslam_env.estimation.protocol.ChecksMemory` (FastSLAM) is
     asked whether B of it fit in memory: :meth:`build` asks the first lane before it builds
     the others, so a batch that cannot fit fails fast with one line instead of allocating
-    lane after lane.
+    lane after lane. :meth:`build` over particle filters
+    (:class:`~quadslam_env.estimation.protocol.HasParticles`) returns a
+    :class:`ParticleLaneLoop`, which shows their particles. A one-vehicle estimator never
+    receives the truth (``uses_truth`` is False; the oracle is batched).
 
     Args:
         estimators: The B scalar estimators.
         landmark_capacity: Initial Lmax of the landmark output arrays (grows as needed).
         check_memory: Ask the first lane whether the batch fits (:meth:`build` has asked).
     """
+
+    uses_truth = False
 
     def __init__(
         self,
@@ -55,7 +66,6 @@ class LaneLoop:
         self.num_lanes = len(self.lanes)
         if check_memory:
             _check_memory(self.lanes[0], self.num_lanes, landmark_capacity)
-        self.uses_truth = bool(getattr(self.lanes[0], "uses_truth", False))
         b = self.num_lanes
         self._estimates: list[Estimate | None] = [None] * b
         self._out = empty_batch(b, max(landmark_capacity, 0))
@@ -70,7 +80,7 @@ class LaneLoop:
 
         The first lane is built (a filter checks its own arrays before allocating them), then
         asked whether ``num_lanes`` of it fit with ``landmark_capacity`` landmarks; only then
-        are the other lanes built.
+        are the other lanes built. Particle filters get a :class:`ParticleLaneLoop`.
 
         Raises:
             ValueError: The batch would not fit in memory (from the estimator's check).
@@ -78,7 +88,8 @@ class LaneLoop:
         first = factory()
         _check_memory(first, num_lanes, landmark_capacity)
         lanes = [first, *(factory() for _ in range(num_lanes - 1))]
-        return cls(lanes, landmark_capacity, check_memory=False)
+        kind = ParticleLaneLoop if isinstance(first, HasParticles) else cls
+        return kind(lanes, landmark_capacity, check_memory=False)
 
     def reset_lanes(
         self,
@@ -158,21 +169,9 @@ class LaneLoop:
             est = self.lanes[lane]
             est.update(scan)
             self.last_association[lane] = -1
-            self.last_association[lane, :k] = getattr(est, "last_association", -1)
+            if isinstance(est, LabelsReturns):  # else no return is labeled
+                self.last_association[lane, :k] = est.last_association
             self._estimates[lane] = None
-
-    def set_truth(self, states: FloatArray, landmarks: FloatArray, counts: np.ndarray) -> None:
-        """Feed the truth to estimators that use it (the oracle run as scalar objects)."""
-        for lane, est in enumerate(self.lanes):
-            n = int(counts[lane])
-            est.set_truth(states[lane], np.arange(n), landmarks[lane, :n])  # type: ignore[attr-defined]
-            self._estimates[lane] = None
-
-    def lane_particles(self, lane: int) -> FloatArray | None:
-        """(N, 3) particle positions of lane ``lane`` (m), or ``None`` when its estimator has
-        no particles (for display)."""
-        positions = getattr(self.lanes[lane], "particle_positions", None)
-        return None if positions is None else positions()
 
     def lane_estimate(self, lane: int) -> Estimate:
         """The scalar estimator's own snapshot (cached until the lane changes)."""
@@ -190,3 +189,15 @@ class LaneLoop:
             self._out = empty_batch(self.num_lanes, need)
         fill_batch(self._out, snaps)
         return self._out
+
+
+class ParticleLaneLoop(LaneLoop):
+    """A :class:`LaneLoop` over particle filters (FastSLAM), which also
+    :class:`~quadslam_env.estimation.protocol.ShowsParticles` (for display)."""
+
+    def lane_particles(self, lane: int) -> FloatArray:
+        """(N, 3) particle positions ρ of lane ``lane`` in N, m (a copy)."""
+        est = self.lanes[lane]
+        if not isinstance(est, HasParticles):
+            raise TypeError(f"lane {lane}: {type(est).__name__} is not a particle filter")
+        return est.particle_positions()

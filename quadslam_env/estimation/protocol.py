@@ -6,6 +6,17 @@ wherever lanes differ (a lane that scans this step, a lane that is being reset).
 written for one vehicle implements :class:`Estimator` instead and enters through the one
 adapter, :class:`~quadslam_env.estimation.lane_loop.LaneLoop`. Estimators never receive the
 true state (the oracle, which says ``uses_truth = True``, is the one exception).
+
+Abilities that only some estimators have are protocols of their own, checked with
+``isinstance(estimator, Ability)`` where they are used (docs/design.md §5): of a batch,
+:class:`ReservesLandmarks`, :class:`AssociatesUnlabeled`, :class:`UsesTruth`,
+:class:`ShowsParticles` and :class:`HasFullState`; of one vehicle's estimator (what
+:class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its lanes), :class:`ChecksMemory`,
+:class:`LabelsReturns` and :class:`HasParticles`. A runtime-checkable protocol's
+``isinstance`` only checks that the names exist, not their signatures or types, and no
+estimator names these protocols as bases, so nothing checks an implementation's signature
+against them; the call sites are typed by the protocol, and
+``tests/test_estimator_abilities.py`` checks which built-in has which ability.
 """
 
 from __future__ import annotations
@@ -109,14 +120,117 @@ class BatchEstimator(Protocol):
         returned landmark ids, ``meas`` (B, Lmax, 3) their (α rad, β rad, δ m); ``sigma`` (3,)."""
 
     # Estimators that set ``associates_unlabeled = True`` (``lidar.association: unknown``)
-    # also implement ``update_unlabeled(t, lanes, count (B,), returns (B, R, 3), sigma)``:
-    # the returns of lane b are ``returns[b, :count[b]]``, unlabeled and in any order; and
-    # ``last_association`` (B, R) int: the label (index into ``landmark_means``) each return
-    # was paired with, -1 for none. A one-vehicle :class:`Estimator` gets a :class:`LidarScan`
-    # with ``ids=None`` and exposes ``last_association`` (k,).
+    # also implement :class:`AssociatesUnlabeled`; a one-vehicle :class:`Estimator` then gets
+    # a :class:`LidarScan` with ``ids=None`` and implements :class:`LabelsReturns`.
 
     def estimate(self) -> BatchEstimate:
         """The belief of every lane."""
 
     def lane_estimate(self, lane: int) -> Estimate:
         """A frozen :class:`Estimate` (copies) of one lane, with landmark covariances."""
+
+
+# ---------------------------------------------------------------- abilities of a batch
+@runtime_checkable
+class ReservesLandmarks(Protocol):
+    """A batch estimator that sizes its map ahead of the scans (EKF-SLAM)."""
+
+    def reserve_landmarks(self, count: int) -> None:
+        """Make room for landmark ids ``0 … count-1`` now: the env calls it at a reset that
+        brings a map, so a map that cannot fit in memory fails there, not at the first scan.
+
+        Raises:
+            ValueError: The map would not fit.
+        """
+
+
+@runtime_checkable
+class AssociatesUnlabeled(Protocol):
+    """A batch estimator that takes unlabeled scans (``lidar.association: unknown``).
+
+    Its class also says ``associates_unlabeled = True``, which the scenario check reads
+    (:func:`~quadslam_env.estimation.registry.associates_unlabeled`) before any estimator is
+    built; the env calls :meth:`update_unlabeled` only then.
+    """
+
+    @property
+    def last_association(self) -> np.ndarray:
+        """(B, R) int the label (index into ``landmark_means``) each return of every lane's
+        last unlabeled scan was paired with, -1 for none."""
+
+    def update_unlabeled(
+        self,
+        t: FloatArray,
+        lanes: IntArray,
+        count: np.ndarray,
+        returns: FloatArray,
+        sigma: FloatArray,
+    ) -> None:
+        """Correct ``lanes`` (k,) with unlabeled scans: lane b's returns are
+        ``returns[b, :count[b]]`` of ``returns`` (B, R, 3) (α rad, β rad, δ m), in any
+        order, with false returns among them; ``count`` (B,) int; ``sigma`` (3,)."""
+
+
+@runtime_checkable
+class UsesTruth(Protocol):
+    """The one batch estimator the env feeds with the truth (the oracle, for ablations).
+
+    Its class also says ``uses_truth = True`` (:class:`BatchEstimator`); the env calls
+    :meth:`set_truth` before every snapshot.
+    """
+
+    def set_truth(self, states: FloatArray, landmarks: FloatArray, counts: np.ndarray) -> None:
+        """Receive the true states (B, 12) and maps (B, L, 3) N m, ``counts`` (B,) landmarks."""
+
+
+@runtime_checkable
+class ShowsParticles(Protocol):
+    """A batch estimator whose lanes are particle clouds the renderer draws (FastSLAM)."""
+
+    def lane_particles(self, lane: int) -> FloatArray:
+        """(N, 3) particle positions ρ of lane ``lane`` in N, m (a copy)."""
+
+
+@runtime_checkable
+class HasFullState(Protocol):
+    """A batch estimator with one Gaussian over the whole state (EKF-SLAM), for inspection."""
+
+    def full_state(self, lane: int = 0) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        """Lane ``lane``'s mean (n,), covariance (n, n) and the landmark id of each map slot."""
+
+
+# ---------------------------------------------------------- abilities of one vehicle's
+@runtime_checkable
+class ChecksMemory(Protocol):
+    """A one-vehicle estimator that can tell whether B of it fit in memory (FastSLAM)."""
+
+    def check_memory(self, num_lanes: int, landmark_capacity: int) -> None:
+        """Reject ``num_lanes`` instances with ``landmark_capacity`` landmarks each.
+
+        Raises:
+            ValueError: The batch would not fit (names the sizes and what would fit).
+        """
+
+
+@runtime_checkable
+class LabelsReturns(Protocol):
+    """A one-vehicle estimator that takes unlabeled scans (``LidarScan.ids is None``).
+
+    Its class also says ``associates_unlabeled = True``.
+    """
+
+    @property
+    def last_association(self) -> np.ndarray:
+        """(k,) int the landmark id each return of the last unlabeled scan was paired with
+        (-1: none)."""
+
+
+@runtime_checkable
+class HasParticles(Protocol):
+    """A one-vehicle particle filter (FastSLAM)."""
+
+    lineage: np.ndarray
+    """(N,) int index of each particle's ancestor among the particles drawn at reset."""
+
+    def particle_positions(self) -> FloatArray:
+        """(N, 3) particle positions ρ in N, m (a copy)."""

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from quadslam_env.estimation.lane_loop import LaneLoop
-from quadslam_env.estimation.protocol import BatchEstimator
+from quadslam_env.estimation.protocol import BatchEstimator, UsesTruth
 
 Factory = Callable[..., Any]
 """A class or factory called as ``factory(vehicle=VehicleParams, **estimator.params)`` (plus
@@ -151,10 +151,23 @@ def make(name: str, num_lanes: int = 1, landmark_capacity: int = 0, **cfg: Any) 
         the first instance is built, before the others).
 
     Raises:
-        ValueError: Unknown name, a plug-in that cannot be loaded, or invalid settings.
+        ValueError: Unknown name, a plug-in that cannot be loaded, invalid settings, or an
+            estimator that says ``uses_truth = True`` but is not a batched one that
+            :class:`~quadslam_env.estimation.protocol.UsesTruth` (the env feeds the truth
+            only through ``set_truth`` of a batch).
     """
     cls = _load(name)
-    if is_batched(cls):
-        est: BatchEstimator = cls(num_lanes=num_lanes, landmark_capacity=landmark_capacity, **cfg)
-        return est
-    return LaneLoop.build(lambda: cls(**cfg), num_lanes, landmark_capacity)
+    if not is_batched(cls):
+        if getattr(cls, "uses_truth", False):
+            raise ValueError(_TRUTH_ERROR.format(name=name, kind="written for one vehicle"))
+        return LaneLoop.build(lambda: cls(**cfg), num_lanes, landmark_capacity)
+    est: BatchEstimator = cls(num_lanes=num_lanes, landmark_capacity=landmark_capacity, **cfg)
+    if est.uses_truth and not isinstance(est, UsesTruth):
+        raise ValueError(_TRUTH_ERROR.format(name=name, kind="without set_truth"))
+    return est
+
+
+_TRUTH_ERROR = (
+    "estimator.name: got {name!r}, which says uses_truth = True but is {kind}; allowed: a "
+    "batched estimator (reset_lanes) with set_truth(states, landmarks, counts), like the oracle"
+)

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.jit import kernel
-from quadslam_env.types import GRAVITY, STATE_DIM, FloatArray
+from quadslam_env.types import EUL, GRAVITY, POS, STATE_DIM, VEL, FloatArray
 
 
 @kernel
@@ -92,8 +92,8 @@ def state_on_reference(
     _, phi, theta, r = inverse_map(ux, uy, uz, float(yaw_rate), mass)
     euler = np.array([phi, theta, yaw])
     state = np.zeros(STATE_DIM)
-    state[0:3] = pos
-    state[3:6] = dcm_from_euler(euler).T @ np.asarray(vel, dtype=float)
-    state[6:9] = euler
+    state[POS] = pos
+    state[VEL] = dcm_from_euler(euler).T @ np.asarray(vel, dtype=float)
+    state[EUL] = euler
     state[11] = r
     return state

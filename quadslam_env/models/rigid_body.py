@@ -105,7 +105,7 @@ def air_velocity_body(x: FloatArray, c: Vec9, wn: float, we: float, wd: float) -
     """``v_a = v − C_NBᵀ w``: velocity relative to the air in B, m/s.
 
     Args:
-        x: (12,) state (v read from ``x[3:6]``). c: C_NB row-major (9 entries).
+        x: (12,) state (v read from ``x[VEL]``). c: C_NB row-major (9 entries).
         wn, we, wd: Wind w in N (north, east, down), m/s.
     """
     return (
@@ -138,7 +138,7 @@ def kinematics(x: FloatArray, f_b: Vec3, out: FloatArray) -> None:
     ``ρ̇ = C_NB v``, ``v̇ = −ω×v + C_NBᵀ g n3 + f_B``, ``Λ̇ = D(Λ) ω`` (eq. 3).
 
     Args:
-        x: (12,) state; ω is read from ``x[9:12]``.
+        x: (12,) state; ω is read from ``x[RATE]``.
         f_b: Specific force in B, m/s².
         out: (12,) derivative; entries 9–11 are not touched.
     """

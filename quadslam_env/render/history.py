@@ -15,7 +15,7 @@ import numpy as np
 
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.lidar import lidar_inverse
-from quadslam_env.types import FloatArray
+from quadslam_env.types import EUL, POS, FloatArray
 
 # Columns of a history row.
 T = 0
@@ -85,13 +85,13 @@ class LaneHistory:
         est = core.est
         row = self._rows[self._head]
         row[T] = t
-        row[TRUE] = state[0:3]
+        row[TRUE] = state[POS]
         row[EST] = est.position[lane]
         row[ERR] = row[EST] - row[TRUE]
         if est.pose_cov is None:
             row[SIGMA] = math.nan
         else:
-            row[SIGMA] = np.sqrt(np.clip(np.diagonal(est.pose_cov[lane])[0:3], 0.0, None))
+            row[SIGMA] = np.sqrt(np.clip(np.diagonal(est.pose_cov[lane])[POS], 0.0, None))
         for key in LATEST_KEYS:  # (B,) arrays of the core, or one lane's floats
             value = info.get(key) if info is not None else None
             if value is not None and np.ndim(value):
@@ -106,8 +106,8 @@ class LaneHistory:
             ids = np.flatnonzero(visible[lane])
             self.scan_t = t
             self.scan_ids = ids
-            dcm = dcm_from_euler(state[6:9])
-            self.scan_points = lidar_inverse(state[0:3], dcm, meas[lane, ids])
+            dcm = dcm_from_euler(state[EUL])
+            self.scan_points = lidar_inverse(state[POS], dcm, meas[lane, ids])
 
     def rows(self, since: float = -math.inf) -> FloatArray:
         """(n, :data:`WIDTH`) rows with time ≥ ``since``, oldest first (a copy)."""

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from quadslam_env.estimation.protocol import ShowsParticles
 from quadslam_env.extras import require
 from quadslam_env.render.history import LaneHistory
 
@@ -78,7 +79,6 @@ class LaneRenderer:
             from quadslam_env.render.figure import FrameFigure
 
             core, cfg = self.core, self.cfg
-            particles = getattr(core.estimator, "lane_particles", None)
             self._figure = FrameFigure(
                 cfg.width_px,
                 cfg.height_px,
@@ -86,6 +86,6 @@ class LaneRenderer:
                 cfg.history_s,
                 core.scenario.lidar.azimuth_fov_deg,
                 core.scenario.lidar.range_max_m,
-                particles is not None and particles(self.lane) is not None,
+                isinstance(core.estimator, ShowsParticles),
             )
         return self._figure

@@ -12,10 +12,11 @@ from typing import Any
 
 import numpy as np
 
+from quadslam_env.estimation.protocol import ShowsParticles
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.linalg import psd_sqrt
 from quadslam_env.render.history import LaneHistory
-from quadslam_env.types import FloatArray
+from quadslam_env.types import EUL, POS, FloatArray
 
 ESTIMATOR_LABELS = {
     "ekf_slam": "EKF-SLAM",
@@ -98,21 +99,19 @@ def gather(core: Any, lane: int, history: LaneHistory, span_s: float, max_partic
     times = np.arange(max(0.0, t - span_s), t + REF_AHEAD_S + 1e-9, REF_STEP_S)
     n_lm = int(core.n_landmarks[lane])
     particles, n_particles = None, 0
-    lane_particles = getattr(core.estimator, "lane_particles", None)
-    if lane_particles is not None:
-        cloud = lane_particles(lane)
-        if cloud is not None:
-            n_particles = cloud.shape[0]
-            stride = max(1, math.ceil(n_particles / max_particles)) if max_particles else 0
-            particles = cloud[::stride] if stride else cloud[:0]
+    if isinstance(core.estimator, ShowsParticles):
+        cloud = core.estimator.lane_particles(lane)
+        n_particles = cloud.shape[0]
+        stride = max(1, math.ceil(n_particles / max_particles)) if max_particles else 0
+        particles = cloud[::stride] if stride else cloud[:0]
     return Scene(
         t=t,
         label=estimator_label(core.scenario),
-        true_pos=state[0:3].copy(),
-        true_heading=heading_of(state[6:9]),
+        true_pos=state[POS].copy(),
+        true_heading=heading_of(state[EUL]),
         est_pos=est.position,
         est_heading=heading_of(est.euler),
-        est_pos_cov=None if est.pose_cov is None else est.pose_cov[0:3, 0:3],
+        est_pos_cov=None if est.pose_cov is None else est.pose_cov[POS, POS],
         rows=history.rows(since=t - span_s),
         ref=core.trajectory.batch(times).pos,
         landmarks=core.landmarks[lane, :n_lm].copy(),

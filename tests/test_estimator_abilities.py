@@ -1,0 +1,131 @@
+"""The optional estimator abilities (``quadslam_env.estimation.protocol``, docs/design.md §5):
+which registered estimator has which, written out by hand from the estimators' documentation,
+against what ``isinstance`` finds on the objects ``make`` builds."""
+
+from __future__ import annotations
+
+import importlib.util
+from typing import Any
+
+import numpy as np
+import pytest
+
+from quadslam_env.estimation import (
+    AssociatesUnlabeled,
+    ChecksMemory,
+    HasFullState,
+    HasParticles,
+    LabelsReturns,
+    LaneLoop,
+    ParticleLaneLoop,
+    ReservesLandmarks,
+    ShowsParticles,
+    UsesTruth,
+    registry,
+)
+from quadslam_env.models.params import vehicle_preset
+
+BUILT_IN = {"ekf_slam", "fastslam", "fastslam_kinematic", "isam2", "oracle"}
+
+# Abilities of the batch the env talks to. Every built-in takes unlabeled scans
+# (docs/estimators.md); only EKF-SLAM sizes its map ahead and has one Gaussian over the whole
+# state; only the oracle takes the truth; only the FastSLAM filters have particles to show.
+BATCH: dict[type, set[str]] = {
+    ReservesLandmarks: {"ekf_slam"},
+    AssociatesUnlabeled: BUILT_IN,
+    UsesTruth: {"oracle"},
+    ShowsParticles: {"fastslam", "fastslam_kinematic"},
+    HasFullState: {"ekf_slam"},
+}
+# Abilities of the one-vehicle estimators the LaneLoop runs (FastSLAM and iSAM2).
+ONE_VEHICLE: dict[type, set[str]] = {
+    ChecksMemory: {"fastslam", "fastslam_kinematic"},
+    LabelsReturns: {"fastslam", "fastslam_kinematic", "isam2"},
+    HasParticles: {"fastslam", "fastslam_kinematic"},
+}
+LOOPED = {"fastslam", "fastslam_kinematic", "isam2"}
+
+
+def _built() -> dict[str, Any]:
+    """Every built-in of the registry, built for two lanes (iSAM2 only with GTSAM)."""
+    names = set(registry.available())
+    assert names >= BUILT_IN, BUILT_IN - names
+    vehicle = vehicle_preset("rauniyar2023")
+    out = {}
+    for name in sorted(names & BUILT_IN):
+        if name == "isam2" and importlib.util.find_spec("gtsam") is None:
+            continue
+        out[name] = registry.make(name, num_lanes=2, landmark_capacity=4, vehicle=vehicle)
+    return out
+
+
+@pytest.fixture(scope="module")
+def built() -> dict[str, Any]:
+    return _built()
+
+
+@pytest.mark.parametrize("ability", list(BATCH), ids=lambda p: p.__name__)
+def test_batch_abilities_are_the_documented_ones(built: dict[str, Any], ability: type) -> None:
+    found = {name for name, est in built.items() if isinstance(est, ability)}
+    assert found == BATCH[ability] & set(built)
+
+
+@pytest.mark.parametrize("ability", list(ONE_VEHICLE), ids=lambda p: p.__name__)
+def test_one_vehicle_abilities_are_the_documented_ones(
+    built: dict[str, Any], ability: type
+) -> None:
+    looped = {name: est for name, est in built.items() if isinstance(est, LaneLoop)}
+    assert set(looped) == LOOPED & set(built)
+    found = {name for name, est in looped.items() if all(isinstance(x, ability) for x in est.lanes)}
+    assert found == ONE_VEHICLE[ability] & set(built)
+
+
+def test_particle_loop_shows_each_lanes_particles(built: dict[str, Any]) -> None:
+    """Known map (no position gauge): each lane's cloud is its own draw from N(ρ0, I)."""
+    est = built["fastslam_kinematic"]
+    assert isinstance(est, ParticleLaneLoop)
+    mean0 = np.zeros((2, 12))
+    mean0[1, 0:3] = (5.0, -3.0, -2.0)
+    known = [(np.arange(2), np.zeros((2, 3)))] * 2
+    rngs = [np.random.default_rng(s) for s in (1, 2)]
+    est.reset_lanes(np.arange(2), mean0, np.tile(np.eye(12), (2, 1, 1)), rngs, known)
+    for lane in range(2):
+        cloud = est.lane_particles(lane)
+        n = cloud.shape[0]
+        assert cloud.shape == (500, 3)  # FastSLAM's default n_particles
+        # Sample mean and std of N draws: standard errors 1/√N and about 1/√(2N).
+        np.testing.assert_allclose(cloud.mean(axis=0), mean0[lane, 0:3], atol=5.0 / np.sqrt(n))
+        np.testing.assert_allclose(cloud.std(axis=0), 1.0, atol=5.0 / np.sqrt(2 * n))
+
+
+class _Truthful:
+    """A one-vehicle estimator that asks for the truth, which only a batch can receive."""
+
+    uses_truth = True
+
+    def __init__(self, vehicle: Any = None) -> None:
+        self.vehicle = vehicle
+
+
+class _TruthfulBatch:
+    """A batch that says it uses the truth but has no ``set_truth`` to receive it."""
+
+    uses_truth = True
+
+    def __init__(self, num_lanes: int, landmark_capacity: int, vehicle: Any = None) -> None:
+        self.num_lanes = num_lanes
+
+    def reset_lanes(self, *args: Any) -> None:
+        """Nothing to reset."""
+
+
+@pytest.mark.parametrize(
+    ("cls", "kind"), [(_Truthful, "written for one vehicle"), (_TruthfulBatch, "without set_truth")]
+)
+def test_make_rejects_truth_it_cannot_deliver(
+    monkeypatch: pytest.MonkeyPatch, cls: type, kind: str
+) -> None:
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    registry.register("truthful")(cls)
+    with pytest.raises(ValueError, match=f"'truthful', which says uses_truth = True but is {kind}"):
+        registry.make("truthful")
