@@ -114,7 +114,7 @@ class WindBatch:
         if empty.size:
             gens = lane_generators(self._rngs, empty, "WindBatch")
             for lane, rng in zip(empty.tolist(), gens, strict=True):
-                self._noise[lane] = rng.standard_normal((self.BLOCK, GUST_STATES))
+                rng.standard_normal(out=self._noise[lane])  # (BLOCK, 5) in place, no copy
             self._cursor[empty] = 0
         f = self.filter
         dryden_step_lanes(
