@@ -157,7 +157,7 @@ class ImuBatch:
         if empty.size:
             gens = _generators(self._rngs, empty, "ImuBatch")
             for lane, rng in zip(empty.tolist(), gens, strict=True):
-                self._noise[lane] = rng.standard_normal((self.BLOCK, 2 * IMU_DIM))
+                rng.standard_normal(out=self._noise[lane])  # (BLOCK, 12) in place, no copy
             self._cursor[empty] = 0
 
     def sample(

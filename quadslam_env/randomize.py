@@ -62,6 +62,8 @@ class Randomizer:
         self._lo, self._span = ranges[:, 0], ranges[:, 1] - ranges[:, 0]
         self._reported = np.zeros(b, dtype=bool)  # lanes whose episode was randomised or pinned
         self._pending: np.ndarray | None = None
+        # (8, B) the info rows of the current episodes, rebuilt only when a reset changes them
+        self._shown: FloatArray | None = None
 
     def check_pins(self, pins: Mapping[str, float] | None) -> None:
         """Pinned scales must hover against the worst corner of the ranges left to draw.
@@ -103,6 +105,8 @@ class Randomizer:
             out[:, _COLUMN[key]] = value
         self.values[lanes] = out
         self._reported[lanes] = self.enabled or bool(pins)
+        reported = self._reported[:, None]
+        self._shown = np.where(reported, self.values, math.nan).T.copy() if reported.any() else None
         c = _COLUMN
         vehicle.set_scales(
             lanes, out[:, c["mass_scale"]], out[:, c["inertia_scale"]],
@@ -127,7 +131,7 @@ class Randomizer:
     def info(self) -> dict[str, FloatArray]:
         """The ``info`` terms :data:`RANDOMIZED_KEYS`, (B,) copies each, NaN in lanes whose
         episode is nominal; none when no lane is randomised."""
-        if not self._reported.any():
+        shown = self._shown
+        if shown is None:
             return {}
-        shown = np.where(self._reported[:, None], self.values, math.nan)
-        return {key: shown[:, j].copy() for j, key in enumerate(RANDOMIZED_KEYS)}
+        return {key: shown[j].copy() for j, key in enumerate(RANDOMIZED_KEYS)}

@@ -351,8 +351,8 @@ def _vector_info(info: dict[str, Any]) -> dict[str, Any]:
             mask = arr != ""
         else:
             arr = np.asarray(value, dtype=float)
-            mask = ~np.isnan(arr)
-        if mask.any():
+            mask = arr == arr  # False exactly at NaN; one ufunc instead of isnan and invert
+        if np.count_nonzero(mask):  # cheaper than mask.any() (no ufunc reduction)
             out[key] = arr
             out[f"_{key}"] = mask
     return out

@@ -49,6 +49,8 @@ class WindBatch:
             still air (``cfg.enabled`` false).
         state: (B, 5) Dryden filter states (zeros without turbulence).
         turbulent: Whether the Dryden gusts are on.
+        scale: (B,) factor on each lane's whole wind for its episode (domain randomisation,
+            :meth:`set_scales`; 1 otherwise).
     """
 
     BLOCK = 64
@@ -69,7 +71,7 @@ class WindBatch:
         self._noise = np.zeros((b, self.BLOCK, GUST_STATES))
         self._cursor = np.full(b, self.BLOCK)
         self._lane_ids = np.arange(b)
-        self.scale: FloatArray | None = None  # (B,) per-lane scales, once set_scales is called
+        self.scale = np.ones(b)  # (B,) per-lane factors on the whole wind (set_scales)
 
     def set_scales(self, lanes: ArrayLike, scale: ArrayLike) -> None:
         """Scale the whole wind (steady part and gust) of ``lanes`` (k,) by ``scale`` (k,) for
@@ -77,8 +79,6 @@ class WindBatch:
         if self.velocity is None:
             return
         idx = lane_indices(lanes)
-        if self.scale is None:
-            self.scale = np.ones(self.num_lanes)
         s = np.asarray(scale, dtype=float)
         self.scale[idx] = s
         if self.turbulent:  # reset wrote steady + gust
@@ -114,15 +114,13 @@ class WindBatch:
         if empty.size:
             gens = lane_generators(self._rngs, empty, "WindBatch")
             for lane, rng in zip(empty.tolist(), gens, strict=True):
-                self._noise[lane] = rng.standard_normal((self.BLOCK, GUST_STATES))
+                rng.standard_normal(out=self._noise[lane])  # (BLOCK, 5) in place, no copy
             self._cursor[empty] = 0
         f = self.filter
         dryden_step_lanes(
             lanes, self._cursor, self._noise, self.state, f.phi, f.chol, self._out_map,
-            self.steady, self.velocity,
+            self.steady, self.scale, self.velocity,
         )  # fmt: skip
-        if self.scale is not None:
-            self.velocity[lanes] *= self.scale[lanes, None]
 
     def info(self) -> dict[str, FloatArray]:
         """The ``info`` terms :data:`WIND_KEYS` of the current wind, (B,) copies each; none in

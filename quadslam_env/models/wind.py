@@ -198,9 +198,11 @@ def gust_axes(steady_n: ArrayLike) -> FloatArray:
 
 
 @inline_kernel
-def dryden_advance(x: FloatArray, z: FloatArray, phi: FloatArray, chol: FloatArray) -> None:
-    """``x ← Φ x + L_d z`` for one filter state x (5,) in place, normals z (5,)."""
-    y = np.empty(GUST_STATES)
+def dryden_advance(
+    x: FloatArray, z: FloatArray, phi: FloatArray, chol: FloatArray, y: FloatArray
+) -> None:
+    """``x ← Φ x + L_d z`` for one filter state x (5,) in place, normals z (5,); y (5,) is
+    scratch, passed in so that a loop over lanes allocates nothing per lane."""
     for r in range(GUST_STATES):
         acc = 0.0
         for c in range(GUST_STATES):
@@ -235,10 +237,10 @@ def dryden_series(
         phi, chol: (5, 5) of :class:`DrydenFilter`. out_map: (3, 5) M (e.g. its ``output``).
         out: (n, 3) gust samples, m/s.
     """
-    zero = np.zeros(3)
+    zero, y = np.zeros(3), np.empty(GUST_STATES)
     for k in range(noise.shape[0]):
         wind_output(x, out_map, zero, out[k])
-        dryden_advance(x, noise[k], phi, chol)
+        dryden_advance(x, noise[k], phi, chol, y)
 
 
 @kernel
@@ -251,6 +253,7 @@ def dryden_step_lanes(
     chol: FloatArray,
     out_map: FloatArray,
     steady: FloatArray,
+    scale: FloatArray,
     wind: FloatArray,
 ) -> None:
     """Advance the filter of each lane in ``lanes`` one period and write its wind.
@@ -260,9 +263,13 @@ def dryden_step_lanes(
         noise: (B, n, 5) pre-drawn normals. states: (B, 5) filter states, in place.
         phi, chol: (5, 5) of :class:`DrydenFilter`. out_map: (3, 5) filter state to the gust
             in N (turbulence axes times C). steady: (3,) steady wind in N, m/s.
-        wind: (B, 3) wind in N, m/s, written for the lanes.
+        scale: (B,) factor on each lane's whole wind (domain randomisation; ones otherwise).
+        wind: (B, 3) wind in N, m/s, written for the lanes: ``scale · (steady + M x)``.
     """
+    y = np.empty(GUST_STATES)
     for i in lanes:
-        dryden_advance(states[i], noise[i, cursor[i]], phi, chol)
+        dryden_advance(states[i], noise[i, cursor[i]], phi, chol, y)
         cursor[i] += 1
         wind_output(states[i], out_map, steady, wind[i])
+        for r in range(3):
+            wind[i, r] *= scale[i]
