@@ -83,6 +83,42 @@ def test_inverse_mixer_keeps_the_torques_and_gives_up_thrust_at_the_limits() -> 
     assert out.min() >= t_min and out.max() <= t_max
 
 
+def test_inverse_mixer_gives_up_yaw_before_thrust_roll_and_pitch() -> None:
+    r = CRAZYFLIE2_ROTORS
+    t_min, t_max = r.thrust_min, r.thrust_max
+    c = r.k_m / r.k_f  # yaw torque per newton of thrust difference (m)
+    out = np.empty((1, 4))
+    # Hover thrust with a yaw demand far beyond what the rotors can give: each rotor starts at
+    # f/4 and the yaw part moves them by ±τ_z/(4c), so the largest yaw torque that keeps all
+    # four inside the limits is 4c·min(T_max − f/4, f/4 − T_min); thrust, roll and pitch stay.
+    f = 2.0 * r.thrust_min + 2.0 * r.thrust_max - 0.3 * (r.thrust_max - r.thrust_min)
+    for sign in (1.0, -1.0):
+        allocate_lanes(np.array([f]), np.array([[0.0, 0.0, sign * 1.0]]),
+                       np.array(r.mixer_inv), t_min, t_max, out)  # fmt: skip
+        w = r.mixer @ out[0]
+        yaw_max = 4.0 * c * min(t_max - f / 4.0, f / 4.0 - t_min)
+        np.testing.assert_allclose(w[:3], [f, 0.0, 0.0], atol=1e-12)
+        assert w[3] == pytest.approx(sign * yaw_max, rel=1e-9)
+        assert out.min() >= t_min and out.max() <= t_max
+    # With a roll torque that fits, the roll torque and the thrust are kept and the yaw shrinks
+    # to the first rotor that reaches a limit (checked against a fine scan of the share kept).
+    tau_x = 0.3 * r.max_torque[0]
+    allocate_lanes(np.array([f]), np.array([[tau_x, 0.0, 1.0]]), np.array(r.mixer_inv),
+                   t_min, t_max, out)  # fmt: skip
+    w = r.mixer @ out[0]
+    np.testing.assert_allclose(w[:3], [f, tau_x, 0.0], atol=1e-12)
+    shares = np.linspace(0.0, 1.0, 200_001)
+    thrusts = np.array(r.mixer_inv) @ np.array([f, tau_x, 0.0, 0.0])
+    yaw_col = np.array(r.mixer_inv)[:, 3]
+    inside = np.all(
+        (thrusts[None] + shares[:, None] * yaw_col[None] >= t_min - 1e-15)
+        & (thrusts[None] + shares[:, None] * yaw_col[None] <= t_max + 1e-15),
+        axis=1,
+    )
+    best = shares[inside].max()
+    assert 0.0 < w[3] and w[3] == pytest.approx(best, abs=1e-5)
+
+
 @pytest.mark.parametrize("tau", [0.015, 0.05])
 def test_rotor_speed_step_response_is_first_order(tau: float) -> None:
     rotors = RotorParams("x", 0.046, CRAZYFLIE2_ROTORS.k_f, CRAZYFLIE2_ROTORS.k_m, tau, 0.0,

@@ -23,13 +23,25 @@ layouts the four rows of M are mutually orthogonal, so the inverse is exact in c
 ``M⁻¹ = Mᵀ diag(1/‖m_k‖²)`` for rows m_k (no numerical inversion).
 
 Rotor limits. ``ω ∈ [ω_min, ω_max]`` bounds each thrust to ``[k_f ω_min², k_f ω_max²]``. The
-inverse mixer (:func:`allocate`) first solves ``T = M⁻¹ w`` exactly; if a thrust falls outside
-the limits it keeps the torques and gives up collective thrust: every torque row of M sums to
-zero, so adding the same δ to all four thrusts changes f_T alone, and the smallest such δ that
-brings all four inside is applied (a negative thrust asked for by a torque at low collective
-thrust raises the collective thrust; an above-max thrust lowers it). Only when the torque
-demand alone spans more than the rotor range (``max T − min T > T_max − T_min``) is each
-thrust clipped to its limits after that shift, which also distorts the torques.
+inverse mixer (:func:`allocate`) solves ``T = M⁻¹ w`` exactly when that fits, and otherwise
+gives way in the order of what matters least for staying in the air (the priority of PX4's
+multicopter mixer without "airmode"):
+
+1. **Yaw first.** Yaw torque comes from the drag torques, ``c = k_m / k_f`` times the thrusts
+   (about a hundredth of the arm), so a yaw demand that roll and pitch would get at no cost
+   needs large thrust differences; kept at any price it would take the collective thrust with
+   it (two rotors at full speed and two at rest climb or fall whatever the thrust command).
+   So the roll, pitch and thrust part ``T_0 = M⁻¹ (f_T, τ_x, τ_y, 0)`` is placed first and the
+   yaw part ``τ_z u`` (``u`` the last column of M⁻¹) is added scaled by the largest
+   ``s ∈ [0, 1]`` that keeps all four thrusts inside the limits: the yaw torque keeps its sign
+   and shrinks, nothing else changes.
+2. **Then the collective thrust**, if ``T_0`` itself does not fit: every torque row of M sums to
+   zero, so adding the same δ to all four thrusts changes f_T alone, and the smallest such δ
+   that brings all four inside is applied (a negative thrust asked for by a torque at low
+   collective thrust raises the collective thrust; an above-max thrust lowers it).
+3. Only when the roll and pitch demand alone spans more than the rotor range
+   (``max T_0 − min T_0 > T_max − T_min``) is each thrust clipped to its limits after
+   centring, which also distorts those torques (and no yaw is left).
 
 Motor lag: each rotor's speed follows its command through a first-order lag
 ``ω̇ = (ω_cmd − ω)/τ_m``, integrated exactly over a substep h:
@@ -200,27 +212,31 @@ def allocate(
 ) -> None:
     """Rotor thrusts ``out`` (4,) in N for a wrench ``(f_T, τ_x, τ_y, τ_z)`` (N, N·m, B frame).
 
-    ``T = M⁻¹ w`` exactly when it lies in ``[t_min, t_max]``; otherwise the collective thrust
-    gives way (a common shift of all four, torques kept) and, only if the torque demand alone
-    exceeds the range, each thrust is clipped (module docstring).
+    ``T = M⁻¹ w`` exactly when it lies in ``[t_min, t_max]``; otherwise the yaw torque gives
+    way first, then the collective thrust (a common shift of all four, roll and pitch torques
+    kept), and only a roll and pitch demand beyond the rotors' range is clipped (module
+    docstring).
     """
     lo, hi = math.inf, -math.inf
     for i in range(4):
-        t = (
-            mixer_inv[i, 0] * wrench[0]
-            + mixer_inv[i, 1] * wrench[1]
-            + mixer_inv[i, 2] * wrench[2]
-            + mixer_inv[i, 3] * wrench[3]
-        )
+        t = mixer_inv[i, 0] * wrench[0] + mixer_inv[i, 1] * wrench[1] + mixer_inv[i, 2] * wrench[2]
         out[i] = t
         lo, hi = min(lo, t), max(hi, t)
-    if lo >= t_min and hi <= t_max:
-        return
-    shift = t_min - lo if lo < t_min else t_max - hi
-    if hi - lo > t_max - t_min:  # cannot fit: centre the spread, then clip
-        shift = 0.5 * (t_min + t_max) - 0.5 * (lo + hi)
+    if lo < t_min or hi > t_max:  # roll, pitch and thrust alone do not fit
+        shift = t_min - lo if lo < t_min else t_max - hi
+        if hi - lo > t_max - t_min:  # cannot fit: centre the spread, then clip
+            shift = 0.5 * (t_min + t_max) - 0.5 * (lo + hi)
+        for i in range(4):
+            out[i] = min(max(out[i] + shift, t_min), t_max)
+    scale = 1.0  # the largest share of the yaw torque that keeps every thrust in its limits
     for i in range(4):
-        out[i] = min(max(out[i] + shift, t_min), t_max)
+        yaw = mixer_inv[i, 3] * wrench[3]
+        if yaw > 0.0:
+            scale = min(scale, max(t_max - out[i], 0.0) / yaw)
+        elif yaw < 0.0:
+            scale = min(scale, min(t_min - out[i], 0.0) / yaw)
+    for i in range(4):  # (the clip only removes rounding at the limit the scale stops on)
+        out[i] = min(max(out[i] + scale * mixer_inv[i, 3] * wrench[3], t_min), t_max)
 
 
 @inline_kernel
