@@ -15,7 +15,7 @@ DOCS_STAMP := $(VENV)/.docs-installed
 RLLIB_VENV  := .venv-rllib
 RLLIB_STAMP := $(RLLIB_VENV)/.installed
 
-.PHONY: demo test test-rllib lint bench install docs wheel-smoke clean
+.PHONY: demo test test-rllib lint bench install docs wheel-smoke clean clean-kernels
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -66,5 +66,10 @@ wheel-smoke: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/quadslam bench
 
-clean:
+clean: clean-kernels
 	rm -rf $(VENV) $(RLLIB_VENV) build dist site *.egg-info .pytest_cache .mypy_cache
+
+# numba's kernel caches: a caller's cache does not notice an edited callee in another module
+# (quadslam_env/models/jit.py), so delete them after editing a kernel.
+clean-kernels:
+	find quadslam_env estimators agents -name '*.nbi' -delete -o -name '*.nbc' -delete

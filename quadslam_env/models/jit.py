@@ -9,6 +9,13 @@ per-user cache directory. If none is writable (read-only install, no home direct
 refuses ``cache=True`` when the function is decorated, which would make ``import quadslam_env``
 fail; the decorators below then compile without a cache (slower first call per process) and
 warn once.
+
+numba checks a cached kernel against its own module's source file only (modification time and
+size), not against the kernels it calls: after editing a kernel that another module's kernel
+calls or inlines (e.g. ``models/rotors.py:allocate`` inside
+``models/integrators.py:vehicle_step_rotor_lanes``), the caller's cache is stale until its own
+file changes. A fresh install writes every file anew, so this only concerns editing a checkout:
+``make clean-kernels`` deletes the caches.
 """
 
 from __future__ import annotations
