@@ -303,7 +303,7 @@ def test_study_json_that_cannot_be_written_is_kept(
 ) -> None:
     import agents.studies.cost
 
-    result: dict[str, Any] = {"rows": [], "settings": {"x": float("nan")}}
+    result: dict[str, Any] = {"rows": [], "settings": {"x": float("nan"), "wall_s": 1, "jobs": 1}}
     monkeypatch.setattr(agents.studies.cost, "run_study", lambda *a, **k: result)
     monkeypatch.setattr(agents.studies.cost, "format_study", lambda r: "table")
     full_disk(monkeypatch, tmp_path / "res")
