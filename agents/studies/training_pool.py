@@ -21,7 +21,7 @@ import multiprocessing as mp
 import os
 import signal
 import sys
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -161,8 +161,9 @@ def _train_in_pool(
     pids = ctx.SimpleQueue()  # each worker's pid: whom to send SIGTERM
     stop = ctx.Event()  # set before the SIGTERMs: a run handed out but not started stays so
     pool = ProcessPoolExecutor(workers, ctx, initializer=_init_worker, initargs=(pids, stop))
+    futures: dict[Future[Trained | None], int] = {}
     try:
-        futures = {pool.submit(_work, jobs[i]): i for i in todo}
+        futures.update((pool.submit(_work, jobs[i]), i) for i in todo)
         for future in as_completed(futures):
             i = futures[future]
             try:
@@ -171,7 +172,9 @@ def _train_in_pool(
                 raise _named(exc, jobs[i].label) from exc
             runs[i] = _report(jobs[i], trained)
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
+        # Not pool.shutdown(wait=False): it would forget the workers, and the wait below with.
+        for future in futures:
+            future.cancel()  # the runs not handed to a worker yet
         stop.set()
         # Every worker that may have started a run put its pid before checking `stop`.
         while not pids.empty():
