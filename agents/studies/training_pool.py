@@ -1,7 +1,8 @@
 """A study's trainings, up to ``jobs`` at a time in worker processes (``--jobs``).
 
-A training uses one core (``torch_threads=1``, the native vector env in its own process), so
-the studies train their agents side by side on a multi-core machine. A run is defined by its
+A training uses one core (``torch_threads=1``; the native vector env steps its lanes in the
+training's process, on one thread), so the studies train their agents side by side on a
+multi-core machine. A run is defined by its
 :class:`TrainJob` alone: :func:`agents.rl.training.train` seeds Python, NumPy, torch and every
 lane from the job's seed, and nothing else is shared between trainings, so a policy trained
 in a worker is bit-identical to the one trained in the study's own process (``jobs=1``).
@@ -72,6 +73,8 @@ def train_all(jobs: list[TrainJob], n_jobs: int) -> list[Trained]:
     this process, with a progress bar; otherwise in a pool of spawned worker processes. Each
     finished training prints one line (label, wall time, run folder) on stderr.
 
+    Raises ``ValueError`` for ``n_jobs`` < 1, before anything is trained.
+
     Returns:
         The run of each job, in the order of ``jobs``.
 
@@ -83,6 +86,8 @@ def train_all(jobs: list[TrainJob], n_jobs: int) -> list[Trained]:
             be rebuilt, its message starting with the job's label; the other trainings are
             stopped as on Ctrl-C.
     """
+    if n_jobs < 1:
+        raise ValueError(f"jobs: got {n_jobs}; allowed: 1 or more trainings at a time")
     runs: list[Trained | None] = []
     for job in jobs:
         reused = finished_run(job.folder)
@@ -90,11 +95,11 @@ def train_all(jobs: list[TrainJob], n_jobs: int) -> list[Trained]:
             print(f"  reusing {reused.run}", file=sys.stderr)
         runs.append(reused)
     todo = [i for i, run in enumerate(runs) if run is None]
+    workers = min(n_jobs, len(todo))
     if todo:
-        workers = min(n_jobs, len(todo))
         where = "in this process" if workers == 1 else f"in {workers} worker processes"
         print(f"training {len(todo)} run(s) {where} ...", file=sys.stderr)
-    if len(todo) == 1 or n_jobs == 1:
+    if workers == 1:
         for i in todo:
             try:
                 trained = _train(jobs[i], progress=True)
@@ -102,7 +107,7 @@ def train_all(jobs: list[TrainJob], n_jobs: int) -> list[Trained]:
                 raise _named(exc, jobs[i].label) from exc
             runs[i] = _report(jobs[i], trained)
     elif todo:
-        _train_in_pool(jobs, todo, runs, min(n_jobs, len(todo)))
+        _train_in_pool(jobs, todo, runs, workers)
     return [run for run in runs if run is not None]
 
 
@@ -172,7 +177,8 @@ def _train_in_pool(
                 raise _named(exc, jobs[i].label) from exc
             runs[i] = _report(jobs[i], trained)
     except BaseException:
-        # Not pool.shutdown(wait=False): it would forget the workers, and the wait below with.
+        # Not pool.shutdown(wait=False): it drops the pool's handle on its workers, and the
+        # shutdown below would then not wait for them to save.
         for future in futures:
             future.cancel()  # the runs not handed to a worker yet
         stop.set()
