@@ -303,7 +303,7 @@ def test_study_json_that_cannot_be_written_is_kept(
 ) -> None:
     import agents.studies.cost
 
-    result: dict[str, Any] = {"rows": [], "settings": {"x": float("nan")}}
+    result: dict[str, Any] = {"rows": [], "settings": {"x": float("nan"), "wall_s": 1, "jobs": 1}}
     monkeypatch.setattr(agents.studies.cost, "run_study", lambda *a, **k: result)
     monkeypatch.setattr(agents.studies.cost, "format_study", lambda r: "table")
     full_disk(monkeypatch, tmp_path / "res")
@@ -901,3 +901,29 @@ def test_sigterm_ends_run_in_one_line_with_143(tmp_path: Path) -> None:
     lines = [x for x in ("".join(err) + rest).replace("\r", "\n").splitlines() if x.strip()]
     assert lines[-1] == "quadslam run: terminated (SIGTERM)"
     assert "Traceback" not in rest
+
+
+def test_sigterm_stops_a_study_training_in_worker_processes(tmp_path: Path) -> None:
+    """``--jobs 2``: a SIGTERM to the study's process reaches the trainings in its workers.
+    Each saves its run folder marked ``INTERRUPTED`` (a rerun trains it again), and the
+    command ends in one line with 143."""
+    from agents.studies.training_pool import finished_run
+
+    out = tmp_path / "s"
+    argv = ["study", "cost-of-estimation", "--quick", "--training-seeds", "1", "--jobs", "2"]
+    proc = start_cli([*argv, "--out", str(out)])
+
+    def learning() -> list[Path]:  # both workers past their first update (progress.csv row)
+        logs = [p for p in out.glob("train/*/s0/*/logs/progress.csv") if p.stat().st_size]
+        return logs if len(logs) == 2 else []
+
+    runs = [log.parent.parent for log in wait_for(learning, proc, 300)]
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err[-2000:]
+    lines = [x for x in err.replace("\r", "\n").splitlines() if x.strip()]
+    assert lines[-1].startswith("quadslam study: terminated (SIGTERM); finished training runs")
+    assert "Traceback" not in err
+    for run in runs:
+        assert (run / "INTERRUPTED").is_file() and (run / "model.zip").is_file(), run
+    assert all(finished_run(folder) is None for folder in out.glob("train/*/s0"))

@@ -37,11 +37,13 @@ def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str)
         check_output_file(args.json, "--json")
     if args.plots is not None:
         check_output_dir(args.plots, "--plots")
-    tic = time.perf_counter()
-    result = study.run_study(out, args.quick, args.training_seeds, args.episodes)
-    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    result = study.run_study(out, args.quick, args.training_seeds, args.episodes, jobs=args.jobs)
     print(study.format_study(result))
-    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min; training runs in {out}")
+    settings = result["settings"]
+    print(
+        f"wall clock: {settings['wall_s'] / 60:.1f} min ({settings['jobs']} training job(s) at "
+        f"a time); training runs in {out}"
+    )
     return _save_study(args, result, study.write_json, study.plot_study, png)
 
 
@@ -109,12 +111,19 @@ def _training_study_args(
     default_seeds: int,
     plots_help: str,
 ) -> None:
-    """The options of a study that trains agents: budget, seeds, episodes and outputs."""
+    """The options of a study that trains agents: budget, seeds, episodes, parallel trainings
+    and outputs."""
     parser.add_argument("--quick", action="store_true", help="1 training seed, small budget")
     parser.add_argument(
         "--training-seeds", type=positive_int, help=f"default {default_seeds} (quick: 1)"
     )
     parser.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
+    parser.add_argument(
+        "--jobs",
+        type=positive_int,
+        help="trainings at a time, each in its own process (default: the CPU cores available; "
+        "1: one after the other in this process); the results do not depend on it",
+    )
     parser.add_argument("--out", type=Path, help="training runs folder (reused when rerun)")
     parser.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     parser.add_argument("--plots", type=Path, help=plots_help)

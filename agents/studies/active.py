@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +34,7 @@ import numpy as np
 
 from agents.evaluation.episodes import Trace, json_float, run_episodes, spread_cell, stats
 from agents.io.outputs import atomic_produce, write_text_atomic
+from agents.studies.training_pool import TrainJob, train_all
 
 ENV_ID = "QuadSLAM-ActivePerception-v0"
 EVAL_SEED0 = 1000
@@ -110,30 +112,13 @@ def row_result(config: str, label: str, per_seed: list[list[dict[str, Any]]]) ->
     return out
 
 
-def train_or_reuse(seed: int, timesteps: int | None, out: Path) -> Path:
-    """Train the ``QuadSLAM-ActivePerception-v0`` PPO entry with ``seed`` (reusing a finished
-    run in ``out``); returns the run folder."""
-    from agents.rl.training import train
-
-    folder = out / "train" / f"s{seed}"
-    for done in sorted(folder.glob("*/timing.json")):  # written last by a finished train()
-        if not (done.parent / "INTERRUPTED").exists():
-            print(f"  reusing {done.parent}", file=sys.stderr)
-            return done.parent
-    run = train("ppo", ENV_ID, timesteps=timesteps, seed=seed, out_dir=folder, progress=False)
-    if (run / "INTERRUPTED").exists():  # Ctrl-C: train() saved and returned; stop the study
-        raise KeyboardInterrupt
-    wall = float(json.loads((run / "timing.json").read_text())["wall_s"])
-    print(f"  ppo seed {seed}: trained in {wall:.0f} s ({run})", file=sys.stderr)
-    return run
-
-
 def run_study(
     out: Path,
     quick: bool = False,
     training_seeds: int | None = None,
     episodes: int | None = None,
     timesteps: int | None = None,
+    jobs: int | None = None,
 ) -> dict[str, Any]:
     """Fly the baselines, train and fly the learned agent; ``{"rows", "settings", "traces"}``.
 
@@ -143,15 +128,30 @@ def run_study(
         training_seeds: Training seeds of the learned row (default 3, quick 1).
         episodes: Held-out episodes (default 20, quick 5).
         timesteps: Training budget (default: the ``ppo.yaml`` entry's; quick 100,000).
+        jobs: Trainings at a time, each in a worker process (default: the CPU cores available,
+            :func:`agents.io.cpus.available_cpus`; 1 trains in this process, one after the
+            other). The trained policies do not depend on it
+            (:mod:`agents.studies.training_pool`).
     """
     from agents.control.dflqr import DFLQRPolicy
     from agents.control.lookat import LookAtPolicy
+    from agents.io.cpus import available_cpus
     from agents.rl.policies import load_policy
 
+    tic = time.perf_counter()
+    jobs = jobs or available_cpus()
     n_seeds = training_seeds or (1 if quick else 3)
     n_eps = episodes or (5 if quick else 20)
     timesteps = timesteps or (100_000 if quick else None)
     seeds = list(range(EVAL_SEED0, EVAL_SEED0 + n_eps))
+    # Every training first: they run side by side; the flights follow in this process.
+    runs = train_all(
+        [
+            TrainJob(f"ppo seed {seed}", out / "train" / f"s{seed}", ENV_ID, seed, timesteps)
+            for seed in range(n_seeds)
+        ],
+        jobs,
+    )
     rows, traces = [], {}
     baselines: tuple[tuple[str, str, Any, dict[str, Any]], ...] = (
         ("dflqr_fixed", "DF-LQR, fixed heading", DFLQRPolicy.from_env, {}),
@@ -163,14 +163,16 @@ def run_study(
         traces[config] = Trace()
         rows.append(row_result(config, label, [fly(policy_of, overrides, seeds, traces[config])]))
     per_seed = []
-    for seed in range(n_seeds):
-        print(f"ppo: training seed {seed} ...", file=sys.stderr)
-        run = train_or_reuse(seed, timesteps, out)
+    for seed, trained in enumerate(runs):
+        print(f"ppo seed {seed}: flying ...", file=sys.stderr)
         trace = Trace() if seed == 0 else None
+        run = trained.run
         per_seed.append(fly(lambda env, r=run: load_policy(str(r), env)[0], {}, seeds, trace))
         if trace is not None:
             traces["ppo"] = trace
-    rows.append(row_result("ppo", "residual PPO, heading channel", per_seed))
+    ppo = row_result("ppo", "residual PPO, heading channel", per_seed)
+    ppo["train_wall_s"] = [round(trained.wall_s, 1) for trained in runs]
+    rows.append(ppo)
     settings = {
         "env_id": ENV_ID,
         "settle_s": SETTLE_S,
@@ -178,6 +180,8 @@ def run_study(
         "training_seeds": list(range(n_seeds)),
         "timesteps": timesteps if timesteps is not None else "the ppo.yaml budget",
         "quick": quick,
+        "jobs": jobs,
+        "wall_s": round(time.perf_counter() - tic, 1),  # the whole study: train and fly
     }
     return {"settings": settings, "rows": rows, "traces": traces}
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 import copy
 import json
 import sys
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +43,7 @@ import numpy as np
 
 from agents.evaluation.episodes import json_float, run_episodes, spread_cell
 from agents.io.outputs import atomic_produce, write_text_atomic
+from agents.studies.training_pool import TrainJob, train_all
 
 SCENARIO = "ekf_figure8_biased_imu"
 EVAL_SEED0 = 1000
@@ -178,27 +180,24 @@ def _evaluate(policy_spec: Any, target: str, env_kwargs: dict[str, Any], seeds: 
         env.close()
 
 
-def _train(
-    cfg: TrainedConfig, seed: int, timesteps: int | None, out: Path, env_kwargs: dict[str, Any]
-) -> tuple[Path, float]:
-    """Train ``cfg`` with ``seed`` (reusing a finished run in ``out``); (run folder, wall s)."""
+def _train_job(
+    cfg: TrainedConfig,
+    seed: int,
+    timesteps: int | None,
+    out: Path,
+    env_kwargs: dict[str, Any],
+    hyperparams: dict[str, Any] | None,
+) -> TrainJob:
+    """The training of ``cfg`` with ``seed``: the ``QuadSLAM-EKF-v0`` entry with the
+    configuration's overrides, then ``hyperparams``, on ``env_kwargs``; in
+    ``out/train/<config>/s<seed>``."""
     from agents.rl.hyperparams import load_hyperparams
-    from agents.rl.training import train
     from quadslam_env.config import deep_merge
 
-    folder = out / "train" / cfg.name / f"s{seed}"
-    for done in sorted(folder.glob("*/timing.json")):  # written last by a finished train()
-        if not (done.parent / "INTERRUPTED").exists():
-            print(f"  reusing {done.parent}", file=sys.stderr)
-            return done.parent, float(json.loads(done.read_text())["wall_s"])
-    entry = deep_merge(load_hyperparams("ppo", EKF), cfg.overrides)
+    entry = deep_merge(deep_merge(load_hyperparams("ppo", EKF), cfg.overrides), hyperparams or {})
     entry["env_kwargs"] = deep_merge(entry.get("env_kwargs", {}), env_kwargs)
-    run = train(
-        "ppo", cfg.env_id, timesteps=timesteps, seed=seed, out_dir=folder, hyperparams=entry
-    )
-    wall = float(json.loads((run / "timing.json").read_text())["wall_s"])
-    print(f"  {cfg.name} seed {seed}: trained in {wall:.0f} s ({run})", file=sys.stderr)
-    return run, wall
+    folder = out / "train" / cfg.name / f"s{seed}"
+    return TrainJob(f"{cfg.name} seed {seed}", folder, cfg.env_id, seed, timesteps, entry)
 
 
 def run_study(
@@ -208,6 +207,8 @@ def run_study(
     episodes: int | None = None,
     timesteps: int | None = None,
     duration_s: float | None = None,
+    jobs: int | None = None,
+    hyperparams: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Train and evaluate every configuration; returns ``{"rows": [...], "settings": {...}}``.
 
@@ -219,9 +220,17 @@ def run_study(
         episodes: Held-out evaluation episodes (default 20, quick 5).
         timesteps: Training budget (default: the ``ppo.yaml`` entry's; quick 200,000).
         duration_s: Episode length in s for training and evaluation (default the scenario's).
+        jobs: Trainings at a time, each in a worker process (default: the CPU cores available,
+            :func:`agents.io.cpus.available_cpus`; 1 trains in this process, one after the
+            other). The trained policies do not depend on it
+            (:mod:`agents.studies.training_pool`).
+        hyperparams: Merged into every configuration's entry (after its own overrides).
     """
+    from agents.io.cpus import available_cpus
     from agents.rl.run_folder import run_config
 
+    tic = time.perf_counter()
+    jobs = jobs or available_cpus()
     n_seeds = training_seeds or (1 if quick else TRAINING_SEEDS)
     n_eps = episodes or (5 if quick else 20)
     timesteps = timesteps or (200_000 if quick else None)
@@ -229,6 +238,12 @@ def run_study(
     base_kwargs: dict[str, Any] = {"scenario": SCENARIO}
     if duration_s is not None:
         base_kwargs["episode"] = {"duration_s": float(duration_s)}
+    # Every training first: they run side by side; the evaluations follow in this process.
+    plan = [(cfg, seed) for cfg in TRAINED for seed in range(n_seeds)]
+    runs = train_all(
+        [_train_job(cfg, s, timesteps, out, base_kwargs, hyperparams) for cfg, s in plan], jobs
+    )
+    trained = {(cfg.name, seed): run for (cfg, seed), run in zip(plan, runs, strict=True)}
     rows: list[Row] = []
     for target in ("truth", "ekf_slam", "fastslam"):
         print(f"DF-LQR on {target} ...", file=sys.stderr)
@@ -238,15 +253,15 @@ def run_study(
     for cfg in TRAINED:
         targets = {t: Row(cfg.name, cfg.label, _train_on(cfg), t) for t in cfg.eval_on}
         for seed in range(n_seeds):
-            print(f"{cfg.name}: training seed {seed} ...", file=sys.stderr)
-            run, wall = _train(cfg, seed, timesteps, out, base_kwargs)
+            run = trained[cfg.name, seed].run
+            print(f"{cfg.name} seed {seed}: evaluating ...", file=sys.stderr)
             env_kwargs = (run_config(run) or {}).get("hyperparams", {}).get("env_kwargs", {})
             env_kwargs = evaluation_kwargs(env_kwargs)
             for target, row in targets.items():
                 eps = _evaluate(run, target, env_kwargs, seeds)
                 row.per_seed.append(eps)
                 row.episodes += eps
-                row.train_wall_s.append(round(wall, 1))
+                row.train_wall_s.append(round(trained[cfg.name, seed].wall_s, 1))
         rows.extend(targets.values())
     settings = {
         "scenario": SCENARIO,
@@ -254,6 +269,8 @@ def run_study(
         "training_seeds": list(range(n_seeds)),
         "timesteps": timesteps if timesteps is not None else "the ppo.yaml budget",
         "quick": quick,
+        "jobs": jobs,
+        "wall_s": round(time.perf_counter() - tic, 1),  # the whole study: train and evaluate
     }
     return {"settings": settings, "rows": [row.result() for row in rows]}
 

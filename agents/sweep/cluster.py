@@ -122,10 +122,9 @@ def use_cluster_token() -> None:
 def warn_workers(workers: int | None) -> None:
     """One warning line when a local sweep asks for more workers than this machine's cores
     (each job then gets a share of a core: slower, and timings are not comparable)."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
+    from agents.io.cpus import available_cpus
+
+    cores = available_cpus()
     if workers is not None and workers > cores:
         print(
             f"quadslam sweep: warning: --workers {workers} is more than the {cores} CPU "
