@@ -116,7 +116,7 @@ def test_inverse_mixer_gives_up_yaw_before_thrust_roll_and_pitch() -> None:
         axis=1,
     )
     best = shares[inside].max()
-    assert 0.0 < w[3] and w[3] == pytest.approx(best, abs=1e-5)
+    assert w[3] > 0.0 and w[3] == pytest.approx(best, abs=1e-5)
 
 
 @pytest.mark.parametrize("tau", [0.015, 0.05])
