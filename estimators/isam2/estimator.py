@@ -418,7 +418,9 @@ class Isam2Slam:
                 if self._isam.valueExists(self._key("x", kf)):
                     lk = self._key("l", i)
                     graph.add(g.CustomFactor(noise, [self._key("x", kf), lk], landmark_error(z)))
-            # Landmarks never leave the window: a landmark seen again keeps its variable.
+        if self._known is None:
+            # Landmarks never leave the window, also through scans without a return (the map
+            # out of view for longer than the window): a landmark seen again keeps its variable.
             stamps.update({self._key("l", i): t for i in [*self._lm_means, *new]})
         self._solve(graph, values, stamps)
         self._read_keyframe(k, new)
