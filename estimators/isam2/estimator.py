@@ -192,6 +192,7 @@ class Isam2Slam:
         params = g.ISAM2Params()
         params.setRelinearizeThreshold(s.relinearize_threshold)
         params.relinearizeSkip = s.relinearize_skip
+        params.setFactorization(s.factorization.upper())  # "QR" or "CHOLESKY"
         if s.window_s is None:
             self._smoother = self._isam = g.ISAM2(params)
         else:
