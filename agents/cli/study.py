@@ -1,5 +1,6 @@
 """``quadslam study …``: the studies' subcommands (cost of estimation, active perception, data
-association, Cramér–Rao bound) and the writing of their ``--json``/``--plots`` outputs."""
+association, Cramér–Rao bound, the estimators against the bound) and the writing of their
+``--json``/``--plots`` outputs."""
 
 from __future__ import annotations
 
