@@ -7,6 +7,7 @@ section's subprocesses (a cold numba compile takes ~20 s) are replaced by a stub
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import io
 import json
 import math
@@ -65,7 +66,10 @@ def test_document_is_wellformed(tiny_run) -> None:
         assert entry["min"] <= entry["median"] <= entry["max"]
     names = {e["name"] for e in doc["results"]}
     assert {"predict", "update", "registration"} <= names
-    for label in ("oracle", "ekf_slam", f"fastslam_N{TINY.fast_env_particles[0]}"):
+    labels = ["oracle", "ekf_slam", f"fastslam_N{TINY.fast_env_particles[0]}"]
+    if importlib.util.find_spec("gtsam") is not None:
+        labels += ["isam2_known_map", "isam2"]
+    for label in labels:
         assert f"steps_per_s/{label}/dflqr" in names
         assert f"real_time_factor/{label}/dflqr" in names
 

@@ -193,6 +193,8 @@ def test_settings_validate_keys_and_values() -> None:
         Isam2Settings.from_params({"process_noise": [0.0] * 8})
     with pytest.raises(ValueError, match=r"estimator\.params\.estimate_imu_bias: expected bool"):
         Isam2Settings.from_params({"estimate_imu_bias": 1})
+    with pytest.raises(ValueError, match=r"factorization: got 'lu'; allowed: one of \('qr'"):
+        Isam2Settings.from_params({"factorization": "lu"})
     assert Isam2Settings.from_params({"window_s": None}).window_s is None
     assert Isam2Settings.from_params({}).window_s == 3.0
     # The EKF's shared keys keep their meaning, so a scenario's EKF params carry over.

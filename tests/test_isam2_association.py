@@ -137,6 +137,37 @@ def test_known_map_returns_are_named_by_the_map_ids() -> None:
     assert snap.diagnostics["diverged"] == 0.0 and np.linalg.norm(snap.position) < 0.05
 
 
+def test_landmarks_out_of_view_longer_than_the_window_keep_their_variables() -> None:
+    """The map leaves the view for 6 s, twenty times a 0.3 s window (60 scans without a
+    return), and comes back: the landmarks are still variables of the fixed-lag smoother
+    (not marginalised with the poses), the returns pair with them again, and the estimate
+    stays with full iSAM2's on the same data (a hover: nearly linear, so marginalising at
+    the window's linearisation point costs little: 3e-4 m here). The dead reckoning makes the
+    position's variance ~1e8 times the held biases'; a Cholesky factorisation reports an
+    indeterminate system there (both smoothers), the default QR does not."""
+    lag, full = Isam2Slam(window_s=0.3), Isam2Slam(window_s=None)
+    _start(lag, full)
+    rng = np.random.default_rng(7)
+    lms = np.array(AHEAD, dtype=float)
+    empty = LidarScan(0.0, np.zeros(0, dtype=np.int64), np.zeros((0, 3)), SIGMA)
+    for k in range(68):
+        for _ in range(10):
+            for f in (lag, full):
+                f.predict(HOVER, NO_CONTROL, 0.01)
+        meas = lidar_measure(np.zeros(3), np.eye(3), lms) + SIGMA * rng.standard_normal(lms.shape)
+        meas[:, :2] = wrap_angle(meas[:, :2])
+        in_view = k < 3 or k >= 63
+        scan = LidarScan(0.1 * k, np.arange(len(lms)), meas, SIGMA) if in_view else empty
+        for f in (lag, full):
+            f.update(scan)
+    a, b = lag.estimate(), full.estimate()
+    assert a.diagnostics["diverged"] == 0.0, lag.last_error
+    assert b.diagnostics["diverged"] == 0.0, full.last_error
+    assert a.landmark_ids.tolist() == list(range(len(lms)))
+    np.testing.assert_allclose(a.position, b.position, rtol=0, atol=2e-3)
+    np.testing.assert_allclose(a.landmark_means, b.landmark_means, rtol=0, atol=2e-3)
+
+
 # ------------------------------------------------------------------ the gate, analytically
 
 

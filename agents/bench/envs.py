@@ -1,7 +1,9 @@
 """Env sections of ``quadslam bench``: scalar env, native vector env, worker processes.
 
 * ``env``: steps/s and real-time factor of each id through ``gymnasium.make`` (one env), with
-  a zero action and with DF-LQR in the loop;
+  a zero action and with DF-LQR in the loop, and of the iSAM2 smoother (fixed lag, its 3 s
+  default window) on the paper's figure-8 with the known map and in SLAM (skipped without
+  GTSAM);
 * ``vector``: env-steps/s (B × steps / wall time, autoresets included) of the native vector env
   ``gymnasium.make_vec(id, num_envs=B, vectorization_mode="vector_entry_point")`` vs B, with
   the batched DF-LQR (``DFLQRPolicy.predict`` on the (B, obs_dim) observations) in the loop;
@@ -12,6 +14,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import time
 from collections.abc import Callable
 from functools import partial
@@ -92,6 +95,11 @@ def bench_env(results: Results, plan: Plan) -> None:
                 {"estimator": {"params": {"n_particles": n}}},
             )
         )
+    if importlib.util.find_spec("gtsam") is not None:  # the smoother's 3 s fixed lag
+        isam2 = {"estimator": {"name": "isam2"}}
+        cases.append(("QuadSLAM-v0", "isam2_known_map",
+                      {"scenario": "paper_ekf_figure8_known", **isam2}))  # fmt: skip
+        cases.append(("QuadSLAM-v0", "isam2", {"scenario": "paper_ekf_figure8", **isam2}))
     for env_id, label, kwargs in cases:
         env = gym.make(env_id, **kwargs)
         base: Any = env.unwrapped  # a QuadSLAMEnv (gymnasium types it as Env)

@@ -1,5 +1,6 @@
 """``quadslam study …``: the studies' subcommands (cost of estimation, active perception, data
-association, Cramér–Rao bound) and the writing of their ``--json``/``--plots`` outputs."""
+association, Cramér–Rao bound, the estimators against the bound) and the writing of their
+``--json``/``--plots`` outputs."""
 
 from __future__ import annotations
 
@@ -92,6 +93,13 @@ def cmd_study_bound(args: argparse.Namespace) -> int:
     return cli_bound(args)
 
 
+def cmd_study_estimators(args: argparse.Namespace) -> int:
+    """EKF-SLAM, FastSLAM and iSAM2 against the Cramér–Rao bound on the paper scenarios."""
+    from agents.studies.estimators import cli_estimators
+
+    return cli_estimators(args)
+
+
 def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
     """Call ``plot(result, folder)`` (which writes one PNG into ``folder``) so that the PNG
     ends up at ``target`` (a temporary folder beside it holds the PNG until it is moved)."""
@@ -179,3 +187,41 @@ def add_study_parser(
     bound.add_argument("--json", type=Path, help="write the per-seed values and summary as JSON")
     bound.add_argument("--plots", type=Path, help="write the error-vs-bound figure (PNG) here")
     bound.set_defaults(func=cmd_study_bound)
+    _add_estimators_parser(studies, positive_int, positive_float)
+
+
+def _add_estimators_parser(
+    studies: Any, positive_int: Callable[[str], int], positive_float: Callable[[str], float]
+) -> None:
+    """``quadslam study estimators``."""
+    from agents.studies.estimator_cells import ROWS, SCENARIOS
+
+    def names(allowed: list[str]) -> Callable[[str], list[str]]:
+        def parse(text: str) -> list[str]:
+            got = [t.strip() for t in text.split(",") if t.strip()]
+            bad = [g for g in got if g not in allowed]
+            if bad or not got:
+                raise argparse.ArgumentTypeError(
+                    f"got {text!r}; allowed: a comma-separated list of {allowed}"
+                )
+            return got
+
+        return parse
+
+    est = studies.add_parser(
+        "estimators",
+        help="EKF-SLAM, FastSLAM, iSAM2 fixed lag and full against the posterior Cramér–Rao "
+        "bound on the paper scenarios: RMSE / bound, block ANEES, time per step",
+    )
+    est.add_argument("--seeds", type=positive_int, default=10, help="seeds per cell (10)")
+    est.add_argument("--seed", type=int, default=0, help="first seed (default 0)")
+    est.add_argument(
+        "--scenarios", type=names(list(SCENARIOS)), help=f"subset of {','.join(SCENARIOS)}"
+    )
+    keys = [r.key for r in ROWS]
+    est.add_argument("--rows", type=names(keys), help=f"subset of {','.join(keys)}")
+    est.add_argument(
+        "--duration", type=positive_float, help="episode length in s (default: each scenario's)"
+    )
+    est.add_argument("--json", type=Path, help="write the cells, per-seed values and ANEES")
+    est.set_defaults(func=cmd_study_estimators)

@@ -83,8 +83,8 @@ _ASSOCIATION_FROM_INFO = {
     "spurious_landmarks": "episode_spurious_landmarks",
 }
 MAX_LANES = 64  # episodes flown at once by run_episodes
-Observer = Callable[[Any, np.ndarray], None]
-"""``observer(core, stepped)`` of :func:`run_episodes`."""
+Observer = Callable[[Any, np.ndarray, dict[str, Any]], None]
+"""``observer(core, stepped, info)`` of :func:`run_episodes`."""
 
 
 @dataclass
@@ -162,7 +162,7 @@ def run_episode(
     obs, info = env.reset(seed=seed)
     lane0 = np.array([True])
     if observer is not None:
-        observer(env.unwrapped.core, lane0)  # type: ignore[attr-defined]
+        observer(env.unwrapped.core, lane0, info)  # type: ignore[attr-defined]
     if trace is not None:
         trace.record(env)
     if video is not None:
@@ -177,7 +177,7 @@ def run_episode(
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
         if observer is not None:
-            observer(env.unwrapped.core, lane0)  # type: ignore[attr-defined]
+            observer(env.unwrapped.core, lane0, info)  # type: ignore[attr-defined]
         if trace is not None:
             trace.record(env)
         if video is not None:
@@ -244,9 +244,10 @@ def run_episodes(
             ``max_steps × N`` (a progress bar's total).
         max_lanes: Most lanes in one vector env.
         video: An :class:`agents.evaluation.video.LaneVideo` that records the first seed's episode.
-        observer: Called as ``observer(core, stepped)`` after the reset and after every
-            batch step, with the :class:`~quadslam_env.core.SimCore` of the lanes and the
-            (B,) bool mask of the lanes that were reset or just stepped (lane i flies
+        observer: Called as ``observer(core, stepped, info)`` after the reset and after every
+            batch step, with the :class:`~quadslam_env.core.SimCore` of the lanes, the
+            (B,) bool mask of the lanes that were reset or just stepped and the step's
+            ``info`` (values (B,) on lanes, scalars one by one) (lane i flies
             ``seeds[first + i]`` of its chunk of ``max_lanes``; one lane per episode on the
             one-by-one path). It may read anything of the core, truth included (analyses
             such as :mod:`agents.studies.bound`), and must not change it.
@@ -307,7 +308,7 @@ def _run_lanes(
     n = len(seeds)
     obs, info = vec.reset(seed=seeds)
     if observer is not None:
-        observer(core, np.ones(n, dtype=bool))
+        observer(core, np.ones(n, dtype=bool), info)
     if trace is not None:
         trace.record_lane(core, 0)
     if video is not None:
@@ -324,7 +325,7 @@ def _run_lanes(
         obs, _, terminated, truncated, info = core.step(checked, active)
         steps += 1
         if observer is not None:
-            observer(core, active.copy())
+            observer(core, active.copy(), info)
         if trace is not None and active[0]:
             trace.record_lane(core, 0)
         if video is not None and active[0]:

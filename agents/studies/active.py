@@ -55,7 +55,7 @@ class ViewCounter:
         self.returned = np.zeros(lanes)
         self.scans = np.zeros(lanes)
 
-    def __call__(self, core: Any, stepped: np.ndarray) -> None:
+    def __call__(self, core: Any, stepped: np.ndarray, info: dict[str, Any]) -> None:
         scan = core.last_scan
         if scan is None:
             return

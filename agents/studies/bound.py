@@ -77,7 +77,7 @@ class TruthRecorder:
         self.core: Any = None
         self._current: dict[int, _Lane] = {}
 
-    def __call__(self, core: Any, stepped: np.ndarray) -> None:
+    def __call__(self, core: Any, stepped: np.ndarray, info: dict[str, Any]) -> None:
         if core is not self.core:  # a new vector env (the next chunk of seeds)
             self.core = core
             self._current = {}
@@ -233,6 +233,13 @@ def compute_bounds(recorder: TruthRecorder, model: BoundModel, seeds: list[int])
     return out
 
 
+def summarize_seeds(per_seed: list[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
+    """Median, min, max and pooled RMS over seeds of every ``bound_``/``est_``/``filter_``
+    key of the :meth:`SeedBound.summary` records."""
+    keys = [k for k in per_seed[0] if k.startswith(("bound_", "est_", "filter_"))]
+    return {k: _stats([s.get(k, math.nan) for s in per_seed], pooled=True) for k in keys}
+
+
 def _stats(values: list[float], pooled: bool) -> dict[str, float | None]:
     arr = np.array(values, dtype=float)
     arr = arr[np.isfinite(arr)]
@@ -248,6 +255,58 @@ def _stats(values: list[float], pooled: bool) -> dict[str, float | None]:
     return out
 
 
+@dataclass
+class Flight:
+    """A scenario's seeds flown (DF-LQR on the estimate) and the bound along each."""
+
+    scenario: Any  # the ScenarioConfig flown
+    settle_s: float  # the env's end of the transient, s
+    episodes: list[dict[str, Any]]  # run_episodes' records, in the order of the seeds
+    model: BoundModel
+    series: list[SeedBound]
+
+
+def fly_and_bound(
+    scenario: str,
+    seeds: list[int],
+    duration_s: float | None = None,
+    overrides: dict[str, Any] | None = None,
+    estimator: str | None = None,
+    recorder: TruthRecorder | None = None,
+    max_lanes: int | None = None,
+) -> Flight:
+    """Fly the scenario's seeds as lanes (at most ``max_lanes`` at once; default
+    ``run_episodes``'), recording them with ``recorder`` (a :class:`TruthRecorder`, or a
+    subclass that keeps more), and compute the bound along each true trajectory."""
+    import gymnasium as gym
+
+    import quadslam_env  # noqa: F401  (registers the ids)
+    from agents.control.dflqr import DFLQRPolicy
+    from agents.evaluation.episodes import MAX_LANES, run_episodes
+    from quadslam_env.config import deep_merge
+
+    kwargs: dict[str, Any] = dict(overrides or {})
+    kwargs["scenario"] = scenario
+    if estimator is not None:
+        kwargs["estimator_name"] = estimator
+    if duration_s is not None:
+        kwargs = deep_merge(kwargs, {"episode": {"duration_s": float(duration_s)}})
+    env = gym.make("QuadSLAM-v0", **kwargs)
+    recorder = TruthRecorder() if recorder is None else recorder
+    lanes = MAX_LANES if max_lanes is None else max_lanes
+    try:
+        cfg = env.unwrapped.scenario  # type: ignore[attr-defined]
+        print(f"flying {cfg.name} / {cfg.estimator.name} × {len(seeds)} ...", file=sys.stderr)
+        policy = DFLQRPolicy.from_env(env)
+        episodes = run_episodes(env, policy, seeds, max_lanes=lanes, observer=recorder)
+        model = bound_model(recorder.core)
+    finally:
+        env.close()
+    print("computing the bound along each true trajectory ...", file=sys.stderr)
+    series = compute_bounds(recorder, model, seeds)
+    return Flight(cfg, float(recorder.core.settle_s), episodes, model, series)
+
+
 def run_bound_study(
     scenario: str,
     seeds: list[int],
@@ -261,38 +320,15 @@ def run_bound_study(
     and the pooled RMS over seeds; ``seeds``; ``episodes``, the usual episode records;
     ``settings``); ``series`` the per-step values for :func:`plot_bound`.
     """
-    import gymnasium as gym
-
-    import quadslam_env  # noqa: F401  (registers the ids)
-    from agents.control.dflqr import DFLQRPolicy
-    from agents.evaluation.episodes import run_episodes
-    from quadslam_env.config import deep_merge
-
-    kwargs: dict[str, Any] = dict(overrides or {})
-    kwargs["scenario"] = scenario
-    if estimator is not None:
-        kwargs["estimator_name"] = estimator
-    if duration_s is not None:
-        kwargs = deep_merge(kwargs, {"episode": {"duration_s": float(duration_s)}})
-    env = gym.make("QuadSLAM-v0", **kwargs)
-    try:
-        base: Any = env.unwrapped
-        recorder = TruthRecorder()
-        print(f"flying {base.scenario.name} × {len(seeds)} seed(s) ...", file=sys.stderr)
-        episodes = run_episodes(env, DFLQRPolicy.from_env(env), seeds, observer=recorder)
-        model = bound_model(recorder.core)
-        duration = float(base.scenario.episode.duration_s)
-        name, est_name = base.scenario.name, base.scenario.estimator.name
-    finally:
-        env.close()
-    print("computing the bound along each true trajectory ...", file=sys.stderr)
-    series = compute_bounds(recorder, model, seeds)
+    flight = fly_and_bound(scenario, seeds, duration_s, overrides, estimator)
+    series, episodes, model = flight.series, flight.episodes, flight.model
+    duration = float(flight.scenario.episode.duration_s)
+    name, est_name = flight.scenario.name, flight.scenario.estimator.name
     steady_from = 0.5 * duration
     per_seed = [s.summary(steady_from) for s in series]
     for rec, ep in zip(per_seed, episodes, strict=True):
         rec["terminated"] = ep["terminated"]
-    keys = [k for k in per_seed[0] if k.startswith(("bound_", "est_", "filter_"))]
-    summary = {k: _stats([s.get(k, math.nan) for s in per_seed], pooled=True) for k in keys}
+    summary = summarize_seeds(per_seed)
     s = model.settings
     result = {
         "scenario": name,
@@ -421,12 +457,12 @@ def figure_name(result: dict[str, Any]) -> str:
     return f"bound_{result['scenario']}{suffix}.png"
 
 
-def _clean(value: Any) -> Any:
+def clean_json(value: Any) -> Any:
     """``value`` with every non-finite float as ``None`` (JSON null)."""
     if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
+        return {k: clean_json(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
+        return [clean_json(v) for v in value]
     if isinstance(value, float | np.floating):
         return float(value) if math.isfinite(value) else None
     if isinstance(value, np.integer | np.bool_):
@@ -451,7 +487,7 @@ def cli_bound(args: Any) -> int:
     print(format_bound(result))
     saver = Saver()
     if args.json is not None:
-        print(f"json: {saver.write_json(args.json, _clean(result), '--json')}")
+        print(f"json: {saver.write_json(args.json, clean_json(result), '--json')}")
     if args.plots is not None:
         fig = bound_figure(result, series)
         path = args.plots / figure_name(result)

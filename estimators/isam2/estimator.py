@@ -192,6 +192,7 @@ class Isam2Slam:
         params = g.ISAM2Params()
         params.setRelinearizeThreshold(s.relinearize_threshold)
         params.relinearizeSkip = s.relinearize_skip
+        params.setFactorization(s.factorization.upper())  # "QR" or "CHOLESKY"
         if s.window_s is None:
             self._smoother = self._isam = g.ISAM2(params)
         else:
@@ -418,7 +419,9 @@ class Isam2Slam:
                 if self._isam.valueExists(self._key("x", kf)):
                     lk = self._key("l", i)
                     graph.add(g.CustomFactor(noise, [self._key("x", kf), lk], landmark_error(z)))
-            # Landmarks never leave the window: a landmark seen again keeps its variable.
+        if self._known is None:
+            # Landmarks never leave the window, also through scans without a return (the map
+            # out of view for longer than the window): a landmark seen again keeps its variable.
             stamps.update({self._key("l", i): t for i in [*self._lm_means, *new]})
         self._solve(graph, values, stamps)
         self._read_keyframe(k, new)
