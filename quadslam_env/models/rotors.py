@@ -171,9 +171,29 @@ class RotorParams:
     @property
     def max_torque(self) -> FloatArray:
         """(3,) largest torque per body axis in N·m with the rotors inside their limits:
-        ``½ Σ_i |M_ki| (T_max − T_min)`` (half the rotors at the top, half at the bottom)."""
-        span = self.thrust_max - self.thrust_min
-        return 0.5 * np.abs(self.mixer[1:]).sum(axis=1) * span
+        ``½ Σ_i |M_ki| (T_max − T_min)`` (half the rotors at the top, half at the bottom, at
+        the collective thrust ``2 (T_min + T_max)``)."""
+        return self._torque_per_thrust_step() * (0.5 * (self.thrust_max - self.thrust_min))
+
+    def hover_torque(self, weight: float) -> FloatArray:
+        """(3,) largest torque per body axis in N·m that keeps the collective thrust at
+        ``weight`` N: ``Σ_i |M_ki| · min(T_max − T_h, T_h − T_min)`` with ``T_h = weight/4``.
+
+        Each rotor moves by ±δ from ``T_h`` with the sign of its ``M_ki``; in both layouts the
+        signs of a torque row balance, so the collective thrust stays, and δ stops at the first
+        limit. This is all an attitude loop can count on while the vehicle holds its altitude
+        (the yaw torque's ``4c·min(…)``, ``c = k_m/k_f``, is about a hundredth of the roll's);
+        :attr:`max_torque` needs the collective thrust half-way up the range. 0 where the
+        rotors cannot carry the weight.
+        """
+        hover = 0.25 * weight
+        step = max(0.0, min(self.thrust_max - hover, hover - self.thrust_min))
+        return self._torque_per_thrust_step() * step
+
+    def _torque_per_thrust_step(self) -> FloatArray:
+        """(3,) ``Σ_i |M_ki|``: the torque in N·m per N when every rotor moves by 1 N with the
+        sign of its entry in torque row k (m)."""
+        return np.abs(self.mixer[1:]).sum(axis=1)
 
     def hover_speed(self, weight: float) -> float:
         """Rotor speed in rad/s at which four equal rotors carry ``weight`` N."""
