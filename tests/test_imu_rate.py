@@ -64,18 +64,16 @@ def _rollout(seconds: float, seed: int, **kwargs):
 @pytest.mark.parametrize(
     ("kwargs", "position", "nees"),
     [
-        ({}, [0.29825158827066556, 0.21058650190808365, -0.12600379184328597], 10.346548501401058),
+        ({}, [0.33560987354621336, 0.10064878670413702, -0.12995870768453988], 9.728498298986263),
         (
             {"scenario": "ekf_figure8_biased_imu"},
-            [0.3421361141026552, 0.14233335703262165, -0.031268557790464294],
-            9.91948169415339,
+            [0.4076787493572357, 0.0036067103464214687, -0.018260876169879463],
+            12.240270534800175,
         ),
     ],
 )
 def test_default_rate_reproduces_the_stored_rollout(kwargs, position, nees) -> None:
-    # Values of the same 1 s rollout (seed 5) before imu.rate_hz existed, stored again when
-    # DF-LQR's inverse mapping turned to tilting about the estimated heading (the figure-8
-    # starts 45° off its heading, so the first second moved; agents/control/dflqr.py).
+    # Values of the same 1 s rollout (seed 5) before imu.rate_hz existed.
     _, pos, info, _ = _rollout(1.0, 5, **kwargs)
     np.testing.assert_allclose(pos, position, rtol=1e-12, atol=0)
     assert info["est_nees_pose"] == pytest.approx(nees, rel=1e-10)

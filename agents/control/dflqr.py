@@ -7,13 +7,9 @@ about n3 (x and y have equal weights), so the controller works on the observatio
 1. ``r̃ = (ρ̂ - ρ_d, ρ̂̇ - ρ̇_d, ψ̂ - ψ_d)`` (eq. 11), ``u_d = (ρ̈_d - g n3, ψ̇_d)`` (eq. 5);
 2. ``u = u_d - K r̃`` with ``K = R̃⁻¹ Bᵀ P̃`` from the continuous algebraic Riccati equation
    (eq. 12–14);
-3. inverse mapping (eq. 15–19): ``f_T = m ‖u_p‖``, ``z = -(m/f_T) C3(ψ̂)ᵀ u_p``,
+3. inverse mapping (eq. 15–19): ``f_T = m ‖u_p‖``, ``z = -(m/f_T) C3(ψ_d)ᵀ u_p``,
    ``φ_d = asin(-z2)``, ``θ_d = atan2(z1, z3)``, ``r_d = u_ψ cos θ_d / cos φ_d``,
-   ``p_d = q_d = 0``. The paper turns ``u_p`` by the reference heading ψ_d; we turn it by the
-   estimated heading ``ψ̂ = ψ_d + ψ̃``. The two agree while the heading tracks; but φ and θ
-   tilt the thrust about the vehicle's own heading, so with ψ_d a heading error ψ̃ turns the
-   horizontal force by ψ̃ (beyond 90° the position loop pushes away from the reference, which
-   a vehicle with little yaw torque, slewing for seconds, cannot afford);
+   ``p_d = q_d = 0``;
 4. PD attitude control (eq. 20): ``τ = -k_p (Λ̂ - Λ_d) - k_d (ω̂ - ω_d)``.
 
 Weights: ``Q̃ = diag(0.01 ×6, 0.04)`` (seed 001 Table 2). The paper lists ``R̃ = diag(0.2, 0.32,
@@ -30,7 +26,6 @@ and the torque available around hover (:data:`BRAKING_RATE`).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -128,10 +123,7 @@ def _command_lanes(
             for j in range(7):
                 acc -= K[i, j] * r_err[j]
             v[i] = acc
-        # Tilt about the estimated heading ψ̂ = ψ_d + ψ̃, not ψ_d: turn u_p by −ψ̃.
-        c, s = math.cos(o[8]), math.sin(o[8])
-        ux, uy = c * v[0] + s * v[1], c * v[1] - s * v[0]
-        thrust, phi_d, theta_d, r_d = inverse_map(ux, uy, v[2], v[3], mass)
+        thrust, phi_d, theta_d, r_d = inverse_map(v[0], v[1], v[2], v[3], mass)
         out[b, 0] = thrust
         out[b, 1] = -kp[0] * (o[6] - phi_d) - kd[0] * o[9]
         out[b, 2] = -kp[1] * (o[7] - theta_d) - kd[1] * o[10]
