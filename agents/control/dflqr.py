@@ -19,7 +19,9 @@ scaled by the inertia (``k_p = J_ii ω_n²``, ``k_d = 2 ζ ω_n J_ii``), so the 
 both vehicle presets. ``ω_n = (20, 20, 10) rad/s`` and ``ζ = 0.7`` were chosen by sweeping
 (8…25 rad/s, ζ 0.7/0.9) with the oracle estimator on the figure-8: the attitude loop's lag is
 the main tracking error because the paper sets ``p_d = q_d = 0`` (RMSE after the climb 0.10 m
-at 8 rad/s, 0.04 m at 20 rad/s).
+at 8 rad/s, 0.04 m at 20 rad/s). Two caps lower ``ω_n`` where the vehicle or its sensors
+cannot support it (:func:`attitude_natural_freq`): the IMU rate (:data:`RATE_FEEDBACK_BANDWIDTH`)
+and the torque available around hover (:data:`BRAKING_RATE`).
 """
 
 from __future__ import annotations
@@ -45,12 +47,34 @@ average over the period before): a delay of about T, whose phase lag ω_c T at t
 ω_c ≈ 2ζω_n must stay below ~0.6 rad to keep ~30° of the PD loop's phase margin, so
 ω_n ≤ 0.6 / (1.4 T) ≈ 0.4 f_IMU. At 100 Hz that is 40 rad/s (the defaults stand); at the
 paper's 10 Hz IMU it is 4 rad/s (with 20 rad/s the vehicle tips over within a second)."""
+BRAKING_RATE = 1.5
+"""Rate error in rad/s from which the saturated attitude loop must stop without overshoot.
+A PD loop ``τ = −J ω_n² e − 2ζω_n J ė`` whose torque saturates at ``J α`` brakes at α only
+once it crosses its switching line ``ė = −ω_n e / (2ζ)``, at the error ``e = 2ζ|ė|/ω_n``; it
+stops within that distance iff ``ė² / (2α) ≤ 2ζ|ė|/ω_n``, i.e. ``ω_n ≤ 4ζα / |ė|``. Beyond it
+the loop overshoots, and on a vehicle with rotors each torque reversal swings two rotors from
+one end of their range to the other through the motor lag, losing collective thrust (``T ∝
+ω²``). The paper vehicle with its 1000 rad/s rotors has α = 1.4 rad/s² in yaw around hover
+(0.24 N·m / 0.171 kg·m²), so its yaw loop gets ω_n = 2.6 rad/s instead of 10 (at 10 rad/s
+the yaw torque sits at a limit on 94 % of the steps, the figure-8's 45° initial heading error
+overshoots and the vehicle drifts off, see docs/performance.md). The presets without rotors
+(α ≥ 5.8 rad/s², yaw of ``rauniyar2023``) keep :data:`ATTITUDE_NATURAL_FREQ`."""
 
 
-def attitude_natural_freq(imu_rate_hz: float) -> FloatArray:
-    """(3,) attitude-loop natural frequencies in rad/s for rate feedback at ``imu_rate_hz``:
-    :data:`ATTITUDE_NATURAL_FREQ`, capped at :data:`RATE_FEEDBACK_BANDWIDTH` × f_IMU."""
-    return np.minimum(ATTITUDE_NATURAL_FREQ, RATE_FEEDBACK_BANDWIDTH * float(imu_rate_hz))
+def attitude_natural_freq(
+    imu_rate_hz: float,
+    vehicle: VehicleParams | None = None,
+    damping: float = ATTITUDE_DAMPING,
+) -> FloatArray:
+    """(3,) attitude-loop natural frequencies in rad/s: :data:`ATTITUDE_NATURAL_FREQ` capped
+    at :data:`RATE_FEEDBACK_BANDWIDTH` × f_IMU and, given a ``vehicle``, per axis at
+    ``4ζα/``:data:`BRAKING_RATE` with ``α = hover torque / J_ii`` in rad/s²
+    (:attr:`VehicleParams.hover_torque`)."""
+    cap = np.minimum(ATTITUDE_NATURAL_FREQ, RATE_FEEDBACK_BANDWIDTH * float(imu_rate_hz))
+    if vehicle is None:
+        return cap
+    alpha = vehicle.hover_torque / np.diag(vehicle.inertia)
+    return np.minimum(cap, 4.0 * damping * alpha / BRAKING_RATE)
 
 
 def flat_system() -> tuple[FloatArray, FloatArray]:
@@ -146,14 +170,17 @@ class DFLQRPolicy:
         """Build from a (possibly wrapped) ``QuadSLAMEnv``; requires the ``thrust_torque`` mode.
 
         Without a ``natural_freq`` argument the attitude loop is capped for the scenario's IMU
-        rate (:func:`attitude_natural_freq`; unchanged at the default 100 Hz).
+        rate and the vehicle's torque around hover (:func:`attitude_natural_freq`; unchanged at
+        the default 100 Hz on the presets without rotors).
         """
         base = env.unwrapped
         mode = base.scenario.action.mode
         if mode != "thrust_torque":
             raise ValueError(f"action.mode: got {mode!r}; DFLQRPolicy needs 'thrust_torque'")
         if "natural_freq" not in kwargs:
-            kwargs["natural_freq"] = attitude_natural_freq(base.scenario.imu_rate_hz)
+            damping = kwargs.get("damping", ATTITUDE_DAMPING)
+            imu_hz = base.scenario.imu_rate_hz
+            kwargs["natural_freq"] = attitude_natural_freq(imu_hz, base.vehicle_params, damping)
         kwargs.setdefault("action_dim", base.scenario.action.dim)
         return cls(base.vehicle_params, **kwargs)
 

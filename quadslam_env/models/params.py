@@ -29,8 +29,9 @@ class VehicleParams:
         rotors: The rotor model (:class:`~quadslam_env.models.rotors.RotorParams`), or
             ``None``: thrust and torque act directly (through ``actuator_tau``). With rotors,
             ``max_thrust`` and ``max_torque`` are the rotors' (all at full speed; half at the
-            top and half at the bottom of their range) and ``actuator_tau`` is 0 (the motor lag
-            is the rotors').
+            top and half at the bottom of their range: the scale of the normalised action; what
+            an attitude loop gets around hover is :attr:`hover_torque`) and ``actuator_tau`` is
+            0 (the motor lag is the rotors').
         inertia_inv: (3, 3) ``J⁻¹`` in 1/(kg·m²), derived.
     """
 
@@ -63,6 +64,20 @@ class VehicleParams:
     def hover_thrust(self) -> float:
         """Thrust that balances gravity, ``m g`` in N."""
         return self.mass * GRAVITY
+
+    @property
+    def hover_torque(self) -> FloatArray:
+        """(3,) torque per body axis in N·m available while the thrust balances gravity.
+
+        Without rotors the thrust and the torques saturate independently, so it is
+        ``max_torque``; with rotors they share the rotors' range and it is
+        :meth:`RotorParams.hover_torque` of ``m g``, less than ``max_torque`` wherever the
+        hover thrust is not half-way up the rotors' range (the yaw torque of the inverse mixer
+        gives way first, :func:`~quadslam_env.models.rotors.allocate`).
+        """
+        if self.rotors is None:
+            return self.max_torque
+        return self.rotors.hover_torque(self.hover_thrust)
 
 
 def _preset(
