@@ -400,7 +400,10 @@ def test_interrupted_training_exits_130(
 
 
 def test_a_second_interrupt_while_saving_leaves_a_complete_run_folder(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    request: pytest.FixtureRequest,
 ) -> None:
     """Ctrl-C stops training; a second Ctrl-C during the learning-curve plot is held until the
     run folder is complete: status 130, the model, INTERRUPTED, the curve and timing.json."""
@@ -420,6 +423,10 @@ def test_a_second_interrupt_while_saving_leaves_a_complete_run_folder(
         os.kill(os.getpid(), signal.SIGINT)  # delivered here, in the main thread
         plot(run_dir)
 
+    # Ctrl-C as a terminal delivers it: a test runner started in the background (no job
+    # control) inherits SIGINT ignored, and an ignored signal is rightly left alone.
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    request.addfinalizer(lambda: signal.signal(signal.SIGINT, previous))
     monkeypatch.setattr(PPO, "learn", interrupted_learn)
     monkeypatch.setattr(agents.rl.training, "plot_learning_curve", plot_with_second_interrupt)
     out = tmp_path / "runs"
