@@ -9,7 +9,7 @@ IMU then drives EKF-SLAM to NEES in the thousands within seconds even with the c
 the true state. So the estimator is run twice, as flight software with a slow IMU runs an
 output predictor beside its filter:
 
-- **the filter** (:attr:`ImuReplay.anchor`) stays at each lane's last IMU instant. When the
+- **the filter** (:attr:`ImuReplay.filter`) stays at each lane's last IMU instant. When the
   sample covering the last m control periods arrives, it is replayed over them: m
   predictions of one control period dt each, with that sample held, each period's applied
   thrust and torque (so a dynamics-driven filter gets the right inputs) and the period's
@@ -40,14 +40,12 @@ from __future__ import annotations
 
 import copy
 import math
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
-from quadslam_env.estimation.protocol import ReservesLandmarks
-from quadslam_env.period_log import PeriodLog, Sample, Scan, apply_scan
+from quadslam_env.period_log import EstimatorCopies, PeriodLog, Sample, Scan, apply_scan
 from quadslam_env.types import FloatArray
 
 CHANGE_MEMORY = 0.5
@@ -55,7 +53,7 @@ CHANGE_MEMORY = 0.5
 (the latest change gets 1 − this: a memory of about two IMU periods)."""
 
 
-class ImuReplay:
+class ImuReplay(EstimatorCopies):
     """The filter-at-IMU-instants and its log of the control periods since (module docstring).
 
     Args:
@@ -67,8 +65,9 @@ class ImuReplay:
             first IMU period, before two samples show how fast the input changes.
 
     Attributes:
-        anchor: The filter: every lane's belief at its last IMU instant.
+        filter: Every lane's belief at its last IMU instant.
         output: The output estimator :meth:`step` last returned (the env's).
+        log: Each lane's last m control periods.
         last_due: (B,) bool lanes whose IMU sample arrived in the last :meth:`step` (their
             output is a fresh copy of the filter).
     """
@@ -80,15 +79,13 @@ class ImuReplay:
         dt: float,
         change_var0: tuple[float, float] = (0.0, 0.0),
     ) -> None:
-        self.anchor = copy.deepcopy(estimator)
+        super().__init__(estimator, PeriodLog(int(steps_per_imu), estimator.num_lanes))
         self.change_var0 = change_var0
-        self.output = estimator
         self.last_due = np.zeros(estimator.num_lanes, dtype=bool)
         self.m = int(steps_per_imu)
         self.dt = float(dt)
         b = estimator.num_lanes
         self.num_lanes = b
-        self.log = PeriodLog(self.m, b)  # each lane's last m control periods
         self._previous = np.zeros((b, 6))  # the sample before the held one
         self._change_var = np.zeros((b, 2))  # (accel m²/s⁴, gyro rad²/s²)
 
@@ -104,28 +101,6 @@ class ImuReplay:
         reach_g = float(np.max(torque_per_inertia)) / rate_hz
         reach_a = params.max_thrust / params.mass
         return cls(estimator, steps_per_imu, dt, (reach_a**2 / 3.0, reach_g**2 / 3.0))
-
-    def reset_lanes(
-        self,
-        lanes: np.ndarray,
-        mean0: FloatArray,
-        cov0: FloatArray,
-        rngs: Sequence[np.random.Generator],
-        known: Any,
-    ) -> None:
-        """Reset the filter's ``lanes`` (k,) as the output's were and forget their log.
-
-        ``rngs`` must be copies of the generators the output's lanes were reset with, taken
-        before that reset drew from them, so that filter and output draw the same numbers.
-        """
-        self.anchor.reset_lanes(lanes, mean0, cov0, rngs, known)
-        self.log.forget(lanes)
-
-    def reserve_landmarks(self, count: int) -> None:
-        """Pass a reset's map size on to a filter that
-        :class:`~quadslam_env.estimation.protocol.ReservesLandmarks`."""
-        if isinstance(self.anchor, ReservesLandmarks):
-            self.anchor.reserve_landmarks(count)
 
     def step(
         self,
@@ -165,8 +140,8 @@ class ImuReplay:
             if scan is not None:
                 apply_scan(output, t, scan, lidar_sigma)
             return output
-        self._replay(self.anchor, due, self.m, held, sigma, lidar_sigma)
-        output = self.output = copy.deepcopy(self.anchor)
+        self._replay(self.filter, due, self.m, held, sigma, lidar_sigma)
+        output = self.output = copy.deepcopy(self.filter)
         # Lanes between two samples (out of phase after an autoreset): carry the copy of
         # their last instant forward again over their periods since.
         behind = (steps % self.m) * ~due

@@ -11,12 +11,14 @@ after an autoreset (lane i of a vector env equals the scalar env).
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Sequence
 from typing import Any, cast
 
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
-from quadslam_env.estimation.protocol import AssociatesUnlabeled
+from quadslam_env.estimation.protocol import AssociatesUnlabeled, ReservesLandmarks
 from quadslam_env.types import FloatArray
 
 Scan = tuple[bool, np.ndarray, np.ndarray, FloatArray]
@@ -176,3 +178,46 @@ class PeriodLog:
             visible[lane, : vis.shape[0]] = vis
             meas[lane, : values.shape[0]] = values
         return False, scanned, visible, meas
+
+
+class EstimatorCopies:
+    """What the slow-IMU and the delayed-LiDAR runs share: the filter, a deep copy of the
+    env's estimator that lags behind it, the output (the env's estimator, replaced by fresh
+    copies of the filter), and the log of the periods the filter has not run yet.
+
+    Args:
+        estimator: The env's (output) estimator right after construction.
+        log: The subclass's :class:`PeriodLog`.
+
+    Attributes:
+        filter: The lagging copy.
+        output: The output estimator the subclass's ``step`` last returned (the env's).
+        log: The periods logged since.
+    """
+
+    def __init__(self, estimator: BatchEstimator, log: PeriodLog) -> None:
+        self.filter = copy.deepcopy(estimator)
+        self.output = estimator
+        self.log = log
+
+    def reset_lanes(
+        self,
+        lanes: np.ndarray,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rngs: Sequence[np.random.Generator],
+        known: Any,
+    ) -> None:
+        """Reset the filter's ``lanes`` (k,) as the output's were and forget their log.
+
+        ``rngs`` must be copies of the generators the output's lanes were reset with, taken
+        before that reset drew from them, so that filter and output draw the same numbers.
+        """
+        self.filter.reset_lanes(lanes, mean0, cov0, rngs, known)
+        self.log.forget(lanes)
+
+    def reserve_landmarks(self, count: int) -> None:
+        """Pass a reset's map size on to a filter that
+        :class:`~quadslam_env.estimation.protocol.ReservesLandmarks`."""
+        if isinstance(self.filter, ReservesLandmarks):
+            self.filter.reserve_landmarks(count)

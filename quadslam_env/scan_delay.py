@@ -34,9 +34,15 @@ import numpy as np
 
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.estimation import BatchEstimator
-from quadslam_env.estimation.protocol import ReservesLandmarks
 from quadslam_env.imu_replay import ImuReplay
-from quadslam_env.period_log import PeriodLog, Sample, Scan, apply_scan, predict_samples
+from quadslam_env.period_log import (
+    EstimatorCopies,
+    PeriodLog,
+    Sample,
+    Scan,
+    apply_scan,
+    predict_samples,
+)
 from quadslam_env.types import FloatArray
 
 
@@ -65,7 +71,7 @@ def copies_for(
     return ImuReplay.for_vehicle(estimator, scenario.steps_per_imu, dt, params, rate)
 
 
-class ScanDelay:
+class ScanDelay(EstimatorCopies):
     """The lagging filter, its log of the periods since, and the output it re-propagates
     (module docstring).
 
@@ -93,12 +99,8 @@ class ScanDelay:
         h: float,
         per_period: int = 1,
     ) -> None:
-        self.filter = copy.deepcopy(estimator)
-        self.output = estimator
-        self.delay = int(delay_steps)
-        self.h = float(h)
-        b = estimator.num_lanes
-        self.log = PeriodLog(int(lidar_every) + self.delay, b, per_period)
+        b, self.delay, self.h = estimator.num_lanes, int(delay_steps), float(h)
+        super().__init__(estimator, PeriodLog(int(lidar_every) + self.delay, b, per_period))
         self.filter_step = np.zeros(b, dtype=np.int64)
         self.last_delivered = np.zeros(b, dtype=bool)
 
@@ -116,15 +118,9 @@ class ScanDelay:
         ``rngs`` must be copies of the generators the output's lanes were reset with, taken
         before that reset drew from them, so that filter and output draw the same numbers.
         """
-        self.filter.reset_lanes(lanes, mean0, cov0, rngs, known)
-        self.log.forget(lanes)
+        super().reset_lanes(lanes, mean0, cov0, rngs, known)
         self.filter_step[lanes] = 0
         self.last_delivered[lanes] = False
-
-    def reserve_landmarks(self, count: int) -> None:
-        """Pass a reset's map size on to the filter (see ``EkfSlamBatch.reserve_landmarks``)."""
-        if isinstance(self.filter, ReservesLandmarks):
-            self.filter.reserve_landmarks(count)
 
     def step(
         self,
