@@ -146,21 +146,21 @@ def _mapped_filter(n: int = 50, **params: object) -> DynamicFastSLAM:
 
 def test_resampled_particles_do_not_share_memory() -> None:
     est = _mapped_filter()
-    old = {"x": est.x, "xb": est.xb, "mu": est.mu, "sigma": est.sigma}
+    old = {"x": est.state.x, "xb": est.bias.xb, "mu": est.state.mu, "sigma": est.state.sigma}
     idx = np.array([7] * 10 + list(range(40)))  # particle 7 copied 11 times
     est._resample(idx)
     for name, before in old.items():
-        after = getattr(est, name)
+        after = getattr(est.bias if name == "xb" else est.state, name)
         assert not np.shares_memory(after, before), name
-    keep = est.mu[1].copy()
-    est.mu[0, 2] += 5.0  # modify one copy of particle 7 ...
-    est.sigma[0, 2] *= 3.0
-    est.xb[0] += 1.0
-    np.testing.assert_array_equal(est.mu[1], keep)  # ... its twins are unchanged
-    np.testing.assert_array_equal(est.sigma[1, 2], est.sigma[2, 2])
-    np.testing.assert_array_equal(est.xb[1], old["xb"][7])
+    keep = est.state.mu[1].copy()
+    est.state.mu[0, 2] += 5.0  # modify one copy of particle 7 ...
+    est.state.sigma[0, 2] *= 3.0
+    est.bias.xb[0] += 1.0
+    np.testing.assert_array_equal(est.state.mu[1], keep)  # ... its twins are unchanged
+    np.testing.assert_array_equal(est.state.sigma[1, 2], est.state.sigma[2, 2])
+    np.testing.assert_array_equal(est.bias.xb[1], old["xb"][7])
     np.testing.assert_array_equal(old["mu"][7], keep)
-    np.testing.assert_allclose(np.exp(est.logw), 1.0 / 50)
+    np.testing.assert_allclose(np.exp(est.state.logw), 1.0 / 50)
 
 
 # ------------------------------------------------------------------------------- bias KF
@@ -269,17 +269,17 @@ def test_landmark_init_inverts_the_measurement_with_g_r_gt() -> None:
 
 def test_circular_mean_and_mixture_covariance() -> None:
     est = _mapped_filter(n=4, anchor_gauge=False)  # the particle moments alone (no gauge term)
-    est.x[:, 8] = [math.pi - 0.01, -math.pi + 0.01, math.pi - 0.02, -math.pi + 0.02]
-    est.logw = np.log(np.array([0.1, 0.2, 0.3, 0.4]))
-    est.mu = np.random.default_rng(7).normal(size=est.mu.shape)
+    est.state.x[:, 8] = [math.pi - 0.01, -math.pi + 0.01, math.pi - 0.02, -math.pi + 0.02]
+    est.state.set_logw(np.log(np.array([0.1, 0.2, 0.3, 0.4])))
+    est.state.mu = np.random.default_rng(7).normal(size=est.state.mu.shape)
     e = est.estimate()
     w = np.array([0.1, 0.2, 0.3, 0.4])
     assert abs(wrap_angle(e.euler[2] - math.pi)) < 0.02
     assert e.pose_cov[8, 8] < 4e-4  # wrapped deviations, not ~π²
     assert np.all(np.linalg.eigvalsh(e.pose_cov) > -1e-12)
-    mean = np.einsum("n,nlk->lk", w, est.mu)
-    d = est.mu - mean
-    cov = np.einsum("n,nlij->lij", w, est.sigma) + np.einsum("n,nli,nlj->lij", w, d, d)
+    mean = np.einsum("n,nlk->lk", w, est.state.mu)
+    d = est.state.mu - mean
+    cov = np.einsum("n,nlij->lij", w, est.state.sigma) + np.einsum("n,nli,nlj->lij", w, d, d)
     np.testing.assert_array_equal(e.landmark_ids, np.arange(4))
     np.testing.assert_allclose(e.landmark_means, mean, atol=1e-12)
     np.testing.assert_allclose(e.landmark_covs, cov, atol=1e-12)
@@ -287,22 +287,22 @@ def test_circular_mean_and_mixture_covariance() -> None:
 
 def test_all_zero_likelihood_flags_divergence_and_keeps_weights() -> None:
     est = _mapped_filter()
-    before = est.logw.copy()
+    before = est.state.logw.copy()
     est._apply_loglik(np.full(est.n_particles, -np.inf))
     e = est.estimate()
     assert e.diagnostics["diverged"] == 1.0
-    np.testing.assert_array_equal(est.logw, before)
+    np.testing.assert_array_equal(est.state.logw, before)
     assert np.all(np.isfinite(e.position)) and np.all(np.isfinite(e.pose_cov))
 
 
 def test_non_finite_propagation_keeps_previous_particles() -> None:
     est = _mapped_filter()
-    x_before = est.x.copy()
+    x_before = est.state.x.copy()
     imu = ImuSample(0.01, np.array([0.0, 0.0, -9.81]), np.zeros(3), 0.03, 0.002)
     est.predict(imu, Control(float("nan"), np.zeros(3)), 0.01)
     e = est.estimate()
     assert e.diagnostics["diverged"] == 1.0
-    np.testing.assert_array_equal(est.x, x_before)
+    np.testing.assert_array_equal(est.state.x, x_before)
     assert np.all(np.isfinite(e.position))
 
 
@@ -314,9 +314,9 @@ def test_empty_scan_is_a_no_op_and_known_map_is_used() -> None:
         np.random.default_rng(8),
         known_landmarks=(np.array([3, 1, 2, 0]), POLES),
     )
-    logw = est.logw.copy()
+    logw = est.state.logw.copy()
     est.update(LidarScan(0.0, np.zeros(0, int), np.zeros((0, 3)), LIDAR_SIGMA))
-    np.testing.assert_array_equal(est.logw, logw)
+    np.testing.assert_array_equal(est.state.logw, logw)
     e = est.estimate()
     np.testing.assert_array_equal(e.landmark_ids, [0, 1, 2, 3])
     np.testing.assert_allclose(e.landmark_means, POLES[[3, 1, 2, 0]], atol=1e-12)
@@ -440,11 +440,11 @@ def test_roughening_jitters_resampled_duplicates_in_proportion_to_the_spread() -
     est = _mapped_filter(anchor_gauge=False, regularisation=0.0)  # roughening alone
     est.roughening = 0.5
     idx = np.full(est.n_particles, 7)  # every particle a copy of particle 7
-    spread = np.std(est.x, axis=0)
+    spread = np.std(est.state.x, axis=0)
     est._resample(idx)
-    assert np.all(np.std(est.x[:, 0:3], axis=0) > 0.0)
+    assert np.all(np.std(est.state.x[:, 0:3], axis=0) > 0.0)
     expected = 0.5 * spread * est.n_particles ** (-1.0 / 12)
-    np.testing.assert_allclose(np.std(est.x, axis=0), expected, rtol=0.5)
+    np.testing.assert_allclose(np.std(est.state.x, axis=0), expected, rtol=0.5)
 
 
 def test_likelihood_inflation_tempers_the_weights_only() -> None:
@@ -455,8 +455,11 @@ def test_likelihood_inflation_tempers_the_weights_only() -> None:
     plain.resample_threshold = tempered.resample_threshold = 0.0
     plain.update(scan)
     tempered.update(scan)
-    np.testing.assert_allclose(tempered.mu, plain.mu)  # the EKFs use the true R
-    lw_p, lw_t = plain.logw - plain.logw.max(), tempered.logw - tempered.logw.max()
+    np.testing.assert_allclose(tempered.state.mu, plain.state.mu)  # the EKFs use the true R
+    lw_p, lw_t = (
+        plain.state.logw - plain.state.logw.max(),
+        tempered.state.logw - tempered.state.logw.max(),
+    )
     np.testing.assert_allclose(lw_t, lw_p / 10.0, atol=1e-9)
 
 

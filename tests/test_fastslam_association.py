@@ -141,8 +141,8 @@ def test_ml_association_recovers_the_known_association_map(
     order = np.argsort([named[int(c)] for c in e.landmark_ids])
     relative = e.landmark_means[order] - e.position
     np.testing.assert_allclose(relative, ek.landmark_means - ek.position, atol=0.15)
-    assert run.est._maps is not None
-    np.testing.assert_array_equal(run.est._maps.size, len(LANDMARKS))  # no duplicates
+    assert run.est.state.maps is not None
+    np.testing.assert_array_equal(run.est.state.maps.size, len(LANDMARKS))  # no duplicates
 
 
 def _two_particle_scene(p0: float = 1e-3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -172,9 +172,8 @@ def test_ml_association_kernel_pairs_updates_and_weights_per_particle() -> None:
         mu[0], sigma[0], x[0, 0:3], np.eye(3), z[:2], R
     )
     maps = _maps(2)
-    loglik, nis = np.empty(2), np.empty(2)
     for scan in range(3):
-        mu, sigma = maps.associate(x, mu, sigma, z, R, cfg, 1.0, loglik, nis)
+        mu, sigma, loglik, _, dof = maps.associate(x, mu, sigma, z, R, cfg, 1.0)
         if scan == 0:
             # Particle 0 pairs each landmark return with its landmark (the same EKF update and
             # likelihood as with known association) and leaves the false return unpaired.
@@ -186,6 +185,7 @@ def test_ml_association_kernel_pairs_updates_and_weights_per_particle() -> None:
             np.testing.assert_array_equal(maps.assoc[1, :3], -1)
             np.testing.assert_allclose(loglik[1], 3 * math.log(1e-3))
             np.testing.assert_array_equal(maps.n_paired, [2, 0])
+            np.testing.assert_array_equal(dof, [6, 0])
     # M = 3 of N = 5: the third sighting of each unexplained return maps it, in the next slot.
     np.testing.assert_array_equal(maps.size, [3, 5])
     np.testing.assert_array_equal(maps.assoc[0, :3], [0, 1, 2])
@@ -200,9 +200,8 @@ def test_likelihood_inflation_widens_the_gate_and_tempers_the_likelihood() -> No
     _, _, ll, q = landmark_ekf_update(mu[1], sigma[1], x[1, 0:3], np.eye(3), z[:2], R)
     assert np.all(q > 11.35) and np.all(q / lam < 11.34)  # outside χ²₃(0.99), inside λ·χ²₃
     maps = _maps(2)
-    loglik, nis = np.empty(2), np.empty(2)
     cfg = AssociationSettings()
-    maps.associate(x, mu, sigma, z, R, cfg, lam, loglik, nis)
+    _, _, loglik, nis, _ = maps.associate(x, mu, sigma, z, R, cfg, lam)
     np.testing.assert_array_equal(maps.assoc[1, :3], [0, 1, -1])
     # log N(ν; 0, λS) = log N(ν; 0, S) + ½ q (1 − 1/λ) − (3/2) log λ
     tempered = ll + 0.5 * q * (1.0 - 1.0 / lam) - 1.5 * math.log(lam)
@@ -216,13 +215,12 @@ def test_a_landmark_takes_the_most_likely_return_and_p0_rejects_unlikely_pairs()
     near = z[0] + np.array([0.0, 0.0, 0.05])  # a second return close to landmark 0
     returns = np.vstack([near, z[0]])
     maps = _maps(2)
-    loglik, nis = np.empty(2), np.empty(2)
-    maps.associate(x[:1], mu[:1], sigma[:1], returns, R, AssociationSettings(), 1.0, loglik, nis)
+    maps.associate(x[:1], mu[:1], sigma[:1], returns, R, AssociationSettings(), 1.0)
     np.testing.assert_array_equal(maps.assoc[0, :2], [-1, 0])  # the exact one wins
     assert maps.candidates.active()[0] == 0  # the ambiguous one starts no candidate
     huge = AssociationSettings(new_landmark_likelihood=1e12)  # above any N(ν; 0, S) here
     maps = _maps(1)
-    maps.associate(x[:1], mu[:1], sigma[:1], returns, R, huge, 1.0, loglik, nis)
+    maps.associate(x[:1], mu[:1], sigma[:1], returns, R, huge, 1.0)
     np.testing.assert_array_equal(maps.assoc[0, :2], [-1, -1])
     assert maps.candidates.active()[0] == 2  # new-landmark hypotheses
 
@@ -233,7 +231,7 @@ def test_clutter_does_not_enter_the_map_of_any_particle() -> None:
     assert n_false > 80  # the scans did carry clutter
     named = _true_id_of_labels(run)
     assert len(named) == len(LANDMARKS)
-    maps = run.est._maps
+    maps = run.est.state.maps
     assert maps is not None
     np.testing.assert_array_equal(maps.size, len(LANDMARKS))  # no spurious landmark anywhere
     for truth, labels in zip(run.truth[4:], run.labels[4:], strict=True):
@@ -250,7 +248,7 @@ def test_same_seed_gives_the_same_association_and_map() -> None:
     ea, eb = a.est.estimate(), b.est.estimate()
     np.testing.assert_array_equal(ea.landmark_means, eb.landmark_means)
     np.testing.assert_array_equal(ea.position, eb.position)
-    np.testing.assert_array_equal(a.est.logw, b.est.logw)
+    np.testing.assert_array_equal(a.est.state.logw, b.est.state.logw)
 
 
 def test_known_map_mode_pairs_with_the_known_ids_and_drops_the_rest() -> None:
@@ -265,7 +263,7 @@ def test_known_map_mode_pairs_with_the_known_ids_and_drops_the_rest() -> None:
 
 def test_resampling_carries_the_per_particle_maps_and_the_reported_particle() -> None:
     run = _static_run("fastslam", unknown=True, n_scans=4, clutter_rate=3.0)
-    est, maps = run.est, run.est._maps
+    est, maps = run.est, run.est.state.maps
     assert maps is not None
     maps.size[:] = np.arange(N_PARTICLES) % 7  # distinguishable map sizes
     maps.candidates.hits[:, 0] = np.arange(N_PARTICLES)
@@ -277,7 +275,7 @@ def test_resampling_carries_the_per_particle_maps_and_the_reported_particle() ->
     assert maps.report == 10  # the first copy of particle 5
     e = est.estimate()
     np.testing.assert_array_equal(e.landmark_ids, np.arange(5))
-    np.testing.assert_array_equal(e.landmark_means, est.mu[10, :5])
+    np.testing.assert_array_equal(e.landmark_means, est.state.mu[10, :5])
 
 
 def test_labeled_and_unlabeled_scans_do_not_mix_in_slam() -> None:

@@ -114,12 +114,12 @@ def _filter(anchor_gauge: bool, known: bool) -> DynamicFastSLAM:
 
 def test_slam_keeps_the_gauge_prior_out_of_the_particles_and_in_the_covariance() -> None:
     est = _filter(anchor_gauge=True, known=False)
-    assert np.all(np.ptp(est.x[:, [0, 1, 2, 8]], axis=0) == 0.0)  # pinned at the mean
-    assert np.all(np.std(est.x[:, 3:6], axis=0) > 0.02)  # the rest keeps its prior
+    assert np.all(np.ptp(est.state.x[:, [0, 1, 2, 8]], axis=0) == 0.0)  # pinned at the mean
+    assert np.all(np.std(est.state.x[:, 3:6], axis=0) > 0.02)  # the rest keeps its prior
     e = est.estimate()
     assert e.pose_cov is not None
     np.testing.assert_allclose(np.diag(e.pose_cov)[[0, 1, 2, 8]], np.r_[[1e-3] * 3, 1e-4])
-    z = lidar_measure(est.x[0, 0:3], np.eye(3), POLES)
+    z = lidar_measure(est.state.x[0, 0:3], np.eye(3), POLES)
     est.update(LidarScan(0.0, np.arange(4), z, LIDAR_SIGMA))
     e = est.estimate()
     # Each landmark: its EKF covariance plus the gauge's translation and yaw lever.
@@ -130,8 +130,10 @@ def test_slam_keeps_the_gauge_prior_out_of_the_particles_and_in_the_covariance()
 
 def test_known_map_and_switched_off_gauge_keep_the_prior_in_the_particles() -> None:
     for est in (_filter(anchor_gauge=True, known=True), _filter(anchor_gauge=False, known=False)):
-        assert np.all(np.std(est.x[:, [0, 1, 2, 8]], axis=0) > 0.5 * np.sqrt([1e-3] * 3 + [1e-4]))
+        assert np.all(
+            np.std(est.state.x[:, [0, 1, 2, 8]], axis=0) > 0.5 * np.sqrt([1e-3] * 3 + [1e-4])
+        )
         e = est.estimate()
         assert e.pose_cov is not None
-        dev = est.x[:, 0:3] - est.x[:, 0:3].mean(axis=0)
+        dev = est.state.x[:, 0:3] - est.state.x[:, 0:3].mean(axis=0)
         np.testing.assert_allclose(e.pose_cov[0:3, 0:3], dev.T @ dev / est.n_particles)

@@ -41,16 +41,18 @@ def _filter(n: int) -> DynamicFastSLAM:
 def test_filter_regularisation_moves_the_copies_of_one_particle_by_the_shrunk_kernel() -> None:
     n = 4000
     est = _filter(n)
-    before = np.cov(est.x.T, bias=True)
-    mean, centre = est.x.mean(axis=0), est.x[7].copy()
+    before = np.cov(est.state.x.T, bias=True)
+    mean, centre = est.state.x.mean(axis=0), est.state.x[7].copy()
     est._resample(np.full(n, 7))  # every particle a copy of particle 7
     h = regularisation_bandwidth(n, 9)
     a = math.sqrt(1.0 - h * h)
-    after = np.cov(est.x.T, bias=True)
+    after = np.cov(est.state.x.T, bias=True)
     np.testing.assert_allclose(np.diag(after)[0:9], h**2 * np.diag(before)[0:9], rtol=0.1)
-    assert np.all(np.ptp(est.x[:, 9:12], axis=0) == 0.0)  # ω is copied, not moved
+    assert np.all(np.ptp(est.state.x[:, 9:12], axis=0) == 0.0)  # ω is copied, not moved
     sem = h * np.sqrt(np.diag(before)[0:9] / n)  # Liu–West: centred on x̄ + a (x_7 − x̄)
-    assert np.all(np.abs(est.x.mean(axis=0)[0:9] - (mean + a * (centre - mean))[0:9]) < 5 * sem)
+    assert np.all(
+        np.abs(est.state.x.mean(axis=0)[0:9] - (mean + a * (centre - mean))[0:9]) < 5 * sem
+    )
     assert np.all(est.lineage == 7)
 
 
@@ -58,10 +60,10 @@ def test_filter_regularisation_keeps_the_cloud_covariance() -> None:
     # Uniform weights and every particle kept once: a² Σ + h² Σ = Σ, not (1 + h²) Σ.
     n = 4000
     est = _filter(n)
-    before = np.cov(est.x[:, 0:9].T, bias=True)
+    before = np.cov(est.state.x[:, 0:9].T, bias=True)
     for _ in range(5):
         est._resample(np.arange(n))
-    after = np.cov(est.x[:, 0:9].T, bias=True)
+    after = np.cov(est.state.x[:, 0:9].T, bias=True)
     np.testing.assert_allclose(np.diag(after), np.diag(before), rtol=0.15)
     h = regularisation_bandwidth(n, 9)
     assert np.all(np.diag(after) < (1.0 + h * h) ** 2 * np.diag(before))

@@ -17,11 +17,13 @@ Two Rao-Blackwellised particle filters share one implementation
     ``Λ̇ = D(Λ) ω_m`` with no bias calibration and LiDAR-only weights — seed 000's comparison
     baseline (Fig. 10–14).
 
-Array layout (all particle work is batched; there is no Python loop over particles — the
-per-particle loops are numba kernels, docs/design.md §9):
+State (all particle work is batched; there is no Python loop over particles — the
+per-particle loops are numba kernels, docs/design.md §9). The filter's ``state`` is a
+:class:`~.state.ParticleState`; the functions of the other modules take it (or its arrays) and
+return their results (log-likelihoods, NIS, stage counts), which the filter applies:
 
 * ``x``      (N, 12) particle states ``x^D``;
-* ``logw``   (N,) normalised log-weights;
+* ``logw``   (N,) normalised log-weights, with ``w = exp(logw)`` and the ESS kept in step;
 * ``mu``     (N, L, 3) landmark means ``μ_j^i`` in N, m; ``sigma`` (N, L, 3, 3) their
   covariances ``Σ_j^i`` in m². With known association L grows when a landmark id is seen for
   the first time and the id → slot map is shared by all particles (docs/design.md §3). With
@@ -29,7 +31,8 @@ per-particle loops are numba kernels, docs/design.md §9):
   maximum likelihood and owns its map: particle i's landmarks are slots ``0 … n_i − 1``
   (``ParticleMaps.size``), L is a capacity, and the estimate reports the map of the
   highest-weight particle.
-* dynamic filter only: ``xb`` (N, 12) bias-KF means and ONE shared (12, 12) covariance ``P``.
+* dynamic filter only: ``bias`` (:class:`~.state.BiasKFState`), ``xb`` (N, 12) bias-KF means
+  and ONE shared (12, 12) covariance ``P``.
   The bias subsystem is linear with the same ``A, H, Q, R`` for every particle (seed 000
   eq. 11–12); the particles only differ in the innovation ``z̄ = z^I − h^d(x^{D,i})``, which
   enters the mean but not the covariance. So ``P`` is particle-independent and is stored once.
@@ -66,8 +69,9 @@ Choices not fixed by the papers (documented here and in the parameter table):
   the estimate. Set ``estimate_inertia=False`` for the paper's fixed-model filter.
 
 Modules: :mod:`.particles` (the shared particle machinery), :mod:`.dynamic` and
-:mod:`.kinematic` (the two filters), :mod:`.process` (motion models, process noise),
-:mod:`.bias_kf`, :mod:`.landmarks`, :mod:`.associate` (per-particle data association),
+:mod:`.kinematic` (the two filters), :mod:`.state` (the state containers), :mod:`.process`
+(motion models, process noise), :mod:`.bias_kf`, :mod:`.landmarks`, :mod:`.associate`
+(per-particle data association), :mod:`.progressive` (progressive correction),
 :mod:`.resampling`, :mod:`.moments` (the estimate's weighted moments), :mod:`.settings`
 (parameter validation).
 

@@ -36,7 +36,7 @@ is the particle's label of that landmark.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import NamedTuple
 
 import numpy as np
 
@@ -50,7 +50,7 @@ from estimators.fastslam.landmarks import (
     particle_dcm,
     rows_of,
 )
-from estimators.fastslam.settings import SIGMA_FLOOR, AssociationSettings
+from estimators.fastslam.settings import AssociationSettings, scan_noise
 from estimators.tentative import Candidates, age_candidates, observe_candidate
 from quadslam_env.measurements import LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch
@@ -270,6 +270,25 @@ _INITIAL_CAPACITY = 16
 """Landmark slots per particle allocated at the first unlabeled scan (doubled as needed)."""
 
 
+class ScanAssociation(NamedTuple):
+    """What one unlabeled scan gave every particle (:meth:`ParticleMaps.associate`).
+
+    Attributes:
+        mu: (N, Lcap, 3) landmark means in N, m after the scan (the input or a grown copy).
+        sigma: (N, Lcap, 3, 3) their covariances in m².
+        loglik: (N,) each particle's log-likelihood of its association,
+            ``Σ_paired log N(ν; 0, λS) + (R − paired) log p0``.
+        nis: (N,) each particle's NIS ``Σ_paired νᵀ S⁻¹ ν`` (not inflated).
+        dof: (N,) int degrees of freedom of that NIS, 3 × paired returns.
+    """
+
+    mu: FloatArray
+    sigma: FloatArray
+    loglik: FloatArray
+    nis: FloatArray
+    dof: np.ndarray
+
+
 class ParticleMaps:
     """Bookkeeping of the per-particle maps under unknown association.
 
@@ -331,9 +350,7 @@ class ParticleMaps:
         R: FloatArray,
         cfg: AssociationSettings,
         inflation: float,
-        loglik: FloatArray,
-        nis: FloatArray,
-    ) -> tuple[FloatArray, FloatArray]:
+    ) -> ScanAssociation:
         """One scan: :func:`associate_particles`, then :func:`add_tentative` (SLAM only).
 
         Fills :attr:`assoc` and :attr:`n_paired`; the inverse model (``landmark_init``) is
@@ -344,25 +361,25 @@ class ParticleMaps:
                 EKFs, updated in place (or grown, see :meth:`fit`).
             meas: (R, 3) unlabeled returns (α rad, β rad, δ m). R: (3, 3) measurement noise.
             cfg: Association settings. inflation: λ ≥ 1 (``likelihood_inflation``).
-            loglik: (N,) receives each particle's log-likelihood of its association.
-            nis: (N,) receives each particle's NIS over its paired returns.
 
         Returns:
-            The landmark arrays ``(mu, sigma)`` after the scan.
+            The landmark arrays after the scan and each particle's likelihood and NIS.
         """
-        k = meas.shape[0]
+        k, n = meas.shape[0], self.size.shape[0]
         if self.assoc.shape[1] < k:
-            self.assoc = np.full((self.size.shape[0], k), -1, dtype=np.int64)
-            self._unexplained = np.zeros((self.size.shape[0], k), dtype=np.bool_)
+            self.assoc = np.full((n, k), -1, dtype=np.int64)
+            self._unexplained = np.zeros((n, k), dtype=np.bool_)
         if not self.known:
             mu, sigma = self.fit(mu, sigma, k)
         dirs = body_from_measure(np.column_stack([meas[:, 0:2], np.ones(k)]))
+        loglik, nis = np.empty(n), np.empty(n)
         associate_particles(
             x, mu, sigma, self.size, meas, dirs, R, cfg.gate, math.log(cfg.new_landmark_likelihood),
             inflation, self.assoc, self._unexplained, loglik, nis, self.n_paired,
         )  # fmt: skip
+        result = ScanAssociation(mu, sigma, loglik, nis, MEAS_DIM * self.n_paired)
         if self.known:
-            return mu, sigma  # unpaired returns are dropped
+            return result  # unpaired returns are dropped
         cols = np.flatnonzero(self._unexplained[:, :k].any(axis=0))
         new_mu, new_sigma = landmark_init(x[:, POS], dcm_from_euler_batch(x[:, EUL]), meas[cols], R)
         cand = self.candidates.at_least(max(CANDIDATE_SLOTS, 2 * k))
@@ -372,7 +389,7 @@ class ParticleMaps:
             cand.pos, cand.cov, cand.hits, cand.age, cand.matched, cfg.confirm_hits,
             cfg.confirm_window, self.assoc,
         )  # fmt: skip
-        return mu, sigma
+        return result
 
     def labels(self, particle: int, returns: int) -> np.ndarray:
         """(returns,) int the last scan's association in ``particle`` as labels: its slots,
@@ -402,44 +419,17 @@ class ParticleMaps:
         self.report = 0
 
 
-def update_unlabeled(filt: Any, scan: LidarScan) -> None:
-    """Per-particle ML association of an unlabeled scan, then weights (FastSLAM's ``update``).
+def unlabeled_returns(scan: LidarScan) -> tuple[FloatArray, FloatArray]:
+    """The returns of an unlabeled scan and their noise covariance.
 
-    ``filt`` is a :class:`~estimators.fastslam.particles.FastSLAMBase`; its maps, landmark
-    arrays, weights and association labels are updated in place.
-
-    Each weight is multiplied by the likelihood of the particle's own association
-    (innovation covariance λS, λ = ``likelihood_inflation``; p0 per unpaired return).
-    :attr:`last_association` is the reported particle's, labeled as in ``estimate``.
-    Stage 2's ρ regeneration is not applied (it needs one pairing in all particles).
+    Returns:
+        ``(meas, R)``: the returns (k, 3) (α rad, β rad, δ m) and R (3, 3) (:func:`scan_noise`).
 
     Raises:
-        ValueError: Malformed returns, or unlabeled scans after labeled ones in SLAM.
+        ValueError: Malformed returns.
     """
     meas = np.asarray(scan.meas, dtype=float)
     k = meas.shape[0] if meas.ndim == 2 else -1
     if meas.shape != (k, 3) or not np.all(np.isfinite(meas)):
         raise ValueError("update: scan.meas must be a finite (k, 3) array")
-    if filt._maps is None:
-        if filt._slot_ids and not filt._known_map:
-            raise ValueError(
-                "update: an unlabeled scan after labeled ones; a FastSLAM run takes one kind"
-            )
-        known = np.array(filt._slot_ids, dtype=np.int64) if filt._known_map else None
-        filt._maps = ParticleMaps(filt.n_particles, known)
-    maps, nis = filt._maps, filt._nis_sum
-    sig = np.maximum(np.asarray(scan.sigma, dtype=float).reshape(3), SIGMA_FLOOR)
-    filt.mu, filt.sigma = maps.associate(
-        filt.x, filt.mu, filt.sigma, meas, np.diag(sig * sig), filt.association,
-        filt.likelihood_inflation, filt._loglik, nis,
-    )  # fmt: skip
-    dof = MEAS_DIM * maps.n_paired
-    if k:
-        if dof.any():
-            filt._check_lock(np.where(dof > 0, nis / np.maximum(dof, 1), np.nan))
-        filt._apply_loglik(filt._loglik)
-    maps.report = best = int(np.argmax(filt._w))
-    filt._nis = float(nis[best]) if dof[best] else math.nan
-    filt._nis_dof = int(dof[best])
-    filt.last_association = maps.labels(best, k)
-    filt._maybe_resample()
+    return meas, scan_noise(scan.sigma)

@@ -18,6 +18,7 @@ from estimators.fastslam.moments import weighted_mean
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.process import DynamicsModel
 from estimators.fastslam.settings import FLOAT, SIGMA_FLOOR, fail, positive
+from estimators.fastslam.state import BiasKFState
 from estimators.inertia import GyroTorqueRegression
 from quadslam_env.estimation import register
 from quadslam_env.measurements import Control, ImuSample
@@ -222,28 +223,32 @@ class DynamicFastSLAM(FastSLAMBase):
             np.empty((self.n_particles, m)),
         )
         self._bias_mean = np.empty(BIAS_DIM)
+        self._imu_loglik = np.empty(self.n_particles)  # the IMU step's (N,) log-likelihoods
         self._reset_extra()
 
     def _reset_extra(self) -> None:
         self.inertia_id.reset()
         self.model.set_inertia(self._inertia0)
-        self.xb = np.zeros((self.n_particles, BIAS_DIM))
-        self.P = np.diag(
-            np.r_[
-                np.full(3, self.accel_bias_sigma**2),
-                np.full(3, self.gyro_bias_sigma**2),
-                np.full(3, self.accel_drift_sigma**2),
-                np.full(3, self.gyro_drift_sigma**2),
-            ]
+        self.bias = BiasKFState(
+            xb=np.zeros((self.n_particles, BIAS_DIM)),
+            P=np.diag(
+                np.r_[
+                    np.full(3, self.accel_bias_sigma**2),
+                    np.full(3, self.gyro_bias_sigma**2),
+                    np.full(3, self.accel_drift_sigma**2),
+                    np.full(3, self.gyro_drift_sigma**2),
+                ]
+            ),
         )
+        """The particles' IMU bias Kalman filter (means and the shared covariance)."""
 
     def _resample_extra(self, idx: np.ndarray) -> None:
-        self.xb = self.xb[idx]
+        self.bias.xb = self.bias.xb[idx]
 
     def _propagate(self, imu: ImuSample, control: Control, dt: float) -> FloatArray:
         torque = np.asarray(control.torque, dtype=float).reshape(3)
         return self.model.propagate(
-            self.x, float(control.thrust), torque, dt, method=self.integrator
+            self.state.x, float(control.thrust), torque, dt, method=self.integrator
         )
 
     def _transition(self, dt: float) -> tuple[FloatArray, FloatArray]:
@@ -276,11 +281,12 @@ class DynamicFastSLAM(FastSLAMBase):
             self._identify_inertia(imu, control, dt)
         a, Q = self._transition(dt)
         model = self.model
+        loglik = self._imu_loglik
         imu_bias_step(
-            self.x,
+            self.state.x,
             x_prev,
-            self.xb,
-            self.P,
+            self.bias.xb,
+            self.bias.P,
             a,
             Q,
             self._imu_noise(imu),
@@ -290,9 +296,9 @@ class DynamicFastSLAM(FastSLAMBase):
             model.mass,
             model.drag,
             *self._kf_buffers,
-            self._loglik,
+            loglik,
         )
-        return self._loglik if self.use_imu_likelihood else None
+        return loglik if self.use_imu_likelihood else None
 
     def _identify_inertia(self, imu: ImuSample, control: Control, dt: float) -> None:
         """Update the inertia identification and move the model and the particles to it.
@@ -308,15 +314,16 @@ class DynamicFastSLAM(FastSLAMBase):
         reg.update(imu.gyro, float(imu.gyro_sigma), control.torque, dt)
         # While the data contradict the rigid-body model, fall back to the nominal inertia.
         theta = reg.theta if reg.usable else 1.0 / self._inertia0
-        self.model.retune(self.x, theta, reg.integrals, reg.gyro_bias)
+        self.model.retune(self.state.x, theta, reg.integrals, reg.gyro_bias)
 
     def _post_predict(self, imu: ImuSample) -> None:
         """Stage 2 (Table 2 step 8, eq. 32–34): ``ω^i ~ N(ω_m − b̂_ω^i, σ_g² I)``."""
         if not self.stage2:
             return
-        bias = self.xb[:, 3:6] + self.xb[:, 9:12]
+        xb = self.bias.xb
+        bias = xb[:, 3:6] + xb[:, 9:12]
         sg = float(imu.gyro_sigma)
-        self.x[:, RATE] = (
+        self.state.x[:, RATE] = (
             np.asarray(imu.gyro, dtype=float)
             - bias
             + sg * self._rng.standard_normal((self.n_particles, 3))
@@ -331,16 +338,17 @@ class DynamicFastSLAM(FastSLAMBase):
         """
         if not (self.stage2 and self.stage2_position):
             return
-        dcm = dcm_from_euler_batch(self.x[:, EUL])
-        rho = self.mu[:, idx] - offset_in_inertial(dcm, meas)  # (N, m, 3)
-        cov = self.sigma[:, idx] + inverse_model_cov(dcm, meas, R)
+        s = self.state
+        dcm = dcm_from_euler_batch(s.x[:, EUL])
+        rho = s.mu[:, idx] - offset_in_inertial(dcm, meas)  # (N, m, 3)
+        cov = s.sigma[:, idx] + inverse_model_cov(dcm, meas, R)
         info, _ = inv3_sym(cov)  # (N, m, 3, 3)
         info_sum = info.sum(axis=1)
         eta = np.einsum("nkij,nkj->ni", info, rho)
         fused_cov, _ = inv3_sym(info_sum)
         fused = np.einsum("nij,nj->ni", fused_cov, eta)
         draw = mv(chol3(fused_cov), self._rng.standard_normal((self.n_particles, 3)))
-        self.x[:, POS] = fused + draw
+        s.x[:, POS] = fused + draw
 
     def _extra_diagnostics(self) -> dict[str, float]:
         """The model's principal moments of inertia in kg·m² (identified or nominal)."""
@@ -349,5 +357,5 @@ class DynamicFastSLAM(FastSLAMBase):
 
     def _bias_estimate(self, w: FloatArray) -> tuple[FloatArray | None, FloatArray | None]:
         total = self._bias_mean
-        weighted_mean(self.xb, w, total)
+        weighted_mean(self.bias.xb, w, total)
         return total[0:3] + total[6:9], total[3:6] + total[9:12]

@@ -56,7 +56,7 @@ class KinematicFastSLAM(FastSLAMBase):
             np.asarray(imu.accel, dtype=float)
             + (float(imu.accel_sigma) * self.imu_noise_scale) * noise[:, 0:3]
         )
-        x = self.x.copy()
+        x = self.state.x.copy()
         x[:, RATE] = (
             np.asarray(imu.gyro, dtype=float)
             + (float(imu.gyro_sigma) * self.imu_noise_scale) * noise[:, 3:6]

@@ -14,16 +14,15 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.fastslam.associate import ParticleMaps, update_unlabeled
+from estimators.fastslam.associate import unlabeled_returns
 from estimators.fastslam.gauge import add_gauge_cov, gauge_split, pin_gauge
 from estimators.fastslam.landmarks import landmark_init
 from estimators.fastslam.lock import LockMonitor
 from estimators.fastslam.moments import landmark_mixture, state_moments
 from estimators.fastslam.process import perturb_particles, wrap_euler_rows
-from estimators.fastslam.progressive import scan_update
+from estimators.fastslam.progressive import Tempering, scan_update
 from estimators.fastslam.resampling import (
     apply_log_likelihood,
-    ess_of,
     regularisation_bandwidth,
     regularise_pose,
     systematic_resample,
@@ -31,14 +30,15 @@ from estimators.fastslam.resampling import (
 from estimators.fastslam.settings import (
     FLOAT,
     OWNER,
-    SIGMA_FLOOR,
     VECTOR,
     AssociationSettings,
     fail,
     fraction,
     parse_process_noise,
     positive,
+    scan_noise,
 )
+from estimators.fastslam.state import ParticleState
 from estimators.memory import check_fastslam_map
 from estimators.settings_check import check_kwargs
 from quadslam_env.estimation import Estimate
@@ -56,6 +56,11 @@ class FastSLAMBase:
 
     Unlabeled scans (``lidar.association: unknown``, ``scan.ids is None``) are associated per
     particle by maximum likelihood (:mod:`.associate`); each particle then has its own map.
+
+    The estimated state is :attr:`state` (:class:`~.state.ParticleState`). The landmark update
+    of a labeled scan (:func:`.progressive.scan_update`) and the association of an unlabeled
+    one (:meth:`.associate.ParticleMaps.associate`) return each particle's log-likelihood and
+    NIS; this class applies them to the weights, the loss-of-lock check and the diagnostics.
     """
 
     associates_unlabeled: ClassVar[bool] = True
@@ -137,34 +142,19 @@ class FastSLAMBase:
 
     def _alloc(self) -> None:
         n = self.n_particles
-        self.x = np.zeros((n, STATE_DIM))
-        self._w = np.empty(n)  # exp(logw), kept in step with the log-weights
+        self.state = ParticleState.empty(n)
+        """The estimated state: particles, weights, landmark EKFs, map bookkeeping, gauge."""
         self._scratch = np.empty(n)
-        self._loglik = np.empty(n)
-        self._nis_sum = np.empty(n)
         self._bad = np.zeros(n, dtype=bool)
         self._draw = np.empty((n, STATE_DIM))
         self._noise_cache: tuple[float, FloatArray] | None = None
-        self.logw = np.full(n, -math.log(n))
-        self.mu = np.zeros((n, 0, 3))
-        self.sigma = np.zeros((n, 0, 3, 3))
-        self._slot: dict[int, int] = {}
-        self._slot_ids: list[int] = []
-        self._ids_sorted = np.zeros(0, dtype=int)
-        self._order = np.zeros(0, dtype=int)
         self.n_resamples = 0
         self.n_progressive_stages = 0
-        self.lineage = np.arange(n)
-        """(N,) index of each particle's ancestor among the particles drawn at reset."""
         self.n_divergences = 0
         self._diverged = False
         self._nis = math.nan
         self._nis_dof = 0
-        self._time = 0.0
         self._lock = LockMonitor(self.n_particles)
-        self._known_map = False
-        self._maps: ParticleMaps | None = None  # per-particle maps (unlabeled scans)
-        self._gauge: tuple[FloatArray, FloatArray] | None = None  # (G (4, 4), anchor ρ_a (3,))
         self.last_association = np.zeros(0, dtype=np.int64)
         """(k,) label of each return of the last unlabeled scan in the reported map (-1)."""
 
@@ -196,15 +186,16 @@ class FastSLAMBase:
             raise ValueError(f"reset: cov0 must be a finite (12, 12) array, got shape {cov.shape}")
         self._rng = rng
         self._alloc()
-        self._known_map = known_landmarks is not None
+        s = self.state
+        s.known_map = known_landmarks is not None
         n = self.n_particles
         if self.anchor_gauge and known_landmarks is None:
             # SLAM: the initial position and yaw are the gauge (:mod:`.gauge`), kept
             # analytically; the particles start from the prior given the gauge.
             gauge_cov, cov = gauge_split(cov)
-            self._gauge = (gauge_cov, mean[POS].copy())
-        self.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
-        wrap_euler_rows(self.x)
+            s.gauge = (gauge_cov, mean[POS].copy())
+        s.x = mean + rng.standard_normal((n, STATE_DIM)) @ psd_sqrt(cov).T
+        wrap_euler_rows(s.x)
         if known_landmarks is not None:
             ids = np.asarray(known_landmarks[0]).astype(int).ravel()
             pts = np.asarray(known_landmarks[1], dtype=float).reshape(-1, 3)
@@ -212,9 +203,9 @@ class FastSLAMBase:
                 raise ValueError(
                     f"reset: known_landmarks has {ids.shape[0]} ids but {pts.shape[0]} positions"
                 )
-            self._add_slots(ids)
-            self.mu = np.broadcast_to(pts, (n, *pts.shape)).copy()
-            self.sigma = np.broadcast_to(
+            s.slots.add(ids)
+            s.mu = np.broadcast_to(pts, (n, *pts.shape)).copy()
+            s.sigma = np.broadcast_to(
                 self.known_map_sigma**2 * np.eye(3), (n, pts.shape[0], 3, 3)
             ).copy()
         self._reset_extra()
@@ -222,34 +213,15 @@ class FastSLAMBase:
     def _reset_extra(self) -> None:
         """Hook: reset subclass state after the particles are drawn."""
 
-    def _add_slots(self, ids: np.ndarray) -> None:
-        for lid in ids.tolist():
-            self._slot[int(lid)] = len(self._slot_ids)
-            self._slot_ids.append(int(lid))
-        ids_all = np.array(self._slot_ids, dtype=int)
-        self._order = np.argsort(ids_all, kind="stable")
-        self._ids_sorted = ids_all[self._order]
-
     # ---------------------------------------------------------------- weights
     @property
-    def logw(self) -> FloatArray:
-        """(N,) normalised log-weights (assigning new ones updates the weights and the ESS)."""
-        return self._logw
-
-    @logw.setter
-    def logw(self, value: FloatArray) -> None:
-        self._logw = np.array(value, dtype=float).reshape(self.n_particles)
-        np.exp(self._logw, out=self._w)
-        self._ess = float(ess_of(self._w))
-
-    @property
-    def weights(self) -> FloatArray:
-        """(N,) normalised weights ``exp(logw)`` (a copy)."""
-        return self._w.copy()
+    def lineage(self) -> np.ndarray:
+        """(N,) int index of each particle's ancestor among the particles drawn at reset."""
+        return self.state.lineage
 
     def particle_positions(self) -> FloatArray:
         """(N, 3) particle positions ρ in N, m (a copy; for display)."""
-        return self.x[:, POS].copy()
+        return self.state.x[:, POS].copy()
 
     def _apply_loglik(self, loglik: FloatArray, scale: float = 1.0) -> None:
         """``log w ← log w + log p(z | particle) / scale``, normalised; flags divergence (eq. 28).
@@ -257,18 +229,19 @@ class FastSLAMBase:
         Args:
             loglik: (N,) log-likelihoods. scale: Tempering λ ≥ 1 (1 = none).
         """
+        s = self.state
         ess = apply_log_likelihood(
-            self._logw, np.asarray(loglik, dtype=float), float(scale), self._scratch, self._w
+            s.logw, np.asarray(loglik, dtype=float), float(scale), self._scratch, s.w
         )
         if ess < 0.0:
             self._diverged = True
             self.n_divergences += 1
             return
-        self._ess = float(ess)
+        s.ess = float(ess)
 
     def _maybe_resample(self) -> None:
-        if self._ess < self.resample_threshold * self.n_particles:
-            self._resample(systematic_resample(self._w, self._rng))
+        if self.state.ess < self.resample_threshold * self.n_particles:
+            self._resample(systematic_resample(self.state.w, self._rng))
 
     def _resample(self, idx: np.ndarray) -> None:
         """Copy the selected particles (fancy indexing: fresh arrays, no shared views).
@@ -283,28 +256,27 @@ class FastSLAMBase:
         With ``regularisation = c > 0`` the copies' poses ``(ρ, v_B, Λ)`` are moved by the shrunk
         kernel of :func:`.resampling.regularise_pose` (bandwidth ``min(1, c·h_opt)``, d = 9).
         """
+        s, n = self.state, self.n_particles
         if self.roughening > 0.0:
-            w = self._w
-            mean = w @ self.x
-            dev = self.x - mean
+            dev = s.x - s.w @ s.x
             dev[:, EUL] = wrap_angle(dev[:, EUL])
-            spread = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
-            scale = self.roughening * spread * self.n_particles ** (-1.0 / STATE_DIM)
+            spread = np.sqrt(np.maximum(s.w @ (dev * dev), 0.0))
+            scale = self.roughening * spread * n ** (-1.0 / STATE_DIM)
         if self.regularisation > 0.0:
-            h = min(1.0, self.regularisation * regularisation_bandwidth(self.n_particles, POSE_DIM))
-            self.x = regularise_pose(self.x, idx, self._w, h, self._rng)
+            h = min(1.0, self.regularisation * regularisation_bandwidth(n, POSE_DIM))
+            s.x = regularise_pose(s.x, idx, s.w, h, self._rng)
         else:
-            self.x = self.x[idx]
+            s.x = s.x[idx]
         if self.roughening > 0.0:
-            self.x = self.x + self._rng.standard_normal(self.x.shape) * scale
-            wrap_euler_rows(self.x)
-        self.mu = self.mu[idx]
-        self.sigma = self.sigma[idx]
-        if self._maps is not None:
-            self._maps.resample(idx, self._w)
+            s.x = s.x + self._rng.standard_normal(s.x.shape) * scale
+            wrap_euler_rows(s.x)
+        s.mu = s.mu[idx]
+        s.sigma = s.sigma[idx]
+        if s.maps is not None:
+            s.maps.resample(idx, s.w)
         self._resample_extra(idx)
-        self.lineage = self.lineage[idx]
-        self.logw = np.full(self.n_particles, -math.log(self.n_particles))
+        s.lineage = s.lineage[idx]
+        s.set_logw(np.full(n, -math.log(n)))
         self.n_resamples += 1
 
     def _resample_extra(self, idx: np.ndarray) -> None:
@@ -322,12 +294,13 @@ class FastSLAMBase:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"predict: dt must be a finite number > 0, got {dt!r}")
         self._diverged = self._lock.lost
-        self._time += dt
+        self.state.time += dt
         self._nis = math.nan
         self._nis_dof = 0
         x_new = self._propagate(imu, control, dt)
         self._rng.standard_normal(out=self._draw)
-        n_bad = perturb_particles(x_new, self.x, self._draw, self._noise_scale(dt), self._bad)
+        s = self.state
+        n_bad = perturb_particles(x_new, s.x, self._draw, self._noise_scale(dt), self._bad)
         penalty = None
         if n_bad:
             if n_bad == self.n_particles:
@@ -335,7 +308,7 @@ class FastSLAMBase:
                 self.n_divergences += 1
                 return
             penalty = np.where(self._bad, -np.inf, 0.0)
-        x_prev, self.x = self.x, x_new
+        x_prev, s.x = s.x, x_new
         loglik = self._imu_step(imu, control, dt, x_prev)
         if penalty is not None:
             loglik = penalty if loglik is None else loglik + penalty
@@ -380,7 +353,8 @@ class FastSLAMBase:
             return
         if scan.count == 0:
             return
-        if self._maps is not None and not self._known_map:
+        s = self.state
+        if s.maps is not None and not s.known_map:
             raise ValueError(
                 "update: a labeled scan after unlabeled ones; a FastSLAM run takes one kind"
             )
@@ -389,40 +363,64 @@ class FastSLAMBase:
         if np.unique(scan_ids).size != scan_ids.size:  # repeated id: keep its first return
             _, first = np.unique(scan_ids, return_index=True)
             scan_ids, meas = scan_ids[first], meas[first]
-        sig = np.maximum(np.asarray(scan.sigma, dtype=float).reshape(3), SIGMA_FLOOR)
-        R = np.diag(sig * sig)
-        slots = np.array([self._slot.get(i, -1) for i in scan_ids.tolist()])
+        R = scan_noise(scan.sigma)
+        slots = s.slots.of(scan_ids)
         old = slots >= 0
         idx = slots[old]
         if idx.size:
             # Each observed landmark's EKF in every particle, in place (a landmark whose update
             # broke down keeps its prior); a scan far narrower than the cloud first in stages.
-            nis = self._nis_sum
-            remaining = scan_update(self, idx, meas[old], R)
-            self._nis = float(self._w @ nis)
+            tempering = Tempering(
+                self.likelihood_inflation, self.progressive_ess, self.resample_threshold,
+                self._resample, self._rng,
+            )  # fmt: skip
+            result = scan_update(s, idx, meas[old], R, tempering)
+            self.n_progressive_stages += result.stages
+            self._nis = float(s.w @ result.nis)
             self._nis_dof = MEAS_DIM * int(idx.size)
-            self._check_lock(nis / self._nis_dof)
+            self._check_lock(result.nis / self._nis_dof)
             # Tempering (likelihood inflation λ): the weights use p(z | x)^{1/λ}, i.e. the
             # Gaussian with covariance λ·S up to a particle-independent constant; the EKFs
             # above use the true R.
-            self._apply_loglik(self._loglik, self.likelihood_inflation / remaining)
+            self._apply_loglik(result.loglik, self.likelihood_inflation / result.remaining)
         if not np.all(old):
-            if self._gauge is not None and not self._slot_ids:  # the map is born: pin
-                self._gauge = pin_gauge(self.x, self._w, *self._gauge)
-            new_ids = scan_ids[~old]
-            pos = self.x[:, POS]
-            dcm = dcm_from_euler_batch(self.x[:, EUL])
-            mu0, sig0 = landmark_init(pos, dcm, meas[~old], R)
-            self.mu = np.concatenate([self.mu, mu0], axis=1)
-            self.sigma = np.concatenate([self.sigma, sig0], axis=1)
-            self._add_slots(new_ids)
+            if s.gauge is not None and not s.slots.ids:  # the map is born: pin
+                s.gauge = pin_gauge(s.x, s.w, *s.gauge)
+            mu0, sig0 = landmark_init(s.x[:, POS], dcm_from_euler_batch(s.x[:, EUL]), meas[~old], R)
+            s.mu = np.concatenate([s.mu, mu0], axis=1)
+            s.sigma = np.concatenate([s.sigma, sig0], axis=1)
+            s.slots.add(scan_ids[~old])
         self._maybe_resample()
         if idx.size:
             self._post_update(idx, meas[old], R)
 
     def _update_unlabeled(self, scan: LidarScan) -> None:
-        """An unlabeled scan: :func:`.associate.update_unlabeled`."""
-        update_unlabeled(self, scan)
+        """Per-particle ML association of an unlabeled scan, then the weights: each is
+        multiplied by the likelihood of the particle's own association (λS, p0 per unpaired
+        return; :meth:`.associate.ParticleMaps.associate`). :attr:`last_association` is the
+        reported particle's, labeled as in :meth:`estimate`. Stage 2's ρ regeneration is not
+        applied (it needs one pairing in all particles).
+
+        Raises:
+            ValueError: Malformed returns, or unlabeled scans after labeled ones in SLAM.
+        """
+        meas, R = unlabeled_returns(scan)
+        s = self.state
+        maps = s.unlabeled_maps()
+        result = maps.associate(
+            s.x, s.mu, s.sigma, meas, R, self.association, self.likelihood_inflation
+        )
+        s.mu, s.sigma = result.mu, result.sigma
+        k, dof = meas.shape[0], result.dof
+        if k:
+            if dof.any():
+                self._check_lock(np.where(dof > 0, result.nis / np.maximum(dof, 1), np.nan))
+            self._apply_loglik(result.loglik)
+        maps.report = best = int(np.argmax(s.w))
+        self._nis = float(result.nis[best]) if dof[best] else math.nan
+        self._nis_dof = int(dof[best])
+        self.last_association = maps.labels(best, k)
+        self._maybe_resample()
 
     def _post_update(self, idx: np.ndarray, meas: FloatArray, R: FloatArray) -> None:
         """Hook run after resampling in :meth:`update` with the mapped observations."""
@@ -430,7 +428,8 @@ class FastSLAMBase:
     def _check_lock(self, nis_per_dof: FloatArray) -> None:
         """One scan's NIS per degree of freedom (N,) to the loss-of-lock check
         (:class:`.lock.LockMonitor`); a lost lock marks this step diverged."""
-        if self._lock.check(nis_per_dof, self._time, self.nis_divergence, self.nis_divergence_s):
+        t = self.state.time
+        if self._lock.check(nis_per_dof, t, self.nis_divergence, self.nis_divergence_s):
             self.n_divergences += 1
         self._diverged = self._diverged or self._lock.lost
 
@@ -452,25 +451,26 @@ class FastSLAMBase:
         SLAM every particle has its own map, and the map of the reported particle (the
         highest-weight one after the last scan) is given, labeled by its slots ``0, 1, …``.
         """
-        w = self._w
+        s = self.state
+        w = s.w
         mean, vel_inertial = np.empty(STATE_DIM), np.empty(3)
         pose_cov = np.empty((POSE_DIM, POSE_DIM))
-        state_moments(self.x, w, mean, pose_cov, vel_inertial)
-        ids = self._ids_sorted
-        n_lm = len(self._slot_ids)
+        state_moments(s.x, w, mean, pose_cov, vel_inertial)
+        ids = s.slots.ids_sorted
+        n_lm = len(s.slots.ids)
         lm_mean, lm_cov = np.empty((n_lm, 3)), np.empty((n_lm, 3, 3))
-        if self._maps is not None and not self._known_map:
-            best = self._maps.report
-            n_lm = int(self._maps.size[best])
+        if s.maps is not None and not s.known_map:
+            best = s.maps.report
+            n_lm = int(s.maps.size[best])
             ids = np.arange(n_lm)
-            lm_mean, lm_cov = self.mu[best, :n_lm].copy(), self.sigma[best, :n_lm].copy()
+            lm_mean, lm_cov = s.mu[best, :n_lm].copy(), s.sigma[best, :n_lm].copy()
         elif n_lm:
-            landmark_mixture(self.mu, self.sigma, w, self._order, lm_mean, lm_cov)
-        if self._gauge is not None:  # the SLAM gauge's share (:mod:`.gauge`)
-            add_gauge_cov(self._gauge, mean[POS], pose_cov, lm_mean, lm_cov)
+            landmark_mixture(s.mu, s.sigma, w, s.slots.order, lm_mean, lm_cov)
+        if s.gauge is not None:  # the SLAM gauge's share (:mod:`.gauge`)
+            add_gauge_cov(s.gauge, mean[POS], pose_cov, lm_mean, lm_cov)
         accel_bias, gyro_bias = self._bias_estimate(w)
         diagnostics = {
-            "ess": self._ess,
+            "ess": s.ess,
             "n_resamples": float(self.n_resamples),
             "n_progressive_stages": float(self.n_progressive_stages),
             "nis": self._nis,

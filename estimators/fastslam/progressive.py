@@ -25,7 +25,9 @@ particles; otherwise the scan is processed as without them.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -38,6 +40,7 @@ from estimators.fastslam.resampling import (
     regularisation_jitter,
     systematic_resample,
 )
+from estimators.fastslam.state import ParticleState
 from quadslam_env.models.frames import wrap_angle
 from quadslam_env.types import EUL, POSE_DIM, FloatArray
 
@@ -112,81 +115,129 @@ def pose_covariance(x: FloatArray, w: FloatArray) -> FloatArray:
     return (dev * w[:, None]).T @ dev
 
 
-def scan_update(filt: Any, slots: np.ndarray, meas: FloatArray, R: FloatArray) -> float:
+@dataclass(frozen=True)
+class Tempering:
+    """What progressive correction needs of the filter besides its state: its tempering
+    settings, its resampling step and its generator.
+
+    Attributes:
+        inflation: λ ≥ 1, ``likelihood_inflation`` (the LiDAR weight is ``p(z|x)^{1/λ}``).
+        progressive_ess: Stages run when one scan would leave fewer effective particles
+            than this share of N (0: never).
+        resample_threshold: The filter's resampling threshold, a share of N.
+        resample: The filter's resampling step: particle i becomes a copy of ``idx[i]`` in
+            every per-particle array of the filter, and the weights become equal.
+        rng: The filter's random generator (the jitter of each stage).
+    """
+
+    inflation: float
+    progressive_ess: float
+    resample_threshold: float
+    resample: Callable[[np.ndarray], None]
+    rng: np.random.Generator
+
+
+class ScanLikelihood(NamedTuple):
+    """What a labeled scan gave every particle (:func:`scan_update`).
+
+    Attributes:
+        loglik: (N,) each particle's ``Σ_j log N(ν_j; 0, S_j)`` over the observed landmarks,
+            at the particles' final poses (untempered).
+        nis: (N,) each particle's ``Σ_j ν_jᵀ S_j⁻¹ ν_j``.
+        remaining: The share of the tempered log-likelihood still to apply to the weights,
+            in (0, 1] (1 if no stage ran).
+        stages: Tempered stages run (each one resampled the particles).
+    """
+
+    loglik: FloatArray
+    nis: FloatArray
+    remaining: float
+    stages: int
+
+
+def scan_update(
+    state: ParticleState,
+    slots: np.ndarray,
+    meas: FloatArray,
+    R: FloatArray,
+    tempering: Tempering,
+) -> ScanLikelihood:
     """The landmark EKF update of a labeled scan, after progressive correction if it is needed.
 
-    Fills ``filt._loglik`` and ``filt._nis_sum`` (N,) and updates the observed landmark EKFs of
-    every particle (:func:`.landmarks.landmark_ekf_particles`). With ``progressive_ess > 0`` the
+    Updates the observed landmark EKFs of every particle in ``state.mu`` and ``state.sigma``
+    (:func:`.landmarks.landmark_ekf_particles`) and returns each particle's log-likelihood and
+    NIS; the weights are the caller's to update with them. With ``progressive_ess > 0`` the
     update is first computed on copies of the observed landmarks; if the scan keeps enough
     effective particles those copies are the result (no second pass), otherwise
     :func:`progressive_correction` runs and the update is made at the moved particles.
 
     Args:
-        filt: The filter. slots: (k,) observed slots. meas: (k, 3) measurements. R: (3, 3).
-
-    Returns:
-        The share of the tempered log-likelihood still to apply to the weights, in (0, 1].
+        state: The filter's particles. slots: (k,) observed slots. meas: (k, 3) measurements.
+        R: (3, 3) measurement noise. tempering: The filter's tempering settings and steps.
     """
-    loglik, nis = filt._loglik, filt._nis_sum
-    if filt.progressive_ess > 0.0:
-        mu, sigma = filt.mu[:, slots], filt.sigma[:, slots]  # fancy indexing: copies
-        landmark_ekf_particles(filt.x, mu, sigma, np.arange(slots.shape[0]), meas, R, loglik, nis)
-        ll = loglik / filt.likelihood_inflation
-        if ess_after(filt.logw, ll, 1.0) >= filt.progressive_ess * filt.n_particles:
-            filt.mu[:, slots], filt.sigma[:, slots] = mu, sigma
-            return 1.0
-        remaining = progressive_correction(filt, slots, meas, R, filt.likelihood_inflation, ll)
-    else:
-        remaining = 1.0
-    landmark_ekf_particles(filt.x, filt.mu, filt.sigma, slots, meas, R, loglik, nis)
-    return remaining
+    n = state.n_particles
+    loglik, nis = np.empty(n), np.empty(n)
+    remaining, stages = 1.0, 0
+    if tempering.progressive_ess > 0.0:
+        mu, sigma = state.mu[:, slots], state.sigma[:, slots]  # fancy indexing: copies
+        landmark_ekf_particles(state.x, mu, sigma, np.arange(slots.shape[0]), meas, R, loglik, nis)
+        ll = loglik / tempering.inflation
+        if ess_after(state.logw, ll, 1.0) >= tempering.progressive_ess * n:
+            state.mu[:, slots], state.sigma[:, slots] = mu, sigma
+            return ScanLikelihood(loglik, nis, remaining, stages)
+        remaining, stages = progressive_correction(state, slots, meas, R, tempering, ll)
+    landmark_ekf_particles(state.x, state.mu, state.sigma, slots, meas, R, loglik, nis)
+    return ScanLikelihood(loglik, nis, remaining, stages)
 
 
 def progressive_correction(
-    filt: Any,
+    state: ParticleState,
     slots: np.ndarray,
     meas: FloatArray,
     R: FloatArray,
-    scale: float,
+    tempering: Tempering,
     first: FloatArray | None = None,
-) -> float:
+) -> tuple[float, int]:
     """Apply a degenerate scan's likelihood in stages, moving the particles in between.
 
-    ``filt`` is a :class:`~estimators.fastslam.particles.FastSLAMBase`; its particles, weights
-    and per-particle arrays are resampled and its pose states jittered in place.
+    Each stage updates ``state``'s weights, resamples through ``tempering.resample`` and
+    jitters the particles' pose states in ``state.x`` in place.
 
     Args:
-        filt: The filter. slots: (k,) observed landmark slots. meas: (k, 3) measurements.
-        R: (3, 3) measurement noise. scale: Tempering λ of the LiDAR weight.
+        state: The filter's particles. slots: (k,) observed landmark slots.
+        meas: (k, 3) measurements. R: (3, 3) measurement noise.
+        tempering: The filter's settings (λ tempers the LiDAR weight) and resampling step.
         first: (N,) the tempered log-likelihood at the current particles, if already computed.
 
     Returns:
-        The share of the (tempered) log-likelihood still to apply, in (0, 1]; 1 if no stage ran.
+        ``(remaining, stages)``: the share of the (tempered) log-likelihood still to apply, in
+        (0, 1] (1 if no stage ran), and the number of stages run.
     """
-    n = filt.n_particles
+    n = state.n_particles
     loglik, nis = np.empty(n), np.empty(n)
-    target = max(filt.resample_threshold, filt.progressive_ess) * n
+    target = max(tempering.resample_threshold, tempering.progressive_ess) * n
     remaining = 1.0
     h = regularisation_bandwidth(n, POSE_DIM)
+    stages = 0
     for stage in range(MAX_STAGES):
         if stage == 0 and first is not None:
             ll = first
         else:
-            scan_loglik(filt.x, filt.mu, filt.sigma, slots, meas, R, loglik, nis)
-            ll = loglik / scale
-        if stage == 0 and ess_after(filt.logw, ll, 1.0) >= filt.progressive_ess * n:
-            return 1.0
-        alpha = stage_exponent(filt.logw, ll, remaining, target)
+            scan_loglik(state.x, state.mu, state.sigma, slots, meas, R, loglik, nis)
+            ll = loglik / tempering.inflation
+        if stage == 0 and ess_after(state.logw, ll, 1.0) >= tempering.progressive_ess * n:
+            return 1.0, 0
+        alpha = stage_exponent(state.logw, ll, remaining, target)
         if alpha >= remaining:
             break
-        filt.logw = normalise_log_weights(
-            filt.logw + alpha * np.where(np.isfinite(ll), ll, -np.inf)
+        state.set_logw(
+            normalise_log_weights(state.logw + alpha * np.where(np.isfinite(ll), ll, -np.inf))
         )
         remaining -= alpha
-        w = filt.weights
-        cov = pose_covariance(filt.x, w)
-        filt._resample(systematic_resample(w, filt._rng))
-        filt.x[:, 0:POSE_DIM] += regularisation_jitter(cov, h, n, filt._rng)
-        wrap_euler_rows(filt.x)
-        filt.n_progressive_stages += 1
-    return remaining
+        w = state.w.copy()
+        cov = pose_covariance(state.x, w)
+        tempering.resample(systematic_resample(w, tempering.rng))
+        state.x[:, 0:POSE_DIM] += regularisation_jitter(cov, h, n, tempering.rng)
+        wrap_euler_rows(state.x)
+        stages += 1
+    return remaining, stages

@@ -20,6 +20,12 @@ SIGMA_FLOOR = 1e-9
 """Smallest sensor standard deviation used in R (keeps S invertible for noise-free sensors)."""
 
 
+def scan_noise(sigma: FloatArray) -> FloatArray:
+    """The LiDAR noise covariance R (3, 3) of a scan's σ (3,) (rad, rad, m), floored."""
+    sig = np.maximum(np.asarray(sigma, dtype=float).reshape(3), SIGMA_FLOOR)
+    return np.diag(sig * sig)
+
+
 def fail(key: str, value: Any, allowed: str) -> ValueError:
     """The ``ValueError`` for setting ``key`` = ``value``, naming what is allowed."""
     return ValueError(f"{OWNER}.{key}: invalid value {value!r}; allowed: {allowed}")
