@@ -273,6 +273,7 @@ class ScenarioConfig:
             )
         check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
         check_delays(scenario)
+        check_copyable(scenario)
         check_heading(scenario)
         check_rotor_action(scenario.action.mode, scenario.vehicle)
         scenario.wind.check_drag(scenario.vehicle.drag_per_s, scenario.vehicle.drag_quadratic_per_m)
@@ -311,9 +312,9 @@ def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
 
 
 def check_delays(scenario: ScenarioConfig) -> None:
-    """``action.delay_steps`` and ``lidar.delay_steps`` must be shorter than an episode, and
-    a delayed LiDAR needs an estimator the env can run twice from copies (docs/env.md
-    "Latency").
+    """``action.delay_steps`` and ``lidar.delay_steps`` must be shorter than an episode, and a
+    delayed LiDAR goes with neither a slow IMU nor unlabeled returns (docs/env.md "Latency";
+    its estimator is checked by :func:`check_copyable`).
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.
@@ -343,11 +344,39 @@ def check_delays(scenario: ScenarioConfig) -> None:
             f"lidar.delay_steps: got {delay} with lidar.association = 'unknown'; allowed: 0 "
             "with unlabeled returns, or lidar.association: known with a delayed LiDAR"
         )
-    if scenario.estimator.name == "isam2":
+
+
+def check_copyable(scenario: ScenarioConfig) -> None:
+    """An IMU slower than the control and a delayed LiDAR run a copy of the estimator beside
+    it (:class:`~quadslam_env.period_log.EstimatorCopies`), so they need an estimator whose
+    class does not say ``copyable = False`` (:func:`quadslam_env.estimation.copyable`).
+
+    Raises:
+        ConfigError: Naming the key, the value and what is allowed.
+    """
+    name = scenario.estimator.name
+    if scenario.steps_per_imu > 1:
+        control_hz = scenario.episode.control_hz
+        got = f"imu.rate_hz: got {scenario.imu.rate_hz} < episode.control_hz = {control_hz}"
+        why = "an IMU slower than the control runs a copy of the estimator at its instants"
+        allowed = f"imu.rate_hz null or >= episode.control_hz with {name!r}"
+    elif scenario.lidar.delay_steps > 0:
+        got = f"lidar.delay_steps: got {scenario.lidar.delay_steps}"
+        why = "a delayed scan is applied to a copy of the estimator at the scan's time"
+        allowed = f"lidar.delay_steps: 0 with {name!r}"
+    else:
+        return
+    from quadslam_env.estimation import copyable
+
+    try:
+        ok = copyable(name)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
+    if not ok:
         raise ConfigError(
-            f"lidar.delay_steps: got {delay} with estimator.name = 'isam2', whose GTSAM "
-            "smoother cannot be copied (a delayed scan is applied to a copy of the estimator "
-            "at the scan's time); allowed: 0 with isam2, or another estimator"
+            f"{got} with estimator.name = {name!r}, which cannot be copied ({why}); allowed: "
+            f"{allowed}, or an estimator that can be copied (whose class does not say "
+            "copyable = False)"
         )
 
 

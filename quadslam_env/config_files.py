@@ -1,9 +1,10 @@
 """Where scenario files live and how they are read (YAML, merging, descriptions).
 
-The shipped scenarios and agent hyperparameters are package data under
-``quadslam_env/configs`` (read through :mod:`importlib.resources`, so a wheel install finds them
-from any working directory); ``QUADSLAM_CONFIG_DIR`` points to another folder with the same
-layout (``scenarios/*.yaml``, ``agents/*.yaml``).
+The shipped scenarios, agent hyperparameters and sweep specs live in the repository's top-level
+``configs/`` folder, installed as the package ``quadslam_env.configs`` (pyproject's
+``package-dir``; read through :mod:`importlib.resources`, so a wheel or an editable install
+finds them from any working directory); ``QUADSLAM_CONFIG_DIR`` points to another folder with
+the same layout (``scenarios/*.yaml``, ``agents/*.yaml``, ``sweeps/*.yaml``).
 
 A scenario file may carry a top-level ``description:``, one line that ``quadslam scenarios``
 lists next to its name.
@@ -40,12 +41,21 @@ MAX_YAML_DEPTH = 100
 
 
 def config_dir() -> Path:
-    """Package data ``quadslam_env/configs`` (``QUADSLAM_CONFIG_DIR`` overrides)."""
+    """The folder of the shipped configuration files (``QUADSLAM_CONFIG_DIR`` overrides).
+
+    The package ``quadslam_env.configs`` (the repository's ``configs/``): from a wheel,
+    ``site-packages/quadslam_env/configs``; from a source checkout, its ``configs/``.
+    """
     env = os.environ.get("QUADSLAM_CONFIG_DIR")
     if env:
         return Path(env)
-    # Package data (pyproject's package-data), so a wheel install finds it from any folder.
-    return Path(str(resources.files("quadslam_env") / "configs"))
+    # A checkout imported through PYTHONPATH has no installed `quadslam_env.configs` (or that
+    # of another checkout's editable install): its own configs/ beside the package comes first.
+    # An installed package has no pyproject.toml beside it.
+    root = Path(__file__).resolve().parent.parent
+    if (root / "pyproject.toml").is_file() and (root / "configs" / "__init__.py").is_file():
+        return root / "configs"
+    return Path(str(resources.files("quadslam_env.configs")))
 
 
 def available_scenarios() -> list[str]:

@@ -20,8 +20,8 @@ So at a step with no scan in flight the output has done exactly the operations, 
 order, that an undelayed filter would have done: the same belief (tests/test_latency.py).
 Scans still in flight when an episode ends are dropped with the lane's log. Every lane keeps
 its own phase (its own step count since reset), so lane i of a vector env equals the scalar
-env. The estimator must be deep-copyable (the EKF, FastSLAM, the oracle; not iSAM2's GTSAM
-smoother).
+env. The estimator must be deep-copyable: the scenario check refuses a delay with one whose class
+says ``copyable = False`` (:func:`quadslam_env.config.check_copyable`).
 """
 
 from __future__ import annotations

@@ -4,12 +4,14 @@ against what ``isinstance`` finds on the objects ``make`` builds."""
 
 from __future__ import annotations
 
+import copy
 import importlib.util
 from typing import Any
 
 import numpy as np
 import pytest
 
+from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.estimation import (
     AssociatesUnlabeled,
     ChecksMemory,
@@ -44,6 +46,9 @@ ONE_VEHICLE: dict[type, set[str]] = {
     HasParticles: {"fastslam", "fastslam_kinematic"},
 }
 LOOPED = {"fastslam", "fastslam_kinematic", "isam2"}
+# The class flag read before any estimator is built: every built-in may be deep-copied (for a
+# slow IMU or a delayed LiDAR) except iSAM2, whose GTSAM smoother has no copy (docs/isam2.md).
+COPYABLE = BUILT_IN - {"isam2"}
 
 
 def _built() -> dict[str, Any]:
@@ -78,6 +83,24 @@ def test_one_vehicle_abilities_are_the_documented_ones(
     assert set(looped) == LOOPED & set(built)
     found = {name for name, est in looped.items() if all(isinstance(x, ability) for x in est.lanes)}
     assert found == ONE_VEHICLE[ability] & set(built)
+
+
+@pytest.mark.parametrize("name", sorted(BUILT_IN))
+def test_copyable_flag_is_the_documented_one(name: str) -> None:
+    assert registry.copyable(name) == (name in COPYABLE)
+
+
+def test_copyable_estimators_copy_and_the_others_refuse(built: dict[str, Any]) -> None:
+    """What the flag promises, on the built objects: a deep copy (what the slow-IMU and
+    delayed-LiDAR runs take) succeeds and is a separate object with the same belief."""
+    for name, est in built.items():
+        if name not in COPYABLE:
+            with pytest.raises(TypeError, match="cannot be copied"):
+                copy.deepcopy(est)
+            continue
+        twin = copy.deepcopy(est)
+        assert twin is not est
+        np.testing.assert_array_equal(twin.estimate().position, est.estimate().position)
 
 
 def test_particle_loop_shows_each_lanes_particles(built: dict[str, Any]) -> None:
@@ -129,3 +152,39 @@ def test_make_rejects_truth_it_cannot_deliver(
     registry.register("truthful")(cls)
     with pytest.raises(ValueError, match=f"'truthful', which says uses_truth = True but is {kind}"):
         registry.make("truthful")
+
+
+class _Uncopyable:
+    """A one-vehicle plug-in that holds state it cannot copy, and says so."""
+
+    copyable = False
+
+    def __init__(self, vehicle: Any = None) -> None:
+        self.vehicle = vehicle
+
+
+@pytest.mark.parametrize(
+    ("over", "got"),
+    [
+        ({"imu": {"rate_hz": 10.0}}, "imu.rate_hz: got 10.0 < episode.control_hz = 100.0"),
+        ({"lidar": {"delay_steps": 2}}, "lidar.delay_steps: got 2"),
+    ],
+)
+def test_a_plugin_that_cannot_be_copied_is_refused_like_isam2(
+    monkeypatch: pytest.MonkeyPatch, over: dict[str, Any], got: str
+) -> None:
+    """The slow IMU and the delayed LiDAR ask the registry's one question (``copyable``) of a
+    plug-in as of a built-in, before any estimator is built."""
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    registry.register("uncopyable")(_Uncopyable)
+    for name in ("uncopyable", "isam2"):
+        with pytest.raises(ConfigError) as err:
+            load_scenario("paper_ekf_figure8", {**over, "estimator": {"name": name}})
+        assert str(err.value).startswith(
+            f"{got} with estimator.name = {name!r}, which cannot be copied ("
+        )
+        assert "allowed: " in str(err.value) and "copyable = False" in str(err.value)
+    # The same class without the flag is copyable by default, and the scenario loads.
+    registry.register("uncopyable")(type("Copyable", (), {"__init__": _Uncopyable.__init__}))
+    scenario = load_scenario("paper_ekf_figure8", {**over, "estimator": {"name": "uncopyable"}})
+    assert scenario.estimator.name == "uncopyable"

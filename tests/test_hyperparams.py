@@ -262,7 +262,7 @@ def test_normalize_strings_are_read_as_yaml_not_evaluated(tmp_path: Path) -> Non
 
 
 def test_shipped_agent_configs_write_policy_kwargs_as_mappings() -> None:
-    for path in sorted((ROOT / "quadslam_env" / "configs" / "agents").glob("*.yaml")):
+    for path in sorted((ROOT / "configs" / "agents").glob("*.yaml")):
         for env_id, entry in yaml.safe_load(path.read_text()).items():
             value = entry.get("policy_kwargs")
             assert value is None or isinstance(value, dict), f"{path.name}[{env_id}]"

@@ -395,7 +395,7 @@ def test_runs_as_lanes_of_the_vector_env_like_the_scalar_env() -> None:
 
 def test_slow_imu_is_refused_with_a_config_error() -> None:
     """An IMU slower than the control makes the env copy its estimator (ImuReplay), which a
-    GTSAM smoother cannot be."""
+    GTSAM smoother cannot be: the scenario check reads ``copyable = False`` first."""
     with pytest.raises(ConfigError, match=r"imu\.rate_hz null or >= episode\.control_hz"):
         gym.make(SCENARIO_ENV, scenario=SCENARIO, estimator_name="isam2", imu={"rate_hz": 10.0})
 

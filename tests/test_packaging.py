@@ -49,6 +49,46 @@ def test_license_is_a_pep639_expression_with_the_mit_text() -> None:
     assert text.startswith("MIT License") and "WITHOUT WARRANTY OF ANY KIND" in text
 
 
+def test_packages_are_the_code_folders_and_configs_ships_every_yaml() -> None:
+    """The listed packages are exactly the code folders with an ``__init__.py`` and the
+    folders of the top-level ``configs/`` (mapped to ``quadslam_env.configs``), and the
+    package-data globs cover every file in ``configs/`` (a file the globs miss would be left
+    out of the wheel)."""
+    setuptools_cfg = _pyproject()["tool"]["setuptools"]
+    assert setuptools_cfg["package-dir"] == {"quadslam_env.configs": "configs"}
+    code = {
+        ".".join(init.parent.relative_to(ROOT).parts)
+        for top in ("quadslam_env", "estimators", "agents")
+        for init in (ROOT / top).rglob("__init__.py")
+    }
+    data = {
+        ".".join(("quadslam_env", *folder.relative_to(ROOT).parts))
+        for folder in [ROOT / "configs", *(ROOT / "configs").rglob("*")]
+        if folder.is_dir() and folder.name != "__pycache__"
+    }
+    assert sorted(setuptools_cfg["packages"]) == sorted(code | data)
+    assert (ROOT / "configs" / "__init__.py").is_file()
+    assert not (ROOT / "quadslam_env" / "configs").exists()
+    globs = setuptools_cfg["package-data"]
+    files = [
+        p
+        for p in (ROOT / "configs").rglob("*")
+        if p.is_file() and "__pycache__" not in p.parts and p.name != "__init__.py"
+    ]
+    for path in files:
+        package = ".".join(("quadslam_env", *path.parent.relative_to(ROOT).parts))
+        assert any(path.match(g) for g in globs.get(package, [])), path
+    assert {p.parent.name for p in files} == {"scenarios", "agents", "sweeps"}
+
+
+def test_config_dir_is_the_checkout_configs_folder(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("QUADSLAM_CONFIG_DIR", raising=False)
+    assert config_dir() == ROOT / "configs"
+    assert sorted(p.stem for p in (ROOT / "configs" / "scenarios").glob("*.yaml")) == (
+        available_scenarios()
+    )
+
+
 def test_every_shipped_scenario_has_a_one_line_description() -> None:
     rows = scenario_descriptions()
     assert list(rows) == available_scenarios()

@@ -1,6 +1,6 @@
 """Zoo-style hyperparameter files: reading, validation, overrides (docs/design.md §6).
 
-Hyperparameters live in ``configs/agents/<algo>.yaml`` (package data of ``quadslam_env``),
+Hyperparameters live in ``configs/agents/<algo>.yaml`` (package data: ``quadslam_env.configs``),
 keyed by env id (rl-baselines3-zoo style). Each entry may hold:
 
 ==================  =========================================================================

@@ -114,7 +114,7 @@ class Job:
 
 # ----------------------------------------------------------------------------- reading
 def shipped_specs_dir() -> Path:
-    """``quadslam_env/configs/sweeps`` (the example specs; ``QUADSLAM_CONFIG_DIR`` overrides)."""
+    """``configs/sweeps`` (the example specs; ``QUADSLAM_CONFIG_DIR`` overrides)."""
     from quadslam_env.config_files import config_dir
 
     return config_dir() / "sweeps"

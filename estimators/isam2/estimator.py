@@ -47,7 +47,6 @@ from estimators.isam2.graph import first_keyframe, preintegration_params, requir
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
 from estimators.isam2.transition import NAV_DIM, imu_transition
-from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation import Estimate, register
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.lidar import lidar_inverse
@@ -78,6 +77,9 @@ class Isam2Slam:
 
     uses_truth = False
     associates_unlabeled = True
+    # GTSAM's smoother is native state with no copy: the scenario check refuses a slow IMU or a
+    # delayed LiDAR, which run a copy of the estimator (quadslam_env.estimation.copyable).
+    copyable = False
 
     def __init__(self, vehicle: Any = None, **params: Any) -> None:
         self.settings = Isam2Settings.from_params(params)
@@ -89,11 +91,8 @@ class Isam2Slam:
         self._reset_state()
 
     def __deepcopy__(self, memo: dict[int, Any]) -> Isam2Slam:
-        raise ConfigError(
-            "estimator.name: got 'isam2', whose GTSAM smoother cannot be copied; the env "
-            "copies its estimator only for an IMU slower than the control (imu.rate_hz < "
-            "episode.control_hz), so allowed: imu.rate_hz null or >= episode.control_hz with "
-            "isam2, or another estimator"
+        raise TypeError(
+            "Isam2Slam cannot be copied (copyable = False): its GTSAM smoother has no copy"
         )
 
     # ------------------------------------------------------------------ state

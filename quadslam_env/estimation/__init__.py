@@ -26,6 +26,7 @@ from quadslam_env.estimation.registry import (
     ENTRY_POINT_GROUP,
     associates_unlabeled,
     available,
+    copyable,
     make,
     register,
 )
@@ -53,6 +54,7 @@ __all__ = [
     "associates_unlabeled",
     "available",
     "batch_from_estimates",
+    "copyable",
     "health_codes",
     "make",
     "position_std",

@@ -16,7 +16,10 @@ Abilities that only some estimators have are protocols of their own, checked wit
 ``isinstance`` only checks that the names exist, not their signatures or types, and no
 estimator names these protocols as bases, so nothing checks an implementation's signature
 against them; the call sites are typed by the protocol, and
-``tests/test_estimator_abilities.py`` checks which built-in has which ability.
+``tests/test_estimator_abilities.py`` checks which built-in has which ability. What the
+scenario check must know before any estimator is built is a class flag that the registry
+reads instead: ``associates_unlabeled``, ``uses_truth`` and ``copyable = False`` (an estimator
+the env cannot deep-copy for a slow IMU or a delayed LiDAR).
 """
 
 from __future__ import annotations

@@ -134,6 +134,21 @@ def associates_unlabeled(name: str) -> bool:
     return bool(getattr(cls, "associates_unlabeled", False) or getattr(cls, "uses_truth", False))
 
 
+def copyable(name: str) -> bool:
+    """Whether the env may deep-copy the estimator ``name`` (:func:`copy.deepcopy`).
+
+    An IMU slower than the control (:mod:`quadslam_env.imu_replay`) and a delayed LiDAR
+    (:mod:`quadslam_env.scan_delay`) run a copy of the env's estimator beside it. Every
+    estimator is copyable unless its class says ``copyable = False`` (one that holds native
+    state with no copy, such as a factor-graph library's smoother); the scenario check reads the
+    flag before any estimator is built.
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    return bool(getattr(_load(name), "copyable", True))
+
+
 def make(name: str, num_lanes: int = 1, landmark_capacity: int = 0, **cfg: Any) -> BatchEstimator:
     """Build the estimator ``name`` for ``num_lanes`` lanes.
 
