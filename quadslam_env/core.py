@@ -26,6 +26,11 @@ Latency (docs/env.md "Latency"): an action is applied ``action.delay_steps`` ste
 agent gives it (:class:`~quadslam_env.actions.ActionDelay`; the estimator is told the thrust and
 torque applied), and a scan reaches the estimator ``lidar.delay_steps`` steps after it is
 measured, which then updates the belief of the scan's time (:mod:`quadslam_env.scan_delay`).
+
+Association (docs/design.md §4): scans are typed by what the estimator is told
+(:mod:`quadslam_env.scans`), and the component of ``lidar.association``
+(:mod:`quadslam_env.association`) takes them and keeps the unknown association's bookkeeping;
+the step calls it the same way in either mode.
 """
 
 from __future__ import annotations
@@ -40,28 +45,20 @@ from typing import Any, cast
 import numpy as np
 
 from quadslam_env.actions import ActionDelay, ActionMap
+from quadslam_env.association import association_for
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
-from quadslam_env.estimation.protocol import AssociatesUnlabeled, ReservesLandmarks, UsesTruth
-from quadslam_env.imu_replay import ImuReplay
-from quadslam_env.measurements import ScanReturns
-from quadslam_env.metrics import (
-    ASSOCIATION_KEYS,
-    METRIC_KEYS,
-    EpisodeMetrics,
-    association_counts,
-    input_columns,
-    match_landmarks,
-    metric_columns,
-)
+from quadslam_env.estimation.protocol import ReservesLandmarks, UsesTruth
+from quadslam_env.metrics import METRIC_KEYS, EpisodeMetrics, input_columns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.observation import ObservationBuilder
-from quadslam_env.period_log import Sample, Scan, apply_scan, predict_samples
+from quadslam_env.period_log import Sample, predict_samples
 from quadslam_env.randomize import Randomizer
 from quadslam_env.reward import REWARD_KEYS, Reward, tracking_errors
 from quadslam_env.scan_delay import copies_for
+from quadslam_env.scans import Scans
 from quadslam_env.sensors import ImuBatch, LidarBatch
 from quadslam_env.termination import Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
@@ -76,7 +73,7 @@ from quadslam_env.world import landmark_capacity, make_landmarks, put_landmarks
 _CORE_KEYS = ("est_nis", "est_ess", "est_n_visible", "track_pos_err_m", "t")
 _ROWS = {key: j for j, key in enumerate((*METRIC_KEYS, *_CORE_KEYS, *REWARD_KEYS, "reward"))}
 _NIS, _ESS, _N_VISIBLE, _TRACK, _T = (_ROWS[key] for key in _CORE_KEYS)
-_N_MAPPED, _NEES_POSE = _ROWS["est_n_mapped"], _ROWS["est_nees_pose"]
+_NEES_POSE = _ROWS["est_nees_pose"]
 _REWARD0, _REWARD = _ROWS[REWARD_KEYS[0]], _ROWS["reward"]
 _CORE_ROWS = tuple((key, _ROWS[key]) for key in _CORE_KEYS)
 _REWARD_ROWS = tuple((key, _ROWS[key]) for key in REWARD_KEYS)
@@ -96,9 +93,11 @@ class SimCore:
         landmarks: (B, Lmax, 3) true landmark positions (NED, m); lane i uses the first
             ``n_landmarks[i]`` rows, whose ids are their row indices.
         est: The estimator's belief after the last reset or step.
-        last_scan: ``(lanes (k,), visible (B, Lmax) bool, meas (B, Lmax, 3))`` of the scan
-            taken in the last step (see :meth:`LidarBatch.scan`), or ``None`` when no lane
-            scanned then; references, not copies (for the renderer).
+        association: The data-association component (:mod:`quadslam_env.association`):
+            labeled scans, or unlabeled returns and the association bookkeeping.
+        last_scan: The scans taken in the last step (:class:`~quadslam_env.scans.Scans`: the
+            lanes that scanned, the rows of ``meas`` that hold a return), or ``None`` when no
+            lane scanned then; references, not copies (for the renderer).
         last_rates: (B, 3) true body rates in rad/s averaged over the last step (the IMU's
             noise-free gyro input), for analyses along the truth (``estimators.pcrb``).
     """
@@ -151,18 +150,18 @@ class SimCore:
         self._all_lanes = np.ones(b, dtype=bool)
         self.t: FloatArray = np.zeros(b)
         self.n_visible = np.zeros(b, dtype=np.int64)
-        self.unlabeled = cfg.lidar.association == "unknown"
+        unlabeled = cfg.lidar.association == "unknown"
+        self.association = association_for(cfg.lidar.association, b)
+        self._no_lanes = np.zeros(b, dtype=bool)
         self._state0 = initial_state(cfg, self.trajectory, self.vehicle_params.mass)
         self.settle_s = settle_time(cfg, self.trajectory, self._state0)
         """End of the transient, s: the episode's ``*_steady`` summaries cover t > settle_s."""
-        self.episode = EpisodeMetrics(b, association=self.unlabeled, settle_s=self.settle_s)
-        self._match = np.full((b, 0), -1, dtype=np.int64)  # true id of each estimator label
-        self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(b))
+        self.episode = EpisodeMetrics(b, association=unlabeled, settle_s=self.settle_s)
         self.termination = Termination(cfg.episode, self.dt, b, self.max_steps)
         trace = cfg.episode.max_cov_trace
         self._max_cov_trace = math.inf if trace is None else trace
         self._cov0 = np.diag(cfg.estimator.initial_cov_diag)
-        self.last_scan: tuple[np.ndarray, np.ndarray, FloatArray] | None = None
+        self.last_scan: Scans | None = None
         self.last_rates: FloatArray = np.zeros((b, 3))
         self.est: BatchEstimate = self._snapshot()
 
@@ -190,14 +189,7 @@ class SimCore:
         lanes = np.asarray(lanes, dtype=np.int64)
         k = lanes.shape[0]
         self.randomizer.check_pins(opts.get("randomized"))
-        copies = self._copies
-        if copies is not None and copies.output is not self.estimator:  # a user swapped it
-            copies = self._copies = copies_for(cfg, self.estimator, self.vehicle_params)
-        if "landmarks" in opts and isinstance(self.estimator, ReservesLandmarks):
-            # a larger map must fit before anything changes
-            self.estimator.reserve_landmarks(len(opts["landmarks"]))
-            if copies is not None:
-                copies.reserve_landmarks(len(opts["landmarks"]))
+        self._prepare_estimator(opts)
         children = [rng.spawn(5) for rng in rngs]  # world, imu, lidar, estimator, initial error
         states0 = np.empty((k, STATE_DIM))
         mean0 = np.empty((k, STATE_DIM))
@@ -224,25 +216,15 @@ class SimCore:
         if self._steps_per_imu > 1:  # a slower IMU's first sample, held until the next
             vel = self.vehicle.air_velocity()[lanes]
             self.imu.prime(lanes, vel, states0[:, RATE], self.vehicle.applied_thrust[lanes])
-        known = None
-        if cfg.estimator.known_map:
-            known = [
-                (np.arange(self.n_landmarks[i]), self.landmarks[i, : self.n_landmarks[i]].copy())
-                for i in lanes.tolist()
-            ]
-        cov0 = np.broadcast_to(self._cov0, (k, STATE_DIM, STATE_DIM)).copy()
-        est_rngs = [c[3] for c in children]
-        if copies is not None:  # rng copies taken before the output's reset draws from them
-            copies.reset_lanes(lanes, mean0, cov0, copy.deepcopy(est_rngs), known)
-        self.estimator.reset_lanes(lanes, mean0, cov0, est_rngs, known)
+        self._reset_estimator(lanes, mean0, [c[3] for c in children])
         if self._actions is not None:
             self._actions.reset(lanes)
         self.steps[lanes] = 0
         self.t[lanes] = 0.0
         if self.last_scan is not None:  # a reset lane's last scan belongs to its old episode
-            scanned, visible, meas = self.last_scan
+            scanned = self.last_scan.lanes
             kept = scanned[~np.isin(scanned, lanes)]
-            self.last_scan = (kept, visible, meas) if kept.size else None
+            self.last_scan = self.last_scan.only(kept) if kept.size else None
         if self._heading is not None:
             self._heading[0][lanes] = self._heading0
             self._heading[1][lanes] = 0.0
@@ -250,12 +232,40 @@ class SimCore:
         self.termination.reset(lanes)
         self.episode.reset(lanes)
         est = self._snapshot()
-        if self.unlabeled:
-            self._associated(est, None, np.isin(np.arange(self.num_lanes), lanes))
+        self._associate(est, None, np.isin(np.arange(self.num_lanes), lanes))
         ref = self.reference()
         _, info = self._metrics(est, ref)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
         return obs[lanes], {key: value[lanes] for key, value in info.items()}
+
+    def _prepare_estimator(self, opts: dict[str, Any]) -> None:
+        """Before a reset changes anything: rebuild the second run from copies if a user
+        swapped the estimator, and make room for a map the reset ``opts`` bring (so a map
+        that cannot fit fails here)."""
+        copies = self._copies
+        if copies is not None and copies.output is not self.estimator:  # a user swapped it
+            copies = self._copies = copies_for(self.scenario, self.estimator, self.vehicle_params)
+        if "landmarks" in opts and isinstance(self.estimator, ReservesLandmarks):
+            self.estimator.reserve_landmarks(len(opts["landmarks"]))
+            if copies is not None:
+                copies.reserve_landmarks(len(opts["landmarks"]))
+
+    def _reset_estimator(
+        self, lanes: np.ndarray, mean0: FloatArray, rngs: list[np.random.Generator]
+    ) -> None:
+        """Reset the estimator's ``lanes`` (k,) (and their copies) at the means ``mean0``
+        (k, 12) with the initial covariance, each with its generator of ``rngs`` (k,); with a
+        known map, the lanes' true landmarks."""
+        known = None
+        if self.scenario.estimator.known_map:
+            known = [
+                (np.arange(self.n_landmarks[i]), self.landmarks[i, : self.n_landmarks[i]].copy())
+                for i in lanes.tolist()
+            ]
+        cov0 = np.broadcast_to(self._cov0, (lanes.shape[0], STATE_DIM, STATE_DIM)).copy()
+        if self._copies is not None:  # rng copies taken before the output's reset draws
+            self._copies.reset_lanes(lanes, mean0, cov0, copy.deepcopy(rngs), known)
+        self.estimator.reset_lanes(lanes, mean0, cov0, rngs, known)
 
     # ------------------------------------------------------------------ step
     def step(
@@ -274,67 +284,23 @@ class SimCore:
             summaries only in lanes that ended) and ``termination_reason`` to a list of B
             strings (empty where the lane did not fail).
         """
-        b = self.num_lanes
         act = action if active is None else np.where(active[:, None], action, 0.0)
         active = self._all_lanes if active is None else active
-        applied = act if self._actions is None else self._actions.apply(act, active, self.steps)
-        thrust, torque = self.action_map.inputs(applied, self.est.rates)
-        if self._heading is not None:  # the reference heading turns at the commanded rate
-            heading, rate = self._heading
-            np.copyto(rate, self.action_map.heading_rate(applied), where=active)
-            np.copyto(heading, wrap_angle(heading + rate * self.dt), where=active)
-        vehicle = self.vehicle
-        if self._imu_per_step == 1:
-            self.last_rates = vehicle.step(thrust, torque, self.dt, active)
-            self.steps += active
-            self.t = (self.steps * self.dt).astype(np.float64, copy=False)
-            samples = [self._imu_sample(active)]
-        else:
-            samples = self._fast_imu_samples(thrust, torque, active)
-            self.steps += active
-            self.t = (self.steps * self.dt).astype(np.float64, copy=False)
-        state = vehicle.state
-        scanning = (active & (self.steps % self.scenario.lidar_every == 0)).nonzero()[0]
-        self.last_scan = None
-        scan: Scan | None = None
-        if scanning.size:
-            dcm = dcm_from_euler_batch(state[:, EUL])
-            where = (state[:, POS], dcm, self.landmarks, self.n_landmarks, scanning)
-            if self.unlabeled:
-                returns = self.lidar.returns(*where)
-                visible = np.arange(returns.meas.shape[1]) < returns.count[:, None]
-                meas = returns.meas
-            else:
-                visible, meas = self.lidar.scan(*where)
-            self.n_visible[scanning] = visible[scanning].sum(axis=1)
-            self.last_scan = (scanning, visible, meas)
-            labels = returns.count if self.unlabeled else visible
-            scan = (self.unlabeled, scanning, labels, meas)
+        thrust, torque = self._command(act, active)
+        samples = self._fly(thrust, torque, active)
+        scans = self._scan(active)
         timed = self.scenario.episode.report_step_time
         tic = time.perf_counter() if timed else 0.0
-        copies = self._copies
-        if copies is None:
-            h = self.dt / self._imu_per_step
-            predict_samples(self.estimator, samples, self.imu_input_sigma, h, active)
-            if scan is not None:
-                apply_scan(self.estimator, self.t, scan, self.lidar.sigma)
-        else:  # the filter copy run beside the output
-            self.estimator = copies.step(
-                self.estimator, self.steps, active, samples, self.imu_input_sigma, scan,
-                self.lidar.sigma,
-            )  # fmt: skip
+        refreshed = self._estimate(samples, scans, active)
         est = self._snapshot()
-        if self.unlabeled:
-            rematch = np.zeros(b, dtype=bool)
-            rematch[scanning] = True
-            if isinstance(copies, ImuReplay):
-                rematch |= copies.last_due
-            self._associated(est, returns if scan is not None else None, rematch)
+        self._associate(est, scans, refreshed)
         toc = time.perf_counter() if timed else 0.0
         ref = self.reference()
         values, info = self._metrics(est, ref)
         if timed:  # the batch's estimator time per lane stepped
-            info["est_step_time_ms"] = np.full(b, 1e3 * (toc - tic) / max(1, int(active.sum())))
+            per_lane = 1e3 * (toc - tic) / max(1, int(active.sum()))
+            info["est_step_time_ms"] = np.full(self.num_lanes, per_lane)
+        state = self.vehicle.state
         terminated, truncated, reasons, ended = self.termination.check(
             state, values[_TRACK], values[_NEES_POSE],
             health_codes(est, self._max_cov_trace), active, self.steps,
@@ -343,10 +309,8 @@ class SimCore:
         self.reward.terms(state, ref, act, terminated, values[_REWARD0 : _REWARD + 1], std)
         for key, row in _REWARD_ROWS:
             info[key] = values[row]
-        reward = values[_REWARD]
         self.episode.add_columns(values, _EPISODE_ROWS, active)
-        if self.unlabeled:
-            self.episode.add_association(info, active)
+        self.episode.add_association(info, active)
         if ended:
             done = terminated | truncated
             for key, value in self.episode.summary().items():
@@ -354,7 +318,84 @@ class SimCore:
         info["termination_reason"] = reasons
         obs = self.observer.build(est, ref, self.t, self.n_visible)
         self.wind.advance(active)  # info holds the wind of this step; now the next one's
-        return obs, reward, terminated, truncated, info
+        return obs, values[_REWARD], terminated, truncated, info
+
+    # ------------------------------------------------------------------ step parts
+    def _command(self, act: FloatArray, active: np.ndarray) -> tuple[FloatArray, FloatArray]:
+        """The thrust (B,) N and torque (B, 3) N·m of this period from the agent's actions
+        ``act`` (B, 4): the delayed ones where ``action.delay_steps`` > 0; a free heading's
+        reference turns at the commanded rate."""
+        applied = act if self._actions is None else self._actions.apply(act, active, self.steps)
+        thrust, torque = self.action_map.inputs(applied, self.est.rates)
+        if self._heading is not None:
+            heading, rate = self._heading
+            np.copyto(rate, self.action_map.heading_rate(applied), where=active)
+            np.copyto(heading, wrap_angle(heading + rate * self.dt), where=active)
+        return thrust, torque
+
+    def _fly(self, thrust: FloatArray, torque: FloatArray, active: np.ndarray) -> list[Sample]:
+        """Integrate the ``active`` lanes over the control period and advance their clocks.
+
+        Returns:
+            The period's IMU samples (:data:`~quadslam_env.period_log.Sample`): one at or
+            below the control rate, m with an IMU m times faster.
+        """
+        if self._imu_per_step == 1:
+            self.last_rates = self.vehicle.step(thrust, torque, self.dt, active)
+            self._tick(active)
+            return [self._imu_sample(active)]
+        samples = self._fast_imu_samples(thrust, torque, active)
+        self._tick(active)
+        return samples
+
+    def _tick(self, active: np.ndarray) -> None:
+        """Count the period in the ``active`` lanes' steps and times."""
+        self.steps += active
+        self.t = (self.steps * self.dt).astype(np.float64, copy=False)
+
+    def _scan(self, active: np.ndarray) -> Scans | None:
+        """The scans of the ``active`` lanes due to scan at their new step (``None``: none),
+        of the kind the association takes; sets :attr:`last_scan` and the lanes' landmark
+        counts in view."""
+        state = self.vehicle.state
+        scanning = (active & (self.steps % self.scenario.lidar_every == 0)).nonzero()[0]
+        self.last_scan = None
+        if not scanning.size:
+            return None
+        dcm = dcm_from_euler_batch(state[:, EUL])
+        scans = self.association.scan(
+            self.lidar, state[:, POS], dcm, self.landmarks, self.n_landmarks, scanning
+        )
+        self.n_visible[scanning] = scans.n_returns[scanning]
+        self.last_scan = scans
+        return scans
+
+    def _estimate(
+        self, samples: list[Sample], scans: Scans | None, active: np.ndarray
+    ) -> np.ndarray:
+        """Run the estimator over the period: a prediction per IMU sample and the scans, or
+        through the second run from copies (slow IMU, delayed LiDAR), which may replace it.
+
+        Returns:
+            (B,) bool lanes whose belief was rebuilt from the copies' filter.
+        """
+        copies = self._copies
+        if copies is None:
+            h = self.dt / self._imu_per_step
+            predict_samples(self.estimator, samples, self.imu_input_sigma, h, active)
+            if scans is not None:
+                scans.apply(self.estimator, self.t, self.lidar.sigma)
+            return self._no_lanes
+        self.estimator = copies.step(
+            self.estimator, self.steps, active, samples, self.imu_input_sigma, scans,
+            self.lidar.sigma,
+        )  # fmt: skip
+        return copies.refreshed
+
+    def _associate(self, est: BatchEstimate, scans: Scans | None, changed: np.ndarray) -> None:
+        """The association component's ``update`` (``association.Association``), with the truth."""
+        truth = (self.vehicle.state, self.landmarks, self.n_landmarks)
+        self.association.update(est, self.estimator, scans, changed, *truth)
 
     # ------------------------------------------------------------------ IMU
     def _imu_sample(self, active: np.ndarray) -> Sample:
@@ -432,50 +473,16 @@ class SimCore:
         heading, rate = self._heading
         return dataclasses.replace(ref, yaw=heading[idx].copy(), yaw_rate=rate[idx].copy())
 
-    def _associated(
-        self, est: BatchEstimate, returns: ScanReturns | None, rematch: np.ndarray
-    ) -> None:
-        """Unknown association: name the estimator's map entries by their true landmarks in
-        the ``rematch`` (B,) lanes (reset, scanned, or given the slow-IMU filter's copy: a
-        lane's map changes only then, and naming a lane at other times would make it depend
-        on the other lanes) and count the association outcomes of this step's ``returns``
-        (``None``: no lane scanned)."""
-        if rematch.any() or self._match.shape != est.landmark_mapped.shape:
-            state = self.vehicle.state
-            match = match_landmarks(
-                est.landmark_means, est.landmark_mapped, np.hstack((est.position, est.euler)),
-                self.landmarks, self.n_landmarks, np.hstack((state[:, POS], state[:, EUL])),
-            )  # fmt: skip
-            if self._match.shape == match.shape:
-                match = np.where(rematch[:, None], match, self._match)
-            self._match = match
-            self._matched = self._match >= 0
-            self._match_truth = np.take_along_axis(
-                self.landmarks, np.maximum(self._match, 0)[..., None], axis=1
-            )
-            self._spurious = (est.landmark_mapped & ~self._matched).sum(axis=1).astype(float)
-        if returns is None:
-            self._assoc_counts = dict.fromkeys(ASSOCIATION_KEYS, np.zeros(self.num_lanes))
-        else:
-            # unknown association: the scenario check let only such an estimator through
-            labels = cast(AssociatesUnlabeled, self.estimator).last_association
-            self._assoc_counts = association_counts(
-                returns.truth, labels, returns.count, self._match
-            )
-
     def _metrics(self, est: BatchEstimate, ref: FlatOutputs) -> tuple[FloatArray, dict[str, Any]]:
         """The step's per-lane terms: ``(values (K, B), info)``, with the rows of ``values``
         named by ``_ROWS`` (the reward rows left to fill) and ``info`` mapping the terms that
-        apply to their rows (plus the association terms with unknown association). A new
-        array per step: an info dict must outlive the step."""
+        apply to their rows, then the association's terms. A new array per step: an info dict
+        must outlive the step."""
         state = self.vehicle.state
         values = np.empty((len(_ROWS), self.num_lanes))
-        if self.unlabeled:  # the map RMSE over the entries matched to a true landmark
-            matched = dataclasses.replace(est, landmark_mapped=self._matched)
-            keys = metric_columns(state, matched, self._match_truth, self.imu.total_bias, values)
-            values[_N_MAPPED] = est.landmark_mapped.sum(axis=1)
-        else:
-            keys = metric_columns(state, est, self.landmarks, self.imu.total_bias, values)
+        keys = self.association.metric_columns(
+            state, est, self.landmarks, self.imu.total_bias, values
+        )
         diagnostics = est.diagnostics
         values[_NIS] = diagnostics.get("nis", math.nan)
         values[_ESS] = diagnostics.get("ess", math.nan)
@@ -487,11 +494,5 @@ class SimCore:
             info[key] = values[row]
         info.update(self.wind.info())
         info.update(self.randomizer.info())
-        if self.unlabeled:
-            info["spurious_landmarks"] = self._spurious.copy()
-            counts = self._assoc_counts
-            info.update(counts)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                info["assoc_wrong_rate"] = counts["assoc_n_wrong"] / counts["assoc_n_associated"]
-                info["assoc_missed_rate"] = counts["assoc_n_missed"] / counts["assoc_n_true"]
+        info.update(self.association.info())
         return values, info

@@ -45,7 +45,8 @@ from typing import Any
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
-from quadslam_env.period_log import EstimatorCopies, PeriodLog, Sample, Scan, apply_scan
+from quadslam_env.period_log import EstimatorCopies, PeriodLog, Sample
+from quadslam_env.scans import Scans
 from quadslam_env.types import FloatArray
 
 CHANGE_MEMORY = 0.5
@@ -68,7 +69,7 @@ class ImuReplay(EstimatorCopies):
         filter: Every lane's belief at its last IMU instant.
         output: The output estimator :meth:`step` last returned (the env's).
         log: Each lane's last m control periods.
-        last_due: (B,) bool lanes whose IMU sample arrived in the last :meth:`step` (their
+        refreshed: (B,) bool lanes whose IMU sample arrived in the last :meth:`step` (their
             output is a fresh copy of the filter).
     """
 
@@ -81,7 +82,6 @@ class ImuReplay(EstimatorCopies):
     ) -> None:
         super().__init__(estimator, PeriodLog(int(steps_per_imu), estimator.num_lanes))
         self.change_var0 = change_var0
-        self.last_due = np.zeros(estimator.num_lanes, dtype=bool)
         self.m = int(steps_per_imu)
         self.dt = float(dt)
         b = estimator.num_lanes
@@ -109,7 +109,7 @@ class ImuReplay(EstimatorCopies):
         active: np.ndarray,
         samples: list[Sample],
         sigma: tuple[float, float],
-        scan: Scan | None,
+        scan: Scans | None,
         lidar_sigma: FloatArray,
     ) -> BatchEstimator:
         """Log this control period, then advance: the output by one period, or — in lanes
@@ -133,12 +133,12 @@ class ImuReplay(EstimatorCopies):
         self.log.record(steps, active, samples, scan)
         ((t, accel, gyro, thrust, torque),) = samples
         held, controls = (accel, gyro), (thrust, torque)
-        due = self.last_due = active & (steps % self.m == 0)
+        due = self.refreshed = active & (steps % self.m == 0)
         self._track_changes(steps, due, held)
         if not due.any():
             self._predict(output, active, t, held, sigma, controls, output=True)
             if scan is not None:
-                apply_scan(output, t, scan, lidar_sigma)
+                scan.apply(output, t, lidar_sigma)
             return output
         self._replay(self.filter, due, self.m, held, sigma, lidar_sigma)
         output = self.output = copy.deepcopy(self.filter)
@@ -213,4 +213,4 @@ class ImuReplay(EstimatorCopies):
             self._predict(estimator, act, t, held, sigma, controls, output=upto is not None)
             scan = log.scan(np.full(self.num_lanes, slot), act)
             if scan is not None:
-                apply_scan(estimator, t, scan, lidar_sigma)
+                scan.apply(estimator, t, lidar_sigma)

@@ -13,40 +13,18 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Sequence
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
-from quadslam_env.estimation.protocol import AssociatesUnlabeled, ReservesLandmarks
+from quadslam_env.estimation.protocol import ReservesLandmarks
+from quadslam_env.scans import Scans
 from quadslam_env.types import FloatArray
-
-Scan = tuple[bool, np.ndarray, np.ndarray, FloatArray]
-"""``(unlabeled, lanes (k,), visible (B, L) bool or count (B,), meas (B, L, 3))``: one step's
-scans, in the form :func:`apply_scan` hands to the estimator."""
 
 Sample = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
 """``(t (B,) s, accel (B, 3) m/s², gyro (B, 3) rad/s, thrust (B,) N, torque (B, 3) N·m)``: one
 IMU sample of every lane and the thrust and torque applied over its period."""
-
-
-def apply_scan(estimator: BatchEstimator, t: FloatArray, scan: Scan, sigma: FloatArray) -> None:
-    """Correct ``estimator`` with the scans of ``scan``'s lanes (labeled or unlabeled).
-
-    Args:
-        estimator: The batch estimator.
-        t: (B,) scan times in s.
-        scan: See :data:`Scan`.
-        sigma: (3,) LiDAR noise stds (σ_α rad, σ_β rad, σ_δ m).
-    """
-    unlabeled, lanes, visible_or_count, meas = scan
-    if unlabeled:
-        # the scenario check let only an estimator that AssociatesUnlabeled through
-        cast(AssociatesUnlabeled, estimator).update_unlabeled(
-            t, lanes, visible_or_count, meas, sigma
-        )
-    else:
-        estimator.update(t, lanes, visible_or_count, meas, sigma)
 
 
 def predict_samples(
@@ -93,7 +71,7 @@ class PeriodLog:
         self.gyro = np.zeros((n, m, b, 3))
         self.thrust = np.zeros((n, m, b))
         self.torque = np.zeros((n, m, b, 3))
-        self._scans: list[dict[int, tuple[bool, Any, FloatArray]]] = [{} for _ in range(n)]
+        self._scans: list[dict[int, Scans]] = [{} for _ in range(n)]  # lane → one-lane copy
         self._lane = np.arange(b)
 
     def forget(self, lanes: np.ndarray) -> None:
@@ -108,7 +86,7 @@ class PeriodLog:
         return (np.asarray(steps) - 1) % self.size
 
     def record(
-        self, steps: np.ndarray, active: np.ndarray, samples: list[Sample], scan: Scan | None
+        self, steps: np.ndarray, active: np.ndarray, samples: list[Sample], scan: Scans | None
     ) -> None:
         """Log the period just stepped by the ``active`` (B,) lanes (``steps`` (B,) their step
         numbers after it): its ``samples`` and the lanes' scans of ``scan``."""
@@ -125,14 +103,8 @@ class PeriodLog:
             self._scans[slot].pop(lane, None)
         if scan is None:
             return
-        unlabeled, scanned, visible_or_count, meas = scan
-        for lane in np.asarray(scanned).tolist():
-            slot = int(self.slots(steps[lane]))
-            if unlabeled:
-                k = int(visible_or_count[lane])
-                self._scans[slot][lane] = (True, k, meas[lane, :k].copy())
-            else:
-                self._scans[slot][lane] = (False, visible_or_count[lane].copy(), meas[lane].copy())
+        for lane in scan.lanes.tolist():
+            self._scans[int(self.slots(steps[lane]))][lane] = scan.lane(lane)
 
     def has_scan(self, slots: np.ndarray) -> np.ndarray:
         """(B,) bool: lane i logged a scan in its slot ``slots[i]``."""
@@ -152,9 +124,9 @@ class PeriodLog:
             for j in range(self.per_period)
         ]
 
-    def scan(self, slots: np.ndarray, lanes: np.ndarray) -> Scan | None:
+    def scan(self, slots: np.ndarray, lanes: np.ndarray) -> Scans | None:
         """The logged scans of ``lanes`` (B,) bool, each from its slot ``slots`` (B,) int, as
-        one :data:`Scan` (``None``: none of them scanned there)."""
+        one :class:`~quadslam_env.scans.Scans` (``None``: none of them scanned there)."""
         rows = {}
         for lane in np.flatnonzero(lanes).tolist():
             row = self._scans[int(slots[lane])].get(lane)
@@ -162,22 +134,7 @@ class PeriodLog:
                 rows[lane] = row
         if not rows:
             return None
-        b = self.num_lanes
-        scanned = np.array(sorted(rows), dtype=np.int64)
-        unlabeled = next(iter(rows.values()))[0]
-        width = max(row[2].shape[0] for row in rows.values())
-        meas = np.zeros((b, width, 3))
-        if unlabeled:
-            count = np.zeros(b, dtype=np.int64)
-            for lane, (_, k, returns) in rows.items():
-                count[lane] = k
-                meas[lane, :k] = returns
-            return True, scanned, count, meas
-        visible = np.zeros((b, width), dtype=bool)
-        for lane, (_, vis, values) in rows.items():
-            visible[lane, : vis.shape[0]] = vis
-            meas[lane, : values.shape[0]] = values
-        return False, scanned, visible, meas
+        return next(iter(rows.values())).stack(rows, self.num_lanes)
 
 
 class EstimatorCopies:
@@ -193,12 +150,16 @@ class EstimatorCopies:
         filter: The lagging copy.
         output: The output estimator the subclass's ``step`` last returned (the env's).
         log: The periods logged since.
+        refreshed: (B,) bool lanes whose output the last ``step`` rebuilt from the filter
+            (their IMU sample or their delayed scan arrived): their belief, map included,
+            changed by more than the period's prediction and its own scan.
     """
 
     def __init__(self, estimator: BatchEstimator, log: PeriodLog) -> None:
         self.filter = copy.deepcopy(estimator)
         self.output = estimator
         self.log = log
+        self.refreshed = np.zeros(estimator.num_lanes, dtype=bool)
 
     def reset_lanes(
         self,
@@ -215,6 +176,7 @@ class EstimatorCopies:
         """
         self.filter.reset_lanes(lanes, mean0, cov0, rngs, known)
         self.log.forget(lanes)
+        self.refreshed[lanes] = False
 
     def reserve_landmarks(self, count: int) -> None:
         """Pass a reset's map size on to a filter that

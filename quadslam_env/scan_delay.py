@@ -35,14 +35,8 @@ import numpy as np
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.estimation import BatchEstimator
 from quadslam_env.imu_replay import ImuReplay
-from quadslam_env.period_log import (
-    EstimatorCopies,
-    PeriodLog,
-    Sample,
-    Scan,
-    apply_scan,
-    predict_samples,
-)
+from quadslam_env.period_log import EstimatorCopies, PeriodLog, Sample, predict_samples
+from quadslam_env.scans import Scans
 from quadslam_env.types import FloatArray
 
 
@@ -88,7 +82,7 @@ class ScanDelay(EstimatorCopies):
         filter: Every lane's belief at the time of its newest delivered scan.
         output: The output estimator :meth:`step` last returned (the env's).
         filter_step: (B,) int, the step (since the lane's reset) the filter's lane is at.
-        last_delivered: (B,) bool lanes whose delayed scan arrived in the last :meth:`step`.
+        refreshed: (B,) bool lanes whose delayed scan arrived in the last :meth:`step`.
     """
 
     def __init__(
@@ -102,7 +96,6 @@ class ScanDelay(EstimatorCopies):
         b, self.delay, self.h = estimator.num_lanes, int(delay_steps), float(h)
         super().__init__(estimator, PeriodLog(int(lidar_every) + self.delay, b, per_period))
         self.filter_step = np.zeros(b, dtype=np.int64)
-        self.last_delivered = np.zeros(b, dtype=bool)
 
     def reset_lanes(
         self,
@@ -120,7 +113,6 @@ class ScanDelay(EstimatorCopies):
         """
         super().reset_lanes(lanes, mean0, cov0, rngs, known)
         self.filter_step[lanes] = 0
-        self.last_delivered[lanes] = False
 
     def step(
         self,
@@ -129,7 +121,7 @@ class ScanDelay(EstimatorCopies):
         active: np.ndarray,
         samples: list[Sample],
         sigma: tuple[float, float],
-        scan: Scan | None,
+        scan: Scans | None,
         lidar_sigma: FloatArray,
     ) -> BatchEstimator:
         """Log this control period and its scans (measured now, delivered d steps later),
@@ -154,7 +146,7 @@ class ScanDelay(EstimatorCopies):
         due = active & (measured >= 1)
         if due.any():
             due &= log.has_scan(log.slots(np.maximum(measured, 1)))
-        self.last_delivered = due
+        self.refreshed = due
         if not due.any():
             predict_samples(output, samples, sigma, self.h, active)
             return output
@@ -187,4 +179,4 @@ class ScanDelay(EstimatorCopies):
                 continue
             scan = self.log.scan(slots, act)
             if scan is not None:
-                apply_scan(estimator, samples[-1][0], scan, lidar_sigma)
+                scan.apply(estimator, samples[-1][0], lidar_sigma)

@@ -16,7 +16,7 @@ from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import QuadSLAMEnv
 from quadslam_env.metrics import METRIC_KEYS, metric_columns
-from quadslam_env.period_log import apply_scan, predict_samples
+from quadslam_env.period_log import predict_samples
 from quadslam_env.scan_delay import ScanDelay
 
 LIDAR_EVERY = 10  # paper_ekf_figure8: 10 Hz LiDAR at 100 Hz control
@@ -90,7 +90,7 @@ def test_delayed_pipeline_does_the_undelayed_filters_operations(delay: int) -> N
                 same = got[0].shape == want[0].shape and np.allclose(got[0], want[0], atol=1e-6)
                 assert not same, f"lane {lane} step {s}: a scan in flight changed nothing"
                 compared["differ"] += 1
-            if pipeline.last_delivered[lane]:
+            if pipeline.refreshed[lane]:
                 f = pipeline.filter_step[lane]
                 assert f == s - delay
                 x, P, _ = pipeline.filter.full_state(lane)  # type: ignore[attr-defined]
@@ -212,7 +212,7 @@ def _nees_correct_and_stale(seed: int, delay: int) -> tuple[float, float]:
         predict_samples(stale, samples, sigma, core.dt, np.ones(1, dtype=bool))
         late = stream[-1 - delay][1] if len(stream) > delay else None
         if late is not None:
-            apply_scan(stale, samples[-1][0], late, lidar_sigma)
+            late.apply(stale, samples[-1][0], lidar_sigma)
         truth = (core.vehicle.state, core.landmarks, core.imu.total_bias)
         metric_columns(truth[0], stale.estimate(), truth[1], truth[2], values)
         correct.append(float(info["est_nees_pose"]))

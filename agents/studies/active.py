@@ -59,9 +59,8 @@ class ViewCounter:
         scan = core.last_scan
         if scan is None:
             return
-        lanes, visible, _ = scan
-        lanes = lanes[stepped[lanes]]
-        self.returned[lanes] += visible[lanes].sum(axis=1)
+        lanes = scan.lanes[stepped[scan.lanes]]
+        self.returned[lanes] += scan.n_returns[lanes]
         self.scans[lanes] += 1
 
     def mean(self) -> np.ndarray:

@@ -85,7 +85,7 @@ class TruthRecorder:
         est = core.est
         metrics = step_metrics(state, est, core.landmarks, core.imu.total_bias)
         scan = core.last_scan
-        scanning = set() if scan is None else set(scan[0].tolist())
+        scanning = set() if scan is None else set(scan.lanes.tolist())
         for lane in np.flatnonzero(stepped).tolist():
             if core.steps[lane] == 0:  # a reset: a new episode
                 n = int(core.n_landmarks[lane])
@@ -97,7 +97,7 @@ class TruthRecorder:
                 rec.rates.append(core.last_rates[lane].copy())
                 if scan is not None and lane in scanning:
                     rec.scan_steps.append(len(rec.states))
-                    rec.scan_ids.append(np.flatnonzero(scan[1][lane]))
+                    rec.scan_ids.append(np.flatnonzero(scan.returned[lane]))
             x = state[lane]
             rec.states.append(x.copy())
             rec.err_norm.append(

@@ -101,13 +101,12 @@ class LaneHistory:
         self._head = (self._head + 1) % self.capacity
         self._count = min(self._count + 1, self.capacity)
         scan = core.last_scan
-        if scan is not None and lane in scan[0]:
-            _, visible, meas = scan
-            ids = np.flatnonzero(visible[lane])
+        if scan is not None and lane in scan.lanes:
+            ids = np.flatnonzero(scan.returned[lane])
             self.scan_t = t
             self.scan_ids = ids
             dcm = dcm_from_euler(state[EUL])
-            self.scan_points = lidar_inverse(state[POS], dcm, meas[lane, ids])
+            self.scan_points = lidar_inverse(state[POS], dcm, scan.meas[lane, ids])
 
     def rows(self, since: float = -math.inf) -> FloatArray:
         """(n, :data:`WIDTH`) rows with time ≥ ``since``, oldest first (a copy)."""
