@@ -43,7 +43,12 @@ import numpy as np
 
 from estimators.isam2.associate import Labeled, PosePrediction, ScanAssociation
 from estimators.isam2.factors import known_map_error, landmark_error, scan_error
-from estimators.isam2.graph import first_keyframe, preintegration_params, require_gtsam
+from estimators.isam2.graph import (
+    first_keyframe,
+    held_bias_prior,
+    preintegration_params,
+    require_gtsam,
+)
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
 from estimators.isam2.transition import NAV_DIM, imu_transition
@@ -385,6 +390,9 @@ class Isam2Slam:
             values.insert(vj, nav.velocity())
             values.insert(bj, self._kf_bias)
             stamps.update({xj: t, vj: t, bj: t})
+            held = held_bias_prior(g, self.settings, bj)
+            if held is not None:
+                graph.add(held)
         xk = self._key("x", k)
         noise = g.noiseModel.Diagonal.Sigmas(sigma)
         scan_noise = g.noiseModel.Diagonal.Sigmas(np.tile(sigma, len(ids)))

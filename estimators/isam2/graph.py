@@ -9,7 +9,12 @@ from typing import Any
 
 import numpy as np
 
-from estimators.isam2.settings import NOISE_FLOOR, PRIOR_VARIANCE_FLOOR, Isam2Settings
+from estimators.isam2.settings import (
+    FIXED_BIAS_SIGMA,
+    NOISE_FLOOR,
+    PRIOR_VARIANCE_FLOOR,
+    Isam2Settings,
+)
 from estimators.isam2.tangent import tangent_covariance
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.frames import dcm_from_euler
@@ -106,6 +111,30 @@ def first_keyframe(
     cov[:POSE_DIM, :POSE_DIM] = sigma
     cov[POSE_DIM:, POSE_DIM:] = np.diag(bias_sigmas**2)
     return FirstKeyframe(graph, values, pose0, vel0, bias0, cov)
+
+
+def held_bias_prior(gtsam: Any, settings: Isam2Settings, key: int) -> Any | None:
+    """The prior that holds a keyframe's biases at zero when they are not estimated.
+
+    With ``estimate_imu_bias: false`` every keyframe's ``B_k`` gets a zero-mean prior of std
+    :data:`~estimators.isam2.settings.FIXED_BIAS_SIGMA` (docs/isam2.md, "Variables"): the
+    walk between keyframes alone would let the bias's variance grow over the whole flight,
+    an error source the simulated IMU does not have.
+
+    Args:
+        gtsam: The ``gtsam`` module.
+        settings: The estimator's settings.
+        key: The keyframe's bias key.
+
+    Returns:
+        A ``PriorFactorConstantBias``, or ``None`` when the biases are estimated.
+    """
+    if settings.estimate_imu_bias:
+        return None
+    sigmas = np.full(6, FIXED_BIAS_SIGMA)
+    return gtsam.PriorFactorConstantBias(
+        key, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+    )
 
 
 def preintegration_params(
