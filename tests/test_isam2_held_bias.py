@@ -13,8 +13,8 @@ attitude's covariance is exactly
 
 which is also the Euler angles' covariance at Λ = 0 (``D(0) = I``). The prior on every
 keyframe's bias (:func:`estimators.isam2.graph.held_bias_prior`) keeps the bias's variance
-below ``FIXED_BIAS_SIGMA²``, which adds at most ``T · FIXED_BIAS_SIGMA² · 0.1 s`` ≈ 2e-11 rad²
-here (1e-4 of Σ_θ); a bias held by its first prior alone random-walks and adds
+below ``FIXED_BIAS_SIGMA²``, which adds at most ``T · FIXED_BIAS_SIGMA² · 0.1 s`` ≈ 2e-10 rad²
+here (3e-4 of Σ_θ); a bias held by its first prior alone random-walks and adds
 ``FIXED_BIAS_SIGMA² (T² + T³/3)`` ≈ 3e-7 rad² (half of Σ_θ).
 """
 

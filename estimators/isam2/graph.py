@@ -117,7 +117,7 @@ def held_bias_prior(gtsam: Any, settings: Isam2Settings, key: int) -> Any | None
     """The prior that holds a keyframe's biases at zero when they are not estimated.
 
     With ``estimate_imu_bias: false`` every keyframe's ``B_k`` gets a zero-mean prior of std
-    :data:`~estimators.isam2.settings.FIXED_BIAS_SIGMA` (docs/isam2.md, "Variables"): the
+    :data:`~estimators.isam2.settings.FIXED_BIAS_SIGMA` (docs/isam2.md, "IMU factors"): the
     walk between keyframes alone would let the bias's variance grow over the whole flight,
     an error source the simulated IMU does not have.
 

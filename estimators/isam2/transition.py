@@ -51,7 +51,8 @@ class ImuTransition:
 
     def __init__(self, gtsam: Any, pose: Any, vel: FloatArray, bias: Any) -> None:
         self._g = gtsam
-        self._nav = gtsam.NavState(pose, np.asarray(vel, dtype=float))
+        vel = np.asarray(vel, dtype=float)
+        self._nav = gtsam.NavState(pose, vel)
         self._bias = bias
         values = gtsam.Values()
         for key, value in enumerate((pose, vel, pose, vel, bias, bias)):
