@@ -13,9 +13,12 @@ none). Per sample, the state ``x = (p, v, b_a)`` (9,) (NED, m, m/s, m/s²) evolv
 with the estimator's documented noise model (docs/isam2.md, :class:`Isam2Settings`): the
 accelerometer noise of variance ``σ_a² + q_v / dt`` per sample through ``(½ dt², dt)`` (the
 sample's density ``σ_a² dt`` plus the v block of ``process_noise``), a position noise
-``(integration_sigma² + q_ρ) dt`` per sample, and a bias walk ``σ_w² dt``. The prior is Gaussian
+``(integration_sigma² + q_ρ) dt`` per sample, and a bias walk ``σ_w² dt``; with the biases held
+(``estimate_imu_bias: false``) every keyframe also has the prior ``b_a ~ N(0, σ_b0²)``, which
+the filter takes as the pseudo-measurement ``0 = b_a + ν`` at each scan. The prior is Gaussian
 over (p, v) with a position–velocity cross-covariance, and ``b_a ~ N(0, σ_b0²)``. The data are
-drawn from this model. The reference is the textbook Kalman filter at the sample rate and the
+drawn from this model (without the pseudo-measurements: with held biases σ_b0 and σ_w are
+1e-5, far below the noise). The reference is the textbook Kalman filter at the sample rate and the
 Rauch–Tung–Striebel smoother, in plain numpy below.
 
 **What runs through the project's code.** The estimator itself, :class:`Isam2Slam`: ``reset``
@@ -144,6 +147,8 @@ class LinearModel:
         params: ``estimator.params`` given to :class:`Isam2Slam`.
         bias_sigma0: Prior std per axis of the accelerometer bias, m/s².
         bias_walk: Its random-walk density, m/s²/√s.
+        bias_held: The biases are held (``estimate_imu_bias: false``): the prior of std
+            ``bias_sigma0`` on every keyframe's bias, not only the first.
         F: (9, 9) transition of ``(p, v, b_a)`` over one sample.
         G: (9, 3) the sample's input ``a_m + g`` into the state.
         Q: (9, 9) process-noise covariance per sample.
@@ -152,6 +157,7 @@ class LinearModel:
     params: dict[str, Any]
     bias_sigma0: float
     bias_walk: float
+    bias_held: bool = False
     F: FloatArray = field(init=False)
     G: FloatArray = field(init=False)
     Q: FloatArray = field(init=False)
@@ -191,7 +197,7 @@ class LinearModel:
         }
         if estimate_bias:
             return cls(params, 0.05, 2e-3)
-        return cls(params, FIXED_BIAS_SIGMA, FIXED_BIAS_SIGMA)
+        return cls(params, FIXED_BIAS_SIGMA, FIXED_BIAS_SIGMA, bias_held=True)
 
 
 @dataclass
@@ -269,6 +275,13 @@ def _kalman(model: LinearModel, flight: Flight) -> KalmanRun:
             gain = np.linalg.solve(H @ P @ H.T + R, H @ P).T
             A = np.eye(9) - gain @ H
             x, P = x + gain @ residual, A @ P @ A.T + gain @ R @ gain.T
+            filtered[-1] = (x, P)
+        if model.bias_held:  # the keyframe's bias prior: the pseudo-measurement 0 = b_a + ν
+            H = np.zeros((3, 9))
+            H[:, 6:9] = np.eye(3)
+            gain = np.linalg.solve(H @ P @ H.T + model.bias_sigma0**2 * np.eye(3), H @ P).T
+            A = np.eye(9) - gain @ H
+            x, P = A @ x, A @ P @ A.T + model.bias_sigma0**2 * gain @ gain.T
             filtered[-1] = (x, P)
     smoothed = [filtered[-1]]
     for n in range(len(filtered) - 2, -1, -1):
@@ -364,7 +377,8 @@ def _differences(
 
 def _attitude_variance(floor: float) -> float:
     """Σ_θ at the end of the flight (rad²): the prior floor, the gyro bias's prior and walk at
-    :data:`FIXED_BIAS_SIGMA`, the gyro density at :data:`NOISE_FLOOR`."""
+    :data:`FIXED_BIAS_SIGMA` (an upper bound where the bias is held by a prior at every
+    keyframe), the gyro density at :data:`NOISE_FLOOR`."""
     T = SCANS * SAMPLES_PER_SCAN * DT
     return floor + FIXED_BIAS_SIGMA**2 * (T**2 + T**3 / 3.0) + NOISE_FLOOR * T
 

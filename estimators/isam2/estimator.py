@@ -43,10 +43,17 @@ import numpy as np
 
 from estimators.isam2.associate import Labeled, PosePrediction, ScanAssociation
 from estimators.isam2.factors import known_map_error, landmark_error, scan_error
-from estimators.isam2.graph import first_keyframe, preintegration_params, require_gtsam
+from estimators.isam2.graph import (
+    first_keyframe,
+    held_bias_prior,
+    keyframe_marginals,
+    known_map,
+    preintegration_params,
+    require_gtsam,
+)
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
-from estimators.isam2.transition import NAV_DIM, imu_transition
+from estimators.isam2.transition import NAV_DIM, ImuTransition
 from quadslam_env.estimation import Estimate, register
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.lidar import lidar_inverse
@@ -106,12 +113,14 @@ class Isam2Slam:
         self._kf_vel = np.zeros(3)
         self._kf_bias: Any = None
         self._kf_cov = np.zeros((NAV_DIM, NAV_DIM))
+        self._transition: ImuTransition | None = None
         self._pim: Any = None
         self._pim_noise: tuple[float, float] | None = None
         self._params: Any = None
         self._known: dict[int, FloatArray] | None = None
         self._lm_means: dict[int, FloatArray] = {}
         self._lm_covs: dict[int, FloatArray] = {}
+        self._lm_arrays: tuple[np.ndarray, FloatArray, FloatArray] | None = None
         self._unlabeled: bool | None = None
         self._rates = np.zeros(3)
         self._gyro: FloatArray | None = None
@@ -173,16 +182,7 @@ class Isam2Slam:
             raise ValueError(f"reset: mean0 must be a finite (12,) array, got shape {mean0.shape}")
         if cov0.shape != (12, 12) or not np.isfinite(cov0).all():
             raise ValueError(f"reset: cov0 must be a finite (12, 12) array, got shape {cov0.shape}")
-        known = None
-        if known_landmarks is not None:
-            ids = np.asarray(known_landmarks[0]).astype(np.int64).reshape(-1)
-            pos = np.asarray(known_landmarks[1], dtype=float).reshape(-1, 3)
-            if ids.shape[0] != pos.shape[0] or not np.isfinite(pos).all():
-                raise ValueError(
-                    "reset: known_landmarks must be (ids (L,), finite positions (L, 3)), got "
-                    f"{ids.shape[0]} ids and {pos.shape[0]} positions"
-                )
-            known = {int(i): pos[j].copy() for j, i in enumerate(ids.tolist())}
+        known = None if known_landmarks is None else known_map(*known_landmarks)
         self._reset_state()
         self._known = known
         self._front.reset(known=known is not None)
@@ -333,9 +333,7 @@ class Isam2Slam:
         F, Q = np.eye(NAV_DIM), np.zeros((NAV_DIM, NAV_DIM))
         if self._pim is not None and self._pim.deltaTij() > 0.0:
             k += 1
-            pose, _, F, Q = imu_transition(
-                self._g, self._pim, self._kf_pose, self._kf_vel, self._kf_bias
-            )
+            pose, _, F, Q = self._link()(self._pim)
         Fp, Qp = F[:6], Q[:6, :6]  # the pose rows: (δθ, δt) of the scan's keyframe
         pose_cov = Fp @ self._kf_cov @ Fp.T + Qp
         pred = PosePrediction(pose.rotation().matrix(), pose.translation(), pose_cov, k)
@@ -384,6 +382,9 @@ class Isam2Slam:
             values.insert(vj, nav.velocity())
             values.insert(bj, self._kf_bias)
             stamps.update({xj: t, vj: t, bj: t})
+            held = held_bias_prior(g, self.settings, bj)
+            if held is not None:
+                graph.add(held)
         xk = self._key("x", k)
         noise = g.noiseModel.Diagonal.Sigmas(sigma)
         scan_noise = g.noiseModel.Diagonal.Sigmas(np.tile(sigma, len(ids)))
@@ -433,13 +434,13 @@ class Isam2Slam:
         pose = est.atPose3(xk)
         vel = np.asarray(est.atVector(vk), dtype=float).reshape(3)
         bias = est.atConstantBias(bk)
-        cov = np.asarray(self._isam.jointMarginalCovariance([xk, vk, bk]).fullMatrix())
         mapped = sorted({*self._lm_means, *(new or [])})
         means = {i: np.asarray(est.atPoint3(self._key("l", i)), float) for i in mapped}
-        covs: dict[int, FloatArray] = {}
-        if self.settings.landmark_covariances or self._unlabeled:  # the gate needs them
-            for i in means:
-                covs[i] = np.asarray(self._isam.marginalCovariance(self._key("l", i)))
+        with_maps = self.settings.landmark_covariances or bool(self._unlabeled)  # the gate's
+        lm_ids = mapped if with_maps else []
+        lm_keys = [self._key("l", i) for i in lm_ids]
+        cov, blocks = keyframe_marginals(self._isam, [xk, vk, bk], lm_keys)
+        covs = dict(zip(lm_ids, blocks, strict=True))
         finite = (
             np.isfinite(pose.matrix()).all()
             and np.isfinite(vel).all()
@@ -451,9 +452,11 @@ class Isam2Slam:
             raise FloatingPointError(f"isam2: non-finite smoothed state at keyframe {k}")
         self._k = k
         self._kf_pose, self._kf_vel, self._kf_bias = pose, vel, bias
+        self._transition = None  # rebuilt for the new keyframe on first use
         self._kf_cov = 0.5 * (cov + cov.T)
         self._lm_means = means
         self._lm_covs = covs
+        self._lm_arrays = None
         self._pim = None  # the next sample starts a new preintegration at the new bias
         if self._gyro is not None:
             self._rates = self._gyro - np.asarray(bias.gyroscope())
@@ -463,25 +466,27 @@ class Isam2Slam:
         self.last_error = f"{type(exc).__name__}: {exc}"
 
     # ------------------------------------------------------------------ output
+    def _link(self) -> ImuTransition:
+        """The IMU factor's linearisation at the current keyframe (built once per keyframe)."""
+        if self._transition is None:
+            self._transition = ImuTransition(self._g, self._kf_pose, self._kf_vel, self._kf_bias)
+        return self._transition
+
     def _predicted(self) -> tuple[Any, FloatArray, FloatArray]:
-        """``(pose, v_N (3,), Σ (9, 9) over (δθ, δt, δv_N))`` now: the keyframe state
-        predicted with the current preintegration, its covariance propagated."""
-        g = self._g
+        """``(pose, v_N (3,), Σ (9, 9) over (δθ, δt, δv_N))`` now: the keyframe state predicted
+        with the current preintegration, ``Σ = F Σ_i Fᵀ + Q`` (``estimators.isam2.transition``)."""
         pim = self._pim
         if pim is None or pim.deltaTij() <= 0.0:
             return self._kf_pose, self._kf_vel, self._kf_cov[:POSE_DIM, :POSE_DIM]
-        # The IMU factor linearised from the keyframe to the prediction:
-        # Σ_j = F Σ_i Fᵀ + Q (:mod:`estimators.isam2.transition`).
-        pose, vel, F, Q = imu_transition(g, pim, self._kf_pose, self._kf_vel, self._kf_bias)
+        pose, vel, F, Q = self._link()(pim)
         Fp = F[:POSE_DIM]
         return pose, vel, Fp @ self._kf_cov @ Fp.T + Q[:POSE_DIM, :POSE_DIM]
 
     def _build_estimate(self) -> Estimate:
         pose, vel_n, cov_t = self._predicted()
-        if self._known is not None:
-            lms = landmark_arrays(self._known, {})
-        else:
-            lms = landmark_arrays(self._lm_means, self._lm_covs)
+        if self._lm_arrays is None:  # the map changes at keyframes only (known map: no covs)
+            self._lm_arrays = landmark_arrays(self._known or self._lm_means, self._lm_covs)
+        lms = (self._lm_arrays[0].copy(), self._lm_arrays[1].copy(), self._lm_arrays[2].copy())
         bias = self._kf_bias if self.settings.estimate_imu_bias else None
         return snapshot(pose, vel_n, cov_t, self._rates, lms, bias, self._diagnostics(lms[0].size))
 

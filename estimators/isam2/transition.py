@@ -33,33 +33,51 @@ _COLS_I = np.r_[0:9, 18:24]
 _COLS_J = np.r_[9:18, 24:30]
 
 
-def imu_transition(
-    gtsam: Any, pim: Any, pose: Any, vel: FloatArray, bias: Any
-) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
-    """The keyframe state predicted with ``pim`` and the linear map of its error (module doc).
+class ImuTransition:
+    """The keyframe's side of the IMU factor, built once per keyframe and reused for every
+    prediction from it (every control step between two scans, and the association's).
+
+    The factor's linearisation point ``(X_i, V_i, X_j, V_j, B_i, B_j)`` is a ``gtsam.Values``
+    whose keyframe entries stay fixed; each call only updates the prediction's pose and
+    velocity in place (inserting a value into a fresh ``Values`` costs far more in the Python
+    bindings than updating it).
 
     Args:
         gtsam: The ``gtsam`` module.
-        pim: ``PreintegratedCombinedMeasurements`` since the keyframe (``deltaTij() > 0``).
         pose: The keyframe's ``gtsam.Pose3`` (``C_NB``, ρ in N, m).
         vel: (3,) its velocity in N, m/s.
         bias: Its ``imuBias.ConstantBias`` (the bias held over the preintegration).
-
-    Returns:
-        ``(pose_j, vel_j (3,), F (15, 15), Q (15, 15))``: the predicted ``Pose3`` and
-        velocity (m/s, N), and ``δ_j = F δ_i + noise`` with noise covariance Q, over the
-        tangent (δθ rad, δt m, δv_N m/s, δb_a m/s², δb_ω rad/s).
     """
-    nav = pim.predict(gtsam.NavState(pose, vel), bias)
-    pose_j, vel_j = nav.pose(), np.asarray(nav.velocity(), dtype=float)
-    factor = gtsam.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)
-    values = gtsam.Values()
-    values.insert(0, pose)
-    values.insert(1, vel)
-    values.insert(2, pose_j)
-    values.insert(3, vel_j)
-    values.insert(4, bias)
-    values.insert(5, bias)
-    A = np.asarray(factor.linearize(values).jacobian()[0])
-    Aj_inv = np.linalg.inv(A[:, _COLS_J])
-    return pose_j, vel_j, -Aj_inv @ A[:, _COLS_I], Aj_inv @ Aj_inv.T
+
+    def __init__(self, gtsam: Any, pose: Any, vel: FloatArray, bias: Any) -> None:
+        self._g = gtsam
+        vel = np.asarray(vel, dtype=float)
+        self._nav = gtsam.NavState(pose, vel)
+        self._bias = bias
+        values = gtsam.Values()
+        for key, value in enumerate((pose, vel, pose, vel, bias, bias)):
+            values.insert(key, value)
+        self._values = values
+
+    def __call__(self, pim: Any) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
+        """The keyframe state predicted with ``pim`` and the linear map of its error (module
+        docstring).
+
+        Args:
+            pim: ``PreintegratedCombinedMeasurements`` since the keyframe, integrated at the
+                keyframe's bias (``deltaTij() > 0``).
+
+        Returns:
+            ``(pose_j, vel_j (3,), F (15, 15), Q (15, 15))``: the predicted ``Pose3`` and
+            velocity (m/s, N), and ``δ_j = F δ_i + noise`` with noise covariance Q, over the
+            tangent (δθ rad, δt m, δv_N m/s, δb_a m/s², δb_ω rad/s).
+        """
+        g = self._g
+        nav = pim.predict(self._nav, self._bias)
+        pose_j, vel_j = nav.pose(), np.asarray(nav.velocity(), dtype=float)
+        self._values.update(2, pose_j)
+        self._values.update(3, vel_j)
+        factor = g.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)
+        A = np.asarray(factor.linearize(self._values).jacobian()[0])
+        Aj_inv = np.linalg.inv(A[:, _COLS_J])
+        return pose_j, vel_j, -Aj_inv @ A[:, _COLS_I], Aj_inv @ Aj_inv.T

@@ -1,0 +1,107 @@
+"""The iSAM2 estimator's shared work gives what the one-off queries give.
+
+* :func:`estimators.isam2.graph.keyframe_marginals` (one joint marginal of a keyframe and its
+  landmarks) against GTSAM's per-variable queries: the keyframe's ``jointMarginalCovariance``
+  and each landmark's ``marginalCovariance``, on a pose seeing four landmarks through the
+  project's LiDAR factor.
+* :class:`estimators.isam2.transition.ImuTransition` (the linearisation point reused from one
+  prediction to the next) against a fresh one at each preintegration, and ``F``, ``Q`` against
+  central differences of GTSAM's own prediction (``δ_j = F δ_i`` for the mean, ``Q`` the
+  preintegration covariance mapped through the factor).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from estimators.isam2.factors import landmark_error
+from estimators.isam2.graph import keyframe_marginals
+from estimators.isam2.transition import ImuTransition
+from quadslam_env.models.lidar import measure_from_body
+
+gtsam = pytest.importorskip("gtsam")
+
+LANDMARKS = np.array([[6.0, 1.0, -1.0], [5.0, -2.0, 0.5], [7.0, 0.0, -2.5], [4.0, 3.0, 0.0]])
+
+
+def test_keyframe_marginals_equal_per_variable_queries() -> None:
+    x, v, b = (gtsam.symbol(c, 0) for c in "xvb")
+    lms = [gtsam.symbol("l", i) for i in range(len(LANDMARKS))]
+    pose = gtsam.Pose3(gtsam.Rot3.Ypr(0.2, -0.05, 0.1), np.array([0.5, -0.3, -2.0]))
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    graph.add(gtsam.PriorFactorPose3(x, pose, gtsam.noiseModel.Isotropic.Sigma(6, 0.05)))
+    graph.add(gtsam.PriorFactorVector(v, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
+    graph.add(
+        gtsam.PriorFactorConstantBias(
+            b, gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Isotropic.Sigma(6, 0.01)
+        )
+    )
+    values.insert(x, pose)
+    values.insert(v, np.zeros(3))
+    values.insert(b, gtsam.imuBias.ConstantBias())
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.006, 0.005, 0.1]))
+    body = (LANDMARKS - pose.translation()) @ pose.rotation().matrix()
+    for key, lm, z in zip(lms, LANDMARKS, measure_from_body(body), strict=True):
+        graph.add(gtsam.CustomFactor(noise, [x, key], landmark_error(z)))
+        graph.add(gtsam.PriorFactorPoint3(key, lm, gtsam.noiseModel.Isotropic.Sigma(3, 1.0)))
+        values.insert(key, lm)
+    isam = gtsam.ISAM2()
+    isam.update(graph, values)
+    cov, blocks = keyframe_marginals(isam, [x, v, b], lms)
+    ref = np.asarray(isam.jointMarginalCovariance([x, v, b]).fullMatrix())
+    np.testing.assert_allclose(cov, ref, rtol=1e-9, atol=1e-12)
+    assert cov.shape == (15, 15) and len(blocks) == len(lms)
+    for key, block in zip(lms, blocks, strict=True):
+        np.testing.assert_allclose(block, isam.marginalCovariance(key), rtol=1e-9, atol=1e-12)
+    nav_only, none = keyframe_marginals(isam, [x, v, b], [])
+    np.testing.assert_allclose(nav_only, ref, rtol=1e-9, atol=1e-12)
+    assert none == []
+
+
+def _pim(samples: int, bias: Any) -> Any:
+    p = gtsam.PreintegrationCombinedParams(np.array([0.0, 0.0, 9.81]))
+    p.setAccelerometerCovariance(np.eye(3) * 1e-4)
+    p.setGyroscopeCovariance(np.eye(3) * 1e-6)
+    p.setIntegrationCovariance(np.eye(3) * 1e-8)
+    p.setBiasAccCovariance(np.eye(3) * 1e-6)
+    p.setBiasOmegaCovariance(np.eye(3) * 1e-8)
+    pim = gtsam.PreintegratedCombinedMeasurements(p, bias)
+    for n in range(samples):
+        accel = np.array([0.3 * np.sin(n), 0.2, -9.6])
+        pim.integrateMeasurement(accel, np.array([0.1, -0.2, 0.4 + 0.01 * n]), 0.01)
+    return pim
+
+
+def test_reused_transition_equals_fresh_and_differences() -> None:
+    pose = gtsam.Pose3(gtsam.Rot3.Ypr(0.7, 0.1, -0.2), np.array([1.0, 2.0, -3.0]))
+    vel = np.array([1.5, -0.5, 0.2])
+    bias = gtsam.imuBias.ConstantBias(np.array([0.01, -0.02, 0.03]), np.array([1e-3, 0, -2e-3]))
+    reused = ImuTransition(gtsam, pose, vel, bias)
+    for samples in (3, 7, 10):  # successive predictions from one keyframe
+        pim = _pim(samples, bias)
+        got = reused(pim)
+        want = ImuTransition(gtsam, pose, vel, bias)(pim)
+        assert got[0].equals(want[0], 1e-15)
+        for a, b in zip(got[1:], want[1:], strict=True):
+            np.testing.assert_array_equal(a, b)
+    # F against central differences of GTSAM's prediction in the keyframe's tangent
+    # (δθ, δt, δv_N); the prediction's error is read in the same chart at j.
+    pose_j, vel_j, F, Q = got
+    h = 1e-6
+    for i in range(9):
+        d = np.zeros(9)
+        d[i] = h
+        outs = []
+        for sign in (1.0, -1.0):
+            p = pose.retract(sign * d[:6])
+            nav = pim.predict(gtsam.NavState(p, vel + sign * d[6:9]), bias)
+            outs.append(
+                np.concatenate([pose_j.localCoordinates(nav.pose()), nav.velocity() - vel_j])
+            )
+        np.testing.assert_allclose((outs[0] - outs[1]) / (2 * h), F[:9, i], atol=1e-6)
+    np.testing.assert_allclose(Q, Q.T, atol=1e-18)
+    assert np.linalg.eigvalsh(Q).min() > 0.0
