@@ -63,6 +63,21 @@ def test_every_row_flies_every_condition_on_the_same_held_out_seeds(
     assert (plots / "robustness.png").stat().st_size > 0
 
 
+def test_rows_on_a_condition_fly_the_same_physics(quick_run: tuple[dict, Path, Path]) -> None:
+    """On the randomised condition every row's episode of a seed drew the same scales, and the
+    two seeds drew different ones; the other conditions draw none."""
+    result, _, _ = quick_run
+    keys = [f"rand_{k}" for k in SCALE_KEYS]
+    for row in result["rows"]:
+        drawn = [{k: e[k] for k in keys if k in e} for e in row["episodes"]]
+        if row["eval_on"] != "randomized":
+            assert drawn == [{}, {}]
+            continue
+        first = next(r for r in result["rows"] if r["eval_on"] == "randomized")
+        assert drawn == [{k: e[k] for k in keys} for e in first["episodes"]]
+        assert drawn[0]["rand_mass_scale"] != drawn[1]["rand_mass_scale"]
+
+
 def test_each_learned_row_trained_on_its_condition(quick_run: tuple[dict, Path, Path]) -> None:
     _, out, _ = quick_run
     for cfg in LEARNED:
@@ -76,14 +91,24 @@ def test_each_learned_row_trained_on_its_condition(quick_run: tuple[dict, Path, 
 
 
 def test_rerun_reuses_the_trainings(quick_run: tuple[dict, Path, Path]) -> None:
+    """A second run trains nothing (its flights, already covered above, are stubbed here)."""
     _, out, _ = quick_run
     runs = sorted(out.glob("train/*/s*/*/model.zip"))
     assert len(runs) == len(LEARNED)
+    flown: list[str] = []
+
+    def fly(policy: Any, env_id: str, kwargs: dict[str, Any], seeds: list[int]) -> list:
+        flown.append(str(policy))
+        return [{"seed": s, "terminated": False} for s in seeds]
+
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(hyperparams, "load_hyperparams", _tiny_ppo)
-        again = robustness.run_study(out, quick=True, episodes=1, timesteps=64, duration_s=0.1)
+        patch.setattr(robustness, "fly", fly)
+        again = robustness.run_study(out, quick=True, episodes=1, timesteps=64, duration_s=0.3)
     assert sorted(out.glob("train/*/s*/*/model.zip")) == runs
     assert len(again["rows"]) == len(CONDITIONS) * (1 + len(LEARNED))
+    # Each condition flies DF-LQR and the runs found in --out, nothing else.
+    assert sorted(flown) == sorted(["dflqr", *(str(r.parent) for r in runs)] * len(CONDITIONS))
 
 
 def _reset_infos(condition: str, seeds: range) -> list[dict[str, Any]]:

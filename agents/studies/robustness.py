@@ -27,7 +27,8 @@ study's ``ppo_ekf``: same hyperparameters and budget, episodes started on the re
 training only), with seeds ``0 … n-1``; evaluation seeds start at 1000 and are never used in
 training, and every row is flown from the scenario's start (take-off climb included). Medians
 and spreads as in :mod:`agents.studies.learned_rows`. ``--quick`` trains one seed on a small
-budget and flies 5 episodes (a smoke run of the pipeline, not a result).
+budget and flies 5 episodes (a smoke run of the pipeline, not a result). Each episode record
+carries the scales its episode drew (``rand_*``, randomised condition only).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from agents.evaluation.episodes import spread_cell
 from agents.studies.learned_rows import EKF, Row, box_plot, fly, ppo_job, write_json
 from agents.studies.training_pool import train_all
 from quadslam_env.config_randomize import SCALE_KEYS
+from quadslam_env.randomize import RANDOMIZED_KEYS
 
 __all__ = ["CONDITIONS", "LEARNED", "format_study", "plot_study", "run_study", "write_json"]
 
@@ -77,6 +79,20 @@ def condition_kwargs(condition: str, duration_s: float | None = None) -> dict[st
 
     extra = {} if duration_s is None else {"episode": {"duration_s": float(duration_s)}}
     return deep_merge(CONDITIONS[condition], extra)
+
+
+def drawn_scales(kwargs: dict[str, Any], seeds: list[int]) -> list[dict[str, float]]:
+    """Each seed's randomised scales (``info["rand_*"]`` at its reset; empty without
+    randomisation). A lane of the vector env seeded the same draws the same
+    (:mod:`quadslam_env.randomize`), so these are the scales the study's episodes flew."""
+    import gymnasium as gym
+
+    env = gym.make(EKF, **kwargs)
+    try:
+        infos = [env.reset(seed=seed)[1] for seed in seeds]
+    finally:
+        env.close()
+    return [{k: float(v) for k, v in info.items() if k in RANDOMIZED_KEYS} for info in infos]
 
 
 def run_study(
@@ -125,16 +141,24 @@ def run_study(
         # Every row flies the condition's own kwargs: a learned row's training kwargs (the
         # pinned randomize section of ppo_nominal) must not leak into another condition.
         kwargs = condition_kwargs(condition, duration_s)
+        scales = drawn_scales(kwargs, seeds)
+
+        def flown(policy: Any, kwargs: dict[str, Any] = kwargs, scales: list = scales) -> list:
+            """The episode records of ``policy``, each with its episode's drawn scales."""
+            return [
+                rec | sc for rec, sc in zip(fly(policy, EKF, kwargs, seeds), scales, strict=True)
+            ]
+
         print(f"DF-LQR on {condition} ...", file=sys.stderr)
         row = Row("dflqr", "DF-LQR", "-", condition)
-        row.episodes = fly("dflqr", EKF, kwargs, seeds)
+        row.episodes = flown("dflqr")
         rows.append(row)
         for cfg in LEARNED:
             row = Row(cfg.name, cfg.label, cfg.train_on, condition)
             for seed in range(n_seeds):
                 print(f"{cfg.name} seed {seed} on {condition} ...", file=sys.stderr)
                 run = trained[cfg.name, seed]
-                row.add_seed(fly(run.run, EKF, kwargs, seeds), run.wall_s)
+                row.add_seed(flown(run.run), run.wall_s)
             rows.append(row)
     settings = {
         "conditions": CONDITIONS,
