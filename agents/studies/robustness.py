@@ -45,7 +45,16 @@ from agents.studies.training_pool import train_all
 from quadslam_env.config_randomize import SCALE_KEYS
 from quadslam_env.randomize import RANDOMIZED_KEYS
 
-__all__ = ["CONDITIONS", "LEARNED", "format_study", "plot_study", "run_study", "write_json"]
+__all__ = [
+    "CONDITIONS",
+    "LEARNED",
+    "condition_kwargs",
+    "drawn_scales",
+    "format_study",
+    "plot_study",
+    "run_study",
+    "write_json",
+]
 
 EVAL_SEED0 = 1000
 TRAINING_SEEDS = 2
