@@ -1,6 +1,6 @@
-"""``quadslam study …``: the studies' subcommands (cost of estimation, active perception, data
-association, Cramér–Rao bound, the estimators against the bound) and the writing of their
-``--json``/``--plots`` outputs."""
+"""``quadslam study …``: the studies' subcommands (cost of estimation, active perception,
+robustness, data association, Cramér–Rao bound, the estimators against the bound) and the
+writing of their ``--json``/``--plots`` outputs."""
 
 from __future__ import annotations
 
@@ -26,6 +26,14 @@ def cmd_study_active(args: argparse.Namespace) -> int:
     return _training_study(args, study_active, "study_active", "active_perception.png")
 
 
+def cmd_study_robustness(args: argparse.Namespace) -> int:
+    """DF-LQR and residual PPO (nominal or randomised training) on nominal, randomised and
+    windy physics."""
+    from agents.studies import robustness as study_robustness
+
+    return _training_study(args, study_robustness, "study_robustness", "robustness.png")
+
+
 def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str) -> int:
     """Run a study that trains agents (its module's ``run_study``, ``format_study``,
     ``write_json``, ``plot_study``): check every output path before the first training,
@@ -38,7 +46,9 @@ def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str)
         check_output_file(args.json, "--json")
     if args.plots is not None:
         check_output_dir(args.plots, "--plots")
-    result = study.run_study(out, args.quick, args.training_seeds, args.episodes, jobs=args.jobs)
+    result = study.run_study(
+        out, args.quick, args.training_seeds, args.episodes, args.timesteps, jobs=args.jobs
+    )
     print(study.format_study(result))
     settings = result["settings"]
     print(
@@ -127,6 +137,13 @@ def _training_study_args(
     )
     parser.add_argument("--episodes", type=positive_int, help="held-out episodes (20; quick 5)")
     parser.add_argument(
+        "--timesteps",
+        type=positive_int,
+        help="training budget per run (default: the ppo.yaml entry's; quick: a small one); "
+        "finished runs in --out are reused whatever their budget: give another --out for "
+        "another budget",
+    )
+    parser.add_argument(
         "--jobs",
         type=positive_int,
         help="trainings at a time, each in its own process (default: the CPU cores available; "
@@ -157,6 +174,13 @@ def add_study_parser(
     )
     _training_study_args(active, positive_int, 3, "write the where-it-looks figure (PNG) here")
     active.set_defaults(func=cmd_study_active)
+    robust = studies.add_parser(
+        "robustness",
+        help="DF-LQR and residual PPO trained with and without domain randomisation, on EKF-SLAM "
+        "under nominal, randomised and windy physics (held-out seeds)",
+    )
+    _training_study_args(robust, positive_int, 2, "write the box plot (PNG) here")
+    robust.set_defaults(func=cmd_study_robustness)
     assoc = studies.add_parser(
         "association",
         help="unknown data association: known vs NN vs JCBB (EKF-SLAM), known vs ML "
