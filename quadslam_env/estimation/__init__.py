@@ -29,7 +29,7 @@ from quadslam_env.estimation.registry import (
     make,
     register,
 )
-from quadslam_env.estimation.snapshot import BatchEstimate, Estimate, batch_from_estimates
+from quadslam_env.estimation.snapshot import BatchEstimate
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -38,7 +38,6 @@ __all__ = [
     "BatchEstimate",
     "BatchEstimator",
     "ChecksMemory",
-    "Estimate",
     "Estimator",
     "HasFullState",
     "HasParticles",
@@ -52,7 +51,6 @@ __all__ = [
     "UsesTruth",
     "associates_unlabeled",
     "available",
-    "batch_from_estimates",
     "health_codes",
     "make",
     "position_std",
