@@ -102,11 +102,11 @@ class OracleBatch:
         out = self._out
         ids = np.flatnonzero(out.landmark_mapped[lane])
         return BatchEstimate.one_lane(
-            position=out.position[lane],
-            vel_body=out.vel_body[lane],
-            vel_inertial=out.vel_inertial[lane],
-            euler=out.euler[lane],
-            rates=out.rates[lane],
+            position=out.position[lane].copy(),
+            vel_body=out.vel_body[lane].copy(),
+            vel_inertial=out.vel_inertial[lane].copy(),
+            euler=out.euler[lane].copy(),
+            rates=out.rates[lane].copy(),
             pose_cov=None,
             landmark_ids=ids,
             landmark_means=out.landmark_means[lane, ids],

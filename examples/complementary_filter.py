@@ -84,15 +84,15 @@ class ComplementaryFilter:
         self.x[3:6] += self.k_vel * (dcm.T @ residual)
 
     def estimate(self) -> BatchEstimate:
-        """The current pose (a snapshot of one lane, which copies the arrays); no covariance,
-        no landmark estimates."""
+        """The current pose (a snapshot of one lane, of copies); no covariance, no landmark
+        estimates."""
         dcm = dcm_from_euler(self.x[6:9])
         return BatchEstimate.one_lane(
-            position=self.x[0:3],
-            vel_body=self.x[3:6],
+            position=self.x[0:3].copy(),
+            vel_body=self.x[3:6].copy(),
             vel_inertial=dcm @ self.x[3:6],
-            euler=self.x[6:9],
-            rates=self.rates,
+            euler=self.x[6:9].copy(),
+            rates=self.rates.copy(),
             pose_cov=None,
             landmark_ids=np.zeros(0, dtype=int),
             landmark_means=np.zeros((0, 3)),

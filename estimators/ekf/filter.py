@@ -468,15 +468,15 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             lm_covs = P[idx[:, None, None] + _AR3[:, None], idx[:, None, None] + _AR3]
         gyro_bias = accel_bias = None
         if self.estimate_imu_bias:
-            gyro_bias = x[GYRO_BIAS]
+            gyro_bias = x[GYRO_BIAS].copy()
             accel_bias = np.array([0.0, 0.0, x[ACCEL_BIAS_Z]])
         return BatchEstimate.one_lane(
-            position=x[POS],
-            vel_body=x[VEL],
+            position=x[POS].copy(),
+            vel_body=x[VEL].copy(),
             vel_inertial=dcm_from_euler(x[EUL]) @ x[VEL],
-            euler=x[EUL],
-            rates=self._rates[lane],
-            pose_cov=P[:POSE_DIM, :POSE_DIM],
+            euler=x[EUL].copy(),
+            rates=self._rates[lane].copy(),
+            pose_cov=P[:POSE_DIM, :POSE_DIM].copy(),
             landmark_ids=lm_ids,
             landmark_means=lm_means,
             landmark_covs=lm_covs,

@@ -481,7 +481,7 @@ class FastSLAMBase:
             **self._extra_diagnostics(),
         }
         return BatchEstimate.one_lane(
-            position=mean[POS],
+            position=mean[POS],  # views of this call's fresh array
             vel_body=mean[VEL],
             vel_inertial=vel_inertial,
             euler=mean[EUL],

@@ -68,14 +68,14 @@ def snapshot(
     ids, means, covs = landmarks
     accel_bias = gyro_bias = None
     if bias is not None:
-        accel_bias = np.asarray(bias.accelerometer(), dtype=float)
-        gyro_bias = np.asarray(bias.gyroscope(), dtype=float)
+        accel_bias = np.asarray(bias.accelerometer(), dtype=float).copy()
+        gyro_bias = np.asarray(bias.gyroscope(), dtype=float).copy()
     return BatchEstimate.one_lane(
-        position=position,
+        position=position.copy(),
         vel_body=vel_body,
-        vel_inertial=vel_n,
+        vel_inertial=np.array(vel_n, dtype=float),
         euler=euler,
-        rates=rates,
+        rates=np.array(rates, dtype=float),
         pose_cov=pose_cov,
         landmark_ids=ids,
         landmark_means=means,
