@@ -58,8 +58,8 @@ class Estimator(Protocol):
         """Correct with one LiDAR scan (an empty scan is allowed)."""
 
     def estimate(self) -> BatchEstimate:
-        """A snapshot of the current belief with B = 1 (copies, with landmark covariances:
-        :meth:`BatchEstimate.one_lane`)."""
+        """A snapshot of the current belief with B = 1, with landmark covariances
+        (:meth:`BatchEstimate.one_lane`), whose arrays nothing writes to afterwards."""
 
 
 @runtime_checkable
