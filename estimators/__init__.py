@@ -9,7 +9,6 @@ the estimator boundary (:mod:`quadslam_env.estimation`), which these names are t
 from quadslam_env.estimation import (
     BatchEstimate,
     BatchEstimator,
-    Estimate,
     Estimator,
     available,
     make,
@@ -19,7 +18,6 @@ from quadslam_env.estimation import (
 __all__ = [
     "BatchEstimate",
     "BatchEstimator",
-    "Estimate",
     "Estimator",
     "available",
     "make",

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from estimators.settings_check import check_kwargs
-from quadslam_env.estimation import BatchEstimate, Estimate, KnownMaps, register
+from quadslam_env.estimation import BatchEstimate, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.types import EUL, POS, RATE, VEL, FloatArray
 
@@ -97,11 +97,11 @@ class OracleBatch:
         """The truth of every lane, with no covariance."""
         return self._out
 
-    def lane_estimate(self, lane: int) -> Estimate:
-        """The truth of one lane as an :class:`Estimate` (copies)."""
+    def lane_estimate(self, lane: int) -> BatchEstimate:
+        """The truth of one lane as a one-lane snapshot (B = 1, copies)."""
         out = self._out
         ids = np.flatnonzero(out.landmark_mapped[lane])
-        return Estimate(
+        return BatchEstimate.one_lane(
             position=out.position[lane].copy(),
             vel_body=out.vel_body[lane].copy(),
             vel_inertial=out.vel_inertial[lane].copy(),
@@ -109,6 +109,6 @@ class OracleBatch:
             rates=out.rates[lane].copy(),
             pose_cov=None,
             landmark_ids=ids,
-            landmark_means=out.landmark_means[lane, ids].copy(),
+            landmark_means=out.landmark_means[lane, ids],
             landmark_covs=np.zeros((ids.size, 3, 3)),
         )

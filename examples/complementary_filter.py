@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 import estimators
-from estimators import Estimate
+from estimators import BatchEstimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import dcm_from_euler, euler_rate_matrix, lidar_inverse
 from quadslam_env.types import GRAVITY, FloatArray
@@ -83,10 +83,11 @@ class ComplementaryFilter:
         self.x[0:3] += self.k_pos * residual
         self.x[3:6] += self.k_vel * (dcm.T @ residual)
 
-    def estimate(self) -> Estimate:
-        """The current pose; no covariance, no landmark estimates."""
+    def estimate(self) -> BatchEstimate:
+        """The current pose (a snapshot of one lane, of copies); no covariance, no landmark
+        estimates."""
         dcm = dcm_from_euler(self.x[6:9])
-        return Estimate(
+        return BatchEstimate.one_lane(
             position=self.x[0:3].copy(),
             vel_body=self.x[3:6].copy(),
             vel_inertial=dcm @ self.x[3:6],

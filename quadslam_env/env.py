@@ -17,7 +17,7 @@ from gymnasium import spaces
 from quadslam_env.actions import ActionError, validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
-from quadslam_env.estimation import BatchEstimator, Estimate, batch_from_estimates
+from quadslam_env.estimation import BatchEstimate, BatchEstimator
 from quadslam_env.reset_options import parse_reset_options, parse_seed
 from quadslam_env.trajectories import FlatOutputs
 from quadslam_env.types import FloatArray
@@ -166,8 +166,9 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self._core.estimator = value
 
     @property
-    def last_estimate(self) -> Estimate:
-        """Snapshot of the estimator's belief after the last reset or step (copies)."""
+    def last_estimate(self) -> BatchEstimate:
+        """Snapshot of the estimator's belief after the last reset or step (B = 1, copies,
+        with landmark covariances)."""
         return self._core.estimator.lane_estimate(0)
 
     def reference(self, t: float | None = None) -> FlatOutputs:
@@ -184,18 +185,17 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
             yaw_rate=float(ref.yaw_rate[0]),  # type: ignore[index]
         )
 
-    def observation_from(self, estimate: Estimate) -> np.ndarray:
+    def observation_from(self, estimate: BatchEstimate) -> np.ndarray:
         """The observation the env would emit now if its estimator had returned ``estimate``.
 
         For baselines that fly on another estimate than the env's, e.g. the truth through
-        :class:`estimators.oracle.OracleBatch` in the consistency runs. The visible-landmark
-        count in the observation is 0 (it belongs to the env's own scans).
+        :class:`estimators.oracle.OracleBatch` in the consistency runs. ``estimate`` is a
+        one-lane snapshot (B = 1). The visible-landmark count in the observation is 0 (it
+        belongs to the env's own scans).
         """
         core = self._core
         t = core.t[:1]
-        obs = core.observer.build(
-            batch_from_estimates([estimate]), core.reference([0]), t, np.zeros(1, int)
-        )
+        obs = core.observer.build(estimate, core.reference([0]), t, np.zeros(1, int))
         return obs[0]
 
     def action_to_inputs(self, action: FloatArray) -> tuple[float, FloatArray]:

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from agents.control.dflqr import DFLQRPolicy
+from quadslam_env.measurements import Control, ImuSample, LidarScan
 
 
 def fly_dflqr(
@@ -41,3 +42,55 @@ def temp_root(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     root.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(root))
     return root
+
+
+# ------------------------------------------------- one vehicle's data into lane 0 of a batch
+def lane_reset(
+    est: Any,
+    mean0: np.ndarray,
+    cov0: np.ndarray,
+    rng: np.random.Generator,
+    known: tuple[np.ndarray, np.ndarray] | None = None,
+) -> None:
+    """``reset_lanes`` of lane 0 of the batch estimator ``est`` from a (12,) mean and
+    (12, 12) covariance, with ``known = (ids (L,), positions (L, 3))`` or ``None``."""
+    known_maps = None if known is None else [known]
+    est.reset_lanes(np.zeros(1, dtype=np.int64), mean0[None], cov0[None], [rng], known_maps)
+
+
+def lane_predict(est: Any, imu: ImuSample, control: Control, dt: float) -> None:
+    """``predict`` of lane 0 of the batch estimator ``est`` with one IMU sample."""
+    est.predict(
+        np.array([imu.t]),
+        np.asarray(imu.accel, dtype=float)[None],
+        np.asarray(imu.gyro, dtype=float)[None],
+        imu.accel_sigma,
+        imu.gyro_sigma,
+        np.array([control.thrust]),
+        np.asarray(control.torque, dtype=float)[None],
+        dt,
+        np.ones(1, dtype=bool),
+    )
+
+
+def lane_update(est: Any, scan: LidarScan) -> np.ndarray | None:
+    """``update`` of lane 0 of the batch estimator ``est`` with one scan: by landmark id
+    (``scan.ids`` (k,) distinct), or ``update_unlabeled`` when ``scan.ids`` is ``None``.
+
+    Returns:
+        For an unlabeled scan the (k,) label of each return (-1: none), else ``None``.
+    """
+    lane, t = np.zeros(1, dtype=np.int64), np.array([scan.t])
+    meas = np.asarray(scan.meas, dtype=float).reshape(-1, 3)
+    if scan.ids is None:
+        k = meas.shape[0]
+        est.update_unlabeled(t, lane, np.array([k]), meas[None], scan.sigma)
+        return np.asarray(est.last_association[0, :k]).copy()
+    ids = np.asarray(scan.ids, dtype=np.int64)
+    width = max(int(ids.max()) + 1 if ids.size else 0, getattr(est, "landmark_capacity", 0))
+    visible = np.zeros((1, width), dtype=bool)
+    visible[0, ids] = True
+    by_id = np.zeros((1, width, 3))
+    by_id[0, ids] = meas
+    est.update(t, lane, visible, by_id, scan.sigma)
+    return None

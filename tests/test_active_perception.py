@@ -138,7 +138,7 @@ def test_position_std_reward_is_the_filters_own_uncertainty() -> None:
     policy = DFLQRPolicy.from_env(env)
     for _ in range(30):
         obs, reward, _, _, info = env.step(policy.predict(obs)[0])
-        cov = env.unwrapped.last_estimate.pose_cov
+        cov = env.unwrapped.last_estimate.pose_cov[0]
         assert info["reward_pos_std"] == pytest.approx(-2.0 * math.sqrt(np.trace(cov[:3, :3])))
         terms = sum(v for key, v in info.items() if key.startswith("reward_"))
         assert reward == pytest.approx(terms)

@@ -1,9 +1,9 @@
-"""Tests of the batched EKF-SLAM (estimators/ekf): lanes are independent scalar filters.
+"""Tests of the batched EKF-SLAM (estimators/ekf): lanes are independent filters.
 
-Every lane of an :class:`EkfSlamBatch` must behave like a scalar :class:`EkfSlam` fed the same
-inputs, whatever the other lanes do (different maps, scan timings, known-map mode, inactive
-steps, resets). The scalar filter itself is tested against independent facts in
-tests/test_ekf_slam.py.
+Every lane of an :class:`EkfSlamBatch` must behave like the one lane of an
+:class:`EkfSlamBatch` with B = 1 fed the same inputs, whatever the other lanes do (different
+maps, scan timings, known-map mode, inactive steps, resets). The one-lane filter itself is
+tested against independent facts in tests/test_ekf_slam.py.
 """
 
 from __future__ import annotations
@@ -14,8 +14,9 @@ import pickle
 
 import numpy as np
 import pytest
+from conftest import lane_predict, lane_reset, lane_update
 
-from estimators.ekf import EkfSlam, EkfSlamBatch
+from estimators.ekf import EkfSlamBatch
 from quadslam_env.estimation import make
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
@@ -71,8 +72,13 @@ def _known(lane: int, lms: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return (np.arange(lms.shape[0]), lms) if lane == KNOWN_LANE else None
 
 
+def _one_lane(**params) -> EkfSlamBatch:
+    """The batch filter with one lane (room for 32 landmark ids before it grows)."""
+    return EkfSlamBatch(1, 32, **params)
+
+
 def _make_pair(steps: int, **params):
-    """A batch of 4 lanes and 4 scalar filters, reset identically, plus the lanes' inputs."""
+    """A batch of 4 lanes and 4 one-lane filters, reset identically, plus the lanes' inputs."""
     runs = [_lane_run(lane, steps) for lane in range(4)]
     batch = EkfSlamBatch(4, LMAX, **params)
     batch.reset_lanes(
@@ -84,14 +90,14 @@ def _make_pair(steps: int, **params):
     )
     scalars = []
     for lane, (lms, mean0, _) in enumerate(runs):
-        f = EkfSlam(**params)
-        f.reset(mean0, _cov0(), np.random.default_rng(lane), known_landmarks=_known(lane, lms))
+        f = _one_lane(**params)
+        lane_reset(f, mean0, _cov0(), np.random.default_rng(lane), _known(lane, lms))
         scalars.append(f)
     return batch, scalars, runs
 
 
 def _step(batch, scalars, runs, i: int, active: np.ndarray) -> None:
-    """Feed step i to the active lanes of the batch and to the matching scalar filters."""
+    """Feed step i to the active lanes of the batch and to the matching one-lane filters."""
     accel = np.stack([r[2][i][0] for r in runs])
     gyro = np.stack([r[2][i][1] for r in runs])
     t = np.full(4, i * DT)
@@ -101,27 +107,29 @@ def _step(batch, scalars, runs, i: int, active: np.ndarray) -> None:
     scanning = []
     for lane in np.flatnonzero(active).tolist():
         accel_l, gyro_l, ids, z = runs[lane][2][i]
-        scalars[lane].predict(ImuSample(i * DT, accel_l, gyro_l, SIG_ACC, SIG_GYR), NO_CONTROL, DT)
+        lane_predict(
+            scalars[lane], ImuSample(i * DT, accel_l, gyro_l, SIG_ACC, SIG_GYR), NO_CONTROL, DT
+        )
         if ids is not None:
             scanning.append(lane)
             visible[lane, ids] = True
             meas[lane, ids] = z
-            scalars[lane].update(LidarScan(i * DT, ids, z, SIG_LIDAR))
+            lane_update(scalars[lane], LidarScan(i * DT, ids, z, SIG_LIDAR))
     if scanning:
         batch.update(t, np.array(scanning), visible, meas, SIG_LIDAR)
 
 
-def _assert_lane_equals_scalar(batch: EkfSlamBatch, lane: int, scalar: EkfSlam) -> None:
+def _assert_lane_equals_scalar(batch: EkfSlamBatch, lane: int, scalar: EkfSlamBatch) -> None:
     xb, Pb, ids_b = batch.full_state(lane)
     xs, Ps, ids_s = scalar.full_state()
     np.testing.assert_array_equal(ids_b, ids_s)
     np.testing.assert_allclose(xb, xs, rtol=1e-12, atol=1e-12 * np.abs(xs).max())
     np.testing.assert_allclose(Pb, Ps, rtol=1e-12, atol=1e-12 * np.abs(Ps).max())
-    eb, es = batch.lane_estimate(lane), scalar.estimate()
+    eb, es = batch.lane_estimate(lane), scalar.lane_estimate(0)
     assert eb.diagnostics.keys() == es.diagnostics.keys()
     for key, value in es.diagnostics.items():
-        assert eb.diagnostics[key] == pytest.approx(value, rel=1e-12, nan_ok=True), key
-    np.testing.assert_array_equal(eb.landmark_ids, es.landmark_ids)
+        assert eb.diagnostics[key][0] == pytest.approx(value[0], rel=1e-12, nan_ok=True), key
+    np.testing.assert_array_equal(eb.landmark_ids(), es.landmark_ids())
     np.testing.assert_allclose(eb.rates, es.rates, rtol=1e-12, atol=1e-15)
 
 
@@ -179,8 +187,8 @@ def test_reset_of_one_lane_leaves_the_others_alone():
     others = [batch.full_state(lane) for lane in (0, 2, 3)]
     mean0 = runs[1][1]
     batch.reset_lanes(np.array([1]), mean0[None], _cov0()[None], [np.random.default_rng(9)])
-    scalars[1] = EkfSlam()
-    scalars[1].reset(mean0, _cov0(), np.random.default_rng(9))
+    scalars[1] = _one_lane()
+    lane_reset(scalars[1], mean0, _cov0(), np.random.default_rng(9))
     for lane, before in zip((0, 2, 3), others, strict=True):
         for a, b in zip(before, batch.full_state(lane), strict=True):
             np.testing.assert_array_equal(a, b)
@@ -200,18 +208,17 @@ def test_batch_estimate_matches_lane_estimates():
     est = batch.estimate()
     for lane in range(4):
         snap = batch.lane_estimate(lane)
-        np.testing.assert_array_equal(est.position[lane], snap.position)
-        np.testing.assert_array_equal(est.euler[lane], snap.euler)
-        np.testing.assert_allclose(est.vel_inertial[lane], snap.vel_inertial, rtol=1e-14)
-        np.testing.assert_array_equal(est.pose_cov[lane], snap.pose_cov)
-        np.testing.assert_array_equal(est.gyro_bias[lane], snap.gyro_bias)
-        np.testing.assert_array_equal(est.accel_bias[lane], snap.accel_bias)
-        np.testing.assert_array_equal(np.flatnonzero(est.landmark_mapped[lane]), snap.landmark_ids)
-        np.testing.assert_array_equal(
-            est.landmark_means[lane, snap.landmark_ids], snap.landmark_means
-        )
+        np.testing.assert_array_equal(est.position[lane], snap.position[0])
+        np.testing.assert_array_equal(est.euler[lane], snap.euler[0])
+        np.testing.assert_allclose(est.vel_inertial[lane], snap.vel_inertial[0], rtol=1e-14)
+        np.testing.assert_array_equal(est.pose_cov[lane], snap.pose_cov[0])
+        np.testing.assert_array_equal(est.gyro_bias[lane], snap.gyro_bias[0])
+        np.testing.assert_array_equal(est.accel_bias[lane], snap.accel_bias[0])
+        ids, means, _ = snap.mapped_landmarks()
+        np.testing.assert_array_equal(np.flatnonzero(est.landmark_mapped[lane]), ids)
+        np.testing.assert_array_equal(est.landmark_means[lane, ids], means)
         for key, value in snap.diagnostics.items():
-            assert est.diagnostics[key][lane] == pytest.approx(value, nan_ok=True)
+            assert est.diagnostics[key][lane] == pytest.approx(value[0], nan_ok=True)
     np.testing.assert_array_equal(est.landmark_mapped[KNOWN_LANE, : N_LANDMARKS[KNOWN_LANE]], True)
     np.testing.assert_array_equal(
         est.landmark_means[KNOWN_LANE, : N_LANDMARKS[KNOWN_LANE]], runs[KNOWN_LANE][0]
@@ -292,25 +299,25 @@ def test_bad_inputs_raise_and_change_nothing():
             np.testing.assert_array_equal(a, b)
 
 
-def test_scalar_wrapper_accepts_arbitrary_ids():
-    """Sparse, large ids map to the same filter as dense ids seen in the same order."""
+def test_sparse_ids_give_the_filter_of_dense_ids_seen_in_the_same_order():
+    """Landmark ids index the map arrays, but map slots follow registration order (ascending
+    within a scan): sparse ids give the same filter as dense ids registered in that order."""
     rng = np.random.default_rng(3)
     lms = rng.normal(scale=8.0, size=(4, 3)) + np.array([12.0, 0.0, 0.0])
-    sparse, dense = EkfSlam(), EkfSlam()
+    sparse, dense = _one_lane(), _one_lane()
     for f in (sparse, dense):
-        f.reset(np.zeros(12), _cov0(), rng)
+        lane_reset(f, np.zeros(12), _cov0(), rng)
     meas = lidar_measure(np.zeros(3), np.eye(3), lms)
-    sparse.update(LidarScan(0.0, np.array([7, 42]), meas[[0, 1]], SIG_LIDAR))
-    dense.update(LidarScan(0.0, np.array([0, 1]), meas[[0, 1]], SIG_LIDAR))
-    sparse.update(LidarScan(0.0, np.array([3, 7, 42, 1000]), meas[[2, 0, 1, 3]], SIG_LIDAR))
-    dense.update(LidarScan(0.0, np.array([0, 1, 2, 3]), meas[[0, 1, 2, 3]], SIG_LIDAR))
+    lane_update(sparse, LidarScan(0.0, np.array([7, 42]), meas[[0, 1]], SIG_LIDAR))
+    lane_update(dense, LidarScan(0.0, np.array([0, 1]), meas[[0, 1]], SIG_LIDAR))
+    lane_update(sparse, LidarScan(0.0, np.array([3, 7, 42, 60]), meas[[2, 0, 1, 3]], SIG_LIDAR))
+    lane_update(dense, LidarScan(0.0, np.array([0, 1, 2, 3]), meas[[0, 1, 2, 3]], SIG_LIDAR))
     xs, Ps, ids = sparse.full_state()
     xd, Pd, _ = dense.full_state()
-    np.testing.assert_array_equal(ids, [7, 42, 3, 1000])
+    np.testing.assert_array_equal(ids, [7, 42, 3, 60])
     np.testing.assert_allclose(xs, xd, rtol=1e-12)
     np.testing.assert_allclose(Ps, Pd, rtol=1e-10, atol=1e-15)
-    np.testing.assert_array_equal(sparse.estimate().landmark_ids, [3, 7, 42, 1000])
-    assert sparse.capacity == dense.capacity
+    np.testing.assert_array_equal(sparse.lane_estimate(0).landmark_ids(), [3, 7, 42, 60])
 
 
 def test_copies_are_independent_and_estimate_views_follow_their_own_buffers():
@@ -349,15 +356,15 @@ def test_known_map_batches_carry_no_landmark_states_until_a_slam_lane_returns():
     assert batch.state_capacity == batch.nv
     scalars = []
     for lane in range(4):
-        f = EkfSlam()
-        f.reset(runs[lane][1], _cov0(), rngs[lane], known_landmarks=maps[lane])
+        f = _one_lane()
+        lane_reset(f, runs[lane][1], _cov0(), rngs[lane], maps[lane])
         scalars.append(f)
     for i in range(30):
         _step(batch, scalars, runs, i, np.ones(4, dtype=bool))
     before = [batch.full_state(lane) for lane in range(3)]
     batch.reset_lanes(np.array([3]), mean0[3:], _cov0()[None], [np.random.default_rng(3)])
-    scalars[3] = EkfSlam()
-    scalars[3].reset(runs[3][1], _cov0(), np.random.default_rng(3))
+    scalars[3] = _one_lane()
+    lane_reset(scalars[3], runs[3][1], _cov0(), np.random.default_rng(3))
     assert batch.state_capacity == batch.nv + 3 * batch.landmark_capacity
     for lane in range(3):
         for a, b in zip(before[lane], batch.full_state(lane), strict=True):

@@ -10,10 +10,11 @@ import copy
 
 import numpy as np
 import pytest
+from conftest import lane_predict, lane_reset, lane_update
 from scipy.stats import chi2
 
 import estimators
-from estimators.ekf import EkfSlam, EkfSlamBatch
+from estimators.ekf import EkfSlamBatch
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import (
     GRAVITY,
@@ -63,14 +64,19 @@ def _random_spd(rng: np.random.Generator, n: int, lo: float = 1e-3, hi: float = 
     return 0.5 * (a + a.T)
 
 
+def _one_lane(**params) -> EkfSlamBatch:
+    """The batch filter with one lane (room for 32 landmark ids before it grows)."""
+    return EkfSlamBatch(1, 32, **params)
+
+
 def _mapped_filter(rng, n_lm=5, **params):
     """A SLAM filter that has registered ``n_lm`` landmarks from a slightly tilted pose."""
-    f = EkfSlam(**params)
+    f = _one_lane(**params)
     mean0 = np.zeros(12)
     mean0[6:9] = [0.05, -0.08, 0.3]
-    f.reset(mean0, np.diag([0.01] * 6 + [0.001] * 3 + [0.0] * 3), rng)
+    lane_reset(f, mean0, np.diag([0.01] * 6 + [0.001] * 3 + [0.0] * 3), rng)
     lms = _landmarks(rng, n_lm)
-    f.update(_scan(mean0[:3], mean0[6:9], lms, np.arange(n_lm), rng))
+    lane_update(f, _scan(mean0[:3], mean0[6:9], lms, np.arange(n_lm), rng))
     return f, lms
 
 
@@ -93,9 +99,9 @@ def _fd_jacobian(fun, x0: np.ndarray, eps: float = 1e-6) -> np.ndarray:
 # ----------------------------------------------------------------------------- construction
 def test_registry_and_defaults():
     assert isinstance(estimators.make("ekf_slam", num_lanes=2), EkfSlamBatch)
-    f = EkfSlam()
+    f = _one_lane()
     assert f.gate_threshold == pytest.approx(11.345, abs=1e-3)
-    assert not f.known_map and not f.estimate_imu_bias
+    assert not f.known_map[0] and not f.estimate_imu_bias
 
 
 @pytest.mark.parametrize(
@@ -112,16 +118,16 @@ def test_registry_and_defaults():
 )
 def test_bad_params_raise(params, needle):
     with pytest.raises(ValueError, match=needle):
-        EkfSlam(**params)
+        _one_lane(**params)
 
 
 def test_known_map_mode_follows_reset_landmarks():
-    f = EkfSlam()
+    f = _one_lane()
     lms = np.array([[10.0, 0.0, 0.0]])
-    f.reset(np.zeros(12), np.eye(12), np.random.default_rng(0), known_landmarks=(np.arange(1), lms))
-    assert f.known_map
-    f.reset(np.zeros(12), np.eye(12), np.random.default_rng(0))
-    assert not f.known_map
+    lane_reset(f, np.zeros(12), np.eye(12), np.random.default_rng(0), (np.arange(1), lms))
+    assert f.known_map[0]
+    lane_reset(f, np.zeros(12), np.eye(12), np.random.default_rng(0))
+    assert not f.known_map[0]
 
 
 # ----------------------------------------------------------------------------- 1. process model
@@ -147,19 +153,19 @@ def test_process_matches_simulator_dynamics():
     truth[6:9] = [0.1, -0.2, 0.5]
     truth[9:12] = [0.0, 0.0, 0.4]  # spin about a principal axis: ω stays constant
     thrust = 1.1 * veh.hover_thrust
-    f = EkfSlam(process_noise=[0.0] * 9)
-    f.reset(truth, np.zeros((12, 12)), np.random.default_rng(0))
+    f = _one_lane(process_noise=[0.0] * 9)
+    lane_reset(f, truth, np.zeros((12, 12)), np.random.default_rng(0))
     dt = 0.01
     for _ in range(100):
         imu = _imu(specific_force(truth[3:6], thrust, veh), truth[9:12], 0.0, 0.0)
-        f.predict(imu, Control(thrust, np.zeros(3)), dt)
+        lane_predict(f, imu, Control(thrust, np.zeros(3)), dt)
         truth = rk4_integrate(truth, thrust, np.zeros(3), veh, dt, 0.002)
-    est = f.estimate()
-    np.testing.assert_allclose(est.position, truth[0:3], atol=1e-8)
-    np.testing.assert_allclose(est.vel_body, truth[3:6], atol=1e-8)
-    np.testing.assert_allclose(est.euler, truth[6:9], atol=1e-9)
-    np.testing.assert_allclose(est.vel_inertial, dcm_from_euler(truth[6:9]) @ truth[3:6])
-    np.testing.assert_allclose(est.pose_cov, 0.0, atol=1e-300)
+    est = f.lane_estimate(0)
+    np.testing.assert_allclose(est.position[0], truth[0:3], atol=1e-8)
+    np.testing.assert_allclose(est.vel_body[0], truth[3:6], atol=1e-8)
+    np.testing.assert_allclose(est.euler[0], truth[6:9], atol=1e-9)
+    np.testing.assert_allclose(est.vel_inertial[0], dcm_from_euler(truth[6:9]) @ truth[3:6])
+    np.testing.assert_allclose(est.pose_cov[0], 0.0, atol=1e-300)
 
 
 @pytest.mark.parametrize("bias", [False, True])
@@ -179,7 +185,7 @@ def test_predict_equals_dense_first_order_propagation(bias):
     f.set_full_state(x0, P0)
     accel, gyro = np.array([0.3, -0.2, -9.0]), np.array([0.2, -0.4, 0.3])
     dt, sa, sg = 0.01, 0.05, 0.004
-    f.predict(_imu(accel, gyro, sa, sg), NO_CONTROL, dt)
+    lane_predict(f, _imu(accel, gyro, sa, sg), NO_CONTROL, dt)
     x1, P1, _ = f.full_state()
 
     def f_aug(z):  # augmented process over (s, b): biases subtract from the inputs
@@ -214,11 +220,11 @@ def test_imu_noise_mapping_matches_monte_carlo():
     s0 = np.array([0.0, 0.0, -1.0, 2.0, -1.0, 0.5, 0.3, -0.2, 0.7])
     accel, gyro = np.array([0.0, 0.0, -10.5]), np.array([0.3, -0.5, 0.4])
     sa, sg, dt, steps, n_mc, sub = 0.8, 0.08, 0.01, 20, 4000, 8
-    f = EkfSlam(process_noise=[0.0] * 9)
-    f.reset(np.r_[s0, gyro], np.zeros((12, 12)), rng)
+    f = _one_lane(process_noise=[0.0] * 9)
+    lane_reset(f, np.r_[s0, gyro], np.zeros((12, 12)), rng)
     for _ in range(steps):
-        f.predict(_imu(accel, gyro, sa, sg), NO_CONTROL, dt)
-    P = f.estimate().pose_cov
+        lane_predict(f, _imu(accel, gyro, sa, sg), NO_CONTROL, dt)
+    P = f.lane_estimate(0).pose_cov[0]
 
     # Independent vectorised simulation: Euler substeps, each sample's input held over dt.
     s = np.tile(s0, (n_mc, 1))
@@ -268,9 +274,9 @@ def test_stacked_h_matches_finite_differences_of_full_state(bias):
 def test_known_map_h_is_over_pose_only():
     rng = np.random.default_rng(5)
     lms = _landmarks(rng, 5)
-    f = EkfSlam()
+    f = _one_lane()
     mean0 = np.r_[0.1, -0.2, -1.0, 0, 0, 0, 0.1, 0.2, -0.3, 0, 0, 0]
-    f.reset(mean0, np.eye(12) * 0.01, rng, known_landmarks=(np.arange(10, 15), lms))
+    lane_reset(f, mean0, np.eye(12) * 0.01, rng, (np.arange(10, 15), lms))
     cols, h, H = f.stacked_measurement(np.array([12, 10]))
     np.testing.assert_array_equal(cols, np.arange(9))
 
@@ -302,29 +308,29 @@ def test_update_equals_dense_textbook_kalman_filter(bias):
     I_KH = np.eye(n) - K @ H_full
     P_joseph = I_KH @ P0 @ I_KH.T + K @ R @ K.T  # Joseph form: an independent formula
     x_kf = x0 + K @ nu
-    f.update(scan)
+    lane_update(f, scan)
     x1, P1, _ = f.full_state()
     np.testing.assert_allclose(x1, x_kf, rtol=0, atol=1e-9)
     np.testing.assert_allclose(P1, P_joseph, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(P1, P1.T)
     S = H_full @ P0 @ H_full.T + R
-    diag = f.estimate().diagnostics
-    assert diag["nis"] == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-9)
-    assert diag["nis_dof"] == 3 * ids.size
+    diag = f.lane_estimate(0).diagnostics
+    assert diag["nis"][0] == pytest.approx(nu @ np.linalg.solve(S, nu), rel=1e-9)
+    assert diag["nis_dof"][0] == 3 * ids.size
 
 
 def test_azimuth_innovation_is_wrapped():
     """A landmark right behind the vehicle (α ≈ ±π) must not produce a 2π innovation."""
     rng = np.random.default_rng(7)
     lms = np.array([[-10.0, 1e-9, 0.0], [5.0, 5.0, -1.0]])
-    f = EkfSlam(process_noise=[0.0] * 9)
-    f.reset(np.zeros(12), np.eye(12) * 1e-4, rng, known_landmarks=(np.array([0, 1]), lms))
+    f = _one_lane(process_noise=[0.0] * 9)
+    lane_reset(f, np.zeros(12), np.eye(12) * 1e-4, rng, (np.array([0, 1]), lms))
     meas = lidar_measure(np.zeros(3), np.eye(3), lms)
     meas[0, 0] = -np.pi + 1e-4  # predicted is ≈ +π
-    f.update(LidarScan(0.0, np.array([0, 1]), meas, SIG_LIDAR))
-    d = f.estimate().diagnostics
-    assert d["n_rejected"] == 0 and d["nis"] < 11.0
-    assert np.all(np.abs(f.estimate().position) < 0.05)
+    lane_update(f, LidarScan(0.0, np.array([0, 1]), meas, SIG_LIDAR))
+    d = f.lane_estimate(0).diagnostics
+    assert d["n_rejected"][0] == 0 and d["nis"][0] < 11.0
+    assert np.all(np.abs(f.lane_estimate(0).position[0]) < 0.05)
 
 
 # ----------------------------------------------------------------------------- 4. registration
@@ -356,7 +362,7 @@ def test_registration_equals_dense_first_order_covariance(bias):
     P_xy[:n, :n] = P0
     P_xy[n:, n:] = np.diag(np.tile(SIG_LIDAR**2, 3))
     P_expected = (J @ P_xy @ J.T)[: n + 9, : n + 9]
-    f.update(scan)
+    lane_update(f, scan)
     x1, P1, slot_ids = f.full_state()
     np.testing.assert_array_equal(slot_ids, [0, 1, 2, 3, 4, 5])
     np.testing.assert_allclose(x1, np.r_[x0, g(xy0)], atol=1e-12)
@@ -367,11 +373,11 @@ def test_registration_equals_dense_first_order_covariance(bias):
 def test_capacity_grows_by_doubling_and_keeps_content():
     rng = np.random.default_rng(9)
     f, lms = _mapped_filter(rng, 30)
-    cap0 = f.capacity
+    cap0 = f.state_capacity
     x0, P0, _ = f.full_state()
     more = _landmarks(rng, 10)
-    f.update(_scan(x0[:3], x0[6:9], np.vstack([lms, more]), np.arange(30, 40), rng))
-    assert f.capacity == 2 * cap0
+    lane_update(f, _scan(x0[:3], x0[6:9], np.vstack([lms, more]), np.arange(30, 40), rng))
+    assert f.state_capacity == 2 * cap0
     x1, P1, ids = f.full_state()
     assert x1.size == 9 + 3 * 40 and ids.size == 40
     np.testing.assert_array_equal(x1[: x0.size], x0)
@@ -383,16 +389,16 @@ def test_outlier_is_gated_and_counted():
     rng = np.random.default_rng(10)
     f, lms = _mapped_filter(rng, 6)
     for _ in range(5):
-        f.predict(_imu([0, 0, -GRAVITY], [0, 0, 0]), NO_CONTROL, 0.01)
+        lane_predict(f, _imu([0, 0, -GRAVITY], [0, 0, 0]), NO_CONTROL, 0.01)
     g = copy.deepcopy(f)
     scan = _scan(np.zeros(3), [0.05, -0.08, 0.3], lms, np.arange(6), rng)
     bad = scan.meas.copy()
     bad[2, 2] += 5.0
-    f.update(LidarScan(0.0, scan.ids, bad, SIG_LIDAR))
-    d = f.estimate().diagnostics
-    assert d["n_rejected"] == 1 and d["n_rejected_last"] == 1 and d["nis_dof"] == 15
+    lane_update(f, LidarScan(0.0, scan.ids, bad, SIG_LIDAR))
+    d = f.lane_estimate(0).diagnostics
+    assert d["n_rejected"][0] == 1 and d["n_rejected_last"][0] == 1 and d["nis_dof"][0] == 15
     keep = np.array([0, 1, 3, 4, 5])
-    g.update(LidarScan(0.0, scan.ids[keep], scan.meas[keep], SIG_LIDAR))
+    lane_update(g, LidarScan(0.0, scan.ids[keep], scan.meas[keep], SIG_LIDAR))
     xf, Pf, _ = f.full_state()
     xg, Pg, _ = g.full_state()
     np.testing.assert_allclose(xf, xg, atol=1e-12)
@@ -406,9 +412,9 @@ def test_non_pd_innovation_sets_diverged_and_keeps_state():
     f, lms = _mapped_filter(rng, 4)
     x0, _, _ = f.full_state()
     f.set_full_state(x0, -np.eye(x0.size))
-    f.update(_scan(np.zeros(3), [0.05, -0.08, 0.3], lms, np.arange(4), rng))
+    lane_update(f, _scan(np.zeros(3), [0.05, -0.08, 0.3], lms, np.arange(4), rng))
     x1, P1, _ = f.full_state()
-    assert f.estimate().diagnostics["diverged"] == 1.0
+    assert f.lane_estimate(0).diagnostics["diverged"][0] == 1.0
     np.testing.assert_array_equal(x1, x0)
     np.testing.assert_array_equal(P1, -np.eye(x0.size))
 
@@ -416,44 +422,45 @@ def test_non_pd_innovation_sets_diverged_and_keeps_state():
 # ----------------------------------------------------------------------------- estimate()
 def test_estimate_is_a_snapshot_and_sorted_by_id():
     rng = np.random.default_rng(12)
-    f = EkfSlam()
-    f.reset(np.zeros(12), np.eye(12) * 0.01, rng)
+    f = _one_lane()
+    lane_reset(f, np.zeros(12), np.eye(12) * 0.01, rng)
     lms = _landmarks(rng, 6)
-    f.update(_scan(np.zeros(3), np.zeros(3), lms, [3, 5], rng))
-    f.update(_scan(np.zeros(3), np.zeros(3), lms, [0, 1, 3], rng))
-    est = f.estimate()
-    assert np.isnan(EkfSlam().estimate().diagnostics["nis"])
-    np.testing.assert_array_equal(est.landmark_ids, [0, 1, 3, 5])
-    assert est.landmark_means.shape == (4, 3) and est.landmark_covs.shape == (4, 3, 3)
-    np.testing.assert_allclose(est.landmark_means, lms[[0, 1, 3, 5]], atol=1.0)
-    for c in est.landmark_covs:
+    lane_update(f, _scan(np.zeros(3), np.zeros(3), lms, [3, 5], rng))
+    lane_update(f, _scan(np.zeros(3), np.zeros(3), lms, [0, 1, 3], rng))
+    est = f.lane_estimate(0)
+    assert np.isnan(_one_lane().lane_estimate(0).diagnostics["nis"][0])
+    ids, means, covs = est.mapped_landmarks()
+    np.testing.assert_array_equal(ids, [0, 1, 3, 5])
+    assert means.shape == (4, 3) and covs.shape == (4, 3, 3)
+    np.testing.assert_allclose(means, lms[[0, 1, 3, 5]], atol=1.0)
+    for c in covs:
         assert np.linalg.eigvalsh(c).min() > 0
     assert est.accel_bias is None and est.gyro_bias is None
-    assert all(isinstance(v, float) for v in est.diagnostics.values())
-    pos = est.position.copy()
-    est.position[:] = 99.0
-    est.pose_cov[:] = 99.0
-    f.predict(_imu([0, 0, -GRAVITY], [0.1, 0, 0]), NO_CONTROL, 0.01)
-    est2 = f.estimate()
-    np.testing.assert_allclose(est2.position, pos, atol=1e-3)
-    np.testing.assert_allclose(est2.rates, [0.1, 0, 0])
-    assert est2.pose_cov[0, 0] < 1.0
+    assert all(v.shape == (1,) and v.dtype == float for v in est.diagnostics.values())
+    pos = est.position[0].copy()
+    est.position[0, :] = 99.0
+    est.pose_cov[0, :] = 99.0
+    lane_predict(f, _imu([0, 0, -GRAVITY], [0.1, 0, 0]), NO_CONTROL, 0.01)
+    est2 = f.lane_estimate(0)
+    np.testing.assert_allclose(est2.position[0], pos, atol=1e-3)
+    np.testing.assert_allclose(est2.rates[0], [0.1, 0, 0])
+    assert est2.pose_cov[0, 0, 0] < 1.0
 
 
 # ----------------------------------------------------------------------------- 6. NEES
-def _hover_run(f: EkfSlam, rng, lms, truth, steps, bias_g=None, bias_az=0.0):
+def _hover_run(f: EkfSlamBatch, rng, lms, truth, steps, bias_g=None, bias_az=0.0):
     bias_g = np.zeros(3) if bias_g is None else bias_g
     ids = np.arange(lms.shape[0])
     C = dcm_from_euler(truth[6:9])
     for i in range(steps):
         acc = np.array([0.0, 0.0, -GRAVITY + bias_az]) + SIG_ACC * rng.normal(size=3)
         gyr = bias_g + SIG_GYR * rng.normal(size=3)
-        f.predict(_imu(acc, gyr), NO_CONTROL, 0.01)
+        lane_predict(f, _imu(acc, gyr), NO_CONTROL, 0.01)
         if i % 10 == 9:
             meas = lidar_measure(truth[:3], C, lms) + SIG_LIDAR * rng.normal(size=(ids.size, 3))
             meas[:, :2] = wrap_angle(meas[:, :2])
-            f.update(LidarScan(i * 0.01, ids, meas, SIG_LIDAR))
-    return f.estimate()
+            lane_update(f, LidarScan(i * 0.01, ids, meas, SIG_LIDAR))
+    return f.lane_estimate(0)
 
 
 def test_known_map_hover_nees_is_chi2_consistent():
@@ -472,15 +479,17 @@ def test_known_map_hover_nees_is_chi2_consistent():
     for k in range(runs):
         rng = np.random.default_rng(k)
         lms = _landmarks(rng, 8)
-        f = EkfSlam(process_noise=[0.0] * 9)
+        f = _one_lane(process_noise=[0.0] * 9)
         mean0 = truth.copy()
         mean0[:9] += rng.multivariate_normal(np.zeros(9), P0[:9, :9])
-        f.reset(mean0, P0, rng, known_landmarks=(np.arange(8), lms))
+        lane_reset(f, mean0, P0, rng, (np.arange(8), lms))
         est = _hover_run(f, rng, lms, truth, steps)
-        assert est.diagnostics["diverged"] == 0.0
-        e = np.r_[est.position - truth[:3], est.vel_body, wrap_angle(est.euler - truth[6:9])]
-        nees_pos.append(e[:3] @ np.linalg.solve(est.pose_cov[:3, :3], e[:3]))
-        nees_pose.append(e @ np.linalg.solve(est.pose_cov, e))
+        assert est.diagnostics["diverged"][0] == 0.0
+        e = np.r_[
+            est.position[0] - truth[:3], est.vel_body[0], wrap_angle(est.euler[0] - truth[6:9])
+        ]
+        nees_pos.append(e[:3] @ np.linalg.solve(est.pose_cov[0, :3, :3], e[:3]))
+        nees_pose.append(e @ np.linalg.solve(est.pose_cov[0], e))
     for values, dof in ((nees_pos, 3), (nees_pose, 9)):
         lo, hi = chi2.ppf([0.025, 0.975], dof * runs) / runs
         assert lo <= np.mean(values) <= hi, (dof, np.mean(values), lo, hi)
@@ -492,12 +501,13 @@ def test_slam_hover_maps_landmarks_consistently():
     truth = np.zeros(12)
     truth[2] = -1.0
     lms = _landmarks(rng, 10)
-    f = EkfSlam(process_noise=[0.0] * 9)
-    f.reset(truth, np.diag([1e-4] * 6 + [1e-5] * 3 + [0.0] * 3), rng)
+    f = _one_lane(process_noise=[0.0] * 9)
+    lane_reset(f, truth, np.diag([1e-4] * 6 + [1e-5] * 3 + [0.0] * 3), rng)
     est = _hover_run(f, rng, lms, truth, 500)
-    assert est.diagnostics["diverged"] == 0.0 and est.diagnostics["n_mapped"] == 10.0
-    err = est.landmark_means - lms[est.landmark_ids]
-    sd = np.sqrt(np.einsum("kii->ki", est.landmark_covs))
+    assert est.diagnostics["diverged"][0] == 0.0 and est.diagnostics["n_mapped"][0] == 10.0
+    ids, means, covs = est.mapped_landmarks()
+    err = means - lms[ids]
+    sd = np.sqrt(np.einsum("kii->ki", covs))
     assert np.all(np.abs(err) < 4 * sd)
     assert np.sqrt(np.mean(err**2)) < 0.1
     _, P, _ = f.full_state()
@@ -512,13 +522,13 @@ def test_gyro_and_accel_bias_converge():
     truth[2] = -2.0
     lms = _landmarks(rng, 10)
     b_g, b_az = np.array([0.02, -0.015, 0.01]), 0.1
-    f = EkfSlam(estimate_imu_bias=True, process_noise=[1e-6] * 9)
-    f.reset(truth, np.diag([1e-3] * 6 + [1e-4] * 3 + [0.0] * 3), rng, (np.arange(10), lms))
+    f = _one_lane(estimate_imu_bias=True, process_noise=[1e-6] * 9)
+    lane_reset(f, truth, np.diag([1e-3] * 6 + [1e-4] * 3 + [0.0] * 3), rng, (np.arange(10), lms))
     est = _hover_run(f, rng, lms, truth, 3000, b_g, b_az)
-    assert est.diagnostics["diverged"] == 0.0
+    assert est.diagnostics["diverged"][0] == 0.0
     _, P, _ = f.full_state()
     sd = np.sqrt(np.diag(P)[9:13])
-    err = np.r_[est.gyro_bias - b_g, est.accel_bias[2] - b_az]
+    err = np.r_[est.gyro_bias[0] - b_g, est.accel_bias[0, 2] - b_az]
     assert np.all(np.abs(err) < 4 * sd), (err, sd)
     assert np.all(np.abs(err[:3]) < 2e-3) and abs(err[3]) < 0.02
-    assert est.accel_bias[0] == 0.0 and est.accel_bias[1] == 0.0
+    assert est.accel_bias[0, 0] == 0.0 and est.accel_bias[0, 1] == 0.0

@@ -326,7 +326,7 @@ def test_info_keys_reward_terms_and_observation_space(env_id):
         assert info["reward_termination"] == 0.0
         est = env.unwrapped.last_estimate
         assert info["est_pos_err_m"] == pytest.approx(
-            float(np.linalg.norm(est.position - true[0:3])), rel=1e-12, abs=1e-15
+            float(np.linalg.norm(est.position[0] - true[0:3])), rel=1e-12, abs=1e-15
         )
         assert not term and not trunc
 
@@ -473,14 +473,14 @@ def test_observation_is_in_reference_heading_frame(env_id):
         if k % 10 == 0:
             est, ref = env.unwrapped.last_estimate, env.unwrapped.reference()
             rot_t = c3(ref.yaw).T
-            pos_err = rot_t @ (est.position - ref.pos)
-            vel_err = rot_t @ (dcm(est.euler) @ est.vel_body - ref.vel)
-            yaw_err = (est.euler[2] - ref.yaw + math.pi) % (2 * math.pi) - math.pi
+            pos_err = rot_t @ (est.position[0] - ref.pos)
+            vel_err = rot_t @ (dcm(est.euler[0]) @ est.vel_body[0] - ref.vel)
+            yaw_err = (est.euler[0, 2] - ref.yaw + math.pi) % (2 * math.pi) - math.pi
             np.testing.assert_allclose(obs[0:3], pos_err, rtol=1e-6, atol=1e-5)
             np.testing.assert_allclose(obs[3:6], vel_err, rtol=1e-6, atol=1e-5)
-            np.testing.assert_allclose(obs[6:8], est.euler[0:2], rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(obs[6:8], est.euler[0, 0:2], rtol=1e-6, atol=1e-6)
             assert obs[8] == pytest.approx(yaw_err, abs=1e-6)
-            np.testing.assert_allclose(obs[9:12], est.rates, rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(obs[9:12], est.rates[0], rtol=1e-6, atol=1e-6)
             np.testing.assert_allclose(obs[12:15], rot_t @ ref.acc, rtol=1e-6, atol=1e-6)
             assert obs[15] == pytest.approx(ref.yaw_rate, abs=1e-6)
         obs = env.step(a)[0]

@@ -103,7 +103,7 @@ def _true_id_of_labels(run: Run) -> dict[int, int]:
     """Each reported landmark's label → the id of the nearest true landmark (within 0.3 m)."""
     e = run.est.estimate()
     out = {}
-    for label, mean in zip(e.landmark_ids.tolist(), e.landmark_means, strict=True):
+    for label, mean in zip(e.landmark_ids().tolist(), e.mapped_landmarks()[1], strict=True):
         dist = np.linalg.norm(LANDMARKS - mean, axis=1)
         assert dist.min() < 0.3, f"landmark {label} at {mean} is no true landmark"
         out[label] = int(dist.argmin())
@@ -138,9 +138,9 @@ def test_ml_association_recovers_the_known_association_map(
     # (compare the landmarks relative to the estimated vehicle): the landmarks are ≥ 5 m
     # apart and both maps ~5 cm off the truth, so 0.15 m tells the same map from a mix-up.
     e, ek = run.est.estimate(), known.est.estimate()
-    order = np.argsort([named[int(c)] for c in e.landmark_ids])
-    relative = e.landmark_means[order] - e.position
-    np.testing.assert_allclose(relative, ek.landmark_means - ek.position, atol=0.15)
+    order = np.argsort([named[int(c)] for c in e.landmark_ids()])
+    relative = e.mapped_landmarks()[1][order] - e.position[0]
+    np.testing.assert_allclose(relative, ek.mapped_landmarks()[1] - ek.position[0], atol=0.15)
     assert run.est.state.maps is not None
     np.testing.assert_array_equal(run.est.state.maps.size, len(LANDMARKS))  # no duplicates
 
@@ -246,8 +246,8 @@ def test_same_seed_gives_the_same_association_and_map() -> None:
     for la, lb in zip(a.labels, b.labels, strict=True):
         np.testing.assert_array_equal(la, lb)
     ea, eb = a.est.estimate(), b.est.estimate()
-    np.testing.assert_array_equal(ea.landmark_means, eb.landmark_means)
-    np.testing.assert_array_equal(ea.position, eb.position)
+    np.testing.assert_array_equal(ea.mapped_landmarks()[1], eb.mapped_landmarks()[1])
+    np.testing.assert_array_equal(ea.position[0], eb.position[0])
     np.testing.assert_array_equal(a.est.state.logw, b.est.state.logw)
 
 
@@ -257,8 +257,8 @@ def test_known_map_mode_pairs_with_the_known_ids_and_drops_the_rest() -> None:
         np.testing.assert_array_equal(labels[truth >= 0], truth[truth >= 0] + 10)
         assert np.all(labels[truth < 0] == -1)
     e = run.est.estimate()
-    np.testing.assert_array_equal(e.landmark_ids, np.arange(len(LANDMARKS)) + 10)
-    np.testing.assert_allclose(e.landmark_means, LANDMARKS, atol=1e-2)
+    np.testing.assert_array_equal(e.landmark_ids(), np.arange(len(LANDMARKS)) + 10)
+    np.testing.assert_allclose(e.mapped_landmarks()[1], LANDMARKS, atol=1e-2)
 
 
 def test_resampling_carries_the_per_particle_maps_and_the_reported_particle() -> None:
@@ -274,8 +274,8 @@ def test_resampling_carries_the_per_particle_maps_and_the_reported_particle() ->
     np.testing.assert_array_equal(maps.candidates.hits[:, 0], idx)
     assert maps.report == 10  # the first copy of particle 5
     e = est.estimate()
-    np.testing.assert_array_equal(e.landmark_ids, np.arange(5))
-    np.testing.assert_array_equal(e.landmark_means, est.state.mu[10, :5])
+    np.testing.assert_array_equal(e.landmark_ids(), np.arange(5))
+    np.testing.assert_array_equal(e.mapped_landmarks()[1], est.state.mu[10, :5])
 
 
 def test_labeled_and_unlabeled_scans_do_not_mix_in_slam() -> None:

@@ -55,9 +55,9 @@ def test_a_scan_far_narrower_than_the_cloud_is_absorbed_in_stages() -> None:
         plain.resample_threshold = 0.0  # keep the weights to read their ESS
         plain.update(scan)
         prog.update(scan)
-        ess_plain.append(plain.estimate().diagnostics["ess"])
-        err_plain.append(np.linalg.norm(plain.estimate().position - truth))
-        err_prog.append(np.linalg.norm(prog.estimate().position - truth))
+        ess_plain.append(plain.estimate().diagnostics["ess"][0])
+        err_plain.append(np.linalg.norm(plain.estimate().position[0] - truth))
+        err_prog.append(np.linalg.norm(prog.estimate().position[0] - truth))
         assert prog.n_progressive_stages > 0
     # Without stages the weights fall on one or two particles, none of them at the truth ...
     assert np.median(ess_plain) < 3.0

@@ -56,7 +56,7 @@ def _rollout(seconds: float, seed: int, **kwargs):
         if term or trunc:
             break
     base = env.unwrapped
-    out = (obs, base.last_estimate.position, info, base.core.imu.total_bias[0].copy())
+    out = (obs, base.last_estimate.position[0], info, base.core.imu.total_bias[0].copy())
     env.close()
     return out
 

@@ -164,7 +164,7 @@ def test_helix_with_inertia_plus_150_percent_matches_the_true_model() -> None:
     for seed in range(4):
         records.append(run_episode(env, policy, seed))
         diag = env.unwrapped.last_estimate.diagnostics
-        inertias.append([diag["inertia_x"], diag["inertia_y"], diag["inertia_z"]])
+        inertias.append([diag["inertia_x"][0], diag["inertia_y"][0], diag["inertia_z"][0]])
     assert not any(r["terminated"] for r in records)
     np.testing.assert_allclose(np.median(inertias, axis=0), true_j, rtol=0.03)
     assert np.median([r["est_pos_rmse_m"] for r in records]) < 0.1

@@ -269,7 +269,7 @@ def test_two_rollouts_with_the_same_seed_are_identical() -> None:
         env = _make(duration=1.5)
         infos = _fly(env, seed=4)
         est = env.unwrapped.estimator.lane_estimate(0)
-        runs.append(([i["est_pos_err_m"] for i in infos], est.position, est.pose_cov))
+        runs.append(([i["est_pos_err_m"] for i in infos], est.position[0], est.pose_cov[0]))
     assert runs[0][0] == runs[1][0]
     np.testing.assert_array_equal(runs[0][1], runs[1][1])
     np.testing.assert_array_equal(runs[0][2], runs[1][2])
@@ -279,14 +279,14 @@ def test_slam_maps_landmarks_with_covariances() -> None:
     env = _make({"estimate_imu_bias": True}, duration=2.0, scenario="paper_ekf_figure8")
     infos = _fly(env, seed=1)
     est = env.unwrapped.estimator.lane_estimate(0)
-    assert est.landmark_ids.size > 5
-    assert np.all(np.diff(est.landmark_ids) > 0)
-    assert est.landmark_covs.shape == (est.landmark_ids.size, 3, 3)
-    for cov in est.landmark_covs:
+    assert est.landmark_ids().size > 5
+    assert np.all(np.diff(est.landmark_ids()) > 0)
+    assert est.mapped_landmarks()[2].shape == (est.landmark_ids().size, 3, 3)
+    for cov in est.mapped_landmarks()[2]:
         assert np.all(np.linalg.eigvalsh(cov) > 0.0)
     assert est.accel_bias is not None and est.gyro_bias is not None
     assert infos[-1]["est_pos_err_m"] < 0.2
-    assert est.diagnostics["diverged"] == 0.0 and est.diagnostics["n_keyframes"] == 20.0
+    assert est.diagnostics["diverged"][0] == 0.0 and est.diagnostics["n_keyframes"][0] == 20.0
 
 
 def test_gtsam_exception_becomes_divergence() -> None:
@@ -320,7 +320,7 @@ def test_gtsam_exception_becomes_divergence() -> None:
     assert reason == "estimator_diverged: estimator reported divergence"
     assert est.last_error.startswith("RuntimeError: Indeterminant")
     snap = est.estimate()
-    assert snap.diagnostics["diverged"] == 1.0 and np.isfinite(snap.position).all()
+    assert snap.diagnostics["diverged"][0] == 1.0 and np.isfinite(snap.position[0]).all()
 
 
 # ------------------------------------------------------------------ smoother vs batch
@@ -360,7 +360,7 @@ def test_isam2_matches_batch_levenberg_marquardt() -> None:
     assert graph.error(start) > graph.error(optimum) + 1.0
     assert graph.error(optimum) == pytest.approx(graph.error(smoothed), rel=1e-9, abs=1e-9)
     keys = list(optimum.keys())
-    assert len(keys) == 3 * 16 + est.estimate().landmark_ids.size
+    assert len(keys) == 3 * 16 + est.estimate().landmark_ids().size
     worst = 0.0
     for key in keys:
         char = chr(gtsam.Symbol(key).chr())

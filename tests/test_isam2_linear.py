@@ -353,9 +353,9 @@ def _run_estimator(
                 pose, vel, cov = est._predicted()
                 snap = est.estimate()
                 mean = np.concatenate((np.asarray(pose.translation()), vel))
-                position = np.asarray(snap.position)
+                position = np.asarray(snap.position[0])
                 assert snap.pose_cov is not None
-                run.midway.append((mean, cov[3:9, 3:9], position, snap.pose_cov[0:3, 0:3]))
+                run.midway.append((mean, cov[3:9, 3:9], position, snap.pose_cov[0, 0:3, 0:3]))
         ids, z = flight.scans[k]
         t = DT * SAMPLES_PER_SCAN * (k + 1)
         est.update(LidarScan(t, np.array(ids, dtype=np.int64), z, RETURN_SIGMA))

@@ -138,8 +138,8 @@ def test_estimate_starts_around_the_reference_state() -> None:
     _, info = env.reset(seed=0)
     base = env.unwrapped
     est, truth = base.last_estimate, base.true_state  # type: ignore[attr-defined]
-    np.testing.assert_allclose(est.position, truth[0:3])
-    np.testing.assert_allclose(est.vel_body, truth[3:6])
-    np.testing.assert_allclose(est.euler, truth[6:9])
+    np.testing.assert_allclose(est.position[0], truth[0:3])
+    np.testing.assert_allclose(est.vel_body[0], truth[3:6])
+    np.testing.assert_allclose(est.euler[0], truth[6:9])
     assert info["est_pos_err_m"] == 0.0
     env.close()

@@ -199,38 +199,40 @@ def test_ekf_with_unlabeled_returns_equals_the_labeled_filter_when_association_i
     pairing: association is then exactly the truth, so the filter fed the shuffled,
     unlabeled scans must match the filter fed the labeled scans, up to the rounding of another
     landmark order, and name every return by the landmark the labeled filter gave it."""
-    from estimators.ekf import EkfSlam
+    from conftest import lane_predict, lane_reset, lane_update
+
+    from estimators.ekf import EkfSlamBatch
     from quadslam_env.measurements import Control, ImuSample, LidarScan
     from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
 
     rng = np.random.default_rng(4)
     wide = {"gate_probability": 1.0 - 1e-12}  # the new-landmark gate takes the same
-    labeled = EkfSlam(**wide)
-    unlabeled = EkfSlam(**wide, association=method, confirm_hits=1, confirm_window=1)
+    labeled = EkfSlamBatch(1, 0, **wide)
+    unlabeled = EkfSlamBatch(1, 0, **wide, association=method, confirm_hits=1, confirm_window=1)
     lms = np.array(AHEAD, dtype=float)
     sigma = np.array([np.deg2rad(0.33), np.deg2rad(0.30), 0.1])
     mean0 = np.zeros(12)
     cov0 = np.diag([1e-3] * 3 + [1e-2] * 3 + [1e-4] * 3 + [1e-6] * 3)
     for f in (labeled, unlabeled):
-        f.reset(mean0, cov0, np.random.default_rng(0))
+        lane_reset(f, mean0, cov0, np.random.default_rng(0))
     imu = ImuSample(0.0, np.array([0.0, 0.0, -GRAVITY]), np.zeros(3), 0.03, 1e-3)
     for k in range(30):
         for _ in range(10):
             for f in (labeled, unlabeled):
-                f.predict(imu, Control(0.0, np.zeros(3)), 0.01)
+                lane_predict(f, imu, Control(0.0, np.zeros(3)), 0.01)
         meas = lidar_measure(np.zeros(3), dcm_from_euler(np.zeros(3)), lms)
         meas = meas + sigma * rng.standard_normal(meas.shape)
         meas[:, :2] = wrap_angle(meas[:, :2])
         order = rng.permutation(len(lms))
-        labeled.update(LidarScan(0.1 * k, np.arange(len(lms)), meas, sigma))
-        unlabeled.update(LidarScan(0.1 * k, None, meas[order], sigma))
-        a, b = labeled.estimate(), unlabeled.estimate()
+        lane_update(labeled, LidarScan(0.1 * k, np.arange(len(lms)), meas, sigma))
+        names = lane_update(unlabeled, LidarScan(0.1 * k, None, meas[order], sigma))
+        a, b = labeled.lane_estimate(0), unlabeled.lane_estimate(0)
         np.testing.assert_allclose(b.position, a.position, rtol=0, atol=1e-9)
         np.testing.assert_allclose(b.pose_cov, a.pose_cov, rtol=0, atol=1e-12)
         # The unlabeled filter's names: the landmark the return came from, in its own labels.
-        names = unlabeled.last_association
+        assert names is not None and (names >= 0).all()
         np.testing.assert_allclose(
-            b.landmark_means[names], a.landmark_means[order], rtol=0, atol=1e-9
+            b.landmark_means[0, names], a.landmark_means[0, order], rtol=0, atol=1e-9
         )
 
 

@@ -1,8 +1,9 @@
 """EKF-SLAM and FastSLAM sections of ``quadslam bench`` (``ekf``, ``fastslam``).
 
-Estimator scaling is measured through one vehicle's
-:class:`~quadslam_env.estimation.protocol.Estimator` interface with synthetic scans (no env), so
-it isolates the filter's own cost:
+Estimator scaling is measured on one vehicle with synthetic scans (no env), so it isolates the
+filter's own cost: EKF-SLAM as the batch filter with one lane, called with the arrays the env
+passes it, FastSLAM through its one-vehicle
+:class:`~quadslam_env.estimation.protocol.Estimator` interface:
 
 * EKF-SLAM prediction, update and registration time vs the number of mapped / observed / new
   landmarks (seed 001 Fig. 12);
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from agents.bench.plan import Plan, Results
-from estimators.ekf import EkfSlam
+from estimators.ekf import EkfSlamBatch
 from estimators.fastslam import DynamicFastSLAM
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler
@@ -79,12 +80,48 @@ def _hover_inputs(mass: float) -> tuple[ImuSample, Control]:
     return imu, Control(thrust=mass * GRAVITY, torque=np.zeros(3))
 
 
+_COV0 = np.diag([1e-3] * 3 + [1e-2] * 3 + [1e-4] * 3 + [1e-6] * 3)
+_LANE = np.zeros(1, dtype=np.int64)
+
+
 def _fresh(name: str, seed: int, **params: Any) -> Any:
-    one_vehicle: dict[str, Callable[..., Any]] = {"ekf_slam": EkfSlam, "fastslam": DynamicFastSLAM}
-    est = one_vehicle[name](vehicle=vehicle_preset("rauniyar2023"), **params)
-    cov0 = np.diag([1e-3] * 3 + [1e-2] * 3 + [1e-4] * 3 + [1e-6] * 3)
-    est.reset(np.zeros(12), cov0, np.random.default_rng(seed))
+    """A reset estimator at the origin: ``"ekf_slam"`` (a batch of one lane) or ``"fastslam"``."""
+    vehicle = vehicle_preset("rauniyar2023")
+    rng = np.random.default_rng(seed)
+    if name == "ekf_slam":
+        ekf = EkfSlamBatch(1, 0, vehicle=vehicle, **params)
+        ekf.reset_lanes(_LANE, np.zeros((1, 12)), _COV0[None], [rng])
+        return ekf
+    est = DynamicFastSLAM(vehicle=vehicle, **params)
+    est.reset(np.zeros(12), _COV0, rng)
     return est
+
+
+def _ekf_predict(est: EkfSlamBatch, imu: ImuSample, control: Control) -> Callable[[], None]:
+    """One 10 ms prediction of lane 0, its input arrays built once."""
+    return partial(
+        est.predict,
+        np.zeros(1),
+        imu.accel[None],
+        imu.gyro[None],
+        imu.accel_sigma,
+        imu.gyro_sigma,
+        np.array([control.thrust]),
+        control.torque[None],
+        0.01,
+        np.ones(1, dtype=bool),
+    )
+
+
+def _ekf_update(est: EkfSlamBatch, scan: LidarScan) -> Callable[[], None]:
+    """The correction of lane 0 with ``scan`` (ids ≥ 0), its input arrays built once."""
+    assert scan.ids is not None
+    width = max(est.landmark_capacity, int(scan.ids.max()) + 1)
+    visible = np.zeros((1, width), dtype=bool)
+    visible[0, scan.ids] = True
+    meas = np.zeros((1, width, 3))
+    meas[0, scan.ids] = scan.meas
+    return partial(est.update, np.zeros(1), _LANE, visible, meas, scan.sigma)
 
 
 def _mapped(name: str, n_mapped: int, seed: int, **params: Any) -> tuple[Any, np.ndarray]:
@@ -92,7 +129,11 @@ def _mapped(name: str, n_mapped: int, seed: int, **params: Any) -> tuple[Any, np
     rng = np.random.default_rng(seed)
     points = _landmarks_ahead(n_mapped, rng)
     est = _fresh(name, seed, **params)
-    est.update(_scan(np.arange(n_mapped), points, rng))
+    scan = _scan(np.arange(n_mapped), points, rng)
+    if name == "ekf_slam":
+        _ekf_update(est, scan)()
+    else:
+        est.update(scan)
     return est, points
 
 
@@ -106,7 +147,7 @@ def bench_ekf(results: Results, plan: Plan) -> None:
         results.add(
             "ekf_slam",
             "predict",
-            _repeat(partial(est.predict, imu, control, 0.01), plan.repeats, number),
+            _repeat(_ekf_predict(est, imu, control), plan.repeats, number),
             "ms",
             n_mapped=n,
         )
@@ -116,7 +157,7 @@ def bench_ekf(results: Results, plan: Plan) -> None:
         results.add(
             "ekf_slam",
             "update",
-            _repeat(partial(est.update, scan), plan.repeats, number // 4 or 1),
+            _repeat(_ekf_update(est, scan), plan.repeats, number // 4 or 1),
             "ms",
             n_mapped=n,
             n_observed=k,
@@ -128,7 +169,7 @@ def bench_ekf(results: Results, plan: Plan) -> None:
         results.add(
             "ekf_slam",
             "update",
-            _repeat(partial(est.update, scan), plan.repeats, 5),
+            _repeat(_ekf_update(est, scan), plan.repeats, 5),
             "ms",
             n_mapped=n_big,
             n_observed=k,
@@ -140,8 +181,9 @@ def bench_ekf(results: Results, plan: Plan) -> None:
         samples: list[float] = []
         for _ in range(plan.repeats):
             trial = copy.deepcopy(base)  # registration changes the map: start from a copy
+            register = _ekf_update(trial, scan)
             with _timer(samples):
-                trial.update(scan)
+                register()
         results.add("ekf_slam", "registration", samples, "ms", n_mapped=40, n_new=m)
 
 

@@ -117,13 +117,13 @@ class Trace:
     def _append(self, t: float, true_state: np.ndarray, est: Any, ref_pos: np.ndarray) -> None:
         self.t.append(t)
         self.true_state.append(true_state)
-        self.est_pos.append(est.position)
-        self.est_vel_body.append(est.vel_body)
-        self.est_euler.append(est.euler)
+        self.est_pos.append(est.position[0])
+        self.est_vel_body.append(est.vel_body[0])
+        self.est_euler.append(est.euler[0])
         std = (
             np.full(9, np.nan)
             if est.pose_cov is None
-            else np.sqrt(np.clip(np.diag(est.pose_cov), 0.0, None))
+            else np.sqrt(np.clip(np.diag(est.pose_cov[0]), 0.0, None))
         )
         self.pose_std.append(std)
         self.ref_pos.append(ref_pos)
@@ -140,11 +140,10 @@ class Trace:
 
     def _finish(self, landmarks: np.ndarray, est: Any) -> None:
         self.landmarks = landmarks.copy()
-        self.est_landmark_ids = est.landmark_ids.copy()
-        self.est_landmarks = est.landmark_means.copy()
-        self.est_landmark_std = np.sqrt(
-            np.clip(np.diagonal(est.landmark_covs, axis1=1, axis2=2), 0.0, None)
-        )
+        ids, means, covs = est.mapped_landmarks()
+        self.est_landmark_ids = ids
+        self.est_landmarks = means
+        self.est_landmark_std = np.sqrt(np.clip(np.diagonal(covs, axis1=1, axis2=2), 0.0, None))
 
 
 def run_episode(

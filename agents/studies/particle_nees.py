@@ -89,21 +89,24 @@ def record(
             rec, est = recs[lane], core.estimator.lane_estimate(lane)
             x = core.vehicle.state[lane]
             err = np.r_[
-                est.position - x[POS], est.vel_body - x[VEL], wrap_angle(est.euler - x[EUL])
+                est.position[0] - x[POS],
+                est.vel_body[0] - x[VEL],
+                wrap_angle(est.euler[0] - x[EUL]),
             ]
-            for k, v in block_nees(err, est.pose_cov).items():
+            pose_cov = est.pose_cov[0]
+            for k, v in block_nees(err, pose_cov).items():
                 rec["nees"][k].append(v)
             rec["t"].append(float(core.t[lane]))
             rec["pos_err"].append(err[POS])
-            rec["pos_sd"].append(math.sqrt(np.trace(est.pose_cov[POS, POS]) / 3.0))
+            rec["pos_sd"].append(math.sqrt(np.trace(pose_cov[POS, POS]) / 3.0))
             rec["yaw_err"].append(float(err[8]))
-            rec["yaw_sd"].append(math.sqrt(est.pose_cov[8, 8]))
-            ids = np.asarray(est.landmark_ids, dtype=int)
+            rec["yaw_sd"].append(math.sqrt(pose_cov[8, 8]))
+            ids = est.landmark_ids()
             n_true = int(core.n_landmarks[lane])
             ok = ids < n_true
             if ok.any():  # landmark ids index the lane's true landmarks
                 truth = core.landmarks[lane, ids[ok]]
-                rec["map_err"].append((est.landmark_means[ok] - truth).mean(axis=0))
+                rec["map_err"].append((est.landmark_means[0, ids[ok]] - truth).mean(axis=0))
             else:
                 rec["map_err"].append(np.full(3, math.nan))
             filt = lanes[lane]

@@ -270,8 +270,8 @@ class _SoakRecord:
         problem = health_problem(est)
         if problem is not None and not self.first_problem:
             self.first_problem = f"step {self.steps}: {problem}"
-        self.pose.add(est.pose_cov)
-        self.landmarks.add(est.landmark_covs)
+        self.pose.add(None if est.pose_cov is None else est.pose_cov[0])
+        self.landmarks.add(est.mapped_landmarks()[2])
         if full_state is not None:
             self.full.add(full_state()[1])
         self.rss_steps.append(self.steps)

@@ -5,8 +5,6 @@
 * :mod:`estimators.ekf.update` — the correction kernel (stacked observation model, χ² gate,
   stacked update, registration);
 * :mod:`estimators.ekf.kernels` — the prediction kernel, angle wrap and outputs;
-* :mod:`estimators.ekf.scalar` — :class:`EkfSlam`, one lane of the batch filter behind the
-  one-vehicle :class:`~quadslam_env.estimation.protocol.Estimator` interface;
 * :mod:`estimators.ekf.settings` — :class:`EkfSlamSettings`, the validated parameters.
 
 The process model (seed 001 eq. 24, 28) is :mod:`quadslam_env.models.strapdown`; the LiDAR
@@ -15,7 +13,6 @@ per landmark, are :mod:`quadslam_env.models.lidar`.
 """
 
 from estimators.ekf.filter import EkfSlamBatch
-from estimators.ekf.scalar import EkfSlam
 from estimators.ekf.settings import BIAS_DIM, EkfSlamSettings
 
-__all__ = ["BIAS_DIM", "EkfSlam", "EkfSlamBatch", "EkfSlamSettings"]
+__all__ = ["BIAS_DIM", "EkfSlamBatch", "EkfSlamSettings"]

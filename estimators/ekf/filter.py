@@ -39,7 +39,7 @@ from estimators.ekf.kernels import (
 from estimators.ekf.settings import ACCEL_BIAS_Z, GYRO_BIAS, EkfSlamSettings
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.memory import check_ekf_map
-from quadslam_env.estimation import BatchEstimate, Estimate, IntArray, KnownMaps, register
+from quadslam_env.estimation import BatchEstimate, IntArray, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import EUL, POS, POSE_DIM, RATE, VEL, FloatArray
 
@@ -50,8 +50,9 @@ _AR3 = np.arange(3)
 class EkfSlamBatch(UnlabeledScans, FilterInspection):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
-    Implements :class:`~quadslam_env.estimation.protocol.BatchEstimator`. Lane b behaves
-    exactly like a scalar :class:`~estimators.ekf.scalar.EkfSlam` fed the same inputs.
+    Implements :class:`~quadslam_env.estimation.protocol.BatchEstimator`. Lanes are
+    independent: lane b behaves exactly like the one lane of a filter with B = 1 fed the same
+    inputs.
 
     Args:
         num_lanes: B ≥ 1.
@@ -447,14 +448,14 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         np.logical_and(self._mapped, ~self._tentative, out=self._reported)
         return out
 
-    def lane_estimate(self, lane: int) -> Estimate:
-        """Snapshot (copies) of one lane's belief.
+    def lane_estimate(self, lane: int) -> BatchEstimate:
+        """Snapshot (B = 1, copies) of one lane's belief.
 
         Returns:
-            :class:`Estimate` with the pose mean, ``pose_cov`` (9, 9) over (ρ, v_B, Λ),
-            ``rates`` = last gyro minus bias estimate, landmarks sorted by id (in known-map
-            mode the known map with zero covariance), biases when estimated and the
-            diagnostics of :meth:`estimate` as floats.
+            :class:`BatchEstimate` of one lane with the pose mean, ``pose_cov`` (9, 9) over
+            (ρ, v_B, Λ), ``rates`` = last gyro minus bias estimate, the landmarks by id with
+            their covariances (in known-map mode the known map with zero covariance), biases
+            when estimated and the diagnostics of :meth:`estimate`.
         """
         x, P, nv = self._x[lane], self._P[lane], self.nv
         lm_ids = np.flatnonzero(self._mapped[lane] & ~self._tentative[lane])
@@ -469,7 +470,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         if self.estimate_imu_bias:
             gyro_bias = x[GYRO_BIAS].copy()
             accel_bias = np.array([0.0, 0.0, x[ACCEL_BIAS_Z]])
-        return Estimate(
+        return BatchEstimate.one_lane(
             position=x[POS].copy(),
             vel_body=x[VEL].copy(),
             vel_inertial=dcm_from_euler(x[EUL]) @ x[VEL],

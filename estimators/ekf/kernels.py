@@ -30,7 +30,7 @@ DIAGNOSTIC_NAMES = (
     "n_mapped",
     "diverged",
 )
-"""Names of the rows of the diagnostics array, in row order (``Estimate.diagnostics`` keys)."""
+"""Names of the rows of the diagnostics array, in row order (keys of a snapshot's diagnostics)."""
 
 MAX_PITCH = math.radians(89.0)
 """|θ̂| beyond which D(Λ) (1/cos θ) is treated as singular and the lane flagged diverged."""

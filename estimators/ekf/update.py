@@ -11,8 +11,8 @@ One call of :func:`update_lanes` handles every scanning lane (seed 001 eq. 37–
 4. observed unmapped landmarks are registered in ascending id order (eq. 44–53).
 
 A failed step (singular or non-positive-definite S, a non-finite result, a covariance
-diagonal that would turn negative) is skipped and sets the lane's ``diverged`` flag; as in
-the scalar filter, registration still runs after a skipped update.
+diagonal that would turn negative) is skipped and sets the lane's ``diverged`` flag;
+registration still runs after a skipped update.
 """
 
 from __future__ import annotations

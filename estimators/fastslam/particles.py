@@ -41,7 +41,7 @@ from estimators.fastslam.settings import (
 from estimators.fastslam.state import ParticleState
 from estimators.memory import check_fastslam_map
 from estimators.settings_check import check_kwargs
-from quadslam_env.estimation import Estimate
+from quadslam_env.estimation import BatchEstimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.linalg import psd_sqrt
@@ -438,11 +438,11 @@ class FastSLAMBase:
         return None, None
 
     def _extra_diagnostics(self) -> dict[str, float]:
-        """Hook: subclass diagnostics added to :attr:`Estimate.diagnostics`."""
+        """Hook: subclass diagnostics added to :attr:`BatchEstimate.diagnostics`."""
         return {}
 
-    def estimate(self) -> Estimate:
-        """Weighted particle mean and covariance, and the map (frozen snapshot).
+    def estimate(self) -> BatchEstimate:
+        """Weighted particle mean and covariance, and the map (a snapshot with B = 1).
 
         Euler angles use the weighted circular mean; the (9, 9) pose covariance of
         ``(ρ, v_B, Λ)`` uses wrapped angle deviations. With labels shared by all particles
@@ -480,14 +480,14 @@ class FastSLAMBase:
             "n_divergences": float(self.n_divergences),
             **self._extra_diagnostics(),
         }
-        return Estimate(
+        return BatchEstimate.one_lane(
             position=mean[POS],  # views of this call's fresh array
             vel_body=mean[VEL],
             vel_inertial=vel_inertial,
             euler=mean[EUL],
             rates=mean[RATE],
             pose_cov=pose_cov,
-            landmark_ids=ids.copy(),
+            landmark_ids=ids,
             landmark_means=lm_mean,
             landmark_covs=lm_cov,
             accel_bias=accel_bias,

@@ -54,7 +54,7 @@ from estimators.isam2.graph import (
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
 from estimators.isam2.transition import NAV_DIM, ImuTransition
-from quadslam_env.estimation import Estimate, register
+from quadslam_env.estimation import BatchEstimate, register
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.lidar import lidar_inverse
 from quadslam_env.types import POSE_DIM, RATE, FloatArray
@@ -125,8 +125,8 @@ class Isam2Slam:
         self._rates = np.zeros(3)
         self._gyro: FloatArray | None = None
         self._diverged = False
-        self._cache: Estimate | None = None
-        self._last: Estimate | None = None
+        self._cache: BatchEstimate | None = None
+        self._last: BatchEstimate | None = None
 
     @property
     def known_map(self) -> bool:
@@ -278,15 +278,15 @@ class Isam2Slam:
             self._diverge(exc)
         self._cache = None
 
-    def estimate(self) -> Estimate:
-        """Snapshot of the belief (copies), landmarks sorted by id.
+    def estimate(self) -> BatchEstimate:
+        """Snapshot of the belief (B = 1, copies).
 
         Returns:
-            :class:`Estimate` with the keyframe's smoothed state predicted to now with the
-            current preintegration, ``pose_cov`` (9, 9) over (ρ, v_B, Λ), ``rates`` = last
-            gyro minus the gyro-bias estimate, the landmarks (known map: the map, zero
-            covariance), the biases when estimated and the diagnostics ``diverged``,
-            ``n_keyframes``, ``n_mapped``.
+            :class:`BatchEstimate` of one lane with the keyframe's smoothed state predicted to
+            now with the current preintegration, ``pose_cov`` (9, 9) over (ρ, v_B, Λ),
+            ``rates`` = last gyro minus the gyro-bias estimate, the landmarks by id with their
+            covariances (known map: the map, zero covariance), the biases when estimated and
+            the diagnostics ``diverged``, ``n_keyframes``, ``n_mapped``.
         """
         if self._cache is None and self._smoother is None:  # before the first reset
             self._cache = neutral(self._diagnostics(0))
@@ -482,7 +482,7 @@ class Isam2Slam:
         Fp = F[:POSE_DIM]
         return pose, vel, Fp @ self._kf_cov @ Fp.T + Q[:POSE_DIM, :POSE_DIM]
 
-    def _build_estimate(self) -> Estimate:
+    def _build_estimate(self) -> BatchEstimate:
         pose, vel_n, cov_t = self._predicted()
         if self._lm_arrays is None:  # the map changes at keyframes only (known map: no covs)
             self._lm_arrays = landmark_arrays(self._known or self._lm_means, self._lm_covs)

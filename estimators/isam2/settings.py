@@ -140,7 +140,7 @@ class Isam2Settings:
     without new factors: one more Gauss–Newton step each).
 
     ``landmark_covariances`` (bool, default True): recover every mapped landmark's marginal
-    covariance at each keyframe (for ``Estimate.landmark_covs``); off, they are reported as
+    covariance at each keyframe (for ``BatchEstimate.landmark_covs``); off, they are reported as
     zero, which saves one marginal per landmark and keyframe.
 
     ``factor_per_return`` (bool, default False): unknown map, one LiDAR factor per return

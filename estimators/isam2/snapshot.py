@@ -1,4 +1,5 @@
-"""The iSAM2 estimator's snapshots: its GTSAM state as the env's :class:`Estimate`.
+"""The iSAM2 estimator's snapshots: its GTSAM state as the env's one-lane
+:class:`~quadslam_env.estimation.snapshot.BatchEstimate`.
 
 The smoothed (or IMU-predicted) ``Pose3`` and velocity in N and their covariance over GTSAM's
 tangent (δθ, δt, δv_N) become (ρ, v_B, Λ) and their (9, 9) covariance
@@ -7,12 +8,13 @@ tangent (δθ, δt, δv_N) become (ρ, v_B, Λ) and their (9, 9) covariance
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
 
 from estimators.isam2.tangent import state_covariance
-from quadslam_env.estimation import Estimate
+from quadslam_env.estimation import BatchEstimate
 from quadslam_env.models.frames import euler_from_dcm
 from quadslam_env.types import POSE_DIM, FloatArray
 
@@ -36,8 +38,8 @@ def snapshot(
     landmarks: tuple[np.ndarray, FloatArray, FloatArray],
     bias: Any,
     diagnostics: dict[str, float],
-) -> Estimate:
-    """The estimate of one state.
+) -> BatchEstimate:
+    """The estimate of one state (B = 1).
 
     Args:
         pose: ``gtsam.Pose3`` (``C_NB``, ρ in N, m).
@@ -68,7 +70,7 @@ def snapshot(
     if bias is not None:
         accel_bias = np.asarray(bias.accelerometer(), dtype=float).copy()
         gyro_bias = np.asarray(bias.gyroscope(), dtype=float).copy()
-    return Estimate(
+    return BatchEstimate.one_lane(
         position=position.copy(),
         vel_body=vel_body,
         vel_inertial=np.array(vel_n, dtype=float),
@@ -84,9 +86,9 @@ def snapshot(
     )
 
 
-def neutral(diagnostics: dict[str, float]) -> Estimate:
+def neutral(diagnostics: dict[str, float]) -> BatchEstimate:
     """Zero state and covariance, no landmarks (before the first reset, as the EKF)."""
-    return Estimate(
+    return BatchEstimate.one_lane(
         position=np.zeros(3),
         vel_body=np.zeros(3),
         vel_inertial=np.zeros(3),
@@ -100,19 +102,8 @@ def neutral(diagnostics: dict[str, float]) -> Estimate:
     )
 
 
-def flagged(last: Estimate) -> Estimate:
+def flagged(last: BatchEstimate) -> BatchEstimate:
     """A copy of ``last`` (the last finite estimate) with ``diagnostics["diverged"] = 1``."""
-    return Estimate(
-        position=last.position.copy(),
-        vel_body=last.vel_body.copy(),
-        vel_inertial=last.vel_inertial.copy(),
-        euler=last.euler.copy(),
-        rates=last.rates.copy(),
-        pose_cov=None if last.pose_cov is None else last.pose_cov.copy(),
-        landmark_ids=last.landmark_ids.copy(),
-        landmark_means=last.landmark_means.copy(),
-        landmark_covs=last.landmark_covs.copy(),
-        accel_bias=last.accel_bias,
-        gyro_bias=last.gyro_bias,
-        diagnostics={**last.diagnostics, "diverged": 1.0},
-    )
+    out = copy.deepcopy(last)
+    out.diagnostics["diverged"] = np.ones(1)
+    return out

@@ -30,7 +30,7 @@ from quadslam_env.estimation.registry import (
     make,
     register,
 )
-from quadslam_env.estimation.snapshot import BatchEstimate, Estimate, batch_from_estimates
+from quadslam_env.estimation.snapshot import BatchEstimate
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -39,7 +39,6 @@ __all__ = [
     "BatchEstimate",
     "BatchEstimator",
     "ChecksMemory",
-    "Estimate",
     "Estimator",
     "HasFullState",
     "HasParticles",
@@ -53,7 +52,6 @@ __all__ = [
     "UsesTruth",
     "associates_unlabeled",
     "available",
-    "batch_from_estimates",
     "copyable",
     "health_codes",
     "make",

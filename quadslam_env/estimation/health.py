@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from quadslam_env.estimation.snapshot import BatchEstimate, Estimate, batch_from_estimates
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
@@ -145,9 +145,12 @@ def health_codes(est: BatchEstimate, max_cov_trace: float = math.inf) -> np.ndar
     return out
 
 
-def health_problem(est: Estimate, max_cov_trace: float = math.inf) -> str | None:
-    """What is wrong with one scalar snapshot (see :func:`health_codes`); ``None`` if healthy."""
-    code = int(health_codes(batch_from_estimates([est]), max_cov_trace)[0])
+def health_problem(
+    est: BatchEstimate, lane: int = 0, max_cov_trace: float = math.inf
+) -> str | None:
+    """What is wrong with lane ``lane`` of ``est`` (see :func:`health_codes`); ``None`` if
+    healthy."""
+    code = int(health_codes(est, max_cov_trace)[lane])
     return HEALTH_PROBLEMS[code] or None
 
 

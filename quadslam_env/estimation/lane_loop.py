@@ -15,13 +15,7 @@ from quadslam_env.estimation.protocol import (
     KnownMaps,
     LabelsReturns,
 )
-from quadslam_env.estimation.snapshot import (
-    BatchEstimate,
-    Estimate,
-    empty_batch,
-    fill_batch,
-    id_width,
-)
+from quadslam_env.estimation.snapshot import BatchEstimate, empty_batch, id_width, stack_lanes
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.types import FloatArray
 
@@ -37,7 +31,7 @@ class LaneLoop:
 
     This is how estimators without a batched implementation (FastSLAM, plug-ins) run in the
     vector env; its cost is the scalar estimator's times B plus the per-lane conversion of
-    samples, scans and snapshots.
+    samples and scans and the copy of each lane's one-lane snapshot into the batch.
 
     An estimator that :class:`~quadslam_env.estimation.protocol.ChecksMemory` (FastSLAM) is
     asked whether B of it fit in memory: :meth:`build` asks the first lane before it builds
@@ -67,7 +61,7 @@ class LaneLoop:
         if check_memory:
             _check_memory(self.lanes[0], self.num_lanes, landmark_capacity)
         b = self.num_lanes
-        self._estimates: list[Estimate | None] = [None] * b
+        self._estimates: list[BatchEstimate | None] = [None] * b
         self._out = empty_batch(b, max(landmark_capacity, 0))
         self.last_association = np.zeros((b, 0), dtype=np.int64)
         """(B, R) int the scalar estimators' labels of their last unlabeled scans' returns."""
@@ -173,8 +167,8 @@ class LaneLoop:
                 self.last_association[lane, :k] = est.last_association
             self._estimates[lane] = None
 
-    def lane_estimate(self, lane: int) -> Estimate:
-        """The scalar estimator's own snapshot (cached until the lane changes)."""
+    def lane_estimate(self, lane: int) -> BatchEstimate:
+        """The scalar estimator's own one-lane snapshot (cached until the lane changes)."""
         est = self._estimates[lane]
         if est is None:
             est = self.lanes[lane].estimate()
@@ -182,12 +176,13 @@ class LaneLoop:
         return est
 
     def estimate(self) -> BatchEstimate:
-        """Stack every lane's :class:`Estimate` into the batch arrays."""
+        """Copy lane 0 of every lane's one-lane snapshot into the batch arrays (without the
+        landmark covariances)."""
         snaps = [self.lane_estimate(lane) for lane in range(self.num_lanes)]
         need = id_width(snaps)
         if need > self._out.landmark_means.shape[1]:
             self._out = empty_batch(self.num_lanes, need)
-        fill_batch(self._out, snaps)
+        stack_lanes(self._out, snaps)
         return self._out
 
 

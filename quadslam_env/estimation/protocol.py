@@ -29,7 +29,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from quadslam_env.estimation.snapshot import BatchEstimate, Estimate
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.types import FloatArray
 
@@ -60,8 +60,9 @@ class Estimator(Protocol):
     def update(self, scan: LidarScan) -> None:
         """Correct with one LiDAR scan (an empty scan is allowed)."""
 
-    def estimate(self) -> Estimate:
-        """Return a frozen snapshot of the current belief."""
+    def estimate(self) -> BatchEstimate:
+        """A snapshot of the current belief with B = 1, with landmark covariances
+        (:meth:`BatchEstimate.one_lane`), whose arrays nothing writes to afterwards."""
 
 
 @runtime_checkable
@@ -129,8 +130,8 @@ class BatchEstimator(Protocol):
     def estimate(self) -> BatchEstimate:
         """The belief of every lane."""
 
-    def lane_estimate(self, lane: int) -> Estimate:
-        """A frozen :class:`Estimate` (copies) of one lane, with landmark covariances."""
+    def lane_estimate(self, lane: int) -> BatchEstimate:
+        """A snapshot of lane ``lane`` alone (B = 1, copies), with landmark covariances."""
 
 
 # ---------------------------------------------------------------- abilities of a batch

@@ -96,6 +96,7 @@ def gather(core: Any, lane: int, history: LaneHistory, span_s: float, max_partic
     t = float(core.t[lane])
     state = core.vehicle.state[lane]
     est = core.estimator.lane_estimate(lane)
+    _, lm_means, lm_covs = est.mapped_landmarks()
     times = np.arange(max(0.0, t - span_s), t + REF_AHEAD_S + 1e-9, REF_STEP_S)
     n_lm = int(core.n_landmarks[lane])
     particles, n_particles = None, 0
@@ -109,14 +110,14 @@ def gather(core: Any, lane: int, history: LaneHistory, span_s: float, max_partic
         label=estimator_label(core.scenario),
         true_pos=state[POS].copy(),
         true_heading=heading_of(state[EUL]),
-        est_pos=est.position,
-        est_heading=heading_of(est.euler),
-        est_pos_cov=None if est.pose_cov is None else est.pose_cov[POS, POS],
+        est_pos=est.position[0],
+        est_heading=heading_of(est.euler[0]),
+        est_pos_cov=None if est.pose_cov is None else est.pose_cov[0, POS, POS],
         rows=history.rows(since=t - span_s),
         ref=core.trajectory.batch(times).pos,
         landmarks=core.landmarks[lane, :n_lm].copy(),
-        lm_means=est.landmark_means,
-        lm_covs=est.landmark_covs,
+        lm_means=lm_means,
+        lm_covs=lm_covs,
         scan_points=history.scan_points,
         particles=particles,
         n_particles=n_particles,
