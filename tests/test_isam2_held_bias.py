@@ -62,5 +62,5 @@ def test_held_bias_dead_reckoning_attitude_covariance(window_s: float | None) ->
     walk = FIXED_BIAS_SIGMA**2 * (SECONDS**2 + SECONDS**3 / 3.0)
     assert walk > 0.3 * expected  # the random walk this guards against would show
     np.testing.assert_allclose(
-        snap.pose_cov[EUL, EUL], expected * np.eye(3), rtol=1e-3, atol=1e-3 * expected
+        snap.pose_cov[0][EUL, EUL], expected * np.eye(3), rtol=1e-3, atol=1e-3 * expected
     )
