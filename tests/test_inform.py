@@ -25,6 +25,7 @@ from agents.control.dflqr import DFLQRPolicy
 from estimators.fastslam.process import DynamicsModel
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.models import VEHICLE_PRESETS
+from quadslam_env.randomize import scaled_vehicle
 from quadslam_env.types import GRAVITY, VEL
 
 RANGES = {
@@ -235,3 +236,28 @@ def test_off_is_the_default() -> None:
     scenario = load_scenario("paper_fastslam_helix")
     assert scenario.randomize.inform_estimator is False
     assert scenario.wind.inform_estimator is False
+
+
+def test_the_replayed_copy_of_a_slow_imu_is_told_the_vehicle_too() -> None:
+    """An IMU slower than the control runs a copy of the estimator (the filter) beside the
+    output; both model the lane's draw."""
+    vec = _vec(2, randomize={**RANGES, "inform_estimator": True}, imu={"rate_hz": 10.0})
+    vec.reset(seed=4)
+    core = vec.unwrapped.core
+    for est in (core.estimator, core._copies.filter):
+        for lane in range(2):
+            assert est.lanes[lane].model.mass == pytest.approx(core.vehicle.lane_mass[lane])
+
+
+def test_a_scaled_rotor_vehicle_has_the_limits_of_its_scaled_rotors() -> None:
+    """Rotors: the thrust scale acts on k_f and k_m, so the told vehicle's thrust and torque
+    limits must be those its scaled rotors give (derived independently by the rotor model)."""
+    nominal = VEHICLE_PRESETS["crazyflie2"]
+    told = scaled_vehicle(nominal, 1.1, 0.9, 1.2, 1.5)
+    assert told.rotors is not None and nominal.rotors is not None
+    assert told.max_thrust == pytest.approx(told.rotors.max_collective_thrust, rel=1e-12)
+    np.testing.assert_allclose(told.max_torque, told.rotors.max_torque, rtol=1e-12)
+    assert told.rotors.motor_tau == pytest.approx(1.5 * nominal.rotors.motor_tau)
+    assert told.mass == pytest.approx(1.1 * nominal.mass)
+    np.testing.assert_allclose(told.inertia, 0.9 * nominal.inertia, rtol=1e-12)
+    assert scaled_vehicle(nominal, 1.0, 1.0, 1.0, 1.0) is nominal

@@ -250,9 +250,10 @@ class DynamicFastSLAM(FastSLAMBase):
         )
 
     def set_vehicle(self, vehicle: VehicleParams) -> None:
-        """Model ``vehicle`` from the next :meth:`reset` on
-        (:class:`~quadslam_env.estimation.protocol.UsesVehicle`; ``randomize.inform_estimator``):
-        the model's mass, inertia and drag and the inertia prior are rebuilt from it.
+        """Model ``vehicle`` from now on; the env calls it just before a :meth:`reset`
+        (:class:`~quadslam_env.estimation.protocol.UsesVehicle`; ``randomize.inform_estimator``).
+        The model's mass, inertia and drag and the inertia identification's prior are rebuilt
+        from it (times ``mass_scale`` and ``inertia_scale``); the same object is a no-op.
 
         Raises:
             ValueError: Not a :class:`VehicleParams`, or ``estimate_inertia`` with products of

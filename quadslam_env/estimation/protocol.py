@@ -271,8 +271,8 @@ class UsesVehicle(Protocol):
     """A one-vehicle estimator whose process model uses the vehicle's parameters (FastSLAM)."""
 
     def set_vehicle(self, vehicle: VehicleParams) -> None:
-        """Use ``vehicle`` instead of the one it was built with, from its next reset on (every
-        constant taken from the vehicle is refreshed)."""
+        """Use ``vehicle`` instead of the one it was built with (every constant taken from the
+        vehicle is refreshed); the env calls it just before a reset."""
 
 
 @runtime_checkable
