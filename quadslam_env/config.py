@@ -277,6 +277,9 @@ class ScenarioConfig:
         check_heading(scenario)
         check_rotor_action(scenario.action.mode, scenario.vehicle)
         scenario.wind.check_drag(scenario.vehicle.drag_per_s, scenario.vehicle.drag_quadratic_per_m)
+        scenario.wind.check_inform(
+            scenario.estimator.name, scenario.steps_per_imu, scenario.lidar.delay_steps
+        )
         scenario.randomize.check_feasible(scenario.vehicle.params())
         return scenario
 

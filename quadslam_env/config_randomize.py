@@ -42,8 +42,8 @@ def _range(doc: str) -> Any:
 @dataclass(frozen=True)
 class RandomizeConfig(Section):
     """Per-episode scales of the true vehicle, sensors and wind (the estimators keep the
-    nominal model). Each ``*_scale`` is ``[lo, hi]``: a uniform draw on that interval
-    multiplies the nominal parameter; ``lo == hi`` fixes it."""
+    nominal model unless ``inform_estimator``). Each ``*_scale`` is ``[lo, hi]``: a uniform
+    draw on that interval multiplies the nominal parameter; ``lo == hi`` fixes it."""
 
     SECTION: ClassVar[str] = "randomize"
     mass_scale: tuple[float, ...] = _range("range of the scale on the vehicle's mass")
@@ -69,6 +69,13 @@ class RandomizeConfig(Section):
     )
     wind_scale: tuple[float, ...] = _range(
         "range of the scale on the wind (steady part and gusts; no effect in still air)"
+    )
+    inform_estimator: bool = _spec(
+        False,
+        kind="bool",
+        doc="give each lane's estimator the vehicle of its draw (mass, inertia, thrust and "
+        "torque scale, lag) at every reset instead of the nominal one; only estimators whose "
+        "process model uses the vehicle (fastslam) change, the others have nothing to be told",
     )
 
     @property

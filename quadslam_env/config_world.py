@@ -148,7 +148,8 @@ class WindConfig(Section):
     The Dryden gust is the MIL-F-8785C low-altitude model (:mod:`quadslam_env.models.wind`):
     intensities and scale lengths from ``w20_mps`` and ``altitude_m``, a frozen field carried
     past the vehicle at ``airspeed_mps``. A ``preset`` (the standard's light, moderate or severe
-    turbulence) sets ``turbulence: dryden`` and ``w20_mps``. The estimators never see the wind.
+    turbulence) sets ``turbulence: dryden`` and ``w20_mps``. The estimators do not see the wind
+    unless ``inform_estimator`` (then those whose model has the drag take it as a known input).
     """
 
     SECTION: ClassVar[str] = "wind"
@@ -204,6 +205,14 @@ class WindConfig(Section):
         "m/s; null = the steady wind's speed",
     )
 
+    inform_estimator: bool = _spec(
+        False,
+        kind="bool",
+        doc="give the estimator the wind of every step (steady part and gust) as a known "
+        "disturbance input, so its drag acts on the air-relative velocity; only for an "
+        "estimator whose process model has the drag (fastslam)",
+    )
+
     @property
     def enabled(self) -> bool:
         """Whether there is any wind (a non-zero steady wind or turbulence)."""
@@ -238,4 +247,44 @@ class WindConfig(Section):
                 f"vehicle.drag_quadratic_per_m = {list(drag_quadratic_per_m)}, so the wind "
                 "would push on nothing; allowed: a drag with a wind (vehicle.drag_per_s > 0 "
                 "or a vehicle.drag_quadratic_per_m > 0), or no wind"
+            )
+
+    def check_inform(self, estimator: str, steps_per_imu: int, scan_delay_steps: int) -> None:
+        """``inform_estimator`` needs an estimator whose model has the drag
+        (:func:`quadslam_env.estimation.models_drag`) that runs at the control rate: an IMU
+        slower than the control or a delayed LiDAR replays past steps on a copy of the
+        estimator, which is not told those steps' wind.
+
+        Args:
+            estimator: ``estimator.name``. steps_per_imu: Control steps per IMU sample.
+            scan_delay_steps: ``lidar.delay_steps``.
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        if not self.inform_estimator:
+            return
+        from quadslam_env.estimation import models_drag
+
+        try:
+            ok = models_drag(estimator)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from exc
+        if not ok:
+            raise ConfigError(
+                f"wind.inform_estimator: got true with estimator.name = {estimator!r}, whose "
+                "process model has no drag for a wind to act on (it is driven by the IMU's "
+                "specific force, which already holds the drag); allowed: false, or an "
+                "estimator that models the drag (fastslam, or a plug-in with models_drag = True)"
+            )
+        if steps_per_imu > 1 or scan_delay_steps > 0:
+            got = (
+                f"an IMU {steps_per_imu} times slower than the control (imu.rate_hz)"
+                if steps_per_imu > 1
+                else f"lidar.delay_steps = {scan_delay_steps}"
+            )
+            raise ConfigError(
+                f"wind.inform_estimator: got true with {got}, which replays past steps on a "
+                "copy of the estimator that is not told their wind; allowed: false, or an IMU "
+                "at or above the control rate and lidar.delay_steps: 0"
             )

@@ -9,10 +9,11 @@ seeded with s + i is the scalar env seeded with s + i.
 Randomness: each lane has its own generator (the scalar env's ``np_random``), which spawns five
 children at every reset — landmarks, IMU, LiDAR, estimator, initial estimation error — exactly
 as the scalar env always has. The wind (:mod:`quadslam_env.wind`: held over each step, reported
-in ``info``, advanced after the step; the estimators are not told) spawns its gusts' generator
-from the world child, and domain randomisation (:mod:`quadslam_env.randomize`, the truth's
-parameters scaled per lane and episode) its generator from the initial-error child, so no
-other stream changes when either is on.
+in ``info``, advanced after the step; told to the estimator only with ``wind.inform_estimator``)
+spawns its gusts' generator from the world child, and domain randomisation
+(:mod:`quadslam_env.randomize`, the truth's parameters scaled per lane and episode; told with
+``randomize.inform_estimator``) its generator from the initial-error child, so no other stream
+changes when either is on.
 
 IMU rate (``imu.rate_hz``, docs/env.md "IMU rate"): each IMU sample is the average of its
 inputs over its own period, and each prediction gets the input's white-noise std per step h,
@@ -255,14 +256,13 @@ class SimCore:
     ) -> None:
         """Reset the estimator's ``lanes`` (k,) (and their copies) at the means ``mean0``
         (k, 12) with the initial covariance, each with its generator of ``rngs`` (k,); with a
-        known map, the lanes' true landmarks."""
-        known = None
+        known map, the lanes' true landmarks; first tell them their draw's vehicle if asked."""
+        known, n = None, self.n_landmarks
         if self.scenario.estimator.known_map:
-            known = [
-                (np.arange(self.n_landmarks[i]), self.landmarks[i, : self.n_landmarks[i]].copy())
-                for i in lanes.tolist()
-            ]
+            known = [(np.arange(n[i]), self.landmarks[i, : n[i]].copy()) for i in lanes.tolist()]
         cov0 = np.broadcast_to(self._cov0, (lanes.shape[0], STATE_DIM, STATE_DIM)).copy()
+        held = () if self._copies is None else (self._copies.filter,)
+        self.randomizer.inform(lanes, (self.estimator, *held))
         if self._copies is not None:  # rng copies taken before the output's reset draws
             self._copies.reset_lanes(lanes, mean0, cov0, copy.deepcopy(rngs), known)
         self.estimator.reset_lanes(lanes, mean0, cov0, rngs, known)
@@ -382,6 +382,7 @@ class SimCore:
         copies = self._copies
         if copies is None:
             h = self.dt / self._imu_per_step
+            self.wind.inform(self.estimator)
             predict_samples(self.estimator, samples, self.imu_input_sigma, h, active)
             if scans is not None:
                 scans.apply(self.estimator, self.t, self.lidar.sigma)

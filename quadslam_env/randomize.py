@@ -7,6 +7,8 @@ uniformly on its range, or pinned by ``reset(options={"randomized": {...}})``. T
 the truth only: the vehicle kernels, the IMU, the LiDAR and the wind take per-lane parameter
 arrays (the nominal case is the same kernels with the nominal rows). The estimators, the action
 map and the controllers keep the scenario's nominal parameters: the mismatch is the point.
+With ``randomize.inform_estimator`` the simulator gives each reset lane's estimator the vehicle
+of its draw (:meth:`Randomizer.vehicles`, :func:`scaled_vehicle`) instead.
 
 Random stream per lane (the contract with the single env): at each reset, with randomisation
 on, one generator is spawned from the lane's initial-error child (the fifth child the simulator
@@ -19,12 +21,14 @@ ranges. With every range ``[1, 1]`` (the default) nothing is spawned or drawn.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from quadslam_env.config_randomize import SCALE_KEYS, RandomizeConfig, check_thrust_to_weight
+from quadslam_env.estimation.protocol import TakesVehicle
 from quadslam_env.imu import ImuBatch
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.sensors import LidarBatch
@@ -128,6 +132,29 @@ class Randomizer:
         wind.set_scales(lanes, v[:, c["wind_scale"]])
         self._pending = None
 
+    def vehicles(self, lanes: np.ndarray) -> list[VehicleParams]:
+        """The vehicle of each of ``lanes`` (k,) this episode: the nominal one scaled by the
+        lane's current draw (:func:`scaled_vehicle`; the nominal object where nothing moved)."""
+        c = _COLUMN
+        out = []
+        for row in self.values[np.asarray(lanes, dtype=np.int64)]:
+            mass, inertia = row[c["mass_scale"]], row[c["inertia_scale"]]
+            thrust, lag = row[c["thrust_scale"]], row[c["lag_scale"]]
+            out.append(scaled_vehicle(self.vehicle, mass, inertia, thrust, lag))
+        return out
+
+    def inform(self, lanes: np.ndarray, estimators: Sequence[object]) -> None:
+        """With ``randomize.inform_estimator``, give each estimator that
+        :class:`~quadslam_env.estimation.protocol.TakesVehicle` the vehicles of ``lanes`` (k,)
+        (:meth:`vehicles`; call after :meth:`begin`, before their reset). Nominal lanes get the
+        nominal vehicle back, so a lane never keeps an earlier episode's draw."""
+        if not self.cfg.inform_estimator:
+            return
+        vehicles = self.vehicles(lanes)
+        for est in estimators:
+            if isinstance(est, TakesVehicle):
+                est.set_vehicle(lanes, vehicles)
+
     def info(self) -> dict[str, FloatArray]:
         """The ``info`` terms :data:`RANDOMIZED_KEYS`, (B,) copies each, NaN in lanes whose
         episode is nominal; none when no lane is randomised."""
@@ -135,3 +162,33 @@ class Randomizer:
         if shown is None:
             return {}
         return {key: shown[j].copy() for j, key in enumerate(RANDOMIZED_KEYS)}
+
+
+def scaled_vehicle(
+    vehicle: VehicleParams, mass: float, inertia: float, thrust: float, lag: float
+) -> VehicleParams:
+    """The parameters of the vehicle :meth:`VehicleBatch.set_scales` simulates with these scales.
+
+    The mass and the inertia are scaled; the thrust scale is a gain on the saturated command,
+    so the thrust and torque limits scale with it (and, with rotors, ``k_f`` and ``k_m``); the
+    lag scale multiplies ``actuator_tau`` (rotors: ``motor_tau``). All ones give ``vehicle``.
+
+    Args:
+        vehicle: The nominal vehicle. mass, inertia, thrust, lag: The scales (dimensionless).
+
+    Returns:
+        A :class:`VehicleParams` (the same object when every scale is 1).
+    """
+    if mass == 1.0 and inertia == 1.0 and thrust == 1.0 and lag == 1.0:
+        return vehicle
+    rotors = vehicle.rotors
+    if rotors is not None:
+        rotors = dataclasses.replace(
+            rotors, k_f=rotors.k_f * thrust, k_m=rotors.k_m * thrust,
+            motor_tau=rotors.motor_tau * lag,
+        )  # fmt: skip
+    return dataclasses.replace(
+        vehicle, mass=vehicle.mass * mass, inertia=np.asarray(vehicle.inertia) * inertia,
+        max_thrust=vehicle.max_thrust * thrust, max_torque=np.asarray(vehicle.max_torque) * thrust,
+        actuator_tau=vehicle.actuator_tau * lag, rotors=rotors,
+    )  # fmt: skip

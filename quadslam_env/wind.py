@@ -3,7 +3,9 @@
 docs/design.md §2, §9 and docs/env.md "Wind". The equations (the Dryden filters, discretised
 exactly over the control period) are :mod:`quadslam_env.models.wind`; this class holds each
 lane's filter state and generator. The wind is held over a control step (the vehicle kernel
-reads :attr:`WindBatch.velocity`) and advanced once per step, after the step.
+reads :attr:`WindBatch.velocity`) and advanced once per step, after the step. With
+``wind.inform_estimator`` the estimator gets that wind before it predicts the step
+(:meth:`WindBatch.inform`).
 
 Random stream per lane (the contract with the single env): with turbulence, the gusts'
 generator is spawned at reset from the lane's world child (the generator that draws the
@@ -21,6 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from quadslam_env.config import WindConfig
+from quadslam_env.estimation.protocol import TakesWind
 from quadslam_env.models.wind import (
     GUST_STATES,
     dryden_filter,
@@ -72,6 +75,8 @@ class WindBatch:
         self._cursor = np.full(b, self.BLOCK)
         self._lane_ids = np.arange(b)
         self.scale = np.ones(b)  # (B,) per-lane factors on the whole wind (set_scales)
+        self.informs = cfg.inform_estimator  # the estimator is told the wind (inform)
+        self._still_air = np.zeros((b, 3))
 
     def set_scales(self, lanes: ArrayLike, scale: ArrayLike) -> None:
         """Scale the whole wind (steady part and gust) of ``lanes`` (k,) by ``scale`` (k,) for
@@ -121,6 +126,17 @@ class WindBatch:
             lanes, self._cursor, self._noise, self.state, f.phi, f.chol, self._out_map,
             self.steady, self.scale, self.velocity,
         )  # fmt: skip
+
+    def inform(self, estimator: object) -> None:
+        """With ``wind.inform_estimator``, give ``estimator`` (which then
+        :class:`~quadslam_env.estimation.protocol.TakesWind`) the wind of the step it is about
+        to predict (:attr:`velocity`; zeros in still air, where the air-relative drag is then
+        the simulator's still-air drag, quadratic part included)."""
+        if not self.informs:
+            return
+        if not isinstance(estimator, TakesWind):  # its class said models_drag = True
+            raise TypeError(f"{type(estimator).__name__} says models_drag but has no set_wind")
+        estimator.set_wind(self._still_air if self.velocity is None else self.velocity)
 
     def info(self) -> dict[str, FloatArray]:
         """The ``info`` terms :data:`WIND_KEYS` of the current wind, (B,) copies each; none in

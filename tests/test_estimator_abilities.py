@@ -19,10 +19,14 @@ from quadslam_env.estimation import (
     HasParticles,
     LabelsReturns,
     LaneLoop,
+    ModelsDrag,
     ParticleLaneLoop,
     ReservesLandmarks,
     ShowsParticles,
+    TakesVehicle,
+    TakesWind,
     UsesTruth,
+    UsesVehicle,
     registry,
 )
 from quadslam_env.models.params import vehicle_preset
@@ -38,17 +42,25 @@ BATCH: dict[type, set[str]] = {
     UsesTruth: {"oracle"},
     ShowsParticles: {"fastslam", "fastslam_kinematic"},
     HasFullState: {"ekf_slam"},
+    # The LaneLoop passes a vehicle or a wind on to the lanes that use it (below).
+    TakesVehicle: {"fastslam", "fastslam_kinematic", "isam2"},
+    TakesWind: {"fastslam", "fastslam_kinematic", "isam2"},
 }
 # Abilities of the one-vehicle estimators the LaneLoop runs (FastSLAM and iSAM2).
 ONE_VEHICLE: dict[type, set[str]] = {
     ChecksMemory: {"fastslam", "fastslam_kinematic"},
     LabelsReturns: {"fastslam", "fastslam_kinematic", "isam2"},
     HasParticles: {"fastslam", "fastslam_kinematic"},
+    # Only the dynamics-based FastSLAM's model has the vehicle (mass, inertia, drag) in it; the
+    # others are driven by the IMU (docs/env.md "Domain randomisation", "Wind").
+    UsesVehicle: {"fastslam"},
+    ModelsDrag: {"fastslam"},
 }
 LOOPED = {"fastslam", "fastslam_kinematic", "isam2"}
 # The class flag read before any estimator is built: every built-in may be deep-copied (for a
 # slow IMU or a delayed LiDAR) except iSAM2, whose GTSAM smoother has no copy (docs/isam2.md).
 COPYABLE = BUILT_IN - {"isam2"}
+MODELS_DRAG = {"fastslam"}
 
 
 def _built() -> dict[str, Any]:
@@ -88,6 +100,11 @@ def test_one_vehicle_abilities_are_the_documented_ones(
 @pytest.mark.parametrize("name", sorted(BUILT_IN))
 def test_copyable_flag_is_the_documented_one(name: str) -> None:
     assert registry.copyable(name) == (name in COPYABLE)
+
+
+@pytest.mark.parametrize("name", sorted(BUILT_IN))
+def test_models_drag_flag_is_the_documented_one(name: str) -> None:
+    assert registry.models_drag(name) == (name in MODELS_DRAG)
 
 
 def test_copyable_estimators_copy_and_the_others_refuse(built: dict[str, Any]) -> None:

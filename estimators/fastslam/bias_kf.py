@@ -21,7 +21,7 @@ import numpy as np
 from quadslam_env.models.imu_noise import gauss_markov_discretisation
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.linalg import LOG_2PI, cholesky_lower
-from quadslam_env.models.rigid_body import specific_force_body
+from quadslam_env.models.rigid_body import AirTuple, state_specific_force
 from quadslam_env.types import IMU_DIM, FloatArray
 
 BIAS_DIM = 2 * IMU_DIM
@@ -221,6 +221,8 @@ def imu_bias_step(
     thrust: float,
     mass: float,
     drag: float,
+    air: AirTuple,
+    aero: bool,
     K: FloatArray,
     L: FloatArray,
     k_cols: np.ndarray,
@@ -236,7 +238,9 @@ def imu_bias_step(
     :func:`kf_covariance_update` with ``H = H_BIAS``); then per particle i: ``x̂^B ← A x̂^B``,
     ``ν = z − h^d(x^{D,i}) − H x̂^B`` with ``h^d = (f_B, ω̄)`` and ``H x̂^B = b0 + b1`` (eq. 12),
     and :func:`kf_means_update`. ``f_B`` is the specific force of the particle's velocity and
-    the applied thrust. ``ω̄ = (ω_start + ω_end) / 2`` is the particle's mean body rate over the
+    the applied thrust (with a known wind, of its velocity relative to the air: the simulator's
+    drag, :func:`~quadslam_env.models.rigid_body.state_specific_force`).
+    ``ω̄ = (ω_start + ω_end) / 2`` is the particle's mean body rate over the
     IMU period (trapezoid), not eq. 12's rate at its end: the gyro reports the mean rate over
     its period (:mod:`quadslam_env.imu`), and during a manoeuvre the two differ by about
     ``ω̇ Δt / 2``, a systematic innovation the bias KF would otherwise learn as gyro bias.
@@ -248,6 +252,8 @@ def imu_bias_step(
         a: (12,) diagonal of A. Q: (12, 12) process noise. R: (6, 6) IMU noise ``R^I``.
         accel: (3,) accelerometer reading in m/s². gyro: (3,) gyro reading in rad/s.
         thrust: Applied f_T in N. mass: Filter model mass in kg. drag: 1/s.
+        air, aero: A known wind and the quadratic drag (``aero``), or still air
+            (:func:`~quadslam_env.models.rigid_body.rigid_body_derivative`).
         K: (12, 6), L: (6, 6) receive the gain and the Cholesky factor of S.
         k_cols: (12, 6), k_counts: (12,), l_cols: (6, 6), l_counts: (6,) int scratch for
             their sparsity (:func:`sparsity`).
@@ -265,7 +271,7 @@ def imu_bias_step(
     gain = (K, k_cols, k_counts, L, l_cols, l_counts, logdet)
     kf_predict_means(xb, a)
     for i in range(x.shape[0]):
-        f = specific_force_body(x[i, 3], x[i, 4], x[i, 5], thrust, mass, drag)
+        f = state_specific_force(x[i], thrust, mass, drag, air, aero)
         for j in range(3):
             nu[i, j] = accel[j] - f[j] - (xb[i, j] + xb[i, 6 + j])
             rate = 0.5 * (x_prev[i, 9 + j] + x[i, 9 + j])

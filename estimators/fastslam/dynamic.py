@@ -25,12 +25,17 @@ from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.linalg import chol3, inv3_sym, mv
 from quadslam_env.models.params import VehicleParams
+from quadslam_env.models.rigid_body import NO_AIR, AirTuple
 from quadslam_env.types import EUL, POS, RATE, FloatArray
 
 
 @register("fastslam")
 class DynamicFastSLAM(FastSLAMBase):
     """Dynamics-based FastSLAM with joint IMU bias/drift estimation (seed 000 Table 2).
+
+    Its model is the vehicle's (mass, inertia, drag): :meth:`set_vehicle` replaces the vehicle
+    (``randomize.inform_estimator``) and :meth:`set_wind` gives the drag a known wind
+    (``wind.inform_estimator``; ``models_drag``).
 
     Parameters (keyword arguments; unknown keys, wrong types or out-of-range values raise a
     ``ValueError`` naming the key):
@@ -148,6 +153,7 @@ class DynamicFastSLAM(FastSLAMBase):
         ValueError: If ``vehicle`` is missing or a setting is invalid.
     """
 
+    models_drag: ClassVar[bool] = True
     _DEFAULT_NOISE = (0.02, 0.1, 0.003, 2e-5)
     _DEFAULT_INFLATION = 30.0
     _EXTRA: ClassVar[dict[str, type | tuple[type, ...]]] = {
@@ -185,31 +191,19 @@ class DynamicFastSLAM(FastSLAMBase):
         )
         self.accel_bias_sigma = positive("accel_bias_sigma", params.get("accel_bias_sigma", 0.01))
         self.gyro_bias_sigma = positive("gyro_bias_sigma", params.get("gyro_bias_sigma", 0.01))
-        mass_scale = positive("mass_scale", params.get("mass_scale", 1.0))
-        inertia_scale = positive("inertia_scale", params.get("inertia_scale", 1.0))
+        self._scales = (
+            positive("mass_scale", params.get("mass_scale", 1.0)),
+            positive("inertia_scale", params.get("inertia_scale", 1.0)),
+        )
         self.use_imu_likelihood = bool(params.get("use_imu_likelihood", True))
         self.stage2 = bool(params.get("stage2", False))
         self.stage2_position = bool(params.get("stage2_position", True))
-        self.vehicle = vehicle
-        self.model = DynamicsModel(vehicle, mass_scale=mass_scale, inertia_scale=inertia_scale)
-        self._inertia0 = np.diag(self.model.inertia).copy()
-        diagonal = bool(np.allclose(self.model.inertia, np.diag(self._inertia0)))
-        wanted = params.get("estimate_inertia")
-        self.estimate_inertia = diagonal if wanted is None else bool(wanted)
-        if self.estimate_inertia and not diagonal:
-            raise fail(
-                "estimate_inertia",
-                True,
-                "False for a vehicle whose inertia has products of inertia (the identification "
-                "models principal moments only)",
-            )
-        self.inertia_id = GyroTorqueRegression(
-            self._inertia0,
-            positive("inertia_prior_rel_sigma", params.get("inertia_prior_rel_sigma", 1.0)),
-            bias_sigma=math.hypot(self.gyro_bias_sigma, self.gyro_drift_sigma),
-            # Random walk with the Gauss–Markov drift's short-term variance growth 2σ²/τ.
-            bias_rate_sigma=self.gyro_drift_sigma * math.sqrt(2.0 / self.bias_tau_s),
+        self._estimate_inertia = params.get("estimate_inertia")
+        self._inertia_rel_sigma = positive(
+            "inertia_prior_rel_sigma", params.get("inertia_prior_rel_sigma", 1.0)
         )
+        self._use_vehicle(vehicle)
+        self._air: AirTuple | None = None  # a known wind (set_wind), else still air
         self._bias_cache: tuple[float, FloatArray, FloatArray] | None = None
         self._imu_R: tuple[float, float, FloatArray] | None = None
         m, n = H_BIAS.shape  # imu_bias_step's K, L, their sparsity and the innovations
@@ -225,6 +219,64 @@ class DynamicFastSLAM(FastSLAMBase):
         self._bias_mean = np.empty(BIAS_DIM)
         self._imu_loglik = np.empty(self.n_particles)  # the IMU step's (N,) log-likelihoods
         self._reset_extra()
+
+    def _use_vehicle(self, vehicle: VehicleParams) -> None:
+        """Build everything taken from the vehicle: the dynamics model (mass and inertia times
+        ``mass_scale`` and ``inertia_scale``, the drag) and the inertia identification's prior.
+
+        Raises:
+            ValueError: ``estimate_inertia`` with products of inertia.
+        """
+        mass_scale, inertia_scale = self._scales
+        self.vehicle = vehicle
+        self.model = DynamicsModel(vehicle, mass_scale=mass_scale, inertia_scale=inertia_scale)
+        self._inertia0 = np.diag(self.model.inertia).copy()
+        diagonal = bool(np.allclose(self.model.inertia, np.diag(self._inertia0)))
+        wanted = self._estimate_inertia
+        self.estimate_inertia = diagonal if wanted is None else bool(wanted)
+        if self.estimate_inertia and not diagonal:
+            raise fail(
+                "estimate_inertia",
+                True,
+                "False for a vehicle whose inertia has products of inertia (the identification "
+                "models principal moments only)",
+            )
+        self.inertia_id = GyroTorqueRegression(
+            self._inertia0,
+            self._inertia_rel_sigma,
+            bias_sigma=math.hypot(self.gyro_bias_sigma, self.gyro_drift_sigma),
+            # Random walk with the Gauss–Markov drift's short-term variance growth 2σ²/τ.
+            bias_rate_sigma=self.gyro_drift_sigma * math.sqrt(2.0 / self.bias_tau_s),
+        )
+
+    def set_vehicle(self, vehicle: VehicleParams) -> None:
+        """Model ``vehicle`` from now on; the env calls it just before a :meth:`reset`
+        (:class:`~quadslam_env.estimation.protocol.UsesVehicle`; ``randomize.inform_estimator``).
+        The model's mass, inertia and drag and the inertia identification's prior are rebuilt
+        from it (times ``mass_scale`` and ``inertia_scale``); the same object is a no-op.
+
+        Raises:
+            ValueError: Not a :class:`VehicleParams`, or ``estimate_inertia`` with products of
+                inertia.
+        """
+        if not isinstance(vehicle, VehicleParams):
+            raise ValueError(
+                f"estimator 'fastslam': vehicle must be a VehicleParams, got {vehicle!r}"
+            )
+        if vehicle is not self.vehicle:
+            self._use_vehicle(vehicle)
+
+    def set_wind(self, wind: FloatArray) -> None:
+        """Fly the model in the known wind ``wind`` (3,) N, m/s over the next predictions
+        (:class:`~quadslam_env.estimation.protocol.ModelsDrag`; ``wind.inform_estimator``): the
+        drag of the dynamics and of the IMU model acts on the air-relative velocity, with the
+        vehicle's quadratic drag, as in the simulator."""
+        w = np.asarray(wind, dtype=float).reshape(3)
+        if not np.isfinite(w).all():
+            raise ValueError(f"estimator 'fastslam': wind must be 3 finite numbers, got {wind!r}")
+        cq = self.vehicle.drag_quadratic
+        wn, we, wd = (float(v) for v in w)
+        self._air = (wn, we, wd, float(cq[0]), float(cq[1]), float(cq[2]))
 
     def _reset_extra(self) -> None:
         self.inertia_id.reset()
@@ -248,7 +300,7 @@ class DynamicFastSLAM(FastSLAMBase):
     def _propagate(self, imu: ImuSample, control: Control, dt: float) -> FloatArray:
         torque = np.asarray(control.torque, dtype=float).reshape(3)
         return self.model.propagate(
-            self.state.x, float(control.thrust), torque, dt, method=self.integrator
+            self.state.x, float(control.thrust), torque, dt, method=self.integrator, air=self._air
         )
 
     def _transition(self, dt: float) -> tuple[FloatArray, FloatArray]:
@@ -295,6 +347,8 @@ class DynamicFastSLAM(FastSLAMBase):
             float(control.thrust),
             model.mass,
             model.drag,
+            NO_AIR if self._air is None else self._air,
+            self._air is not None,
             *self._kf_buffers,
             loglik,
         )

@@ -18,9 +18,13 @@ from quadslam_env.estimation.protocol import (
     IntArray,
     KnownMaps,
     LabelsReturns,
+    ModelsDrag,
     ReservesLandmarks,
     ShowsParticles,
+    TakesVehicle,
+    TakesWind,
     UsesTruth,
+    UsesVehicle,
 )
 from quadslam_env.estimation.registry import (
     ENTRY_POINT_GROUP,
@@ -28,6 +32,7 @@ from quadslam_env.estimation.registry import (
     available,
     copyable,
     make,
+    models_drag,
     register,
 )
 from quadslam_env.estimation.snapshot import BatchEstimate
@@ -46,15 +51,20 @@ __all__ = [
     "KnownMaps",
     "LabelsReturns",
     "LaneLoop",
+    "ModelsDrag",
     "ParticleLaneLoop",
     "ReservesLandmarks",
     "ShowsParticles",
+    "TakesVehicle",
+    "TakesWind",
     "UsesTruth",
+    "UsesVehicle",
     "associates_unlabeled",
     "available",
     "copyable",
     "health_codes",
     "make",
+    "models_drag",
     "position_std",
     "register",
 ]

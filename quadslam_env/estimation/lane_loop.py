@@ -14,9 +14,12 @@ from quadslam_env.estimation.protocol import (
     IntArray,
     KnownMaps,
     LabelsReturns,
+    ModelsDrag,
+    UsesVehicle,
 )
 from quadslam_env.estimation.snapshot import BatchEstimate, empty_batch, id_width, stack_lanes
 from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import FloatArray
 
 
@@ -98,6 +101,21 @@ class LaneLoop:
             known = None if known_landmarks is None else known_landmarks[j]
             self.lanes[lane].reset(mean0[j], cov0[j], rngs[j], known_landmarks=known)
             self._estimates[lane] = None
+
+    def set_vehicle(self, lanes: IntArray, vehicles: Sequence[VehicleParams]) -> None:
+        """Pass ``vehicles`` (k,) to the listed lanes that
+        :class:`~quadslam_env.estimation.protocol.UsesVehicle` (the others use none)."""
+        for lane, vehicle in zip(np.asarray(lanes).tolist(), vehicles, strict=True):
+            est = self.lanes[lane]
+            if isinstance(est, UsesVehicle):
+                est.set_vehicle(vehicle)
+
+    def set_wind(self, wind: FloatArray) -> None:
+        """Pass each lane its row of the wind (B, 3) in N, m/s if it
+        :class:`~quadslam_env.estimation.protocol.ModelsDrag`."""
+        for lane, est in enumerate(self.lanes):
+            if isinstance(est, ModelsDrag):
+                est.set_wind(wind[lane])
 
     def predict(
         self,

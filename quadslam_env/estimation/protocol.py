@@ -10,16 +10,18 @@ true state (the oracle, which says ``uses_truth = True``, is the one exception).
 Abilities that only some estimators have are protocols of their own, checked with
 ``isinstance(estimator, Ability)`` where they are used (docs/design.md §5): of a batch,
 :class:`ReservesLandmarks`, :class:`AssociatesUnlabeled`, :class:`UsesTruth`,
-:class:`ShowsParticles` and :class:`HasFullState`; of one vehicle's estimator (what
-:class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its lanes), :class:`ChecksMemory`,
-:class:`LabelsReturns` and :class:`HasParticles`. A runtime-checkable protocol's
+:class:`ShowsParticles`, :class:`HasFullState`, :class:`TakesVehicle` and :class:`TakesWind`;
+of one vehicle's estimator (what :class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its
+lanes), :class:`ChecksMemory`, :class:`LabelsReturns`, :class:`HasParticles`,
+:class:`UsesVehicle` and :class:`ModelsDrag`. A runtime-checkable protocol's
 ``isinstance`` only checks that the names exist, not their signatures or types, and no
 estimator names these protocols as bases, so nothing checks an implementation's signature
 against them; the call sites are typed by the protocol, and
 ``tests/test_estimator_abilities.py`` checks which built-in has which ability. What the
 scenario check must know before any estimator is built is a class flag that the registry
-reads instead: ``associates_unlabeled``, ``uses_truth`` and ``copyable = False`` (an estimator
-the env cannot deep-copy for a slow IMU or a delayed LiDAR).
+reads instead: ``associates_unlabeled``, ``uses_truth``, ``copyable = False`` (an estimator
+the env cannot deep-copy for a slow IMU or a delayed LiDAR) and ``models_drag`` (a process
+model with drag, which ``wind.inform_estimator`` needs).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import numpy as np
 
 from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import FloatArray
 
 IntArray = np.ndarray
@@ -203,6 +206,30 @@ class HasFullState(Protocol):
         """Lane ``lane``'s mean (n,), covariance (n, n) and the landmark id of each map slot."""
 
 
+@runtime_checkable
+class TakesVehicle(Protocol):
+    """A batch estimator that can be told each lane's vehicle (``randomize.inform_estimator``).
+
+    A batch whose model uses no vehicle parameter may implement it as a no-op;
+    :class:`~quadslam_env.estimation.lane_loop.LaneLoop` passes each vehicle on to the lanes
+    that :class:`UsesVehicle`.
+    """
+
+    def set_vehicle(self, lanes: IntArray, vehicles: Sequence[VehicleParams]) -> None:
+        """Use ``vehicles[j]`` as lane ``lanes[j]``'s model (k,) from its next reset on; the
+        env calls it just before :meth:`BatchEstimator.reset_lanes` of those lanes."""
+
+
+@runtime_checkable
+class TakesWind(Protocol):
+    """A batch estimator that takes the wind as a known disturbance input
+    (``wind.inform_estimator``); its class says ``models_drag = True``."""
+
+    def set_wind(self, wind: FloatArray) -> None:
+        """The wind (B, 3) in N, m/s held over the next predictions (the simulator's wind of
+        the step being predicted), read, not kept."""
+
+
 # ---------------------------------------------------------- abilities of one vehicle's
 @runtime_checkable
 class ChecksMemory(Protocol):
@@ -238,3 +265,21 @@ class HasParticles(Protocol):
 
     def particle_positions(self) -> FloatArray:
         """(N, 3) particle positions ρ in N, m (a copy)."""
+
+
+@runtime_checkable
+class UsesVehicle(Protocol):
+    """A one-vehicle estimator whose process model uses the vehicle's parameters (FastSLAM)."""
+
+    def set_vehicle(self, vehicle: VehicleParams) -> None:
+        """Use ``vehicle`` instead of the one it was built with (every constant taken from the
+        vehicle is refreshed); the env calls it just before a reset."""
+
+
+@runtime_checkable
+class ModelsDrag(Protocol):
+    """A one-vehicle estimator whose process model has the drag, so a known wind changes it
+    (its class says ``models_drag = True``)."""
+
+    def set_wind(self, wind: FloatArray) -> None:
+        """The wind (3,) in N, m/s held over the next predictions (copied)."""

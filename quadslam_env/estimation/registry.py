@@ -149,6 +149,20 @@ def copyable(name: str) -> bool:
     return bool(getattr(_load(name), "copyable", True))
 
 
+def models_drag(name: str) -> bool:
+    """Whether the estimator ``name``'s process model has the vehicle's drag, so that a known
+    wind changes it (``wind.inform_estimator``): its class says ``models_drag = True`` and
+    takes the wind through ``set_wind`` (:class:`~quadslam_env.estimation.protocol.TakesWind`,
+    or :class:`~quadslam_env.estimation.protocol.ModelsDrag` for one vehicle's). IMU-driven
+    models (EKF-SLAM, iSAM2, the kinematic FastSLAM) take the sensed specific force, drag
+    included, and have no drag term to tell.
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    return bool(getattr(_load(name), "models_drag", False))
+
+
 def make(name: str, num_lanes: int = 1, landmark_capacity: int = 0, **cfg: Any) -> BatchEstimator:
     """Build the estimator ``name`` for ``num_lanes`` lanes.
 

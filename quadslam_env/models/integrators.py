@@ -226,6 +226,8 @@ def propagate_lanes(
     h: float,
     n_steps: int,
     use_rk4: bool,
+    air: AirTuple,
+    aero: bool,
 ) -> None:
     """``n_steps`` explicit steps of size ``h`` s for N lanes in place (FastSLAM particles).
 
@@ -238,6 +240,8 @@ def propagate_lanes(
         bodies: (K, 20) parameters from :func:`pack_bodies`, K = 1 (shared) or N (per lane).
         hold_rates: ``ω̇ = 0`` (strapdown model) instead of Euler's equation.
         use_rk4: Classical RK4 if True, forward Euler otherwise.
+        air, aero: The air all lanes fly in, as in
+            :func:`~quadslam_env.models.rigid_body.rigid_body_derivative` (a known wind).
     """
     work = np.empty((5, STATE_DIM))
     shared, shared_u = bodies.shape[0] == 1, inputs.shape[0] == 1
@@ -245,9 +249,9 @@ def propagate_lanes(
         x, u, body = states[i], inputs[0 if shared_u else i], bodies[0 if shared else i]
         for _ in range(n_steps):
             if use_rk4:
-                rk4_step(x, u, body, hold_rates, h, work, NO_AIR, False)
+                rk4_step(x, u, body, hold_rates, h, work, air, aero)
             else:
-                rigid_body_derivative(x, u, body, hold_rates, work[0], NO_AIR, False)
+                rigid_body_derivative(x, u, body, hold_rates, work[0], air, aero)
                 for j in range(STATE_DIM):
                     x[j] = x[j] + h * work[0, j]
 
@@ -351,6 +355,7 @@ class RigidBodyLanes:
         n_steps: int = 1,
         method: str = "rk4",
         accel: ArrayLike = 0.0,
+        air: AirTuple | None = None,
     ) -> FloatArray:
         """``n_steps`` explicit steps of size ``h`` s with the inputs held.
 
@@ -359,6 +364,10 @@ class RigidBodyLanes:
             thrust, torque, accel: As in :meth:`derivative`.
             h: Step in s. n_steps: Number of steps.
             method: ``"rk4"`` (classical) or ``"euler"`` (forward).
+            air: ``(w (3) m/s in N, c_q (3) 1/m)``: the drag on the air-relative velocity in
+                a known wind w, plus the quadratic drag (the simulator's drag,
+                :func:`~quadslam_env.models.rigid_body.aero_specific_force`); ``None``: still
+                air, no quadratic drag.
 
         Returns:
             (N, 12) fresh array of final states (no saturation, angles not wrapped).
@@ -366,7 +375,7 @@ class RigidBodyLanes:
         out = np.array(states, dtype=float).reshape(-1, STATE_DIM)
         u = lane_inputs(out.shape[0], thrust, torque, accel)
         args = (self._bodies, self.hold_rates, float(h), int(n_steps), method == "rk4")
-        propagate_lanes(out, u, *args)
+        propagate_lanes(out, u, *args, NO_AIR if air is None else air, air is not None)
         return out
 
 

@@ -25,7 +25,8 @@ class VehicleParams:
         actuator_tau: First-order actuator time constant in s; 0 disables the lag.
         drag_quadratic: (3,) quadratic drag coefficients c_q per body axis in 1/m (specific
             force ``−c_q ∘ (‖v_a‖ v_a)`` on the air-relative velocity v_a); zeros disable it.
-            The simulator's truth only: the estimators' process models leave it out.
+            The simulator's truth only: the estimators' process models leave it out, except a
+            model with drag told the wind (``wind.inform_estimator``).
         rotors: The rotor model (:class:`~quadslam_env.models.rotors.RotorParams`), or
             ``None``: thrust and torque act directly (through ``actuator_tau``). With rotors,
             ``max_thrust`` and ``max_torque`` are the rotors' (all at full speed; half at the

@@ -116,6 +116,32 @@ def air_velocity_body(x: FloatArray, c: Vec9, wn: float, we: float, wd: float) -
 
 
 @inline_kernel
+def air_specific_force(
+    x: FloatArray, c: Vec9, thrust: float, mass: float, drag: float, air: AirTuple
+) -> Vec3:
+    """:func:`aero_specific_force` of state ``x`` (12,) with ``C_NB`` ``c`` (row-major) in the
+    ``air`` ``(w (3) m/s in N, c_q (3) 1/m)``: the drag on ``v − C_NBᵀ w``, m/s² (B frame)."""
+    va = air_velocity_body(x, c, air[0], air[1], air[2])
+    cq = (air[3], air[4], air[5])
+    return aero_specific_force(va[0], va[1], va[2], thrust, mass, drag, cq)
+
+
+@inline_kernel
+def state_specific_force(
+    x: FloatArray, thrust: float, mass: float, drag: float, air: AirTuple, aero: bool
+) -> Vec3:
+    """The specific force of state ``x`` (12,), m/s² (B frame): in the ``air`` with ``aero``
+    (:func:`air_specific_force`), else still air (:func:`specific_force_body`)."""
+    if not aero:
+        return specific_force_body(x[3], x[4], x[5], thrust, mass, drag)
+    c = dcm_from_trig(
+        math.cos(x[6]), math.sin(x[6]), math.cos(x[7]), math.sin(x[7]),
+        math.cos(x[8]), math.sin(x[8]),
+    )  # fmt: skip
+    return air_specific_force(x, c, thrust, mass, drag, air)
+
+
+@inline_kernel
 def kinematics_dcm(x: FloatArray, c: Vec9, trig: Vec4, f_b: Vec3, out: FloatArray) -> None:
     """:func:`kinematics` with C_NB (row-major, 9) and ``trig = (cos φ, sin φ, cos θ, sin θ)``
     already computed."""
@@ -210,9 +236,7 @@ def rigid_body_derivative(
         cf, sf = math.cos(x[6]), math.sin(x[6])
         ct, st = math.cos(x[7]), math.sin(x[7])
         c = dcm_from_trig(cf, sf, ct, st, math.cos(x[8]), math.sin(x[8]))
-        va = air_velocity_body(x, c, air[0], air[1], air[2])
-        cq = (air[3], air[4], air[5])
-        f = aero_specific_force(va[0], va[1], va[2], u[0], body[0], body[1], cq)
+        f = air_specific_force(x, c, u[0], body[0], body[1], air)
         kinematics_dcm(x, c, (cf, sf, ct, st), (f[0] + u[4], f[1] + u[5], f[2] + u[6]), out)
     else:
         f = specific_force_body(x[3], x[4], x[5], u[0], body[0], body[1])
