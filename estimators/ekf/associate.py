@@ -43,6 +43,7 @@ from estimators.association import (
 )
 from estimators.ekf.kernels import D_N_MAPPED, sync_lane
 from estimators.ekf.settings import EkfSlamSettings
+from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, innovation, innovation_covariance
 from estimators.tentative import m_of_n
 from quadslam_env.models.jit import kernel
@@ -241,33 +242,16 @@ def settle_tentative(
 
 
 class UnlabeledScans:
-    """:class:`~estimators.ekf.filter.EkfSlamBatch`'s methods for unlabeled scans (a mixin:
-    the filter's buffers are declared here, allocated by the filter)."""
+    """:class:`~estimators.ekf.filter.EkfSlamBatch`'s methods for unlabeled scans (a mixin
+    over the filter's :class:`~estimators.ekf.state.EkfState`)."""
 
     associates_unlabeled = True
     num_lanes: int
     nv: int
     settings: EkfSlamSettings
     gate_threshold: float
-    _x: FloatArray
-    _P: FloatArray
-    _n: np.ndarray
-    _stale: np.ndarray
-    _slot_of_id: np.ndarray
-    _id_of_slot: np.ndarray
-    _mapped: np.ndarray
-    _known: np.ndarray
-    _known_pos: FloatArray
-    _tentative: np.ndarray
-    _hits: np.ndarray
-    _age: np.ndarray
-    _diag: FloatArray
-    _assoc: np.ndarray
+    state: EkfState
     _thresholds: FloatArray
-
-    @property
-    def landmark_capacity(self) -> int:
-        raise NotImplementedError  # the filter's
 
     def _ensure_ids(self, count: int) -> None:
         raise NotImplementedError  # the filter's
@@ -308,41 +292,39 @@ class UnlabeledScans:
         bad = first_nonfinite_lane(lanes, present, returns)
         if bad >= 0:
             raise ValueError(f"update: lane {bad}: scan measurements must be finite")
-        if self._assoc.shape[1] < width:
-            self._assoc = np.full((self.num_lanes, width), UNASSOCIATED, dtype=np.int64)
+        if self.state.assoc.shape[1] < width:
+            self.state.assoc = np.full((self.num_lanes, width), UNASSOCIATED, dtype=np.int64)
             self._thresholds = joint_thresholds(width, self.settings.gate_probability)
-        self._assoc[lanes] = UNASSOCIATED
+        self.state.assoc[lanes] = UNASSOCIATED
         if lanes.size == 0:
             return
-        self._ensure_ids(int(((self._n[lanes] - self.nv) // 3 + count[lanes]).max()))
-        lcap = self.landmark_capacity
+        self._ensure_ids(int(((self.state.n[lanes] - self.nv) // 3 + count[lanes]).max()))
+        lcap = self.state.landmark_capacity
         visible = np.zeros((self.num_lanes, lcap), dtype=bool)
         meas = np.zeros((self.num_lanes, lcap, 3))
         r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
-        cfg = self.settings
+        cfg, st = self.settings, self.state
         associate_lanes(
-            self._x, self._P, self._n, self.nv, self._stale, self._slot_of_id, self._mapped,
-            self._known, self._known_pos, lanes, count, returns, r_diag, self.gate_threshold,
+            st.x, st.P, st.n, self.nv, st.stale, st.slot_of_id, st.mapped, st.known, st.known_pos,
+            lanes, count, returns, r_diag, self.gate_threshold,
             chi2_threshold(3, cfg.new_landmark_probability), self._thresholds,
-            cfg.association == "jcbb", self._tentative, self._hits, self._age, visible, meas,
-            self._assoc,
+            cfg.association == "jcbb", st.tentative, st.hits, st.age, visible, meas, st.assoc,
         )  # fmt: skip
         self.update(t, lanes, visible, meas, sigma)
         settle_tentative(
-            self._x, self._P, self._n, self.nv, self._slot_of_id, self._id_of_slot,
-            self._mapped, self._tentative, self._hits, self._age, lanes, count,
-            cfg.confirm_hits, cfg.confirm_window, self._diag, self._assoc,
+            st.x, st.P, st.n, self.nv, st.slot_of_id, st.id_of_slot, st.mapped, st.tentative,
+            st.hits, st.age, lanes, count, cfg.confirm_hits, cfg.confirm_window, st.diag, st.assoc,
         )  # fmt: skip
 
     @property
     def last_association(self) -> np.ndarray:
         """(B, R) int label of each return of the lanes' last unlabeled scans (-1: none):
         map slots in SLAM lanes, known-map ids in known-map lanes (read only)."""
-        out = self._assoc.view()
+        out = self.state.assoc.view()
         out.flags.writeable = False
         return out
 
     @property
     def tentative_count(self) -> np.ndarray:
         """(B,) int tentative landmarks each lane holds (unknown association)."""
-        return self._tentative.sum(axis=1)
+        return self.state.tentative.sum(axis=1)

@@ -37,6 +37,7 @@ from estimators.ekf.kernels import (
     predict_lanes,
 )
 from estimators.ekf.settings import ACCEL_BIAS_Z, GYRO_BIAS, EkfSlamSettings
+from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.memory import check_ekf_map
 from quadslam_env.estimation import BatchEstimate, IntArray, KnownMaps, register
@@ -84,15 +85,10 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         self._qc = settings.continuous_noise()
         self._relinearise = settings.relinearise_tolerance
         self.num_lanes = b = int(num_lanes)
-        self._n = np.full(b, self.nv, dtype=np.int64)
-        self._stale = np.zeros(b, dtype=bool)
-        self._known = np.zeros(b, dtype=bool)
-        self._rates = np.zeros((b, 3))
-        self._diag = np.zeros((len(DIAGNOSTIC_NAMES), b))
-        self._diag[D_NIS] = math.nan
+        self.state = EkfState.empty(b, self.nv, len(DIAGNOSTIC_NAMES))
+        self.state.diag[D_NIS] = math.nan
         self._vel_inertial = np.zeros((b, 3))
         self._accel_bias = np.zeros((b, 3))
-        self._assoc = np.zeros((b, 0), dtype=np.int64)
         self._thresholds = joint_thresholds(0, settings.gate_probability)
         self._allocate(max(int(landmark_capacity), 0))
         warmup.start()  # a cold cache: compile the update in parallel (estimators.ekf.warmup)
@@ -104,44 +100,24 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         return state
 
     # ------------------------------------------------------------------ storage
-    def _allocate(self, lmax: int, keep: bool = False, slots: int | None = None) -> None:
+    def _allocate(self, lmax: int, slots: int | None = None) -> None:
         """(Re)allocate the per-lane arrays for ``lmax`` landmark ids and ``slots`` landmark
-        states (default ``lmax``), copying the old content that fits."""
-        b = self.num_lanes
+        states (default ``lmax``), keeping the content that fits."""
         slots = lmax if slots is None else slots
-        check_ekf_map(b, self.nv, slots)  # before allocating (B, n, n)
-        nmax = self.nv + 3 * slots
-
-        def fresh(name: str, shape: tuple[int, ...], fill: float, dtype: type) -> np.ndarray:
-            out: np.ndarray = np.full(shape, fill, dtype=dtype)
-            if keep:  # copy the old content into the leading corner (all of it that fits)
-                old = getattr(self, name)
-                corner = tuple(slice(0, min(e, f)) for e, f in zip(old.shape, shape, strict=True))
-                out[corner] = old[corner]
-            return out
-
-        self._x = fresh("_x", (b, nmax), 0.0, float)
-        self._P = fresh("_P", (b, nmax, nmax), 0.0, float)
-        self._slot_of_id = fresh("_slot_of_id", (b, lmax), -1, np.int64)
-        self._id_of_slot = fresh("_id_of_slot", (b, lmax), -1, np.int64)
-        self._mapped = fresh("_mapped", (b, lmax), False, bool)
-        self._known_pos = fresh("_known_pos", (b, lmax, 3), 0.0, float)
-        # Unknown association: tentative labels (in the state, not yet reported), their hits
-        # and age (estimators.ekf.associate), and the reported map (mapped, not tentative).
-        self._tentative = fresh("_tentative", (b, lmax), False, bool)
-        self._hits = fresh("_hits", (b, lmax), 0, np.int64)
-        self._age = fresh("_age", (b, lmax), 0, np.int64)
-        self._reported = np.zeros((b, lmax), dtype=bool)
-        self._landmark_means = np.zeros((b, lmax, 3))
+        check_ekf_map(self.num_lanes, self.nv, slots)  # before allocating (B, n, n)
+        self.state.resize(lmax, slots, self.nv)
+        # Outputs by id (estimate()); the cached BatchEstimate's views die with the buffers.
+        self._reported = np.zeros((self.num_lanes, lmax), dtype=bool)
+        self._landmark_means = np.zeros((self.num_lanes, lmax, 3))
         self._batch_estimate: BatchEstimate | None = None
 
     def _fit_state_slots(self) -> None:
         """Landmark states only where a lane runs SLAM: when every lane localises against a
         known map, x and P shrink to the nv vehicle states (the filter then touches no more
         memory than it needs); a SLAM lane brings the slots back, one per landmark id."""
-        want = self.landmark_capacity if not self._known.all() else 0
+        want = self.landmark_capacity if not self.state.known.all() else 0
         if want != (self.state_capacity - self.nv) // 3:
-            self._allocate(self.landmark_capacity, keep=True, slots=want)
+            self._allocate(self.landmark_capacity, slots=want)
 
     def _ensure_ids(self, count: int) -> None:
         """Grow so that ids ``0 … count-1`` fit: at least double the state buffer length."""
@@ -150,7 +126,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             return
         doubled = -(-(2 * (self.nv + 3 * lmax) - self.nv) // 3)  # ceil
         grown = max(count, doubled)
-        self._allocate(grown, keep=True, slots=0 if self._known.all() else grown)
+        self._allocate(grown, slots=0 if self.state.known.all() else grown)
 
     def reserve_landmarks(self, count: int) -> None:
         """Make room for landmark ids ``0 … count-1`` now (the env calls it at reset, so that
@@ -165,24 +141,24 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
     @property
     def landmark_capacity(self) -> int:
         """Lmax: landmark ids (and map slots) currently allocated per lane."""
-        return int(self._mapped.shape[1])
+        return self.state.landmark_capacity
 
     @property
     def state_capacity(self) -> int:
         """nmax = nv + 3 Lmax, the length of each lane's state buffer."""
-        return int(self._x.shape[1])
+        return int(self.state.x.shape[1])
 
     @property
     def state_dim(self) -> np.ndarray:
         """(B,) int, current size n of each lane's total state x = (s, b, m) (read only)."""
-        out = self._n.view()
+        out = self.state.n.view()
         out.flags.writeable = False
         return out
 
     @property
     def known_map(self) -> np.ndarray:
         """(B,) bool, lanes localising against a known map (read only)."""
-        out = self._known.view()
+        out = self.state.known.view()
         out.flags.writeable = False
         return out
 
@@ -231,7 +207,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         self._ensure_ids(need)
         nv = self.nv
         for j, lane in enumerate(lanes.tolist()):
-            x, P = self._x[lane], self._P[lane]
+            x, P = self.state.x[lane], self.state.P[lane]
             x[:] = 0.0
             P[:] = 0.0
             x[:POSE_DIM] = mean0[j, :POSE_DIM]
@@ -241,22 +217,22 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             P[:POSE_DIM, :POSE_DIM] = 0.5 * (P0 + P0.T)
             if self.estimate_imu_bias:
                 P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(self.settings.initial_bias_variances())
-            self._n[lane] = nv
-            self._stale[lane] = False
-            self._rates[lane] = mean0[j, RATE]
-            self._diag[:, lane] = 0.0
-            self._diag[D_NIS, lane] = math.nan
-            self._slot_of_id[lane] = -1
-            self._id_of_slot[lane] = -1
-            self._mapped[lane] = False
-            self._tentative[lane] = False
-            self._known_pos[lane] = 0.0
-            self._assoc[lane] = UNASSOCIATED
+            self.state.n[lane] = nv
+            self.state.stale[lane] = False
+            self.state.rates[lane] = mean0[j, RATE]
+            self.state.diag[:, lane] = 0.0
+            self.state.diag[D_NIS, lane] = math.nan
+            self.state.slot_of_id[lane] = -1
+            self.state.id_of_slot[lane] = -1
+            self.state.mapped[lane] = False
+            self.state.tentative[lane] = False
+            self.state.known_pos[lane] = 0.0
+            self.state.assoc[lane] = UNASSOCIATED
             known = maps[j]
-            self._known[lane] = known is not None
+            self.state.known[lane] = known is not None
             if known is not None:
-                self._known_pos[lane, known[0]] = known[1]
-                self._mapped[lane, known[0]] = True
+                self.state.known_pos[lane, known[0]] = known[1]
+                self.state.mapped[lane, known[0]] = True
         self._fit_state_slots()
 
     @staticmethod
@@ -313,13 +289,13 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         sa = accel_sigma * dt if self.settings.imu_noise_in_q else 0.0
         sg = gyro_sigma * dt if self.settings.imu_noise_in_q else 0.0
         predict_lanes(
-            self._x,
-            self._P,
-            self._n,
+            self.state.x,
+            self.state.P,
+            self.state.n,
             self.nv,
-            self._stale,
-            self._rates,
-            self._diag,
+            self.state.stale,
+            self.state.rates,
+            self.state.diag,
             np.ascontiguousarray(active, dtype=bool),
             np.ascontiguousarray(accel, dtype=float),
             np.ascontiguousarray(gyro, dtype=float),
@@ -370,17 +346,17 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
         warmup.wait()
         update_lanes(
-            self._x,
-            self._P,
-            self._n,
+            self.state.x,
+            self.state.P,
+            self.state.n,
             self.nv,
-            self._stale,
-            self._slot_of_id,
-            self._id_of_slot,
-            self._mapped,
-            self._known,
-            self._known_pos,
-            self._diag,
+            self.state.stale,
+            self.state.slot_of_id,
+            self.state.id_of_slot,
+            self.state.mapped,
+            self.state.known,
+            self.state.known_pos,
+            self.state.diag,
             lanes,
             visible,
             meas,
@@ -412,14 +388,14 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             ``n_rejected``, ``n_rejected_last``, ``n_updates``, ``n_mapped``, ``diverged``
             as (B,) float arrays.
         """
-        x = self._x
+        x = self.state.x
         fill_outputs(
             x,
             self.nv,
-            self._slot_of_id,
-            self._mapped,
-            self._known,
-            self._known_pos,
+            self.state.slot_of_id,
+            self.state.mapped,
+            self.state.known,
+            self.state.known_pos,
             self._vel_inertial,
             self._landmark_means,
         )
@@ -434,18 +410,18 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
                 vel_body=x[:, VEL],
                 vel_inertial=self._vel_inertial,
                 euler=x[:, EUL],
-                rates=self._rates,
-                pose_cov=self._P[:, :POSE_DIM, :POSE_DIM],
+                rates=self.state.rates,
+                pose_cov=self.state.P[:, :POSE_DIM, :POSE_DIM],
                 landmark_means=self._landmark_means,
                 landmark_mapped=self._reported,
                 accel_bias=accel_bias,
                 gyro_bias=gyro_bias,
-                diagnostics={k: self._diag[i] for i, k in enumerate(DIAGNOSTIC_NAMES)},
+                diagnostics={k: self.state.diag[i] for i, k in enumerate(DIAGNOSTIC_NAMES)},
             )
             self._batch_estimate = out
         if self.estimate_imu_bias:
             self._accel_bias[:, 2] = x[:, ACCEL_BIAS_Z]
-        np.logical_and(self._mapped, ~self._tentative, out=self._reported)
+        np.logical_and(self.state.mapped, ~self.state.tentative, out=self._reported)
         return out
 
     def lane_estimate(self, lane: int) -> BatchEstimate:
@@ -457,13 +433,13 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             their covariances (in known-map mode the known map with zero covariance), biases
             when estimated and the diagnostics of :meth:`estimate`.
         """
-        x, P, nv = self._x[lane], self._P[lane], self.nv
-        lm_ids = np.flatnonzero(self._mapped[lane] & ~self._tentative[lane])
-        if self._known[lane]:
-            lm_means = self._known_pos[lane, lm_ids]
+        x, P, nv = self.state.x[lane], self.state.P[lane], self.nv
+        lm_ids = np.flatnonzero(self.state.mapped[lane] & ~self.state.tentative[lane])
+        if self.state.known[lane]:
+            lm_means = self.state.known_pos[lane, lm_ids]
             lm_covs = np.zeros((lm_ids.shape[0], 3, 3))
         else:
-            idx = nv + 3 * self._slot_of_id[lane, lm_ids]
+            idx = nv + 3 * self.state.slot_of_id[lane, lm_ids]
             lm_means = x[idx[:, None] + _AR3]
             lm_covs = P[idx[:, None, None] + _AR3[:, None], idx[:, None, None] + _AR3]
         gyro_bias = accel_bias = None
@@ -475,12 +451,14 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             vel_body=x[VEL].copy(),
             vel_inertial=dcm_from_euler(x[EUL]) @ x[VEL],
             euler=x[EUL].copy(),
-            rates=self._rates[lane].copy(),
+            rates=self.state.rates[lane].copy(),
             pose_cov=P[:POSE_DIM, :POSE_DIM].copy(),
             landmark_ids=lm_ids,
             landmark_means=lm_means,
             landmark_covs=lm_covs,
             accel_bias=accel_bias,
             gyro_bias=gyro_bias,
-            diagnostics={k: float(self._diag[i, lane]) for i, k in enumerate(DIAGNOSTIC_NAMES)},
+            diagnostics={
+                k: float(self.state.diag[i, lane]) for i, k in enumerate(DIAGNOSTIC_NAMES)
+            },
         )

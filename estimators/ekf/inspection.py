@@ -3,11 +3,10 @@ state, covariance and stacked observation model (for tests, debugging and analys
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from estimators.ekf.kernels import sync_lane
+from estimators.ekf.state import EkfState
 from estimators.ekf.update import stacked_model
 from quadslam_env.types import FloatArray
 
@@ -15,30 +14,22 @@ _AR3 = np.arange(3)
 
 
 class FilterInspection:
-    """Mixin of :class:`~estimators.ekf.filter.EkfSlamBatch` (uses its per-lane buffers)."""
+    """Mixin of :class:`~estimators.ekf.filter.EkfSlamBatch` (reads and writes its
+    :class:`~estimators.ekf.state.EkfState`)."""
 
-    _x: Any
-    _P: Any
-    _n: Any
-    _stale: Any
-    _mapped: Any
-    _known: Any
-    _known_pos: Any
-    _slot_of_id: Any
-    _id_of_slot: Any
+    state: EkfState
     nv: int
-    landmark_capacity: Any
 
     def full_state(self, lane: int = 0) -> tuple[FloatArray, FloatArray, np.ndarray]:
         """Copies of one lane's total mean x (n,), covariance P (n, n) and the mapped ids in
         slot order (landmark slot j occupies ``x[nv + 3j : nv + 3j + 3]``)."""
-        n = int(self._n[lane])
+        n = int(self.state.n[lane])
         self._sync(lane)
         n_mapped = (n - self.nv) // 3
         return (
-            self._x[lane, :n].copy(),
-            self._P[lane, :n, :n].copy(),
-            self._id_of_slot[lane, :n_mapped].copy(),
+            self.state.x[lane, :n].copy(),
+            self.state.P[lane, :n, :n].copy(),
+            self.state.id_of_slot[lane, :n_mapped].copy(),
         )
 
     def set_full_state(self, x: FloatArray, P: FloatArray, lane: int = 0) -> None:
@@ -47,16 +38,16 @@ class FilterInspection:
         Raises:
             ValueError: On a shape mismatch or non-finite values.
         """
-        n = int(self._n[lane])
+        n = int(self.state.n[lane])
         x = np.asarray(x, dtype=float)
         P = np.asarray(P, dtype=float)
         if x.shape != (n,) or P.shape != (n, n):
             raise ValueError(f"set_full_state: expected x ({n},) and P ({n}, {n})")
         if not (np.isfinite(x).all() and np.isfinite(P).all()):
             raise ValueError("set_full_state: x and P must be finite")
-        self._x[lane, :n] = x
-        self._P[lane, :n, :n] = P
-        self._stale[lane] = False
+        self.state.x[lane, :n] = x
+        self.state.P[lane, :n, :n] = P
+        self.state.stale[lane] = False
 
     def stacked_measurement(
         self, ids: np.ndarray, lane: int = 0
@@ -77,18 +68,18 @@ class FilterInspection:
         """
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
         for i in ids.tolist():
-            if not (0 <= i < self.landmark_capacity and self._mapped[lane, i]):
+            if not (0 <= i < self.state.landmark_capacity and self.state.mapped[lane, i]):
                 raise KeyError(i)
-        x = self._x[lane]
-        if self._known[lane]:
-            lms, lm_cols = self._known_pos[lane, ids], None
+        x = self.state.x[lane]
+        if self.state.known[lane]:
+            lms, lm_cols = self.state.known_pos[lane, ids], None
         else:
-            lm_cols = (self.nv + 3 * self._slot_of_id[lane, ids][:, None] + _AR3).ravel()
+            lm_cols = (self.nv + 3 * self.state.slot_of_id[lane, ids][:, None] + _AR3).ravel()
             lms = x[lm_cols].reshape(-1, 3)
         return stacked_model(x, lms, lm_cols)
 
     def _sync(self, lane: int) -> None:
         """Make one lane's P fully symmetric again (see :func:`predict_lanes`)."""
-        if self._stale[lane]:
-            sync_lane(self._P[lane], int(self._n[lane]), self.nv)
-            self._stale[lane] = False
+        if self.state.stale[lane]:
+            sync_lane(self.state.P[lane], int(self.state.n[lane]), self.nv)
+            self.state.stale[lane] = False

@@ -1,0 +1,120 @@
+"""The per-lane buffers of EKF-SLAM over B lanes, as one typed container.
+
+:class:`~estimators.ekf.filter.EkfSlamBatch` owns one :class:`EkfState`; its kernels
+(:mod:`estimators.ekf.kernels`, :mod:`estimators.ekf.update`, :mod:`estimators.ekf.associate`)
+take the arrays and update them in place. The layout of lane b's state (seed 001 eq. 21–23)::
+
+    x[b] = (s, b_imu, m)        s = (ρ [m, N], v_B [m/s, B], Λ [rad]), b_imu = (b_ω, b_az)
+    P[b]                        covariance of x[b] (eq. 23)
+
+with ``nmax = nv + 3 S`` (nv = 9 or 13 vehicle and bias states, S landmark slots); only the
+first ``n[b]`` entries are in use. Landmarks are identified by ids ``0 … Lmax-1`` and fill the
+slots in registration order. ``S`` is ``Lmax`` while any lane runs SLAM and 0 when every lane
+localises against a known map (:meth:`EkfSlamBatch._fit_state_slots`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from quadslam_env.types import FloatArray
+
+
+@dataclass
+class EkfState:
+    """The EKF-SLAM state of B lanes (all arrays have the lane axis first).
+
+    Attributes:
+        x: (B, nmax) total means (s, b_imu, m); entries ``≥ n[b]`` are unused.
+        P: (B, nmax, nmax) total covariances; only the lower blocks are current while
+            ``stale[b]`` (the prediction updates ``P_vv`` and ``P_vm`` only).
+        n: (B,) int, used length of each lane's x.
+        stale: (B,) bool, lanes whose ``P_mv`` block lags ``P_vm`` (synced before reading P).
+        known: (B,) bool, lanes localising against a known map (no landmark states).
+        rates: (B, 3) bias-corrected body rates ω̂ of the last IMU sample, rad/s, B.
+        diag: (D, B) diagnostics by row (``estimators.ekf.kernels.DIAGNOSTIC_NAMES``).
+        slot_of_id: (B, Lmax) int, map slot of each landmark id (-1: none).
+        id_of_slot: (B, Lmax) int, landmark id in each map slot (-1: free).
+        mapped: (B, Lmax) bool, ids in the lane's state (or its known map).
+        known_pos: (B, Lmax, 3) known-map landmark positions by id, m, N.
+        tentative: (B, Lmax) bool, unknown association: ids in the state but not yet
+            confirmed (not reported).
+        hits: (B, Lmax) int, unknown association: scans that matched each tentative id.
+        age: (B, Lmax) int, unknown association: scans since each tentative id was created.
+        assoc: (B, R) int, the label of each return of the lanes' last unlabeled scans (-1:
+            none); R grows with the widest scan.
+    """
+
+    x: FloatArray
+    P: FloatArray
+    n: np.ndarray
+    stale: np.ndarray
+    known: np.ndarray
+    rates: FloatArray
+    diag: FloatArray
+    slot_of_id: np.ndarray
+    id_of_slot: np.ndarray
+    mapped: np.ndarray
+    known_pos: FloatArray
+    tentative: np.ndarray
+    hits: np.ndarray
+    age: np.ndarray
+    assoc: np.ndarray
+
+    @classmethod
+    def empty(cls, num_lanes: int, nv: int, num_diagnostics: int) -> EkfState:
+        """B lanes of nv vehicle states each, no landmark ids or slots, no scan returns."""
+        b = num_lanes
+        return cls(
+            x=np.zeros((b, nv)),
+            P=np.zeros((b, nv, nv)),
+            n=np.full(b, nv, dtype=np.int64),
+            stale=np.zeros(b, dtype=bool),
+            known=np.zeros(b, dtype=bool),
+            rates=np.zeros((b, 3)),
+            diag=np.zeros((num_diagnostics, b)),
+            slot_of_id=np.full((b, 0), -1, dtype=np.int64),
+            id_of_slot=np.full((b, 0), -1, dtype=np.int64),
+            mapped=np.zeros((b, 0), dtype=bool),
+            known_pos=np.zeros((b, 0, 3)),
+            tentative=np.zeros((b, 0), dtype=bool),
+            hits=np.zeros((b, 0), dtype=np.int64),
+            age=np.zeros((b, 0), dtype=np.int64),
+            assoc=np.zeros((b, 0), dtype=np.int64),
+        )
+
+    @property
+    def landmark_capacity(self) -> int:
+        """Lmax: landmark ids allocated per lane."""
+        return int(self.mapped.shape[1])
+
+    def resize(self, lmax: int, slots: int, nv: int) -> None:
+        """Reallocate for ``lmax`` landmark ids and ``slots`` landmark states per lane
+        (``nmax = nv + 3 slots``), keeping the content that fits; new entries take each
+        array's neutral value (0, False, or -1 for the id/slot maps)."""
+        b = self.x.shape[0]
+        nmax = nv + 3 * slots
+        shapes = {
+            "x": (b, nmax),
+            "P": (b, nmax, nmax),
+            "slot_of_id": (b, lmax),
+            "id_of_slot": (b, lmax),
+            "mapped": (b, lmax),
+            "known_pos": (b, lmax, 3),
+            "tentative": (b, lmax),
+            "hits": (b, lmax),
+            "age": (b, lmax),
+        }
+        for field in fields(self):
+            shape = shapes.get(field.name)
+            if shape is None:
+                continue
+            old = getattr(self, field.name)
+            fill = -1 if field.name in ("slot_of_id", "id_of_slot") else 0
+            new = np.full(shape, fill, dtype=old.dtype)
+            # the old content fills the leading corner (all of it that fits)
+            corner = tuple(slice(0, min(e, f)) for e, f in zip(old.shape, shape, strict=True))
+            new[corner] = old[corner]
+            setattr(self, field.name, new)
