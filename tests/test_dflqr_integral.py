@@ -62,17 +62,37 @@ def test_the_integral_is_the_state_and_resets_per_lane() -> None:
     rng = np.random.default_rng(0)
     obs = np.zeros((3, 16))
     obs[:, 0:3] = rng.normal(size=(3, 3))
-    obs[:, 14] = 0.0
     dt = policy.control_dt
     _, state = policy.predict(obs, episode_start=np.ones(3, dtype=bool))
-    # ψ̇_d = 0: one Euler step of the error from zero.
-    np.testing.assert_allclose(state, obs[:, 0:3] * dt)
+    # ψ̇_d = 0: one Euler step of the error from zero; the clock at one step.
+    np.testing.assert_allclose(state[:, :3], obs[:, 0:3] * dt)
+    np.testing.assert_allclose(state[:, 3], dt)
     action, state2 = policy.predict(obs, state=state, episode_start=np.array([False, True, False]))
-    np.testing.assert_allclose(state2[[0, 2]], 2 * obs[[0, 2], 0:3] * dt)
-    np.testing.assert_allclose(state2[1], obs[1, 0:3] * dt)  # lane 1 restarted from zero
-    # Lane 1 flew the restarted integral: the same action as a fresh single-lane policy call.
+    np.testing.assert_allclose(state2[[0, 2], :3], 2 * obs[[0, 2], 0:3] * dt)
+    np.testing.assert_allclose(state2[:, 3], [2 * dt, dt, 2 * dt])
+    np.testing.assert_allclose(state2[1, :3], obs[1, 0:3] * dt)  # lane 1 restarted from zero
+    # Lane 1 flew the restarted integral: the same action as a fresh single-lane policy call,
+    # and lane 0 the integral's bias: −k_i ∫ρ̃ on u_p changes its command.
     single, _ = policy.predict(obs[1], episode_start=np.array([True]))
     np.testing.assert_array_equal(action[1], single)
+    fresh, _ = policy.predict(obs[0], episode_start=np.array([True]))
+    assert not np.array_equal(action[0], fresh)
+
+
+def test_the_integral_is_held_at_zero_after_the_start() -> None:
+    env = gym.make("QuadSLAM-Oracle-v0", scenario="hover")
+    try:
+        policy = DFLQRPolicy.from_env(env, integral_gain=0.02, integral_hold_s=0.05)
+    finally:
+        env.close()
+    obs = np.zeros((1, 16))
+    obs[0, 0:3] = 1.0
+    state = None
+    for step in range(1, 8):
+        _, state = policy.predict(obs, state=state, episode_start=np.array([step == 1]))
+        held = step <= 5  # the clock reads 0 … 0.04 s before steps 1 … 5
+        assert (state[0, 0] == 0.0) == held, step
+    np.testing.assert_allclose(state[0, :3], 2 * policy.control_dt)
 
 
 def test_the_integral_turns_with_the_heading_frame() -> None:
@@ -81,10 +101,10 @@ def test_the_integral_turns_with_the_heading_frame() -> None:
     policy = _policy(0.02)
     obs = np.zeros((1, 16))
     obs[0, 15] = 0.5
-    state = np.array([[1.0, 0.0, 0.3]])
+    state = np.array([[1.0, 0.0, 0.3, 7.0]])
     _, out = policy.predict(obs, state=state, episode_start=np.array([False]))
     angle = -0.5 * policy.control_dt
-    np.testing.assert_allclose(out, [[np.cos(angle), np.sin(angle), 0.3]])
+    np.testing.assert_allclose(out, [[np.cos(angle), np.sin(angle), 0.3, 7.0 + policy.control_dt]])
 
 
 def test_off_by_default_passes_the_state_through() -> None:
@@ -104,6 +124,12 @@ def test_the_gain_must_be_below_the_routh_hurwitz_bound() -> None:
         _policy(bound)
     with pytest.raises(ValueError, match="integral_gain"):
         _policy(-0.01)
+    env = gym.make("QuadSLAM-Oracle-v0", scenario="hover")
+    try:
+        with pytest.raises(ValueError, match="integral_hold_s"):
+            DFLQRPolicy.from_env(env, integral_gain=0.02, integral_hold_s=-1.0)
+    finally:
+        env.close()
 
 
 def test_anti_windup_clamps_the_contribution_and_freezes_on_saturated_thrust() -> None:
@@ -112,8 +138,8 @@ def test_anti_windup_clamps_the_contribution_and_freezes_on_saturated_thrust() -
     obs = np.zeros((2, 16))
     obs[:, 0:3] = 1.0
     obs[1, 14] = -50.0  # 50 m/s² up: the thrust command saturates at its maximum
-    state = np.array([[2 * cap, -2 * cap, 0.0], [0.1, 0.2, 0.3]])
+    state = np.array([[2 * cap, -2 * cap, 0.0, 20.0], [0.1, 0.2, 0.3, 20.0]])
     action, out = policy.predict(obs, state=state, episode_start=np.zeros(2, dtype=bool))
     assert action[1, 0] == 1.0
-    np.testing.assert_allclose(out[0], [cap, -cap, policy.control_dt])
-    np.testing.assert_array_equal(out[1], state[1])
+    np.testing.assert_allclose(out[0, :3], [cap, -cap, policy.control_dt])
+    np.testing.assert_array_equal(out[1, :3], state[1, :3])

@@ -163,8 +163,10 @@ class DFLQRPolicy:
     acceleration error leaves (a mass or thrust mismatch: ``Δa / k_p`` without it, since the
     loop's position gain ``k_p = K[i, i]`` is soft). Anti-windup: each axis's contribution is
     clamped to ``integral_limit`` and the integral is frozen on the steps whose thrust command
-    saturates. The integral is ``predict``'s ``state`` ((n, 3), m·s): zeros on a lane whose
-    ``episode_start`` is set, or when no state is given (:func:`integral_gain_bound`).
+    saturates and for ``integral_hold_s`` after the episode starts. ``predict``'s ``state``
+    carries it per lane ((n, 4): the integral in m·s, then the time since the episode started
+    in s): zeros on a lane whose ``episode_start`` is set, or when no state is given
+    (:func:`integral_gain_bound`).
 
     Args:
         vehicle: Nominal vehicle parameters (mass, inertia, actuator limits).
@@ -175,6 +177,8 @@ class DFLQRPolicy:
         integral_gain: ``k_i`` in s⁻³ (m/s² of command per m·s of integrated error), the same
             on x, y, z; 0 turns the integral off. Must stay below :func:`integral_gain_bound`.
         integral_limit: Largest integral contribution per axis, m/s².
+        integral_hold_s: The integral stays frozen (at zero) for this long after each episode
+            start, s: the take-off climb's error is the initial condition, not a disturbance.
         control_dt: Control period in s (the integration step; ``from_env`` uses the env's).
 
     Attributes:
@@ -190,6 +194,7 @@ class DFLQRPolicy:
         action_dim: int = 4,
         integral_gain: float = 0.0,
         integral_limit: float = INTEGRAL_LIMIT,
+        integral_hold_s: float = 0.0,
         control_dt: float = 0.01,
     ) -> None:
         self.vehicle = vehicle
@@ -209,6 +214,9 @@ class DFLQRPolicy:
         for key, value in (("integral_limit", integral_limit), ("control_dt", control_dt)):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{key}: got {value!r}; allowed: a finite number > 0")
+        if not (math.isfinite(integral_hold_s) and integral_hold_s >= 0.0):
+            raise ValueError(f"integral_hold_s: got {integral_hold_s!r}; allowed: a number >= 0")
+        self.integral_hold_s = float(integral_hold_s)
         self.integral_gain = float(integral_gain)
         self.integral_limit = float(integral_limit)
         self.control_dt = float(control_dt)
@@ -257,40 +265,45 @@ class DFLQRPolicy:
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         """SB3-style ``predict``: (obs_dim,) or (n, obs_dim) → float32 actions, ``state``
-        (passed through, or with the integral on the (n, 3) integral after this step)."""
+        (passed through, or with the integral on the (n, 4) integral state after this step)."""
         obs = np.asarray(observation, dtype=float)
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
         act = np.zeros((batch.shape[0], self.action_dim))
-        integral = None
         bias = _NO_BIAS
         if self.integral_gain > 0.0:
-            integral = self._integral(state, episode_start, batch.shape[0])
-            bias = -self.integral_gain * integral
+            state = self._integral_state(state, episode_start, batch.shape[0])
+            bias = -self.integral_gain * state[:, :3]
         _command_lanes(batch, self.K, self.kp, self.kd, float(self.vehicle.mass), self._limits,
                        bias, act)  # fmt: skip
-        if integral is not None:
-            state = self._integrate(integral, batch, np.abs(act[:, 0]) >= 1.0)
+        if self.integral_gain > 0.0:
+            state = self._integrate(state, batch, np.abs(act[:, 0]) >= 1.0)
         act = act.astype(np.float32)
         return (act[0] if single else act), state
 
-    def _integral(self, state: Any, episode_start: Any, n: int) -> FloatArray:
-        """(n, 3) integral to act on: ``state``'s, zeroed on the lanes starting an episode."""
+    def _integral_state(self, state: Any, episode_start: Any, n: int) -> FloatArray:
+        """(n, 4) integral state to act on: ``state``'s, zeroed on the lanes starting an
+        episode (all of them without a state)."""
         if state is None:
-            return np.zeros((n, 3))
-        integral = np.array(state, dtype=float).reshape(n, 3)
+            return np.zeros((n, 4))
+        out = np.array(state, dtype=float).reshape(n, 4)
         if episode_start is not None:
-            integral[np.asarray(episode_start, dtype=bool).reshape(n)] = 0.0
-        return integral
+            out[np.asarray(episode_start, dtype=bool).reshape(n)] = 0.0
+        return out
 
-    def _integrate(self, integral: FloatArray, obs: FloatArray, frozen: np.ndarray) -> FloatArray:
-        """One Euler step of ``∫ ρ̃ dt`` (n, 3) in the heading frame, which turns by
-        ``ψ̇_d dt`` (obs[15]) each step: the world-frame integral's components rotate by
-        ``−ψ̇_d dt``; lanes ``frozen`` (n,) keep theirs; clamped to ``integral_limit / k_i``."""
-        angle = -obs[:, 15] * self.control_dt
+    def _integrate(self, state: FloatArray, obs: FloatArray, saturated: np.ndarray) -> FloatArray:
+        """One Euler step of the (n, 4) state: ``∫ ρ̃ dt`` in the heading frame, which turns by
+        ``ψ̇_d dt`` (obs[15]) each step, so the world-frame integral's components rotate by
+        ``−ψ̇_d dt``; frozen on the lanes whose thrust is ``saturated`` (n,) or that are
+        still within ``integral_hold_s`` of their start; clamped to ``integral_limit / k_i``.
+        Column 3, the time since the episode started, advances by ``control_dt``."""
+        dt = self.control_dt
+        angle = -obs[:, 15] * dt
         c, s = np.cos(angle), np.sin(angle)
-        x, y = integral[:, 0], integral[:, 1]
-        turned = np.stack([c * x - s * y, s * x + c * y, integral[:, 2]], axis=1)
-        grown = turned + obs[:, 0:3] * self.control_dt
+        x, y = state[:, 0], state[:, 1]
+        turned = np.stack([c * x - s * y, s * x + c * y, state[:, 2]], axis=1)
+        grown = turned + obs[:, 0:3] * dt
         cap = self.integral_limit / self.integral_gain
-        return np.where(frozen[:, None], turned, np.clip(grown, -cap, cap))
+        frozen = saturated | (state[:, 3] < self.integral_hold_s)
+        integral = np.where(frozen[:, None], turned, np.clip(grown, -cap, cap))
+        return np.column_stack([integral, state[:, 3] + dt])
