@@ -20,13 +20,13 @@ The sections are read from those scenario files when the study runs (one source)
 conditions differ in them only. Rows, each flown on every condition: DF-LQR; DF-LQR with
 integral action (``dflqr_integral``: :data:`INTEGRAL_GAIN`, frozen during the climb); residual
 PPO trained on the nominal condition (``ppo_nominal``: the cost study's ``ppo_ekf`` training,
-the same entry, scenario and seeds, so the same runs); residual PPO trained on the randomised one
-(``ppo_randomized``: the same with the ``randomize`` section added), with seeds ``0 … n-1``;
-evaluation seeds start at 1000 and are never used in training, and every row is flown from the scenario's start (take-off
-climb included). Medians and spreads as in :mod:`agents.studies.learned_rows`. ``--quick``
-trains one seed on a small budget and flies 5 episodes (a smoke run of the pipeline, not a
-result). Each episode record carries the scales its episode drew (``rand_*``, randomised
-condition only).
+the same entry, scenario and seeds, so the same runs); residual PPO trained on the randomised
+one (``ppo_randomized``: the same with the ``randomize`` section added), with seeds
+``0 … n-1``. Evaluation seeds start at 1000 and are never used in training; every row is flown
+from the scenario's start (take-off climb included). Medians and spreads as in
+:mod:`agents.studies.learned_rows`. ``--quick`` trains one seed on a small budget and flies 5
+episodes (a smoke run of the pipeline, not a result). Each episode record carries the scales its
+episode drew (``rand_*``, randomised condition only).
 """
 
 from __future__ import annotations
