@@ -90,6 +90,7 @@ def test_the_integral_is_held_at_zero_after_the_start() -> None:
     state = None
     for step in range(1, 8):
         _, state = policy.predict(obs, state=state, episode_start=np.array([step == 1]))
+        assert state is not None
         held = step <= 5  # the clock reads 0 … 0.04 s before steps 1 … 5
         assert (state[0, 0] == 0.0) == held, step
     np.testing.assert_allclose(state[0, :3], 2 * policy.control_dt)
