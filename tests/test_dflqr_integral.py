@@ -3,6 +3,8 @@ offset without it), its per-lane reset and its stability bound."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -87,10 +89,9 @@ def test_the_integral_is_held_at_zero_after_the_start() -> None:
         env.close()
     obs = np.zeros((1, 16))
     obs[0, 0:3] = 1.0
-    state = None
+    state: Any = None
     for step in range(1, 8):
         _, state = policy.predict(obs, state=state, episode_start=np.array([step == 1]))
-        assert state is not None
         held = step <= 5  # the clock reads 0 … 0.04 s before steps 1 … 5
         assert (state[0, 0] == 0.0) == held, step
     np.testing.assert_allclose(state[0, :3], 2 * policy.control_dt)
