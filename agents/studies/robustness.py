@@ -167,6 +167,42 @@ def _train(
     return {(cfg.name, seed): run for (cfg, seed), run in zip(plan, runs, strict=True)}
 
 
+def _fly_condition(
+    condition: str,
+    chosen: list[str],
+    learned: list[Learned],
+    trained: dict[tuple[str, int], Any],
+    n_seeds: int,
+    seeds: list[int],
+    duration_s: float | None,
+) -> list[Row]:
+    """The rows ``chosen`` flown on ``condition`` for ``seeds`` (the learned ones from their
+    ``trained`` runs), each episode record with the scales its episode drew."""
+    # Every row flies the condition's own kwargs: a learned row's training kwargs (the
+    # randomize section of ppo_randomized) must not leak into another condition.
+    kwargs = condition_kwargs(condition, duration_s)
+    scales = drawn_scales(kwargs, seeds)
+
+    def flown(policy: Any) -> list:
+        return [rec | sc for rec, sc in zip(fly(policy, EKF, kwargs, seeds), scales, strict=True)]
+
+    rows: list[Row] = []
+    for name, label in DFLQR_ROWS.items():
+        if name in chosen:
+            print(f"{name} on {condition} ...", file=sys.stderr)
+            row = Row(name, label, "-", condition)
+            row.episodes = flown(_DFLQR_SPECS[name])
+            rows.append(row)
+    for cfg in learned:
+        row = Row(cfg.name, cfg.label, cfg.train_on, condition)
+        for seed in range(n_seeds):
+            print(f"{cfg.name} seed {seed} on {condition} ...", file=sys.stderr)
+            run = trained[cfg.name, seed]
+            row.add_seed(flown(run.run), run.wall_s)
+        rows.append(row)
+    return rows
+
+
 def run_study(
     out: Path,
     quick: bool = False,
@@ -210,30 +246,7 @@ def run_study(
     trained = _train(learned, n_seeds, timesteps, out, duration_s, jobs)
     table: list[Row] = []
     for condition in CONDITIONS:
-        # Every row flies the condition's own kwargs: a learned row's training kwargs (the
-        # randomize section of ppo_randomized) must not leak into another condition.
-        kwargs = condition_kwargs(condition, duration_s)
-        scales = drawn_scales(kwargs, seeds)
-
-        def flown(policy: Any, kwargs: dict[str, Any] = kwargs, scales: list = scales) -> list:
-            """The episode records of ``policy``, each with its episode's drawn scales."""
-            return [
-                rec | sc for rec, sc in zip(fly(policy, EKF, kwargs, seeds), scales, strict=True)
-            ]
-
-        for name, label in DFLQR_ROWS.items():
-            if name in chosen:
-                print(f"{name} on {condition} ...", file=sys.stderr)
-                row = Row(name, label, "-", condition)
-                row.episodes = flown(_DFLQR_SPECS[name])
-                table.append(row)
-        for cfg in learned:
-            row = Row(cfg.name, cfg.label, cfg.train_on, condition)
-            for seed in range(n_seeds):
-                print(f"{cfg.name} seed {seed} on {condition} ...", file=sys.stderr)
-                run = trained[cfg.name, seed]
-                row.add_seed(flown(run.run), run.wall_s)
-            table.append(row)
+        table += _fly_condition(condition, chosen, learned, trained, n_seeds, seeds, duration_s)
     settings = {
         "conditions": {c: condition_kwargs(c, duration_s) for c in CONDITIONS},
         "env_id": EKF,
