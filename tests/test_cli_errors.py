@@ -361,3 +361,9 @@ def test_main_lets_bugs_show_their_traceback(monkeypatch, exc):
     monkeypatch.setattr(agents.cli.main, "cmd_scenarios", _raising(exc))
     with pytest.raises(type(exc)):
         main(["scenarios"])
+
+
+def test_integral_gain_beyond_the_stability_bound(capsys: pytest.CaptureFixture[str]) -> None:
+    line = _one_line_error(capsys, [*RUN, "--integral-gain", "0.5"])
+    assert "integral_gain" in line and "0.5" in line and "0.1097" in line
+    assert "positive number" in _argparse_error(capsys, [*RUN, "--integral-gain", "-1"])

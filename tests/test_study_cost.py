@@ -91,7 +91,7 @@ def test_trainings_in_workers_equal_trainings_in_this_process(
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(hyperparams, "load_hyperparams", _tiny_ppo)
         short = {"scenario": cost.SCENARIO, "episode": {"duration_s": 0.3}}
-        jobs = [cost._train_job(cfg, seed, 64, tmp_path, short, None) for seed in range(2)]
+        jobs = [cost.train_job(cfg, seed, 64, tmp_path, short, None) for seed in range(2)]
         here = train_all(jobs, 1)
     parallel = [finished_run(out / "train" / cfg.name / f"s{seed}") for seed in range(2)]
     for mine, theirs in zip(here, parallel, strict=True):

@@ -18,7 +18,9 @@ from agents.rl import hyperparams
 from agents.rl.hyperparams import load_hyperparams
 from agents.rl.run_folder import run_config
 from agents.studies import robustness
-from agents.studies.robustness import CONDITIONS, LEARNED, condition_kwargs
+from agents.studies.cost import SCENARIO, TRAINED, scenario_kwargs, train_job
+from agents.studies.robustness import CONDITIONS, LEARNED, ROWS, condition_kwargs
+from quadslam_env.config import load_scenario
 from quadslam_env.config_randomize import SCALE_KEYS
 
 
@@ -49,7 +51,7 @@ def test_every_row_flies_every_condition_on_the_same_held_out_seeds(
 ) -> None:
     result, _, plots = quick_run
     rows = result["rows"]
-    configs = ["dflqr", *(cfg.name for cfg in LEARNED)]
+    configs = ["dflqr", "dflqr_integral", *(cfg.name for cfg in LEARNED)]
     assert [(r["eval_on"], r["config"]) for r in rows] == [
         (c, k) for c in CONDITIONS for k in configs
     ]
@@ -57,7 +59,7 @@ def test_every_row_flies_every_condition_on_the_same_held_out_seeds(
     for row in rows:
         # One training seed (quick): every row's episodes are the seeds 1000 and 1001, in order.
         assert [e["seed"] for e in row["episodes"]] == [1000, 1001]
-        assert row["n_training_seeds"] == (0 if row["config"] == "dflqr" else 1)
+        assert row["n_training_seeds"] == (0 if row["config"].startswith("dflqr") else 1)
         assert row["n_ended_early"] == sum(e["terminated"] for e in row["episodes"])
         assert row["crash_rate"] == row["n_ended_early"] / 2
     assert (plots / "robustness.png").stat().st_size > 0
@@ -76,6 +78,23 @@ def test_rows_on_a_condition_fly_the_same_physics(quick_run: tuple[dict, Path, P
         first = next(r for r in result["rows"] if r["eval_on"] == "randomized")
         assert drawn == [{k: e[k] for k in keys} for e in first["episodes"]]
         assert drawn[0]["rand_mass_scale"] != drawn[1]["rand_mass_scale"]
+
+
+def test_ppo_nominal_is_the_cost_studys_ppo_ekf_training(
+    quick_run: tuple[dict, Path, Path],
+) -> None:
+    """The same entry, scenario, seed and budget: the same run (only the folder differs)."""
+    _, out, _ = quick_run
+    (ppo_ekf,) = (cfg for cfg in TRAINED if cfg.name == "ppo_ekf")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(hyperparams, "load_hyperparams", _tiny_ppo)
+        job = train_job(ppo_ekf, 0, 64, out, scenario_kwargs(0.3), None)
+    (run,) = (out / "train" / "ppo_nominal" / "s0").iterdir()
+    saved = run_config(run)
+    assert saved is not None and saved["env_id"] == job.env_id and saved["seed"] == job.seed
+    # The run records the budget it was given (--timesteps 64) as its n_timesteps.
+    assert job.hyperparams is not None
+    assert saved["hyperparams"] == {**job.hyperparams, "n_timesteps": job.timesteps}
 
 
 def test_each_learned_row_trained_on_its_condition(quick_run: tuple[dict, Path, Path]) -> None:
@@ -98,7 +117,7 @@ def test_rerun_reuses_the_trainings(quick_run: tuple[dict, Path, Path]) -> None:
     flown: list[str] = []
 
     def fly(policy: Any, env_id: str, kwargs: dict[str, Any], seeds: list[int]) -> list:
-        flown.append(str(policy))
+        flown.append(getattr(policy, "__name__", str(policy)))
         return [{"seed": s, "terminated": False} for s in seeds]
 
     with pytest.MonkeyPatch.context() as patch:
@@ -106,9 +125,29 @@ def test_rerun_reuses_the_trainings(quick_run: tuple[dict, Path, Path]) -> None:
         patch.setattr(robustness, "fly", fly)
         again = robustness.run_study(out, quick=True, episodes=1, timesteps=64, duration_s=0.3)
     assert sorted(out.glob("train/*/s*/*/model.zip")) == runs
-    assert len(again["rows"]) == len(CONDITIONS) * (1 + len(LEARNED))
-    # Each condition flies DF-LQR and the runs found in --out, nothing else.
-    assert sorted(flown) == sorted(["dflqr", *(str(r.parent) for r in runs)] * len(CONDITIONS))
+    assert len(again["rows"]) == len(CONDITIONS) * len(ROWS)
+    # Each condition flies both DF-LQRs and the runs found in --out, nothing else.
+    everything = ["dflqr", "dflqr_integral", *(str(r.parent) for r in runs)]
+    assert sorted(flown) == sorted(everything * len(CONDITIONS))
+
+
+def test_the_dflqr_rows_alone_train_nothing(tmp_path: Path) -> None:
+    flown: list[str] = []
+
+    def fly(policy: Any, env_id: str, kwargs: dict[str, Any], seeds: list[int]) -> list:
+        flown.append(getattr(policy, "__name__", str(policy)))
+        return [{"seed": s, "terminated": False} for s in seeds]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(robustness, "fly", fly)
+        result = robustness.run_study(
+            tmp_path, episodes=1, duration_s=0.3, rows=["dflqr", "dflqr_integral"]
+        )
+    assert not (tmp_path / "train").exists()
+    assert [r["config"] for r in result["rows"]] == ["dflqr", "dflqr_integral"] * len(CONDITIONS)
+    assert flown == ["dflqr", "dflqr_integral"] * len(CONDITIONS)
+    with pytest.raises(ValueError, match="rows"):
+        robustness.run_study(tmp_path, rows=["dflqr", "lqr"])
 
 
 def _reset_infos(condition: str, seeds: range) -> list[dict[str, Any]]:
@@ -132,16 +171,52 @@ def test_only_the_randomised_condition_draws_the_physics_per_episode() -> None:
             assert all(info.get(f"rand_{k}", 1.0) == 1.0 for k in SCALE_KEYS), condition
 
 
-def test_the_nominal_condition_is_the_randomised_one_without_draws() -> None:
-    """Same scenario; only the ``randomize`` section differs, pinned to 1 (the twin)."""
-    from quadslam_env.config import load_scenario
+def test_the_conditions_are_the_cost_scenario_plus_one_section_each() -> None:
+    """Nominal is the cost study's scenario; the others add the randomised scenario's
+    ``randomize`` section or the wind scenario's ``wind`` and drag, read from those files."""
+    nominal = condition_kwargs("nominal")
+    assert nominal == {"scenario": SCENARIO} == scenario_kwargs()
+    randomized, wind = condition_kwargs("randomized"), condition_kwargs("wind")
+    assert set(randomized) - set(nominal) == {"randomize"}
+    assert set(wind) - set(nominal) == {"wind", "vehicle"}
+    assert {k: randomized[k] for k in nominal} == nominal == {k: wind[k] for k in nominal}
+    # The sections as the scenarios themselves load them.
+    source = load_scenario(robustness.RANDOMIZED)
+    assert load_scenario(SCENARIO, {"randomize": randomized["randomize"]}).randomize == (
+        source.randomize
+    )
+    windy = load_scenario(robustness.WIND)
+    flown = load_scenario(SCENARIO, {k: wind[k] for k in ("wind", "vehicle")})
+    assert flown.wind == windy.wind
+    assert flown.vehicle == windy.vehicle  # both the rauniyar2023 vehicle, with the drag
+    assert load_scenario(SCENARIO).vehicle != windy.vehicle
+    with pytest.raises(ValueError, match="condition"):
+        condition_kwargs("gusty")
 
-    nominal, randomized = CONDITIONS["nominal"], CONDITIONS["randomized"]
-    assert nominal["scenario"] == randomized["scenario"]
-    assert set(nominal) - set(randomized) == {"randomize"}
-    drawn = load_scenario(randomized["scenario"]).randomize
-    assert any(tuple(getattr(drawn, k)) != (1.0, 1.0) for k in SCALE_KEYS)
-    assert all(nominal["randomize"][k] == [1.0, 1.0] for k in SCALE_KEYS)
+
+def _observations(condition: str, steps: int, options: dict | None = None) -> np.ndarray:
+    """(seeds, steps + 1, obs_dim) observations of three seeds flown with the hover action."""
+    env = gym.make(robustness.EKF, **condition_kwargs(condition, 1.0))
+    try:
+        out = []
+        for seed in (1000, 1001, 1002):
+            obs = [env.reset(seed=seed, options=options)[0]]
+            for _ in range(steps):
+                obs.append(env.step(env.unwrapped.hover_action)[0])  # type: ignore[attr-defined]
+            out.append(obs)
+        return np.array(out)
+    finally:
+        env.close()
+
+
+def test_pinned_randomisation_flies_the_nominal_episode_and_wind_starts_from_it() -> None:
+    """The randomise section changes nothing but the drawn scales: pinned to 1, a seed's
+    episode is the nominal one step for step; with wind, the same start."""
+    pinned = {"randomized": {k: 1.0 for k in SCALE_KEYS}}
+    nominal = _observations("nominal", 50)
+    np.testing.assert_array_equal(_observations("randomized", 50, pinned), nominal)
+    np.testing.assert_array_equal(_observations("wind", 0)[:, 0], nominal[:, 0])
+    assert len({obs.tobytes() for obs in nominal[:, 0]}) == 3  # the seeds differ
 
 
 @pytest.mark.parametrize(
@@ -157,7 +232,16 @@ def test_bad_cli_input_is_a_clear_error(
     assert option in err and f"expected a positive integer, got '{value}'" in err
 
 
+def test_bad_rows_are_a_clear_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        cli.build_parser().parse_args(["study", "robustness", "--rows", "dflqr,lqr"])
+    assert exc.value.code == 2 and "--rows" in capsys.readouterr().err
+    args = cli.build_parser().parse_args(["study", "robustness", "--rows", "dflqr,dflqr_integral"])
+    assert args.rows == ["dflqr", "dflqr_integral"]
+
+
 def test_cli_parses_the_study_command() -> None:
     args = cli.build_parser().parse_args(["study", "robustness", "--timesteps", "300000"])
     assert args.func is cli_study.cmd_study_robustness and args.timesteps == 300_000
     assert not args.quick and args.jobs is None and args.training_seeds is None
+    assert args.rows is None

@@ -153,7 +153,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         plots = Path("runs") / f"run-{stamp}-{safe_name(env.unwrapped.scenario.name)}"
     check_outputs(plots, args.json, args.video)
     seeds = list(range(args.seed, args.seed + args.seeds))
-    fly(env, DFLQRPolicy.from_env(env), "dflqr", seeds, plots, args.json, args.video)
+    policy = DFLQRPolicy.from_env(env, integral_gain=args.integral_gain or 0.0)
+    fly(env, policy, "dflqr", seeds, plots, args.json, args.video)
     return 0
 
 
@@ -239,6 +240,13 @@ def add_fly_parsers(sub: Any) -> None:
     run.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
     run.add_argument("--plots", type=Path, help="figure folder (default: a new runs/ folder)")
     run.add_argument("--no-plots", action="store_true", help="skip the figures")
+    run.add_argument(
+        "--integral-gain",
+        type=positive_float,
+        metavar="K_I",
+        help="DF-LQR integral action on the position error, k_i in s^-3 (default off; "
+        "e.g. 0.02; must stay below the loop's stability bound, 0.11 with the shipped weights)",
+    )
     run.set_defaults(func=cmd_run)
 
     ev = sub.add_parser("evaluate", help="evaluate dflqr or a trained model on an env id")

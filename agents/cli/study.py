@@ -31,13 +31,18 @@ def cmd_study_robustness(args: argparse.Namespace) -> int:
     windy physics."""
     from agents.studies import robustness as study_robustness
 
-    return _training_study(args, study_robustness, "study_robustness", "robustness.png")
+    return _training_study(
+        args, study_robustness, "study_robustness", "robustness.png", rows=args.rows
+    )
 
 
-def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str) -> int:
-    """Run a study that trains agents (its module's ``run_study``, ``format_study``,
-    ``write_json``, ``plot_study``): check every output path before the first training,
-    print the table and the wall clock, write ``--json`` and ``--plots`` (``png``)."""
+def _training_study(
+    args: argparse.Namespace, study: Any, folder: str, png: str, **extra: Any
+) -> int:
+    """Run a study that trains agents (its module's ``run_study``, given ``extra`` keyword
+    arguments, ``format_study``, ``write_json``, ``plot_study``): check every output path
+    before the first training, print the table and the wall clock, write ``--json`` and
+    ``--plots`` (``png``)."""
     from agents.io.paths import check_output_dir, check_output_file
 
     out = args.out or Path("runs") / f"{folder}{'_quick' if args.quick else ''}"
@@ -47,7 +52,7 @@ def _training_study(args: argparse.Namespace, study: Any, folder: str, png: str)
     if args.plots is not None:
         check_output_dir(args.plots, "--plots")
     result = study.run_study(
-        out, args.quick, args.training_seeds, args.episodes, args.timesteps, jobs=args.jobs
+        out, args.quick, args.training_seeds, args.episodes, args.timesteps, jobs=args.jobs, **extra
     )
     print(study.format_study(result))
     settings = result["settings"]
@@ -123,6 +128,18 @@ def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def _robustness_rows(text: str) -> list[str]:
+    """``--rows`` of the robustness study: comma-separated names from its ``ROWS``."""
+    from agents.studies.robustness import ROWS
+
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names or any(name not in ROWS for name in names):
+        raise argparse.ArgumentTypeError(
+            f"got {text!r}; allowed: a comma-separated subset of {','.join(ROWS)}"
+        )
+    return names
+
+
 def _training_study_args(
     parser: argparse.ArgumentParser,
     positive_int: Callable[[str], int],
@@ -180,6 +197,12 @@ def add_study_parser(
         "under nominal, randomised and windy physics (held-out seeds)",
     )
     _training_study_args(robust, positive_int, 2, "write the box plot (PNG) here")
+    robust.add_argument(
+        "--rows",
+        type=_robustness_rows,
+        help="comma-separated rows to fly (default all: dflqr,dflqr_integral,ppo_nominal,"
+        "ppo_randomized); only the learned ones listed are trained",
+    )
     robust.set_defaults(func=cmd_study_robustness)
     assoc = studies.add_parser(
         "association",

@@ -26,6 +26,7 @@ and the torque available around hover (:data:`BRAKING_RATE`).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,10 @@ average over the period before): a delay of about T, whose phase lag ω_c T at t
 ω_c ≈ 2ζω_n must stay below ~0.6 rad to keep ~30° of the PD loop's phase margin, so
 ω_n ≤ 0.6 / (1.4 T) ≈ 0.4 f_IMU. At 100 Hz that is 40 rad/s (the defaults stand); at the
 paper's 10 Hz IMU it is 4 rad/s (with 20 rad/s the vehicle tips over within a second)."""
+INTEGRAL_LIMIT = 0.3 * GRAVITY
+"""Default cap of the integral action per axis, m/s²: a thrust-to-weight error of 30 %, beyond
+the ±20 % mass and ±10 % thrust of the randomised scenario (``ekf_figure8_randomized``)."""
+_NO_BIAS = np.empty((0, 3))
 BRAKING_RATE = 1.5
 """Rate error in rad/s from which the saturated attitude loop must stop without overshoot.
 A PD loop ``τ = −J ω_n² e − 2ζω_n J ė`` whose torque saturates at ``J α`` brakes at α only
@@ -77,6 +82,16 @@ def attitude_natural_freq(
     return np.minimum(cap, 4.0 * damping * alpha / BRAKING_RATE)
 
 
+def integral_gain_bound(K: FloatArray) -> float:
+    """Largest stable integral gain ``k_i`` in s⁻³ of the outer loop with gain ``K`` (4, 7).
+
+    Each flat axis with integral action is ``s³ + K_d s² + K_p s + k_i`` (``K_p = K[i, i]``,
+    ``K_d = K[i, 3 + i]``), Hurwitz iff ``k_i < K_p K_d`` (Routh–Hurwitz); the bound is the
+    smallest over x, y, z (0.110 s⁻³ for z with :data:`Q_TILDE`, :data:`R_TILDE`).
+    """
+    return float(min(K[i, i] * K[i, 3 + i] for i in range(3)))
+
+
 def flat_system() -> tuple[FloatArray, FloatArray]:
     """``A`` (7×7) and ``B`` (7×4) of the flat model ``ṙ = A r + B u + b g`` (seed 001 eq. 6)."""
     A = np.zeros((7, 7))
@@ -101,13 +116,15 @@ def _command_lanes(
     kd: FloatArray,
     mass: float,
     limits: FloatArray,
+    acc_bias: FloatArray,
     out: FloatArray,
 ) -> None:
     """DF-LQR command ``out`` (n, 4) for observations ``obs`` (n, ≥16), steps 1–4.
 
     With ``limits`` = (max thrust N, max torques (3) N·m) the command is written as the
     normalised ``thrust_torque`` action clipped to [-1, 1]; with an empty ``limits`` as
-    physical thrust (N) and torque (N·m).
+    physical thrust (N) and torque (N·m). ``acc_bias`` (n, 3), m/s² in the heading frame, is
+    added to ``u_p`` (the integral action); an empty (0, 3) array adds nothing.
     """
     r_err = np.empty(7)
     v = np.empty(4)
@@ -123,6 +140,9 @@ def _command_lanes(
             for j in range(7):
                 acc -= K[i, j] * r_err[j]
             v[i] = acc
+        if acc_bias.shape[0]:
+            for i in range(3):
+                v[i] += acc_bias[b, i]
         thrust, phi_d, theta_d, r_d = inverse_map(v[0], v[1], v[2], v[3], mass)
         out[b, 0] = thrust
         out[b, 1] = -kp[0] * (o[6] - phi_d) - kd[0] * o[9]
@@ -137,12 +157,29 @@ def _command_lanes(
 class DFLQRPolicy:
     """DF-LQR on the env observation, with stable-baselines3's ``predict`` signature.
 
+    Optional integral action (off by default, ``integral_gain=0``): ``u_p`` gets
+    ``−k_i ∫ ρ̃ dt`` (``ρ̃`` the position error of the observation, integrated in the world
+    frame and expressed in the heading frame), which removes the steady offset a constant
+    acceleration error leaves (a mass or thrust mismatch: ``Δa / k_p`` without it, since the
+    loop's position gain ``k_p = K[i, i]`` is soft). Anti-windup: each axis's contribution is
+    clamped to ``integral_limit`` and the integral is frozen on the steps whose thrust command
+    saturates and for ``integral_hold_s`` after the episode starts. ``predict``'s ``state``
+    carries it per lane ((n, 4): the integral in m·s, then the time since the episode started
+    in s): zeros on a lane whose ``episode_start`` is set, or when no state is given
+    (:func:`integral_gain_bound`).
+
     Args:
         vehicle: Nominal vehicle parameters (mass, inertia, actuator limits).
         natural_freq: (3,) attitude-loop natural frequencies in rad/s.
         damping: Attitude-loop damping ratio.
         action_dim: 4, or 5 for an env with the heading channel (``action.heading``): the
             fifth component, the reference heading's rate, is 0 (the heading is held).
+        integral_gain: ``k_i`` in s⁻³ (m/s² of command per m·s of integrated error), the same
+            on x, y, z; 0 turns the integral off. Must stay below :func:`integral_gain_bound`.
+        integral_limit: Largest integral contribution per axis, m/s².
+        integral_hold_s: The integral stays frozen (at zero) for this long after each episode
+            start, s: the take-off climb's error is the initial condition, not a disturbance.
+        control_dt: Control period in s (the integration step; ``from_env`` uses the env's).
 
     Attributes:
         K: (4, 7) LQR gain on ``r̃ = (ρ̃, ρ̃̇, ψ̃)``.
@@ -155,6 +192,10 @@ class DFLQRPolicy:
         natural_freq: FloatArray = ATTITUDE_NATURAL_FREQ,
         damping: float = ATTITUDE_DAMPING,
         action_dim: int = 4,
+        integral_gain: float = 0.0,
+        integral_limit: float = INTEGRAL_LIMIT,
+        integral_hold_s: float = 0.0,
+        control_dt: float = 0.01,
     ) -> None:
         self.vehicle = vehicle
         self.K = lqr_gain()
@@ -164,6 +205,21 @@ class DFLQRPolicy:
         self.kd = 2.0 * damping * wn * inertia
         self._limits = np.array([vehicle.max_thrust, *vehicle.max_torque])
         self.action_dim = action_dim
+        bound = integral_gain_bound(self.K)
+        if not 0.0 <= integral_gain < bound:
+            raise ValueError(
+                f"integral_gain: got {integral_gain!r}; allowed: 0 (off) up to below "
+                f"{bound:.4g} s^-3 (the outer loop's stability bound K_p K_d)"
+            )
+        for key, value in (("integral_limit", integral_limit), ("control_dt", control_dt)):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{key}: got {value!r}; allowed: a finite number > 0")
+        if not (math.isfinite(integral_hold_s) and integral_hold_s >= 0.0):
+            raise ValueError(f"integral_hold_s: got {integral_hold_s!r}; allowed: a number >= 0")
+        self.integral_hold_s = float(integral_hold_s)
+        self.integral_gain = float(integral_gain)
+        self.integral_limit = float(integral_limit)
+        self.control_dt = float(control_dt)
 
     @classmethod
     def from_env(cls, env: Any, **kwargs: Any) -> DFLQRPolicy:
@@ -171,7 +227,8 @@ class DFLQRPolicy:
 
         Without a ``natural_freq`` argument the attitude loop is capped for the scenario's IMU
         rate and the vehicle's torque around hover (:func:`attitude_natural_freq`; unchanged at
-        the default 100 Hz on the presets without rotors).
+        the default 100 Hz on the presets without rotors). ``kwargs`` go to the constructor
+        (e.g. ``integral_gain``); ``control_dt`` is the scenario's control period.
         """
         base = env.unwrapped
         mode = base.scenario.action.mode
@@ -182,10 +239,12 @@ class DFLQRPolicy:
             imu_hz = base.scenario.imu_rate_hz
             kwargs["natural_freq"] = attitude_natural_freq(imu_hz, base.vehicle_params, damping)
         kwargs.setdefault("action_dim", base.scenario.action.dim)
+        kwargs.setdefault("control_dt", 1.0 / base.scenario.episode.control_hz)
         return cls(base.vehicle_params, **kwargs)
 
     def command(self, obs: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Physical command for observations.
+        """Physical command for observations, without the integral (it lives in
+        :meth:`predict`'s state).
 
         Args:
             obs: (n, obs_dim) observations (the base layout of ``QuadSLAMEnv``).
@@ -195,7 +254,7 @@ class DFLQRPolicy:
         """
         out = np.empty((obs.shape[0], 4))
         _command_lanes(np.asarray(obs, dtype=float), self.K, self.kp, self.kd,
-                       float(self.vehicle.mass), np.empty(0), out)  # fmt: skip
+                       float(self.vehicle.mass), np.empty(0), _NO_BIAS, out)  # fmt: skip
         return out[:, 0], out[:, 1:]
 
     def predict(
@@ -205,12 +264,46 @@ class DFLQRPolicy:
         episode_start: Any = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
-        """SB3-style ``predict``: (obs_dim,) or (n, obs_dim) → float32 actions, ``state``."""
+        """SB3-style ``predict``: (obs_dim,) or (n, obs_dim) → float32 actions, ``state``
+        (passed through, or with the integral on the (n, 4) integral state after this step)."""
         obs = np.asarray(observation, dtype=float)
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
         act = np.zeros((batch.shape[0], self.action_dim))
+        bias = _NO_BIAS
+        if self.integral_gain > 0.0:
+            state = self._integral_state(state, episode_start, batch.shape[0])
+            bias = -self.integral_gain * state[:, :3]
         _command_lanes(batch, self.K, self.kp, self.kd, float(self.vehicle.mass), self._limits,
-                       act)  # fmt: skip
+                       bias, act)  # fmt: skip
+        if self.integral_gain > 0.0:
+            state = self._integrate(state, batch, np.abs(act[:, 0]) >= 1.0)
         act = act.astype(np.float32)
         return (act[0] if single else act), state
+
+    def _integral_state(self, state: Any, episode_start: Any, n: int) -> FloatArray:
+        """(n, 4) integral state to act on: ``state``'s, zeroed on the lanes starting an
+        episode (all of them without a state)."""
+        if state is None:
+            return np.zeros((n, 4))
+        out = np.array(state, dtype=float).reshape(n, 4)
+        if episode_start is not None:
+            out[np.asarray(episode_start, dtype=bool).reshape(n)] = 0.0
+        return out
+
+    def _integrate(self, state: FloatArray, obs: FloatArray, saturated: np.ndarray) -> FloatArray:
+        """One Euler step of the (n, 4) state: ``∫ ρ̃ dt`` in the heading frame, which turns by
+        ``ψ̇_d dt`` (obs[15]) each step, so the world-frame integral's components rotate by
+        ``−ψ̇_d dt``; frozen on the lanes whose thrust is ``saturated`` (n,) or that are
+        still within ``integral_hold_s`` of their start; clamped to ``integral_limit / k_i``.
+        Column 3, the time since the episode started, advances by ``control_dt``."""
+        dt = self.control_dt
+        angle = -obs[:, 15] * dt
+        c, s = np.cos(angle), np.sin(angle)
+        x, y = state[:, 0], state[:, 1]
+        turned = np.stack([c * x - s * y, s * x + c * y, state[:, 2]], axis=1)
+        grown = turned + obs[:, 0:3] * dt
+        cap = self.integral_limit / self.integral_gain
+        frozen = saturated | (state[:, 3] < self.integral_hold_s)
+        integral = np.where(frozen[:, None], turned, np.clip(grown, -cap, cap))
+        return np.column_stack([integral, state[:, 3] + dt])

@@ -49,7 +49,16 @@ from agents.studies.learned_rows import (
 )
 from agents.studies.training_pool import TrainJob, train_all
 
-__all__ = ["TRAINED", "TrainedConfig", "format_study", "plot_study", "run_study", "write_json"]
+__all__ = [
+    "TRAINED",
+    "TrainedConfig",
+    "format_study",
+    "plot_study",
+    "run_study",
+    "scenario_kwargs",
+    "train_job",
+    "write_json",
+]
 
 SCENARIO = "ekf_figure8_biased_imu"
 EVAL_SEED0 = 1000
@@ -115,7 +124,15 @@ def _evaluate(policy_spec: Any, target: str, env_kwargs: dict[str, Any], seeds: 
     return fly(policy_spec, env_id, deep_merge(env_kwargs, extra), seeds)
 
 
-def _train_job(
+def scenario_kwargs(duration_s: float | None = None) -> dict[str, Any]:
+    """The study's env kwargs (:data:`SCENARIO`), the episode ``duration_s`` long if given."""
+    kwargs: dict[str, Any] = {"scenario": SCENARIO}
+    if duration_s is not None:
+        kwargs["episode"] = {"duration_s": float(duration_s)}
+    return kwargs
+
+
+def train_job(
     cfg: TrainedConfig,
     seed: int,
     timesteps: int | None,
@@ -164,13 +181,11 @@ def run_study(
     n_eps = episodes or (5 if quick else 20)
     timesteps = timesteps or (200_000 if quick else None)
     seeds = list(range(EVAL_SEED0, EVAL_SEED0 + n_eps))
-    base_kwargs: dict[str, Any] = {"scenario": SCENARIO}
-    if duration_s is not None:
-        base_kwargs["episode"] = {"duration_s": float(duration_s)}
+    base_kwargs = scenario_kwargs(duration_s)
     # Every training first: they run side by side; the evaluations follow in this process.
     plan = [(cfg, seed) for cfg in TRAINED for seed in range(n_seeds)]
     runs = train_all(
-        [_train_job(cfg, s, timesteps, out, base_kwargs, hyperparams) for cfg, s in plan], jobs
+        [train_job(cfg, s, timesteps, out, base_kwargs, hyperparams) for cfg, s in plan], jobs
     )
     trained = {(cfg.name, seed): run for (cfg, seed), run in zip(plan, runs, strict=True)}
     rows: list[Row] = []

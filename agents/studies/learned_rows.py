@@ -98,8 +98,9 @@ def _stats(values: list[Any]) -> dict[str, float | None]:
 
 
 def fly(policy_spec: Any, env_id: str, env_kwargs: dict[str, Any], seeds: list[int]) -> list:
-    """Fly ``policy_spec`` (``"dflqr"`` or a run folder) on ``gymnasium.make(env_id,
-    **env_kwargs)`` for ``seeds`` (:func:`agents.evaluation.episodes.run_episodes`)."""
+    """Fly ``policy_spec`` (``"dflqr"``, a run folder, or a callable building the policy from
+    the env) on ``gymnasium.make(env_id, **env_kwargs)`` for ``seeds``
+    (:func:`agents.evaluation.episodes.run_episodes`)."""
     import gymnasium as gym
 
     from agents.rl.policies import load_policy
@@ -108,7 +109,10 @@ def fly(policy_spec: Any, env_id: str, env_kwargs: dict[str, Any], seeds: list[i
     try:
         with warnings.catch_warnings():  # evaluating off the training setup is the point here
             warnings.filterwarnings("ignore", "evaluating on a different setup than training")
-            policy, _ = load_policy(str(policy_spec), env)
+            if callable(policy_spec):
+                policy = policy_spec(env)
+            else:
+                policy, _ = load_policy(str(policy_spec), env)
         return run_episodes(env, policy, seeds)
     finally:
         env.close()
