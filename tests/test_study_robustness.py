@@ -173,12 +173,13 @@ def test_only_the_randomised_condition_draws_the_physics_per_episode() -> None:
 
 def test_the_conditions_are_the_cost_scenario_plus_one_section_each() -> None:
     """Nominal is the cost study's scenario; the others add the randomised scenario's
-    ``randomize`` section or the wind scenario's ``wind`` and drag, read from those files."""
+    ``randomize`` section or the wind scenario's ``wind``, drag and filter Q, read from those
+    files."""
     nominal = condition_kwargs("nominal")
     assert nominal == {"scenario": SCENARIO} == scenario_kwargs()
     randomized, wind = condition_kwargs("randomized"), condition_kwargs("wind")
     assert set(randomized) - set(nominal) == {"randomize"}
-    assert set(wind) - set(nominal) == {"wind", "vehicle"}
+    assert set(wind) - set(nominal) == {"wind", "vehicle", "estimator"}
     assert {k: randomized[k] for k in nominal} == nominal == {k: wind[k] for k in nominal}
     # The sections as the scenarios themselves load them.
     source = load_scenario(robustness.RANDOMIZED)
@@ -186,9 +187,12 @@ def test_the_conditions_are_the_cost_scenario_plus_one_section_each() -> None:
         source.randomize
     )
     windy = load_scenario(robustness.WIND)
-    flown = load_scenario(SCENARIO, {k: wind[k] for k in ("wind", "vehicle")})
+    flown = load_scenario(SCENARIO, {k: wind[k] for k in ("wind", "vehicle", "estimator")})
     assert flown.wind == windy.wind
     assert flown.vehicle == windy.vehicle  # both the rauniyar2023 vehicle, with the drag
+    q = "process_noise"
+    assert flown.estimator.params[q] == windy.estimator.params[q]
+    assert load_scenario(SCENARIO).estimator.params[q] != windy.estimator.params[q]
     assert load_scenario(SCENARIO).vehicle != windy.vehicle
     with pytest.raises(ValueError, match="condition"):
         condition_kwargs("gusty")
