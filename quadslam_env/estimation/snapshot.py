@@ -81,12 +81,17 @@ class BatchEstimate:
         step, where every small array costs about a microsecond.
 
         Args:
-            position, vel_body, vel_inertial, euler, rates: (3,) each, as the attributes.
+            position: (3,) ρ̂ in N, m.
+            vel_body: (3,) v̂ in B, m/s.
+            vel_inertial: (3,) ``C_NB(Λ̂) v̂`` in N, m/s.
+            euler: (3,) Λ̂ = (φ̂, θ̂, ψ̂) in rad.
+            rates: (3,) ω̂ in B, rad/s.
             pose_cov: (9, 9) or ``None``.
             landmark_ids: (n,) distinct non-negative int ids of the mapped landmarks.
             landmark_means: (n, 3) their positions in N, m.
             landmark_covs: (n, 3, 3) their covariances in m².
-            accel_bias, gyro_bias: (3,) or ``None``.
+            accel_bias: (3,) estimated accelerometer bias in m/s², or ``None``.
+            gyro_bias: (3,) estimated gyro bias in rad/s, or ``None``.
             diagnostics: name → float.
 
         Returns:
