@@ -927,3 +927,20 @@ def test_sigterm_stops_a_study_training_in_worker_processes(tmp_path: Path) -> N
     for run in runs:
         assert (run / "INTERRUPTED").is_file() and (run / "model.zip").is_file(), run
     assert all(finished_run(folder) is None for folder in out.glob("train/*/s0"))
+
+
+def test_sigterm_as_request_sets_its_event_instead_of_raising() -> None:
+    """Inside ``sigterm_as_request`` a SIGTERM only sets the event (the training polls it
+    between steps); around it, ``sigterm_as_interrupt`` raises again once the block ends."""
+    from agents.io.signals import (
+        Terminated,
+        sigterm_as_interrupt,
+        sigterm_as_request,
+        sigterm_received,
+    )
+
+    with pytest.raises(Terminated), sigterm_as_interrupt():
+        with sigterm_as_request() as asked:
+            signal.raise_signal(signal.SIGTERM)  # handled at once, in this thread
+            assert asked.is_set() and sigterm_received()
+        signal.raise_signal(signal.SIGTERM)

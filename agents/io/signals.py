@@ -2,8 +2,8 @@
 stops, saves and reports (docs/design.md §7).
 
 Inside :func:`sigterm_as_interrupt` SIGTERM raises :class:`Terminated`, a
-``KeyboardInterrupt``; :func:`signals_deferred` holds both signals while a run folder is being
-completed.
+``KeyboardInterrupt``; inside :func:`sigterm_as_request` it only sets an event that a loop
+polls; :func:`signals_deferred` holds both signals while a run folder is being completed.
 """
 
 from __future__ import annotations
@@ -63,6 +63,37 @@ def sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def sigterm_as_request() -> Iterator[threading.Event]:
+    """Inside the block, SIGTERM only sets the event it yields: the code polls it and stops
+    where it chooses (a training between two steps, a study between two waits).
+
+    Why: an exception raised by the handler can surface anywhere in a library's loop, e.g.
+    between taking a lock and the ``with`` that would release it (in SB3's logging, in
+    ``concurrent.futures``), and the save that follows then waits for that lock for ever.
+    :func:`sigterm_received` reports the SIGTERM as usual. An ignored SIGTERM stays ignored;
+    outside the main thread nothing changes (the event is then never set).
+    """
+    asked = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield asked
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous is signal.SIG_IGN:
+        yield asked
+        return
+
+    def request(signum: int, frame: Any) -> None:
+        _sigterm.set()
+        asked.set()
+
+    signal.signal(signal.SIGTERM, request)
+    try:
+        yield asked
+    finally:
+        signal.signal(signal.SIGTERM, previous if previous is not None else signal.SIG_DFL)
 
 
 @contextlib.contextmanager

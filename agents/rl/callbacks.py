@@ -7,6 +7,8 @@
   ``ProgressBarCallback`` needs ``rich``, which is not a dependency).
 - :class:`SaveVecNormalizeCallback`: saves the ``VecNormalize`` statistics next to
   ``EvalCallback``'s ``best_model.zip`` so the best model can be evaluated like the final one.
+- :class:`StopWhenSet`: ends ``learn`` at the next step once an event is set (a SIGTERM
+  asked for it, :func:`agents.io.signals.sigterm_as_request`).
 - :class:`AtomicCheckpointCallback`, :class:`AtomicEvalCallback`: SB3's checkpoint and
   evaluation callbacks with every file written atomically (SB3 writes in place, so a kill or a
   full disk during a save left a truncated checkpoint, ``best_model.zip`` or
@@ -19,6 +21,7 @@ import math
 import re
 import shutil
 import sys
+import threading
 import time
 from collections import Counter, defaultdict
 from collections.abc import Sequence
@@ -194,6 +197,18 @@ class TqdmProgressCallback(BaseCallback):
             self.pbar.refresh()
             self.pbar.close()
             self.pbar = None
+
+
+class StopWhenSet(BaseCallback):
+    """End ``learn`` at the next environment step once ``event`` is set (SB3 stops when a
+    callback's ``_on_step`` returns False; the PPO update under way finishes first)."""
+
+    def __init__(self, event: threading.Event) -> None:
+        super().__init__()
+        self.event = event
+
+    def _on_step(self) -> bool:
+        return not self.event.is_set()
 
 
 class SaveVecNormalizeCallback(BaseCallback):

@@ -27,7 +27,7 @@ from agents.io.outputs import (
     is_disk_full,
     write_text_atomic,
 )
-from agents.io.signals import Terminated, signals_deferred
+from agents.io.signals import Terminated, signals_deferred, sigterm_as_request
 from agents.rl.building import build_model, make_vec_env, torch_settings, training_callbacks
 from agents.rl.checkpoints import Checkpoint, checkpoint_problem, saved_points
 from agents.rl.curves import plot_learning_curve
@@ -260,22 +260,28 @@ def _run_learn(
     """
     from stable_baselines3.common.callbacks import CallbackList
 
+    from agents.rl.callbacks import StopWhenSet
+
     # From the loaded model's own count: a session stopped between replacing model.zip and
     # updating INTERRUPTED resumes where the model really is.
     remaining = total - int(model.num_timesteps)
     tic = time.perf_counter()
     stop: KeyboardInterrupt | None = None
     full: OSError | None = None
-    with warnings.catch_warnings():
+    # SIGTERM ends learn at the next step (an exception raised at an arbitrary point of SB3's
+    # loop could leave a lock held that the save then waits for); Ctrl-C raises as usual.
+    with warnings.catch_warnings(), sigterm_as_request() as asked:
         # The eval env is wrapped differently (VecNormalize with training=False).
         warnings.filterwarnings("ignore", message="Training and eval env are not of")
         try:
             if remaining > 0:
                 model.learn(
                     total_timesteps=remaining,
-                    callback=CallbackList(callbacks),
+                    callback=CallbackList([*callbacks, StopWhenSet(asked)]),
                     reset_num_timesteps=fresh,
                 )
+            if asked.is_set():
+                raise Terminated()
         except KeyboardInterrupt as exc:
             stop = exc
             how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"

@@ -22,10 +22,15 @@ import multiprocessing as mp
 import os
 import signal
 import sys
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from agents.io.signals import Terminated, sigterm_as_request
+
+_POLL_S = 0.2
+"""Longest wait, s, between two looks at whether a SIGTERM asked the study to stop."""
 
 
 @dataclass(frozen=True)
@@ -169,13 +174,22 @@ def _train_in_pool(
     futures: dict[Future[Trained | None], int] = {}
     try:
         futures.update((pool.submit(_work, jobs[i]), i) for i in todo)
-        for future in as_completed(futures):
-            i = futures[future]
-            try:
-                trained = future.result()
-            except Exception as exc:  # raised in the worker, or the worker died
-                raise _named(exc, jobs[i].label) from exc
-            runs[i] = _report(jobs[i], trained)
+        # SIGTERM is polled between short waits, not raised inside concurrent.futures (where
+        # it could leave a lock held that the pool's manager thread, and so the shutdown
+        # below, would wait for).
+        with sigterm_as_request() as asked:
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
+                if asked.is_set():
+                    raise Terminated()
+                for future in done:
+                    i = futures[future]
+                    try:
+                        trained = future.result()
+                    except Exception as exc:  # raised in the worker, or the worker died
+                        raise _named(exc, jobs[i].label) from exc
+                    runs[i] = _report(jobs[i], trained)
     except BaseException:
         # Not pool.shutdown(wait=False): it drops the pool's handle on its workers, and the
         # shutdown below would then not wait for them to save.
