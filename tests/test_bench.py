@@ -57,7 +57,8 @@ def test_document_is_wellformed(tiny_run) -> None:
     assert {"cpu", "cores", "python", "numpy", "numba", "load_average"} <= set(doc["machine"])
     groups = {e["group"] for e in doc["results"]}
     assert groups == {
-        "ekf_slam", "fastslam", "env", "vector", "association", "memory", "compile", "render"
+        "ekf_slam", "fastslam", "env", "vector", "physics", "association", "memory", "compile",
+        "render",
     }  # fmt: skip
     for entry in doc["results"]:
         assert {"group", "name", "params", "unit", "median", "min", "max", "n"} <= set(entry)
@@ -72,6 +73,22 @@ def test_document_is_wellformed(tiny_run) -> None:
     for label in labels:
         assert f"steps_per_s/{label}/dflqr" in names
         assert f"real_time_factor/{label}/dflqr" in names
+
+
+def test_physics_ratio_pairs_the_alternating_samples(tiny_run) -> None:
+    """The full-physics ratio is, round by round, the quotient of the two envs' samples taken
+    side by side (each median alone would compare different minutes of the machine)."""
+    from agents.bench.paired import FULL_PHYSICS, NOMINAL, ROUNDS_PER_REPEAT
+
+    doc, _, _, _ = tiny_run
+    got = {e["name"]: e for e in doc["results"] if e["group"] == "physics"}
+    nominal, full = got[f"env_steps_per_s/{NOMINAL}"], got[f"env_steps_per_s/{FULL_PHYSICS}"]
+    ratio = got["full_over_nominal"]
+    assert nominal["n"] == full["n"] == ratio["n"] == TINY.repeats * ROUNDS_PER_REPEAT
+    assert nominal["params"]["num_envs"] == max(TINY.vec_batches)  # the tiny plan has no 256
+    # The quotient's extremes are bounded by the extremes of its numerator and denominator.
+    assert full["min"] / nominal["max"] <= ratio["min"] <= ratio["max"]
+    assert ratio["max"] <= full["max"] / nominal["min"]
 
 
 def test_association_entries(tiny_run) -> None:

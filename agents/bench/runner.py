@@ -34,7 +34,8 @@ from typing import Any
 from agents.bench.plan import FULL, QUICK, Plan, Results
 
 SECTION_NAMES = (
-    "ekf", "fastslam", "env", "vector", "association", "workers", "memory", "compile", "render"
+    "ekf", "fastslam", "env", "vector", "physics", "association", "workers", "memory",
+    "compile", "render",
 )  # fmt: skip
 
 
@@ -148,6 +149,7 @@ def sections() -> dict[str, Callable[[Results, Plan], None]]:
     from agents.bench.association import bench_association
     from agents.bench.envs import bench_env, bench_vector, bench_workers
     from agents.bench.estimators import bench_ekf, bench_fastslam
+    from agents.bench.paired import bench_physics
     from agents.bench.process import bench_compile, bench_memory
     from agents.bench.render import bench_render
 
@@ -156,6 +158,7 @@ def sections() -> dict[str, Callable[[Results, Plan], None]]:
         "fastslam": bench_fastslam,
         "env": bench_env,
         "vector": bench_vector,
+        "physics": bench_physics,
         "association": bench_association,
         "workers": bench_workers,
         "memory": bench_memory,
