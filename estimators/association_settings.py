@@ -1,76 +1,113 @@
-"""The data-association settings that EKF-SLAM and the iSAM2 smoother share (``estimator.params``).
+"""The data-association settings the SLAM estimators share (``estimator.params``).
 
-Both gate each (return, landmark) pair on its χ²₃ Mahalanobis distance (seed 004 §5.1), pair
-the returns by nearest neighbour or JCBB (:mod:`estimators.association`) and keep clutter out of
-the map with tentative landmarks under the M-of-N rule (:mod:`estimators.tentative`), so they
-read the same keys, with the same defaults and the same checks, from here.
+EKF-SLAM and the iSAM2 smoother gate each (return, landmark) pair on its χ²₃ Mahalanobis
+distance (seed 004 §5.1), pair the returns by nearest neighbour or JCBB
+(:mod:`estimators.association`) and keep clutter out of the map with tentative landmarks under
+the M-of-N rule (:mod:`estimators.tentative`); the FastSLAM filters gate and confirm the same
+way per particle. Their settings classes inherit these fields, with the same defaults and the
+same checks, from :class:`GatedFields` (the gate and the M-of-N rule) or
+:class:`AssociationFields` (plus the pairing method and the new-landmark gate).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import ClassVar
 
-from estimators.tentative import check_confirm_rule
+from quadslam_env.config_schema import ConfigError, Section, spec
 
 ASSOCIATION_METHODS = ("nn", "jcbb")
 """``estimator.params.association`` choices: nearest neighbour, joint compatibility B&B."""
 
-ASSOCIATION_TYPES: dict[str, type | tuple[type, ...]] = {
-    "gate_probability": (float, int),
-    "association": str,
-    "confirm_hits": int,
-    "confirm_window": int,
-    "new_landmark_probability": (float, int),
-}
-"""Accepted types of the shared keys (for :func:`estimators.settings_check.check_kwargs`)."""
+MAX_CONFIRM = 1000
+"""Largest accepted ``confirm_hits`` / ``confirm_window``."""
 
-ASSOCIATION_DEFAULTS: dict[str, Any] = {
-    "gate_probability": 0.99,  # χ²₃ gate: NIS ≤ 11.345
-    "association": "jcbb",
-    "confirm_hits": 3,  # M of the M-of-N rule
-    "confirm_window": 5,  # N of the M-of-N rule, scans
-    "new_landmark_probability": 0.9999,  # or gate_probability if larger
-}
+NEW_LANDMARK_PROBABILITY = 0.9999
+"""Default p of the new-landmark gate (or ``gate_probability`` if larger)."""
 
 
-def association_settings(params: dict[str, Any]) -> dict[str, Any]:
-    """The validated association settings of ``params`` (defaults for the missing keys), as
-    keyword arguments of the settings dataclasses.
+@dataclass(frozen=True)
+class GatedFields(Section):
+    """The χ²₃ gate and the M-of-N rule of tentative landmarks (a base of settings classes)."""
 
-    Raises:
-        ValueError: Naming the key, the value and what is allowed: ``gate_probability``
-            outside (0, 1], an unknown ``association``, a bad M-of-N rule, or
-            ``new_landmark_probability`` outside [gate_probability, 1).
-    """
-    prob = float(params.get("gate_probability", ASSOCIATION_DEFAULTS["gate_probability"]))
-    if not 0.0 < prob <= 1.0:
-        raise ValueError(f"estimator.params.gate_probability: got {prob!r}; allowed: 0 < p <= 1")
-    method = params.get("association", ASSOCIATION_DEFAULTS["association"])
-    if method not in ASSOCIATION_METHODS:
-        raise ValueError(
-            f"estimator.params.association: got {method!r}; allowed: one of "
-            f"{list(ASSOCIATION_METHODS)}"
-        )
-    hits, window = check_confirm_rule(
-        params.get("confirm_hits", ASSOCIATION_DEFAULTS["confirm_hits"]),
-        params.get("confirm_window", ASSOCIATION_DEFAULTS["confirm_window"]),
+    SECTION: ClassVar[str] = "estimator.params"
+    gate_probability: float = spec(
+        0.99,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        doc="p of the χ²₃ gate on a (return, landmark) pair's NIS (0.99: 11.345); 1: no gate",
     )
-    floor = prob if prob < 1.0 else 0.0  # no association gate: any p < 1
-    new_prob = float(
-        params.get(
-            "new_landmark_probability",
-            max(ASSOCIATION_DEFAULTS["new_landmark_probability"], floor),
-        )
+    confirm_hits: int = spec(
+        3,
+        kind="int",
+        lo=1,
+        hi=MAX_CONFIRM,
+        doc="M of the M-of-N rule: sightings a tentative landmark needs to be mapped",
     )
-    if not (floor <= new_prob < 1.0 and new_prob > 0.0):
-        raise ValueError(
-            f"estimator.params.new_landmark_probability: got {new_prob!r}; allowed: "
-            f"max(gate_probability = {prob} if < 1, 0) <= p < 1, p > 0"
-        )
-    return {
-        "gate_probability": prob,
-        "association": method,
-        "confirm_hits": hits,
-        "confirm_window": window,
-        "new_landmark_probability": new_prob,
-    }
+    confirm_window: int = spec(
+        5,
+        kind="int",
+        lo=1,
+        hi=MAX_CONFIRM,
+        doc="N of the M-of-N rule, scans (at least confirm_hits)",
+    )
+
+    def validate(self) -> None:
+        """The window must hold the hits.
+
+        Raises:
+            ConfigError: ``confirm_window`` < ``confirm_hits``.
+        """
+        super().validate()
+        if self.confirm_window < self.confirm_hits:
+            raise ConfigError(
+                f"{self.SECTION}.confirm_window: got {self.confirm_window!r}; allowed: an "
+                f"integer in [confirm_hits = {self.confirm_hits}, {MAX_CONFIRM}]"
+            )
+
+
+@dataclass(frozen=True)
+class AssociationFields(GatedFields):
+    """The gate, the M-of-N rule, the pairing method and the new-landmark gate (a base of the
+    EKF-SLAM and iSAM2 settings)."""
+
+    association: str = spec(
+        "jcbb",
+        kind="str",
+        choices=ASSOCIATION_METHODS,
+        doc="nn: nearest neighbour; jcbb: joint compatibility branch and bound, both gated at "
+        "gate_probability",
+    )
+    new_landmark_probability: float = spec(
+        None,
+        lo=0.0,
+        lo_open=True,
+        hi=1.0,
+        optional=True,
+        doc="a return starts a tentative landmark only outside this χ²₃ gate of every "
+        "landmark (one between the two gates is dropped); at least gate_probability and < 1; "
+        f"null: {NEW_LANDMARK_PROBABILITY} or gate_probability if larger",
+    )
+
+    def __post_init__(self) -> None:
+        if self.new_landmark_probability is None:
+            floor = self.gate_probability if self.gate_probability < 1.0 else 0.0
+            object.__setattr__(
+                self, "new_landmark_probability", max(NEW_LANDMARK_PROBABILITY, floor)
+            )
+
+    def validate(self) -> None:
+        """The new-landmark gate lies outside the association gate.
+
+        Raises:
+            ConfigError: ``new_landmark_probability`` outside [gate_probability, 1).
+        """
+        super().validate()
+        floor = self.gate_probability if self.gate_probability < 1.0 else 0.0
+        if not floor <= self.new_landmark_probability < 1.0:
+            raise ConfigError(
+                f"{self.SECTION}.new_landmark_probability: got "
+                f"{self.new_landmark_probability!r}; allowed: max(gate_probability = "
+                f"{self.gate_probability} if < 1, 0) <= p < 1, p > 0"
+            )

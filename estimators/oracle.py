@@ -8,14 +8,22 @@ lane for the scalar env).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
-from estimators.settings_check import check_kwargs
+from quadslam_env.config_schema import Section
 from quadslam_env.estimation import BatchEstimate, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.types import EUL, POS, RATE, VEL, FloatArray
+
+
+@dataclass(frozen=True)
+class OracleSettings(Section):
+    """The oracle has no settings: any ``estimator.params`` key is rejected."""
+
+    SECTION: ClassVar[str] = "estimator.params"
 
 
 @register("oracle")
@@ -33,7 +41,7 @@ class OracleBatch:
     def __init__(
         self, num_lanes: int, landmark_capacity: int, vehicle: Any = None, **params: Any
     ) -> None:
-        check_kwargs("estimator.params", params, {})
+        OracleSettings.from_dict(params)
         self.num_lanes = num_lanes
         b = num_lanes
         # Separate arrays, not views of one state array: views would not survive pickling.

@@ -135,46 +135,6 @@ def age_candidates(age: np.ndarray, matched: np.ndarray, confirm_window: int) ->
             age[c] += 1
 
 
-MAX_CONFIRM = 1000
-"""Largest accepted ``confirm_hits`` / ``confirm_window``."""
-
-
-def check_confirm_rule(
-    hits: object, window: object, owner: str = "estimator.params"
-) -> tuple[int, int]:
-    """Validate the M-of-N rule: ``confirm_hits`` M and ``confirm_window`` N.
-
-    Args:
-        hits: M, an integer in [1, 1000]. window: N, an integer in [M, 1000].
-        owner: Prefix of the keys in error messages.
-
-    Returns:
-        ``(M, N)`` as ints.
-
-    Raises:
-        ValueError: Naming the key, the value and what is allowed.
-    """
-    m = _as_int(hits)
-    if m is None or not 1 <= m <= MAX_CONFIRM:
-        raise ValueError(
-            f"{owner}.confirm_hits: got {hits!r}; allowed: an integer in [1, {MAX_CONFIRM}]"
-        )
-    n = _as_int(window)
-    if n is None or not m <= n <= MAX_CONFIRM:
-        raise ValueError(
-            f"{owner}.confirm_window: got {window!r}; allowed: an integer in "
-            f"[confirm_hits = {m}, {MAX_CONFIRM}]"
-        )
-    return m, n
-
-
-def _as_int(value: object) -> int | None:
-    """``value`` as an int if it is an int or NumPy integer (not a bool), else ``None``."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer):
-        return None
-    return int(value)
-
-
 class Candidates:
     """Tentative-landmark slots of B maps (lanes or particles), as (B, T, …) arrays.
 

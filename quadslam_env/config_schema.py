@@ -1,4 +1,5 @@
-"""Validated field specs for the scenario sections of :mod:`quadslam_env.config`.
+"""Validated field specs for the scenario sections of :mod:`quadslam_env.config` and the
+estimators' ``estimator.params``.
 
 Every setting is a dataclass field declared with :func:`spec`, which stores its kind, range,
 choices and a short description in the field's metadata. :class:`Section` turns a plain mapping
@@ -14,6 +15,8 @@ from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, ClassVar
 
+import numpy as np
+
 
 class ConfigError(ValueError):
     """Invalid configuration: the message names the key, the value and what is allowed."""
@@ -26,9 +29,10 @@ def spec(
     lo: float | None = None,
     hi: float | None = None,
     lo_open: bool = False,
-    length: int | None = None,
+    length: int | tuple[int, ...] | None = None,
     choices: tuple[str, ...] | None = None,
     optional: bool = False,
+    allow_inf: bool = False,
     doc: str = "",
 ) -> Any:
     """Declare a validated field.
@@ -40,9 +44,11 @@ def spec(
         lo: Lower bound (inclusive unless ``lo_open``), also per element of a ``vec``.
         hi: Upper bound (inclusive).
         lo_open: Make ``lo`` exclusive.
-        length: Required length of a ``vec``.
+        length: Required length of a ``vec``, or the allowed lengths; when 1 is allowed, a bare
+            number stands for a list of one.
         choices: Allowed strings of a ``str`` field.
         optional: Accept ``null`` (``None``).
+        allow_inf: Accept ``+inf`` above ``lo`` (a number that turns a threshold off).
         doc: One-line meaning and unit, shown in the documentation.
 
     Returns:
@@ -56,6 +62,7 @@ def spec(
         "length": length,
         "choices": choices,
         "optional": optional,
+        "allow_inf": allow_inf,
         "doc": doc,
     }
     if isinstance(default, list | dict):
@@ -78,7 +85,7 @@ def describe(meta: dict[str, Any]) -> str:
         "int": "an integer",
         "bool": "true or false",
         "str": "a string",
-        "vec": f"a list of {meta['length']} numbers" if meta["length"] else "a list of numbers",
+        "vec": _describe_vec(meta["length"]),
         "vecs": "a list of [x, y, z] lists",
         "dict": "a mapping",
     }[kind]
@@ -88,7 +95,21 @@ def describe(meta: dict[str, Any]) -> str:
     if meta["hi"] is not None:
         rng.append(f"<= {meta['hi']}")
     text = base + (f" {' and '.join(rng)}" if rng else "")
+    text += " (or .inf)" if meta.get("allow_inf") else ""
     return text + (" or null" if meta["optional"] else "")
+
+
+def _lengths(length: int | tuple[int, ...] | None) -> tuple[int, ...] | None:
+    return (length,) if isinstance(length, int) else length
+
+
+def _describe_vec(length: int | tuple[int, ...] | None) -> str:
+    lengths = _lengths(length)
+    if not lengths:
+        return "a list of numbers"
+    lists = [n for n in lengths if n != 1]
+    text = f"a list of {' or '.join(map(str, lists))} numbers" if lists else ""
+    return "a number or " + text if 1 in lengths and text else text or "a number"
 
 
 def _check_number(key: str, value: Any, meta: dict[str, Any]) -> float:
@@ -96,7 +117,8 @@ def _check_number(key: str, value: Any, meta: dict[str, Any]) -> float:
         raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
     num = float(value)
     lo, hi = meta["lo"], meta["hi"]
-    bad = not math.isfinite(num) or (
+    inf_ok = meta.get("allow_inf") and num == math.inf
+    bad = (not math.isfinite(num) and not inf_ok) or (
         lo is not None and (num <= lo if meta["lo_open"] else num < lo)
     )
     if bad or (hi is not None and num > hi):
@@ -107,9 +129,14 @@ def _check_number(key: str, value: Any, meta: dict[str, Any]) -> float:
 def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
     """Validate one value against its field spec and return it in canonical (immutable) form.
 
+    NumPy scalars and arrays (e.g. a particle count from ``np.arange``) are read as the Python
+    numbers and lists they hold.
+
     Raises:
         ConfigError: The value does not fit the spec (the message names ``key``).
     """
+    if isinstance(value, np.generic | np.ndarray):
+        value = value.tolist()
     if value is None:
         if meta["optional"]:
             return None
@@ -130,9 +157,10 @@ def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
             raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
         return value
     if kind == "vec":
-        if not isinstance(value, list | tuple) or (
-            meta["length"] is not None and len(value) != meta["length"]
-        ):
+        lengths = _lengths(meta["length"])
+        if lengths and 1 in lengths and isinstance(value, int | float):
+            value = [value]
+        if not isinstance(value, list | tuple) or (lengths and len(value) not in lengths):
             raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
         return tuple(_check_number(f"{key}[{i}]", v, meta) for i, v in enumerate(value))
     if kind == "vecs":
@@ -159,7 +187,7 @@ class Section:
 
     SECTION: ClassVar[str] = ""
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {}
-    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {}
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[Any, ...]]]] = {}
     """Settings that only some choices read: ``key -> (selector key, choices that use it)``.
     A key set away from its default while the selector has another value is an error (the
     setting would be silently ignored)."""
@@ -222,11 +250,16 @@ class Section:
                 raise ConfigError(
                     f"{self.SECTION}.{key}: got {shown!r}, which {self.SECTION}.{selector} "
                     f"{choice!r} ignores; allowed: leave it at its default ({default!r}) or "
-                    f"set {self.SECTION}.{selector} to one of {list(users)}"
+                    f"set {self.SECTION}.{selector} to one of {[_shown(u) for u in users]}"
                 )
 
     def validate(self) -> None:
         """Cross-field checks; overridden where needed."""
+
+
+def _shown(choice: Any) -> str:
+    """A selector's value as it is written in YAML (``true``, not ``True``)."""
+    return str(choice).lower() if isinstance(choice, bool) else str(choice)
 
 
 def _listed(value: Any) -> Any:
@@ -269,6 +302,6 @@ def field_rows(section: type[Section]) -> list[FieldRow]:
         doc = meta["doc"]
         if fld.name in section.ONLY_FOR:
             selector, users = section.ONLY_FOR[fld.name]
-            doc += f" (read only when {selector} is {' or '.join(users)})"
+            doc += f" (read only when {selector} is {' or '.join(map(_shown, users))})"
         rows.append(FieldRow(f"{section.SECTION}.{fld.name}", default, describe(meta), doc))
     return rows

@@ -36,7 +36,7 @@ def test_every_estimator_parameter_is_documented() -> None:
     for name, keys in reference.estimator_param_keys().items():
         block = text.split(f"### `{name}`", 1)[1].split("### ", 1)[0]
         for key in keys:
-            assert f"`{key}`" in block, f"{name}: estimator.params.{key}"
+            assert f"| `estimator.params.{key}` |" in block, f"{name}: estimator.params.{key}"
     assert "<!-- generated: estimator-params -->" in (DOCS / "scenarios.md").read_text()
 
 

@@ -297,14 +297,14 @@ def test_labeled_and_unlabeled_scans_do_not_mix_in_slam() -> None:
 @pytest.mark.parametrize(
     ("key", "value", "allowed"),
     [
-        ("gate_probability", 0.0, "0 < p <= 1"),
-        ("gate_probability", 1.5, "0 < p <= 1"),
+        ("gate_probability", 0.0, "> 0.0 and <= 1.0"),
+        ("gate_probability", 1.5, "> 0.0 and <= 1.0"),
         ("new_landmark_likelihood", 0.0, "> 0"),
         ("new_landmark_likelihood", float("nan"), "> 0"),
-        ("confirm_hits", 0, r"\[1, 1000\]"),
+        ("confirm_hits", 0, ">= 1 and <= 1000"),
         ("confirm_window", 2, r"\[confirm_hits = 3, 1000\]"),
-        ("confirm_hits", 2.5, "expected int"),
-        ("confirm_window", True, "expected int"),
+        ("confirm_hits", 2.5, "an integer"),
+        ("confirm_window", True, "an integer"),
     ],
 )
 def test_invalid_association_settings_name_key_value_and_what_is_allowed(

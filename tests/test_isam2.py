@@ -191,9 +191,11 @@ def test_settings_validate_keys_and_values() -> None:
         Isam2Settings.from_params({"iterations": 0})
     with pytest.raises(ValueError, match=r"estimator\.params\.process_noise"):
         Isam2Settings.from_params({"process_noise": [0.0] * 8})
-    with pytest.raises(ValueError, match=r"estimator\.params\.estimate_imu_bias: expected bool"):
+    with pytest.raises(
+        ValueError, match=r"estimator\.params\.estimate_imu_bias: got 1; allowed: true or false"
+    ):
         Isam2Settings.from_params({"estimate_imu_bias": 1})
-    with pytest.raises(ValueError, match=r"factorization: got 'lu'; allowed: one of \('qr'"):
+    with pytest.raises(ValueError, match=r"factorization: got 'lu'; allowed: one of \['qr'"):
         Isam2Settings.from_params({"factorization": "lu"})
     assert Isam2Settings.from_params({"window_s": None}).window_s is None
     assert Isam2Settings.from_params({}).window_s == 3.0
@@ -398,14 +400,3 @@ def test_slow_imu_is_refused_with_a_config_error() -> None:
     GTSAM smoother cannot be: the scenario check reads ``copyable = False`` first."""
     with pytest.raises(ConfigError, match=r"imu\.rate_hz null or >= episode\.control_hz"):
         gym.make(SCENARIO_ENV, scenario=SCENARIO, estimator_name="isam2", imu={"rate_hz": 10.0})
-
-
-def test_docs_page_lists_every_setting() -> None:
-    from pathlib import Path
-
-    from estimators.isam2.settings import _TYPES
-
-    page = (Path(__file__).resolve().parent.parent / "docs" / "isam2.md").read_text()
-    rows = [line for line in page.splitlines() if line.startswith("| `")]
-    for key in _TYPES:
-        assert any(row.startswith(f"| `{key}` |") for row in rows), key

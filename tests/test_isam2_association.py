@@ -376,7 +376,7 @@ def test_mixed_labeled_and_unlabeled_scans_are_refused_in_slam() -> None:
         ({"confirm_hits": 0}, "estimator.params.confirm_hits: got 0; allowed"),
         ({"confirm_hits": 4, "confirm_window": 3}, "estimator.params.confirm_window: got 3"),
         ({"new_landmark_probability": 0.5}, "estimator.params.new_landmark_probability"),
-        ({"association": 1}, "estimator.params.association: expected str"),
+        ({"association": 1}, "estimator.params.association: got 1; allowed: one of"),
     ],
 )
 def test_bad_association_settings_name_the_key(params: dict[str, Any], fragment: str) -> None:

@@ -6,7 +6,7 @@ MkDocs hook, ``tools/mkdocs_hooks.py``), so they cannot drift from what the code
 - :func:`scenario_settings_markdown`: every scenario setting with its default, accepted values
   and meaning, read from the typed field specs of :mod:`quadslam_env.config`, plus the presets;
 - :func:`estimator_params_markdown`: the ``estimator.params`` keys of the built-in estimators,
-  read from their validators and parameter docstrings;
+  read from the same typed field specs of their settings classes;
 - :func:`cli_markdown`: the ``--help`` of every ``quadslam`` command.
 """
 
@@ -19,6 +19,7 @@ import re
 from typing import Any
 
 from quadslam_env.config import SECTIONS, field_rows, scenario_descriptions
+from quadslam_env.config_schema import Section
 from quadslam_env.models.params import VEHICLE_PRESETS
 
 
@@ -35,19 +36,26 @@ def _escape(text: str) -> str:
     return re.sub(r":(?:mod|func|class|meth|data):", "", text).replace("|", "\\|")
 
 
+def _section_table(name: str, section: type[Section]) -> list[str]:
+    """A heading, the first line of the section's docstring and its settings table (key,
+    default, allowed, meaning), as Markdown lines."""
+    doc = inspect.getdoc(section) or ""
+    out = [f"### `{name}`", "", doc.splitlines()[0] if doc else "", ""]
+    out += ["| key | default | allowed | meaning |", "|---|---|---|---|"]
+    for row in field_rows(section):
+        out.append(
+            f"| `{row.key}` | `{_cell(row.default)}` | {_escape(row.allowed)} "
+            f"| {_escape(row.doc)} |"
+        )
+    out.append("")
+    return out
+
+
 def scenario_settings_markdown() -> str:
     """One Markdown table per scenario section (key, default, allowed, meaning) and the presets."""
     out = []
     for name, section in SECTIONS.items():
-        doc = inspect.getdoc(section) or ""
-        out += [f"### `{name}`", "", doc.splitlines()[0] if doc else "", ""]
-        out += ["| key | default | allowed | meaning |", "|---|---|---|---|"]
-        for row in field_rows(section):
-            out.append(
-                f"| `{row.key}` | `{_cell(row.default)}` | {_escape(row.allowed)} "
-                f"| {_escape(row.doc)} |"
-            )
-        out.append("")
+        out += _section_table(name, section)
         if section.PRESETS:
             out += [f"Presets of `{name}.preset` (explicit keys override them):", ""]
             keys = sorted({k for values in section.PRESETS.values() for k in values})
@@ -87,67 +95,39 @@ def shipped_scenarios_markdown() -> str:
     return "\n".join(rows) + "\n"
 
 
-def _rst_table_rows(doc: str) -> list[tuple[str, str, str]]:
-    """Rows ``(key, default, meaning)`` of the first RST simple table in ``doc``."""
-    lines = doc.splitlines()
-    rulers = [i for i, line in enumerate(lines) if re.fullmatch(r"\s*=+(\s+=+)+\s*", line)]
-    if len(rulers) < 3:
-        return []
-    ruler = lines[rulers[0]]
-    spans = [m.span() for m in re.finditer(r"=+", ruler)]
-    starts = [s for s, _ in spans]
-    rows: list[list[str]] = []
-    for line in lines[rulers[1] + 1 : rulers[2]]:
-        cells = [
-            line[a:b].strip() for a, b in zip(starts, [*starts[1:], len(line) + 1], strict=True)
-        ]
-        if cells[0]:
-            rows.append(cells)
-        elif rows:  # continuation of the previous row
-            rows[-1] = [f"{old} {new}".strip() for old, new in zip(rows[-1], cells, strict=True)]
-    return [(r[0].strip("`"), r[1], r[2]) for r in rows]
-
-
-def _ekf_rows() -> list[tuple[str, str, str]]:
-    """``(key, type and default, meaning)`` from the EKF settings docstring paragraphs."""
+def estimator_settings() -> dict[str, type[Section]]:
+    """The settings class of each built-in estimator (what validates its ``estimator.params``)."""
     from estimators.ekf.settings import EkfSlamSettings
+    from estimators.fastslam.settings import DynamicFastSlamSettings, KinematicFastSlamSettings
+    from estimators.isam2.settings import Isam2Settings
+    from estimators.oracle import OracleSettings
 
-    rows = []
-    for para in (inspect.getdoc(EkfSlamSettings) or "").split("\n\n"):
-        found = re.match(r"``(\w+)`` \(([^)]*)\): (.*)", " ".join(para.split()))
-        if found:
-            rows.append((found.group(1), found.group(2), found.group(3)))
-    return rows
+    return {
+        "ekf_slam": EkfSlamSettings,
+        "fastslam": DynamicFastSlamSettings,
+        "fastslam_kinematic": KinematicFastSlamSettings,
+        "isam2": Isam2Settings,
+        "oracle": OracleSettings,
+    }
 
 
 def estimator_param_keys() -> dict[str, set[str]]:
     """The ``estimator.params`` keys each built-in estimator's validator accepts."""
-    from estimators.ekf.settings import _TYPES as EKF_TYPES
-    from estimators.fastslam.dynamic import DynamicFastSLAM
-
-    common = set(DynamicFastSLAM._COMMON)
     return {
-        "ekf_slam": set(EKF_TYPES),
-        "fastslam": common | set(DynamicFastSLAM._EXTRA),
-        "fastslam_kinematic": common | {"imu_noise_scale"},
-        "oracle": set(),
+        name: {row.key.rsplit(".", 1)[1] for row in field_rows(settings)}
+        for name, settings in estimator_settings().items()
     }
 
 
 def estimator_params_markdown() -> str:
-    """Tables of the ``estimator.params`` keys of ``ekf_slam`` and ``fastslam``."""
-    from estimators.fastslam.dynamic import DynamicFastSLAM
-    from estimators.fastslam.kinematic import KinematicFastSLAM
-
-    out = ["### `ekf_slam`", "", "| key | type, default | meaning |", "|---|---|---|"]
-    out += [f"| `{k}` | {_escape(d)} | {_escape(m)} |" for k, d, m in _ekf_rows()]
-    out += ["", "### `fastslam`", "", "| key | default | meaning |", "|---|---|---|"]
-    rows = _rst_table_rows(inspect.getdoc(DynamicFastSLAM) or "")
-    out += [f"| `{k}` | {_escape(d)} | {_escape(m)} |" for k, d, m in rows]
-    kinematic = (inspect.getdoc(KinematicFastSLAM) or "").split("\n\n")
-    params = next((p for p in kinematic if p.startswith("Parameters:")), "")
-    out += ["", "### `fastslam_kinematic`", "", " ".join(params.split()), ""]
-    out += ["### `oracle`", "", "No settings (`estimator.params` must be empty).", ""]
+    """One table of the ``estimator.params`` keys per built-in estimator (key, default,
+    allowed, meaning)."""
+    out = []
+    for name, settings in estimator_settings().items():
+        if field_rows(settings):
+            out += _section_table(name, settings)
+        else:
+            out += [f"### `{name}`", "", "No settings (`estimator.params` must be empty).", ""]
     return "\n".join(out)
 
 

@@ -17,9 +17,10 @@ from estimators.fastslam.landmarks import inverse_model_cov, offset_in_inertial
 from estimators.fastslam.moments import weighted_mean
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.process import DynamicsModel
-from estimators.fastslam.settings import FLOAT, SIGMA_FLOOR, fail, positive
+from estimators.fastslam.settings import SIGMA_FLOOR, DynamicFastSlamSettings
 from estimators.fastslam.state import BiasKFState
 from estimators.inertia import GyroTorqueRegression
+from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation import register
 from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.frames import dcm_from_euler_batch
@@ -37,59 +38,9 @@ class DynamicFastSLAM(FastSLAMBase):
     (``randomize.inform_estimator``) and :meth:`set_wind` gives the drag a known wind
     (``wind.inform_estimator``; ``models_drag``).
 
-    Parameters (keyword arguments; unknown keys, wrong types or out-of-range values raise a
-    ``ValueError`` naming the key):
-
-    =========================  ==============  ================================================
-    key                        default         meaning
-    =========================  ==============  ================================================
-    ``n_particles``            500             N (seed 000 §IV-B)
-    ``resample_threshold``     0.5             resample when ESS < threshold·N, in [0, 1]
-    ``process_noise``          (0.02, 0.1,     white-noise density per state added to each
-                               0.003, 2e-5)    particle: scalar, 4 groups (ρ m/√s, v m/s/√s,
-                                               Λ rad/√s, ω rad/s/√s) or 12 values
-    ``integrator``             ``"rk4"``       ``"rk4"`` or ``"euler"`` (one step per period)
-    ``bias_tau_s``             100.0           drift time constant τ in s (eq. 8, 10)
-    ``accel_drift_sigma``      0.001           stationary std of b1_a in m/s²
-    ``gyro_drift_sigma``       0.001           stationary std of b1_ω in rad/s
-    ``accel_bias_sigma``       0.01            prior std of b0_a in m/s²
-    ``gyro_bias_sigma``        0.01            prior std of b0_ω in rad/s
-    ``mass_scale``             1.0             filter mass = scale × nominal mass
-    ``inertia_scale``          1.0             filter inertia = scale × nominal (Fig. 14: 2.5)
-    ``estimate_inertia``       True if the     identify the principal moments of inertia (and
-                               inertia is      the gyro bias) online from the gyro and the
-                               diagonal        applied torque (:mod:`estimators.inertia`) and
-                                               move the model and the particles' ω to them
-    ``inertia_prior_rel_sigma`` 1.0            prior std of 1/J relative to the nominal model
-    ``use_imu_likelihood``     True            multiply the weights by p(z^I | x^D, x̂^B)
-    ``stage2``                 False           Table 2 step 8 (ω from the gyro, ρ from LiDAR)
-    ``stage2_position``        True            with ``stage2``: also regenerate ρ (else ω only)
-    ``known_map_sigma``        0.001           landmark std in m in known-map mode
-    ``likelihood_inflation``   30.0            λ ≥ 1: LiDAR weights use p(z|x)^{1/λ} (≈ S·λ in
-                                               the weights only; EKFs use the true R)
-    ``roughening``             0.0             K of Gordon et al. roughening after resampling
-                                               (σ_j = K·std_j·N^{−1/12}); 0 = off
-    ``regularisation``         1.0             c: after resampling, move the copies' poses
-                                               (ρ, v, Λ) by the regularised-PF kernel with
-                                               Liu-West shrinkage, bandwidth min(1, c·h_opt)
-                                               (Musso et al. 2001); 0 = plain copies
-    ``progressive_ess``        0.1             a labeled scan that would leave fewer effective
-                                               particles than this share of N is applied in
-                                               tempered stages with kernel moves; 0 = off
-    ``anchor_gauge``           True            SLAM (no known map): keep the initial position
-                                               and yaw uncertainty (the unobservable gauge)
-                                               out of the particles and add it analytically
-                                               to the reported covariances (:mod:`.gauge`)
-    ``nis_divergence``         1000.0          per-DOF NIS of the best 10 % of particles above
-                                               which lock is considered lost; 0 = off
-    ``nis_divergence_s``       2.0             ... for this long (s): ``diverged`` = 1, sticky
-    ``gate_probability``       0.99            unknown association: p of the χ²₃ gate on
-                                               ``νᵀ(λS)⁻¹ν`` (0 < p ≤ 1; 1 = no gate)
-    ``new_landmark_likelihood`` 0.001          p0 per rad²·m: a return is paired only if
-                                               ``N(ν; 0, λS) ≥ p0``; unpaired returns weigh p0
-    ``confirm_hits``           3               M of the M-of-N rule for tentative landmarks
-    ``confirm_window``         5               N (scans), an integer in [M, 1000]
-    =========================  ==============  ================================================
+    Parameters: ``estimator.params``, validated by :class:`~.settings.DynamicFastSlamSettings`
+    (unknown keys, wrong types or out-of-range values raise a ``ConfigError`` naming the key);
+    the docs' generated ``estimator.params`` table of ``fastslam`` lists every key.
 
     Unknown data association (``lidar.association: unknown``, :mod:`.associate`): every
     particle associates the unlabeled returns with its own landmarks by maximum likelihood
@@ -147,29 +98,13 @@ class DynamicFastSLAM(FastSLAMBase):
 
     Args:
         vehicle: Nominal vehicle parameters given by the env (required).
-        **params: The settings above.
+        **params: ``estimator.params`` (:class:`~.settings.DynamicFastSlamSettings`).
 
     Raises:
-        ValueError: If ``vehicle`` is missing or a setting is invalid.
+        ValueError: If ``vehicle`` is missing or a setting is invalid (``ConfigError``).
     """
 
     models_drag: ClassVar[bool] = True
-    _DEFAULT_NOISE = (0.02, 0.1, 0.003, 2e-5)
-    _DEFAULT_INFLATION = 30.0
-    _EXTRA: ClassVar[dict[str, type | tuple[type, ...]]] = {
-        "bias_tau_s": FLOAT,
-        "accel_drift_sigma": FLOAT,
-        "gyro_drift_sigma": FLOAT,
-        "accel_bias_sigma": FLOAT,
-        "gyro_bias_sigma": FLOAT,
-        "mass_scale": FLOAT,
-        "inertia_scale": FLOAT,
-        "use_imu_likelihood": bool,
-        "stage2": bool,
-        "stage2_position": bool,
-        "estimate_inertia": (bool, type(None)),
-        "inertia_prior_rel_sigma": FLOAT,
-    }
 
     def __init__(self, vehicle: VehicleParams | None = None, **params: Any) -> None:
         if vehicle is None:
@@ -181,27 +116,19 @@ class DynamicFastSLAM(FastSLAMBase):
             raise ValueError(
                 f"estimator 'fastslam': vehicle must be a VehicleParams, got {vehicle!r}"
             )
-        super().__init__(params, self._EXTRA)
-        self.bias_tau_s = positive("bias_tau_s", params.get("bias_tau_s", 100.0))
-        self.accel_drift_sigma = positive(
-            "accel_drift_sigma", params.get("accel_drift_sigma", 0.001), strict=False
-        )
-        self.gyro_drift_sigma = positive(
-            "gyro_drift_sigma", params.get("gyro_drift_sigma", 0.001), strict=False
-        )
-        self.accel_bias_sigma = positive("accel_bias_sigma", params.get("accel_bias_sigma", 0.01))
-        self.gyro_bias_sigma = positive("gyro_bias_sigma", params.get("gyro_bias_sigma", 0.01))
-        self._scales = (
-            positive("mass_scale", params.get("mass_scale", 1.0)),
-            positive("inertia_scale", params.get("inertia_scale", 1.0)),
-        )
-        self.use_imu_likelihood = bool(params.get("use_imu_likelihood", True))
-        self.stage2 = bool(params.get("stage2", False))
-        self.stage2_position = bool(params.get("stage2_position", True))
-        self._estimate_inertia = params.get("estimate_inertia")
-        self._inertia_rel_sigma = positive(
-            "inertia_prior_rel_sigma", params.get("inertia_prior_rel_sigma", 1.0)
-        )
+        settings = DynamicFastSlamSettings.from_params(params)
+        super().__init__(settings)
+        self.bias_tau_s = settings.bias_tau_s
+        self.accel_drift_sigma = settings.accel_drift_sigma
+        self.gyro_drift_sigma = settings.gyro_drift_sigma
+        self.accel_bias_sigma = settings.accel_bias_sigma
+        self.gyro_bias_sigma = settings.gyro_bias_sigma
+        self._scales = (settings.mass_scale, settings.inertia_scale)
+        self.use_imu_likelihood = settings.use_imu_likelihood
+        self.stage2 = settings.stage2
+        self.stage2_position = settings.stage2_position
+        self._estimate_inertia = settings.estimate_inertia
+        self._inertia_rel_sigma = settings.inertia_prior_rel_sigma
         self._use_vehicle(vehicle)
         self._air: AirTuple | None = None  # a known wind (set_wind), else still air
         self._bias_cache: tuple[float, FloatArray, FloatArray] | None = None
@@ -235,11 +162,10 @@ class DynamicFastSLAM(FastSLAMBase):
         wanted = self._estimate_inertia
         self.estimate_inertia = diagonal if wanted is None else bool(wanted)
         if self.estimate_inertia and not diagonal:
-            raise fail(
-                "estimate_inertia",
-                True,
-                "False for a vehicle whose inertia has products of inertia (the identification "
-                "models principal moments only)",
+            raise ConfigError(
+                "estimator.params.estimate_inertia: got True; allowed: false or null for a "
+                "vehicle whose inertia has products of inertia (the identification models "
+                "principal moments only)"
             )
         self.inertia_id = GyroTorqueRegression(
             self._inertia0,

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from estimators.fastslam.particles import FastSLAMBase
-from estimators.fastslam.settings import FLOAT, positive
+from estimators.fastslam.settings import KinematicFastSlamSettings
 from quadslam_env.estimation import register
 from quadslam_env.measurements import Control, ImuSample
 from quadslam_env.models.integrators import kinematic_propagate
@@ -24,29 +24,19 @@ class KinematicFastSLAM(FastSLAMBase):
     the sample's white noise (σ × ``imu_noise_scale``), i.e. samples from the motion model with
     noisy inputs. The ω slot of each particle holds its input ω. Weights use the LiDAR only.
 
-    Parameters: ``n_particles`` (500), ``resample_threshold`` (0.5), ``process_noise`` (white-
-    noise density per state, default (0.02, 0.05, 0.005, 0.0); the ω group is unused since ω is
-    the input), ``integrator`` (``"rk4"``), ``imu_noise_scale`` (1.0, factor on the IMU sample
-    σ used as input noise), ``known_map_sigma`` (0.001 m), and the robustness settings shared
-    with ``fastslam`` (``likelihood_inflation`` default 1.0 here — the unmodified FastSLAM 1.0
-    baseline —, ``roughening`` 0.0, ``regularisation`` 1.0, ``progressive_ess`` 0.1,
-    ``anchor_gauge`` True,
-    ``nis_divergence`` 1000.0, ``nis_divergence_s`` 2.0) and
-    its unknown-association settings (``gate_probability`` 0.99, ``new_landmark_likelihood``
-    0.001, ``confirm_hits`` 3, ``confirm_window`` 5).
+    Parameters: ``estimator.params``, validated by
+    :class:`~.settings.KinematicFastSlamSettings`; the docs' generated ``estimator.params``
+    table of ``fastslam_kinematic`` lists every key.
 
     Args:
         vehicle: Accepted for a uniform interface; not used (kinematics need no parameters).
-        **params: The settings above.
+        **params: ``estimator.params`` (:class:`~.settings.KinematicFastSlamSettings`).
     """
 
-    _DEFAULT_NOISE = (0.02, 0.05, 0.005, 0.0)
-
     def __init__(self, vehicle: VehicleParams | None = None, **params: Any) -> None:
-        super().__init__(params, {"imu_noise_scale": FLOAT})
-        self.imu_noise_scale = positive(
-            "imu_noise_scale", params.get("imu_noise_scale", 1.0), strict=False
-        )
+        settings = KinematicFastSlamSettings.from_params(params)
+        super().__init__(settings)
+        self.imu_noise_scale = settings.imu_noise_scale
         self.vehicle = vehicle
 
     def _propagate(self, imu: ImuSample, control: Control, dt: float) -> FloatArray:

@@ -10,7 +10,7 @@ per change.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
@@ -27,20 +27,9 @@ from estimators.fastslam.resampling import (
     regularise_pose,
     systematic_resample,
 )
-from estimators.fastslam.settings import (
-    FLOAT,
-    OWNER,
-    VECTOR,
-    AssociationSettings,
-    fail,
-    fraction,
-    parse_process_noise,
-    positive,
-    scan_noise,
-)
+from estimators.fastslam.settings import AssociationSettings, FastSlamSettings, scan_noise
 from estimators.fastslam.state import ParticleState
 from estimators.memory import check_fastslam_map
-from estimators.settings_check import check_kwargs
 from quadslam_env.estimation import BatchEstimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
@@ -65,67 +54,23 @@ class FastSLAMBase:
 
     associates_unlabeled: ClassVar[bool] = True
 
-    _COMMON: ClassVar[dict[str, type | tuple[type, ...]]] = {
-        "n_particles": int,
-        "resample_threshold": FLOAT,
-        "process_noise": VECTOR,
-        "integrator": str,
-        "known_map_sigma": FLOAT,
-        "likelihood_inflation": FLOAT,
-        "roughening": FLOAT,
-        "anchor_gauge": bool,
-        "regularisation": FLOAT,
-        "progressive_ess": FLOAT,
-        "nis_divergence": FLOAT,
-        "nis_divergence_s": FLOAT,
-        "gate_probability": FLOAT,
-        "new_landmark_likelihood": FLOAT,
-        "confirm_hits": int,
-        "confirm_window": int,
-    }
-    _DEFAULT_NOISE: ClassVar[tuple[float, float, float, float]] = (0.0, 0.0, 0.0, 0.0)
-    _DEFAULT_INFLATION: ClassVar[float] = 1.0
-    _DEFAULT_ROUGHENING: ClassVar[float] = 0.0
-
-    def __init__(self, params: dict[str, Any], extra: dict[str, type | tuple[type, ...]]) -> None:
-        allowed = {**self._COMMON, **extra}
-        check_kwargs(OWNER, params, allowed)
-        self.n_particles = int(params.get("n_particles", 500))
-        if self.n_particles < 1:
-            raise fail("n_particles", self.n_particles, "an int >= 1")
+    def __init__(self, settings: FastSlamSettings) -> None:
+        self.settings = settings
+        """The validated ``estimator.params`` (:mod:`.settings`)."""
+        self.n_particles = settings.n_particles
         check_fastslam_map(1, self.n_particles, 0)  # this lane's particles, before _alloc
-        self.resample_threshold = fraction(
-            "resample_threshold", params.get("resample_threshold", 0.5)
-        )
-        self.process_noise = parse_process_noise(
-            "process_noise", params.get("process_noise", self._DEFAULT_NOISE)
-        )
-        self.integrator = params.get("integrator", "rk4")
-        if self.integrator not in ("rk4", "euler"):
-            raise fail("integrator", self.integrator, "'rk4' or 'euler'")
-        self.known_map_sigma = positive("known_map_sigma", params.get("known_map_sigma", 1e-3))
-        self.likelihood_inflation = positive(
-            "likelihood_inflation", params.get("likelihood_inflation", self._DEFAULT_INFLATION)
-        )
-        if self.likelihood_inflation < 1.0:
-            raise fail(
-                "likelihood_inflation", params["likelihood_inflation"], "a finite number >= 1"
-            )
-        self.roughening = positive(
-            "roughening", params.get("roughening", self._DEFAULT_ROUGHENING), strict=False
-        )
-        self.anchor_gauge = bool(params.get("anchor_gauge", True))
-        self.regularisation = positive(
-            "regularisation", params.get("regularisation", 1.0), strict=False
-        )
-        self.progressive_ess = fraction("progressive_ess", params.get("progressive_ess", 0.1))
-        self.nis_divergence = positive(
-            "nis_divergence", params.get("nis_divergence", 1000.0), strict=False
-        )
-        self.nis_divergence_s = positive(
-            "nis_divergence_s", params.get("nis_divergence_s", 2.0), strict=False
-        )
-        self.association = AssociationSettings.from_params(params)
+        self.resample_threshold = settings.resample_threshold
+        self.process_noise = settings.noise_density()
+        self.integrator = settings.integrator
+        self.known_map_sigma = settings.known_map_sigma
+        self.likelihood_inflation = settings.likelihood_inflation
+        self.roughening = settings.roughening
+        self.anchor_gauge = settings.anchor_gauge
+        self.regularisation = settings.regularisation
+        self.progressive_ess = settings.progressive_ess
+        self.nis_divergence = settings.nis_divergence
+        self.nis_divergence_s = settings.nis_divergence_s
+        self.association = AssociationSettings.of(settings)
         self._rng = np.random.default_rng(0)
         self._alloc()
 

@@ -1,20 +1,26 @@
-"""Parameter validation shared by the FastSLAM filters (errors name ``estimator.params.<key>``)."""
+"""Validated settings of the FastSLAM filters (``estimator.params`` of ``fastslam`` and
+``fastslam_kinematic``).
+
+Every key, its default, what it accepts and its meaning is declared here with
+:func:`~quadslam_env.config_schema.spec`; the docs' ``estimator.params`` tables are generated
+from these declarations. :class:`FastSlamSettings` holds the keys both filters read (the gate
+and the M-of-N rule from :class:`~estimators.association_settings.GatedFields`);
+:class:`DynamicFastSlamSettings` and :class:`KinematicFastSlamSettings` add each filter's own
+keys and defaults (the robustness tuning behind the defaults is in
+:class:`~estimators.fastslam.dynamic.DynamicFastSLAM`).
+"""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from estimators.association import chi2_threshold
-from estimators.tentative import check_confirm_rule
+from estimators.association_settings import GatedFields
+from quadslam_env.config_schema import spec
 from quadslam_env.types import MEAS_DIM, STATE_DIM, FloatArray
-
-OWNER = "estimator.params"
-FLOAT = (float, int)
-VECTOR = (float, int, list, tuple, np.ndarray)
 
 SIGMA_FLOOR = 1e-9
 """Smallest sensor standard deviation used in R (keeps S invertible for noise-free sensors)."""
@@ -26,43 +32,164 @@ def scan_noise(sigma: FloatArray) -> FloatArray:
     return np.diag(sig * sig)
 
 
-def fail(key: str, value: Any, allowed: str) -> ValueError:
-    """The ``ValueError`` for setting ``key`` = ``value``, naming what is allowed."""
-    return ValueError(f"{OWNER}.{key}: invalid value {value!r}; allowed: {allowed}")
+def _noise_spec(default: tuple[float, ...]) -> Any:
+    """``process_noise``'s field, with each filter's default (4 group values)."""
+    return spec(
+        default,
+        kind="vec",
+        length=(1, 4, STATE_DIM),
+        lo=0.0,
+        doc="white-noise density per state added to each particle: one value for all, 4 "
+        "groups (ρ m/√s, v m/s/√s, Λ rad/√s, ω rad/s/√s) or 12 values",
+    )
 
 
-def positive(key: str, value: Any, strict: bool = True) -> float:
-    """``value`` as a finite float > 0 (``strict``) or >= 0; else :func:`fail`."""
-    v = float(value)
-    if not math.isfinite(v) or v < 0.0 or (strict and v == 0.0):
-        raise fail(key, value, "a finite number > 0" if strict else "a finite number >= 0")
-    return v
+def _inflation_spec(default: float) -> Any:
+    """``likelihood_inflation``'s field, with each filter's default."""
+    return spec(
+        default,
+        lo=1.0,
+        doc="λ: the LiDAR weights use p(z|x)^(1/λ) (≈ S·λ in the weights only; the landmark "
+        "EKFs use the true R)",
+    )
 
 
-def fraction(key: str, value: Any) -> float:
-    """``value`` as a float in [0, 1]; else :func:`fail`."""
-    v = float(value)
-    if not 0.0 <= v <= 1.0:
-        raise fail(key, value, "a number in [0, 1]")
-    return v
+@dataclass(frozen=True)
+class FastSlamSettings(GatedFields):
+    """The settings both FastSLAM filters read (a base of their settings classes)."""
+
+    n_particles: int = spec(500, kind="int", lo=1, doc="N, the number of particles")
+    resample_threshold: float = spec(
+        0.5, lo=0.0, hi=1.0, doc="resample when the ESS < this share of N"
+    )
+    process_noise: tuple[float, ...] = _noise_spec((0.0, 0.0, 0.0, 0.0))
+    integrator: str = spec(
+        "rk4",
+        kind="str",
+        choices=("rk4", "euler"),
+        doc="the particles' integration scheme (one step per period)",
+    )
+    known_map_sigma: float = spec(
+        1e-3, lo=0.0, lo_open=True, doc="landmark std in known-map mode, m"
+    )
+    likelihood_inflation: float = _inflation_spec(1.0)
+    roughening: float = spec(
+        0.0,
+        lo=0.0,
+        doc="K of Gordon et al. roughening after resampling (σ_j = K·std_j·N^(−1/12)); 0: off",
+    )
+    regularisation: float = spec(
+        1.0,
+        lo=0.0,
+        doc="c: after resampling, move the copies' poses (ρ, v, Λ) by the regularised-PF "
+        "kernel with Liu-West shrinkage, bandwidth min(1, c·h_opt) (Musso et al. 2001); 0: off",
+    )
+    progressive_ess: float = spec(
+        0.1,
+        lo=0.0,
+        hi=1.0,
+        doc="a labeled scan that would leave fewer effective particles than this share of N "
+        "is applied in tempered stages with kernel moves; 0: off",
+    )
+    anchor_gauge: bool = spec(
+        True,
+        kind="bool",
+        doc="SLAM: keep the initial position and yaw uncertainty (the unobservable gauge) out "
+        "of the particles and add it to the reported covariances",
+    )
+    nis_divergence: float = spec(
+        1000.0,
+        lo=0.0,
+        doc="per-DOF NIS of the best 10 % of particles above which lock is considered lost; 0: off",
+    )
+    nis_divergence_s: float = spec(2.0, lo=0.0, doc="... for this long, s: diverged = 1 (sticky)")
+    new_landmark_likelihood: float = spec(
+        1e-3,
+        lo=0.0,
+        lo_open=True,
+        doc="p0 per rad²·m: a return is paired only if N(ν; 0, λS) >= p0; unpaired returns "
+        "weigh p0",
+    )
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> Any:
+        """Validate ``estimator.params`` (an instance of ``cls``).
+
+        Raises:
+            ConfigError: Unknown key, wrong type or out-of-range value (the message names the
+                key, the value and what is allowed).
+        """
+        return cls.from_dict(params)
+
+    def noise_density(self) -> FloatArray:
+        """(12,) ``process_noise`` expanded per state (one value or 4 groups of 3)."""
+        arr = np.asarray(self.process_noise, dtype=float)
+        if arr.size == 1:
+            return np.full(STATE_DIM, arr[0])
+        return np.repeat(arr, 3) if arr.size == 4 else arr
 
 
-def parse_process_noise(key: str, value: Any) -> FloatArray:
-    """Expand a scalar, 4 group values (ρ, v, Λ, ω) or 12 values to a (12,) density."""
-    allowed = "a number, 4 values (ρ, v, Λ, ω groups) or 12 values, all finite and >= 0"
-    try:
-        arr = np.asarray(value, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise fail(key, value, allowed) from None
-    if arr.size == 1:
-        arr = np.full(STATE_DIM, arr[0])
-    elif arr.size == 4:
-        arr = np.repeat(arr, 3)
-    elif arr.size != STATE_DIM:
-        raise fail(key, value, allowed)
-    if not np.all(np.isfinite(arr)) or np.any(arr < 0.0):
-        raise fail(key, value, allowed)
-    return arr
+@dataclass(frozen=True)
+class DynamicFastSlamSettings(FastSlamSettings):
+    """Settings of the dynamics-based, self-calibrating FastSLAM (``fastslam``)."""
+
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[Any, ...]]]] = {
+        "stage2_position": ("stage2", (True,))
+    }
+    process_noise: tuple[float, ...] = _noise_spec((0.02, 0.1, 0.003, 2e-5))
+    likelihood_inflation: float = _inflation_spec(30.0)
+    bias_tau_s: float = spec(
+        100.0, lo=0.0, lo_open=True, doc="drift time constant τ, s (seed 000 eq. 8, 10)"
+    )
+    accel_drift_sigma: float = spec(0.001, lo=0.0, doc="stationary std of b1_a, m/s²")
+    gyro_drift_sigma: float = spec(0.001, lo=0.0, doc="stationary std of b1_ω, rad/s")
+    accel_bias_sigma: float = spec(0.01, lo=0.0, lo_open=True, doc="prior std of b0_a, m/s²")
+    gyro_bias_sigma: float = spec(0.01, lo=0.0, lo_open=True, doc="prior std of b0_ω, rad/s")
+    mass_scale: float = spec(
+        1.0, lo=0.0, lo_open=True, doc="the filter's mass = this × the nominal mass"
+    )
+    inertia_scale: float = spec(
+        1.0,
+        lo=0.0,
+        lo_open=True,
+        doc="the filter's inertia = this × the nominal inertia (seed 000 Fig. 14: 2.5)",
+    )
+    estimate_inertia: bool | None = spec(
+        None,
+        kind="bool",
+        optional=True,
+        doc="identify the principal moments of inertia (and the gyro bias) online from the "
+        "gyro and the applied torque; null: when the inertia is diagonal",
+    )
+    inertia_prior_rel_sigma: float = spec(
+        1.0, lo=0.0, lo_open=True, doc="prior std of 1/J relative to the nominal model"
+    )
+    use_imu_likelihood: bool = spec(
+        True, kind="bool", doc="multiply the weights by p(z^I | x^D, x̂^B)"
+    )
+    stage2: bool = spec(
+        False, kind="bool", doc="seed 000 Table 2 step 8: ω from the gyro, ρ from the LiDAR"
+    )
+    stage2_position: bool = spec(
+        True, kind="bool", doc="stage 2 also regenerates ρ (false: ω only)"
+    )
+
+
+@dataclass(frozen=True)
+class KinematicFastSlamSettings(FastSlamSettings):
+    """Settings of FastSLAM 1.0 on IMU strapdown kinematics (``fastslam_kinematic``).
+
+    The ω group of ``process_noise`` is unused since ω is the input, and
+    ``likelihood_inflation`` defaults to 1 (the unmodified FastSLAM 1.0 baseline).
+    """
+
+    process_noise: tuple[float, ...] = _noise_spec((0.02, 0.05, 0.005, 0.0))
+    imu_noise_scale: float = spec(
+        1.0, lo=0.0, doc="factor on the IMU sample's σ used as the particles' input noise"
+    )
+
+
+_DEFAULTS = FastSlamSettings.defaults()
 
 
 @dataclass(frozen=True)
@@ -77,31 +204,20 @@ class AssociationSettings:
         confirm_window: N of the M-of-N rule.
     """
 
-    gate_probability: float = 0.99
-    new_landmark_likelihood: float = 1e-3
-    confirm_hits: int = 3
-    confirm_window: int = 5
+    gate_probability: float = _DEFAULTS["gate_probability"]
+    new_landmark_likelihood: float = _DEFAULTS["new_landmark_likelihood"]
+    confirm_hits: int = _DEFAULTS["confirm_hits"]
+    confirm_window: int = _DEFAULTS["confirm_window"]
 
     @classmethod
-    def from_params(cls, params: dict[str, Any]) -> AssociationSettings:
-        """Read and validate the four keys from ``params`` (the others are ignored).
-
-        Raises:
-            ValueError: Naming the key, the value and what is allowed.
-        """
-        prob = params.get("gate_probability", cls.gate_probability)
-        if not 0.0 < float(prob) <= 1.0:
-            raise fail("gate_probability", prob, "a number p with 0 < p <= 1")
-        p0 = positive(
-            "new_landmark_likelihood",
-            params.get("new_landmark_likelihood", cls.new_landmark_likelihood),
+    def of(cls, settings: FastSlamSettings) -> AssociationSettings:
+        """The association settings of a filter's validated settings."""
+        return cls(
+            gate_probability=settings.gate_probability,
+            new_landmark_likelihood=settings.new_landmark_likelihood,
+            confirm_hits=settings.confirm_hits,
+            confirm_window=settings.confirm_window,
         )
-        hits, window = check_confirm_rule(
-            params.get("confirm_hits", cls.confirm_hits),
-            params.get("confirm_window", cls.confirm_window),
-            OWNER,
-        )
-        return cls(float(prob), p0, hits, window)
 
     @property
     def gate(self) -> float:

@@ -4,46 +4,22 @@ The keys shared with EKF-SLAM (``process_noise``, ``estimate_imu_bias`` and the 
 the five data-association keys) have the EKF's meaning, units and defaults
 (:class:`estimators.ekf.settings.EkfSlamSettings`, :mod:`estimators.association_settings`), so a
 scenario written for the EKF keeps its IMU model and its association rule when its estimator is
-swapped; the EKF's own iteration keys (``imu_noise_in_q``, ``relinearise_tolerance``,
-``max_iterations``) are rejected with the list of accepted keys.
+swapped (both settings classes inherit them: :class:`~estimators.imu_bias_settings.ImuBiasFields`,
+:class:`~estimators.association_settings.AssociationFields`); the EKF's own iteration keys
+(``imu_noise_in_q``, ``relinearise_tolerance``, ``max_iterations``) are rejected with the list
+of accepted keys.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from estimators.association import chi2_threshold
-from estimators.association_settings import (
-    ASSOCIATION_DEFAULTS,
-    ASSOCIATION_TYPES,
-    association_settings,
-)
-from estimators.imu_bias_settings import (
-    IMU_BIAS_DEFAULTS,
-    IMU_BIAS_TYPES,
-    check_nonneg,
-    imu_bias_settings,
-)
-from estimators.settings_check import check_kwargs
+from estimators.association_settings import AssociationFields
+from estimators.imu_bias_settings import ImuBiasFields
+from quadslam_env.config_schema import spec
 from quadslam_env.types import POSE_DIM
-
-_TYPES: dict[str, type | tuple[type, ...]] = {
-    "window_s": (float, int, type(None)),
-    "process_noise": (list, tuple, np.ndarray),
-    **IMU_BIAS_TYPES,
-    "integration_sigma": (float, int),
-    "relinearize_threshold": (float, int),
-    "relinearize_skip": int,
-    "factorization": str,
-    "iterations": int,
-    "landmark_covariances": bool,
-    "factor_per_return": bool,
-    **ASSOCIATION_TYPES,
-}
 
 FIXED_BIAS_SIGMA = 1e-5
 """With ``estimate_imu_bias: false`` the biases are held at zero by a prior of this std on
@@ -68,170 +44,105 @@ m²/s²): the scenarios' ``estimator.initial_cov_diag`` may hold zeros (a known 
 which a Gaussian factor cannot represent."""
 
 
-def _check_positive(key: str, value: Any) -> float:
-    value = float(value)
-    if not (math.isfinite(value) and value > 0.0):
-        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: a finite number > 0")
-    return value
-
-
 FACTORIZATIONS = ("qr", "cholesky")
-
-
-def _check_choice(key: str, value: str, allowed: tuple[str, ...]) -> str:
-    if value not in allowed:
-        raise ValueError(f"estimator.params.{key}: got {value!r}; allowed: one of {allowed}")
-    return value
-
-
-def _check_int(key: str, value: int, lo: int, hi: int) -> int:
-    if not lo <= value <= hi:
-        raise ValueError(
-            f"estimator.params.{key}: got {value!r}; allowed: an integer in [{lo}, {hi}]"
-        )
-    return int(value)
+"""``estimator.params.factorization`` choices of iSAM2's elimination."""
 
 
 @dataclass(frozen=True)
-class Isam2Settings:
-    """iSAM2 settings, built from ``estimator.params`` by :meth:`from_params`.
+class Isam2Settings(ImuBiasFields, AssociationFields):
+    """iSAM2 settings (``estimator.params`` of ``isam2``), built by :meth:`from_params`.
 
-    The accepted keys (all optional):
+    Every key, its default, what it accepts and its meaning is declared below with
+    :func:`~quadslam_env.config_schema.spec` (the docs' ``estimator.params`` table of
+    ``isam2`` is generated from these declarations); the bias and association keys are the
+    EKF's (see the module docstring).
 
-    ``window_s`` (float > 0 or null, default 3.0): smoother lag in s. Vehicle states (pose,
-    velocity, biases) older than this are marginalised (GTSAM's
-    ``IncrementalFixedLagSmoother``), so the cost per scan stays bounded; landmarks stay in
-    the window for the whole episode (their timestamps are refreshed at every keyframe, so a
-    landmark that comes back into view still has its variable). ``null`` keeps every state:
-    full iSAM2 (Kaess et al. 2012), whose cost grows with the episode.
-
-    ``process_noise`` (list of 9 floats ≥ 0, default all 0): the EKF's continuous process
-    noise Q over (ρ, v_B, Λ) in m²/s, m²/s³, rad²/s, added to the preintegration's inputs:
-    the ρ block to the integration covariance, the v_B block to the accelerometer's and the
-    Λ block to the gyro's (exact for isotropic blocks in level flight). The simulator has no
-    process noise beyond the IMU's, so the default is none.
-
-    ``estimate_imu_bias`` (bool, default False): estimate the six IMU biases (accelerometer
-    m/s², gyro rad/s) as a random walk between keyframes (GTSAM's ``CombinedImuFactor``).
-    Off: the biases are held at zero (:data:`FIXED_BIAS_SIGMA`, a prior at every keyframe).
-
-    ``gyro_bias_sigma0`` (float ≥ 0, default 0.01 rad/s), ``accel_bias_sigma0`` (float ≥ 0,
-    default 0.05 m/s²): prior std per axis of the biases at the first keyframe (as the EKF's).
-
-    ``gyro_bias_walk`` (float ≥ 0, default 1e-4 rad/s/√s), ``accel_bias_walk`` (float ≥ 0,
-    default 1e-3 m/s²/√s): random-walk densities of the biases (as the EKF's).
-
-    ``integration_sigma`` (float ≥ 0, default 1e-4 m/√s): GTSAM's integration noise, the
-    position error of integrating a held IMU sample (added to the ρ block of ``process_noise``).
-
-    ``relinearize_threshold`` (float > 0, default 0.01): iSAM2 relinearises a variable when
-    its tangent-space update exceeds this (rad, m, m/s).
-
-    ``relinearize_skip`` (int in [1, 100], default 1): check for relinearisation every this
-    many updates.
-
-    ``factorization`` (``qr`` | ``cholesky``, default ``qr``): how iSAM2 eliminates the
-    linearised system. Cholesky squares the condition number: after ~15 s of dead reckoning
-    (the map out of view) the position's variance is ~1e8 times the held biases' and it
-    reports an indeterminate system; QR works on the square-root information directly
-    (same solution, ~15% more time per scan).
-
-    ``iterations`` (int in [1, 20], default 1): iSAM2 updates per keyframe (the later ones
-    without new factors: one more Gauss–Newton step each).
-
-    ``landmark_covariances`` (bool, default True): recover every mapped landmark's marginal
-    covariance at each keyframe (for ``BatchEstimate.landmark_covs``); off, they are reported as
-    zero, which saves one marginal per landmark and keyframe.
-
-    ``factor_per_return`` (bool, default False): unknown map, one LiDAR factor per return
-    (keys pose, landmark) instead of one per scan (keys pose and the scan's landmarks). The
-    two are the same likelihood; per scan makes one Python call per scan and linearisation
-    instead of one per return.
-
-    With ``lidar.association: unknown`` (unlabeled returns, :mod:`estimators.isam2.associate`),
-    EKF-SLAM's keys with EKF-SLAM's meaning and defaults (:mod:`estimators.association_settings`):
-
-    ``association`` (``nn`` | ``jcbb``, default ``jcbb``): nearest neighbour or joint
-    compatibility branch and bound (:mod:`estimators.association`) on the smoother's joint
-    marginal of the scan's pose and the landmarks in the gate.
-
-    ``gate_probability`` (float in (0, 1], default 0.99): the χ²₃ gate of a (return, landmark)
-    pair on its Mahalanobis distance (0.99 → 11.345); 1.0 disables gating.
-
-    ``new_landmark_probability`` (float ≥ gate_probability and < 1, default 0.9999 or
-    gate_probability if larger): a return starts a tentative landmark only when it is outside
-    this χ²₃ gate of every landmark; one between the two gates is dropped.
-
-    ``confirm_hits`` (int in [1, 1000], default 3), ``confirm_window`` (int in
-    [confirm_hits, 1000], default 5): a tentative landmark enters the graph once it has been
-    seen in ``confirm_hits`` of its first ``confirm_window`` scans, with a factor for every
-    sighting whose keyframe is still in the smoother (:mod:`estimators.tentative`).
+    ``window_s`` bounds the cost per scan: vehicle states (pose, velocity, biases) older than
+    it are marginalised (GTSAM's ``IncrementalFixedLagSmoother``) while landmarks stay in the
+    window for the whole episode (their timestamps are refreshed at every keyframe, so a
+    landmark that comes back into view still has its variable); ``null`` is full iSAM2 (Kaess
+    et al. 2012), whose cost grows with the episode. ``process_noise`` is added to the
+    preintegration's inputs: the ρ block to the integration covariance, the v_B block to the
+    accelerometer's and the Λ block to the gyro's (exact for isotropic blocks in level
+    flight); the simulator has no process noise beyond the IMU's, so the default is none.
+    With ``estimate_imu_bias: false`` the biases are held at zero (:data:`FIXED_BIAS_SIGMA`,
+    a prior at every keyframe). ``factorization: cholesky`` squares the condition number:
+    after ~15 s of dead reckoning (the map out of view) the position's variance is ~1e8 times
+    the held biases' and it reports an indeterminate system; QR works on the square-root
+    information directly (same solution, ~15% more time per scan).
 
     The measurement noise (LiDAR σ per return, IMU white noise per sample) comes with the
     data, as for the EKF (:class:`~quadslam_env.measurements.LidarScan`,
     :class:`~quadslam_env.measurements.ImuSample`).
     """
 
-    window_s: float | None = 3.0
-    process_noise: tuple[float, ...] = (0.0,) * POSE_DIM
-    estimate_imu_bias: bool = IMU_BIAS_DEFAULTS["estimate_imu_bias"]
-    gyro_bias_sigma0: float = IMU_BIAS_DEFAULTS["gyro_bias_sigma0"]
-    accel_bias_sigma0: float = IMU_BIAS_DEFAULTS["accel_bias_sigma0"]
-    gyro_bias_walk: float = IMU_BIAS_DEFAULTS["gyro_bias_walk"]
-    accel_bias_walk: float = IMU_BIAS_DEFAULTS["accel_bias_walk"]
-    integration_sigma: float = 1e-4
-    relinearize_threshold: float = 0.01
-    relinearize_skip: int = 1
-    factorization: str = "qr"
-    iterations: int = 1
-    landmark_covariances: bool = True
-    factor_per_return: bool = False
-    association: str = ASSOCIATION_DEFAULTS["association"]
-    gate_probability: float = ASSOCIATION_DEFAULTS["gate_probability"]
-    new_landmark_probability: float = ASSOCIATION_DEFAULTS["new_landmark_probability"]
-    confirm_hits: int = ASSOCIATION_DEFAULTS["confirm_hits"]
-    confirm_window: int = ASSOCIATION_DEFAULTS["confirm_window"]
+    window_s: float | None = spec(
+        3.0,
+        lo=0.0,
+        lo_open=True,
+        optional=True,
+        doc="smoother lag, s: older vehicle states are marginalised; null: keep every state",
+    )
+    process_noise: tuple[float, ...] = spec(
+        (0.0,) * POSE_DIM,
+        kind="vec",
+        length=POSE_DIM,
+        lo=0.0,
+        doc="the EKF's continuous process noise Q over (ρ, v_B, Λ), m²/s, m²/s³, rad²/s, "
+        "added to the preintegration's inputs",
+    )
+    integration_sigma: float = spec(
+        1e-4,
+        lo=0.0,
+        doc="GTSAM's integration noise, m/√s: the position error of integrating a held IMU "
+        "sample (added to the ρ block of process_noise)",
+    )
+    relinearize_threshold: float = spec(
+        0.01,
+        lo=0.0,
+        lo_open=True,
+        doc="relinearise a variable when its tangent-space update exceeds this (rad, m, m/s)",
+    )
+    relinearize_skip: int = spec(
+        1, kind="int", lo=1, hi=100, doc="check for relinearisation every this many updates"
+    )
+    factorization: str = spec(
+        "qr",
+        kind="str",
+        choices=FACTORIZATIONS,
+        doc="how iSAM2 eliminates the linearised system (cholesky: faster, fails after long "
+        "dead reckoning)",
+    )
+    iterations: int = spec(
+        1,
+        kind="int",
+        lo=1,
+        hi=20,
+        doc="iSAM2 updates per keyframe (the later ones: one more Gauss–Newton step each)",
+    )
+    landmark_covariances: bool = spec(
+        True,
+        kind="bool",
+        doc="recover every mapped landmark's marginal covariance at each keyframe (false: "
+        "reported as zero)",
+    )
+    factor_per_return: bool = spec(
+        False,
+        kind="bool",
+        doc="unknown map: one LiDAR factor per return instead of one per scan (the same "
+        "likelihood, more Python calls)",
+    )
 
     @classmethod
     def from_params(cls, params: dict[str, Any]) -> Isam2Settings:
         """Validate ``estimator.params``.
 
         Raises:
-            ValueError: Unknown key, wrong type or out-of-range value (the message names the
+            ConfigError: Unknown key, wrong type or out-of-range value (the message names the
                 key, the value and what is allowed).
         """
-        check_kwargs("estimator.params", params, _TYPES)
-        default = cls()
-
-        def get(key: str) -> Any:  # the dataclass field's default when the key is absent
-            return params.get(key, getattr(default, key))
-
-        window = get("window_s")
-        if window is not None:
-            window = _check_positive("window_s", window)
-        q = get("process_noise")
-        if len(q) != POSE_DIM or not all(
-            isinstance(e, float | int | np.floating | np.integer) and not isinstance(e, bool)
-            for e in q
-        ):
-            raise ValueError(
-                f"estimator.params.process_noise: got {q!r}; allowed: a list of 9 numbers >= 0"
-            )
-        return cls(
-            window_s=window,
-            process_noise=tuple(check_nonneg("process_noise", e) for e in q),
-            **imu_bias_settings(params),
-            integration_sigma=check_nonneg("integration_sigma", get("integration_sigma")),
-            relinearize_threshold=_check_positive(
-                "relinearize_threshold", get("relinearize_threshold")
-            ),
-            relinearize_skip=_check_int("relinearize_skip", get("relinearize_skip"), 1, 100),
-            factorization=_check_choice("factorization", get("factorization"), FACTORIZATIONS),
-            iterations=_check_int("iterations", get("iterations"), 1, 20),
-            landmark_covariances=bool(get("landmark_covariances")),
-            factor_per_return=bool(get("factor_per_return")),
-            **association_settings(params),
-        )
+        settings: Isam2Settings = cls.from_dict(params)
+        return settings
 
     @property
     def gate(self) -> float:
