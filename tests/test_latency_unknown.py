@@ -109,7 +109,7 @@ def test_delayed_unlabeled_scans_do_the_undelayed_filters_operations(name: str, 
     assert compared["missed"] >= 1  # detection_prob 0.9: some return was missed
 
 
-def _episode(name: str, delay: int, seed: int, steps: int = 150) -> list[tuple]:
+def _episode(name: str, delay: int, seed: int, steps: int = 200) -> list[tuple]:
     """(obs, info) of every step of a scalar env with unlabeled, ``delay``-step-late scans,
     flown open loop on hover actions with seeded noise."""
     env = QuadSLAMEnv(
@@ -136,10 +136,11 @@ def test_association_terms_stay_consistent_with_a_delay(name: str) -> None:
     """With d = 4 the counts are finite and nested (wrong ≤ associated ≤ returns, missed ≤
     true ≤ returns), non-zero only at deliveries (4 steps after each 10th step), where the
     returns counted are those the LiDAR took d steps earlier (``est_n_visible`` then); the
-    mapped and spurious counts are finite and the map ends non-empty."""
+    mapped and spurious counts are finite, the map ends non-empty, and the episode's rates are
+    the ratios of the summed counts (the last scan, still in flight, is dropped)."""
     delay = 4
     run = _episode(name, delay, seed=3)
-    assert len(run) == 151
+    assert len(run) == 201  # reset and the 2 s episode's 200 steps
     delivered = 0
     for s, (_, info) in enumerate(run):
         c = {key: float(info[key]) for key in ASSOCIATION_KEYS}
@@ -154,7 +155,14 @@ def test_association_terms_stay_consistent_with_a_delay(name: str) -> None:
         else:
             assert c["assoc_n_returns"] == 0.0, s
     assert delivered >= 10
-    assert run[-1][1]["est_n_mapped"] > 0
+    last = run[-1][1]
+    assert last["est_n_mapped"] > 0 and last["episode_n_mapped"] == last["est_n_mapped"]
+    total = {key: sum(float(info[key]) for _, info in run[1:]) for key in ASSOCIATION_KEYS}
+    assert total["assoc_n_associated"] > 0 and total["assoc_n_true"] > 0
+    wrong = total["assoc_n_wrong"] / total["assoc_n_associated"]
+    missed = total["assoc_n_missed"] / total["assoc_n_true"]
+    assert last["episode_assoc_wrong_rate"] == pytest.approx(wrong, rel=1e-12, abs=1e-15)
+    assert last["episode_assoc_missed_rate"] == pytest.approx(missed, rel=1e-12, abs=1e-15)
 
 
 @pytest.mark.parametrize("name", sorted(ESTIMATORS))
