@@ -37,12 +37,18 @@ def _core(name: str, delay: int) -> SimCore:
 
 
 def _belief(estimator: Any, lane: int) -> list[np.ndarray]:
-    """Everything a lane's filter holds that the next step depends on: the EKF's total mean,
-    covariance and slot ids; FastSLAM's particles, log-weights and landmark EKFs."""
+    """A lane's belief: its snapshot (pose, covariance, the mapped labels' means; the rows of
+    unmapped labels are unused), and the EKF's total mean, covariance and slot ids or
+    FastSLAM's particles, log-weights and landmark EKFs."""
+    est = estimator.estimate()
+    mapped = est.landmark_mapped[lane].copy()
+    snapshot = [est.position[lane], est.euler[lane], est.pose_cov[lane], mapped]
+    snapshot = [np.array(a) for a in snapshot] + [est.landmark_means[lane][mapped]]
     if hasattr(estimator, "full_state"):
-        return list(estimator.full_state(lane))
+        return snapshot + list(estimator.full_state(lane))
     state = estimator.lanes[lane].state
-    return [a.copy() for a in (state.x, state.logw, state.mu, state.sigma, state.lineage)]
+    arrays = (state.x, state.logw, state.mu, state.sigma, state.lineage)
+    return snapshot + [a.copy() for a in arrays]
 
 
 def _assert_same(got: list[np.ndarray], want: list[np.ndarray], where: str) -> None:
