@@ -316,8 +316,9 @@ def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
 
 def check_delays(scenario: ScenarioConfig) -> None:
     """``action.delay_steps`` and ``lidar.delay_steps`` must be shorter than an episode, and a
-    delayed LiDAR goes with neither a slow IMU nor unlabeled returns (docs/env.md "Latency";
-    its estimator is checked by :func:`check_copyable`).
+    delayed LiDAR does not go with an IMU slower than the control (docs/env.md "Latency"; its
+    estimator is checked by :func:`check_copyable`). Either association is fine: the lagging
+    filter applies each scan, labeled or not, at its own time (:mod:`quadslam_env.scan_delay`).
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.
@@ -341,11 +342,6 @@ def check_delays(scenario: ScenarioConfig) -> None:
             f"episode.control_hz = {scenario.episode.control_hz}; allowed: lidar.delay_steps: "
             "0 with an IMU slower than the control, or imu.rate_hz null or >= "
             "episode.control_hz with a delayed LiDAR"
-        )
-    if scenario.lidar.association == "unknown":
-        raise ConfigError(
-            f"lidar.delay_steps: got {delay} with lidar.association = 'unknown'; allowed: 0 "
-            "with unlabeled returns, or lidar.association: known with a delayed LiDAR"
         )
 
 

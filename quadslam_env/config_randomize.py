@@ -31,6 +31,10 @@ SCALE_KEYS = (
 )
 """The randomised scales, in draw order (one uniform each, always all of them)."""
 
+AXIS_KEYS = ("inertia_scale_x", "inertia_scale_y", "inertia_scale_z")
+"""The inertia scales of the body axes x, y, z with ``inertia_scale_per_axis`` (each drawn on
+``inertia_scale``'s range; pinnable on their own, ``info`` terms ``rand_inertia_scale_x`` …)."""
+
 SCALE_MAX = 10.0
 """Largest scale a range or a pinned value may reach."""
 
@@ -48,7 +52,8 @@ class RandomizeConfig(Section):
     SECTION: ClassVar[str] = "randomize"
     mass_scale: tuple[float, ...] = _range("range of the scale on the vehicle's mass")
     inertia_scale: tuple[float, ...] = _range(
-        "range of the scale on the inertia matrix (all axes together)"
+        "range of the scale on the inertia matrix (all axes together, or each body axis on "
+        "its own with inertia_scale_per_axis)"
     )
     thrust_scale: tuple[float, ...] = _range(
         "range of the scale on the actuators' effect: thrust and torque produced for a command "
@@ -69,6 +74,14 @@ class RandomizeConfig(Section):
     )
     wind_scale: tuple[float, ...] = _range(
         "range of the scale on the wind (steady part and gusts; no effect in still air)"
+    )
+    inertia_scale_per_axis: bool = _spec(
+        False,
+        kind="bool",
+        doc="draw the inertia scale of each body axis (x, y, z) on its own, uniform on "
+        "inertia_scale's range: J_ij scales by sqrt(s_i s_j), so J_xx, J_yy, J_zz by s_x, s_y, "
+        "s_z and J stays symmetric positive definite; info reports rand_inertia_scale_x/_y/_z "
+        "instead of rand_inertia_scale",
     )
     inform_estimator: bool = _spec(
         False,
@@ -136,7 +149,8 @@ def check_thrust_to_weight(
 
 
 def parse_pins(value: Any) -> dict[str, float]:
-    """Validate the reset option ``randomized``: a mapping of some :data:`SCALE_KEYS` to scales.
+    """Validate the reset option ``randomized``: a mapping of some :data:`SCALE_KEYS` (or of the
+    :data:`AXIS_KEYS`, checked against the section by ``Randomizer.check_pins``) to scales.
 
     Returns:
         ``{key: scale}`` as floats.
@@ -145,18 +159,17 @@ def parse_pins(value: Any) -> dict[str, float]:
         ConfigError: Not a mapping, an unknown key, or a value that is not a finite number in
             [0, 10] (mass and inertia scales > 0).
     """
+    allowed = [*SCALE_KEYS, *AXIS_KEYS]
     if not isinstance(value, dict):
         raise ConfigError(
             f"reset options.randomized: got {value!r}; allowed: a mapping of some of "
-            f"{list(SCALE_KEYS)} to scales"
+            f"{allowed} to scales"
         )
     out: dict[str, float] = {}
     for key, v in value.items():
-        if key not in SCALE_KEYS:
-            raise ConfigError(
-                f"reset options.randomized.{key}: unknown key; allowed: {list(SCALE_KEYS)}"
-            )
-        positive = key in ("mass_scale", "inertia_scale")
+        if key not in allowed:
+            raise ConfigError(f"reset options.randomized.{key}: unknown key; allowed: {allowed}")
+        positive = key.startswith(("mass_scale", "inertia_scale"))
         ok = isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool)
         num = float(v) if ok else math.nan
         if not (math.isfinite(num) and (num > 0.0 if positive else num >= 0.0)) or num > SCALE_MAX:

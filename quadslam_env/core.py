@@ -291,9 +291,9 @@ class SimCore:
         scans = self._scan(active)
         timed = self.scenario.episode.report_step_time
         tic = time.perf_counter() if timed else 0.0
-        refreshed = self._estimate(samples, scans, active)
+        refreshed, applied = self._estimate(samples, scans, active)
         est = self._snapshot()
-        self._associate(est, scans, refreshed)
+        self._associate(est, applied, refreshed)
         toc = time.perf_counter() if timed else 0.0
         ref = self.reference()
         values, info = self._metrics(est, ref)
@@ -372,12 +372,12 @@ class SimCore:
 
     def _estimate(
         self, samples: list[Sample], scans: Scans | None, active: np.ndarray
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, Scans | None]:
         """Run the estimator over the period: a prediction per IMU sample and the scans, or
         through the second run from copies (slow IMU, delayed LiDAR), which may replace it.
 
         Returns:
-            (B,) bool lanes whose belief was rebuilt from the copies' filter.
+            (B,) bool lanes rebuilt from the copies' filter; the scans applied (or ``None``).
         """
         copies = self._copies
         if copies is None:
@@ -386,12 +386,12 @@ class SimCore:
             predict_samples(self.estimator, samples, self.imu_input_sigma, h, active)
             if scans is not None:
                 scans.apply(self.estimator, self.t, self.lidar.sigma)
-            return self._no_lanes
+            return self._no_lanes, scans
         self.estimator = copies.step(
             self.estimator, self.steps, active, samples, self.imu_input_sigma, scans,
             self.lidar.sigma,
         )  # fmt: skip
-        return copies.refreshed
+        return copies.refreshed, copies.applied
 
     def _associate(self, est: BatchEstimate, scans: Scans | None, changed: np.ndarray) -> None:
         """The association component's ``update`` (``association.Association``), with the truth."""

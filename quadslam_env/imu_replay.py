@@ -131,6 +131,7 @@ class ImuReplay(EstimatorCopies):
             The estimator to report from now on (``output``, or the filter's fresh copy).
         """
         self.log.record(steps, active, samples, scan)
+        self.applied = scan  # the last scan each lane's output takes, directly or replayed
         ((t, accel, gyro, thrust, torque),) = samples
         held, controls = (accel, gyro), (thrust, torque)
         due = self.refreshed = active & (steps % self.m == 0)

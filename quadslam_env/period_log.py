@@ -153,6 +153,10 @@ class EstimatorCopies:
         refreshed: (B,) bool lanes whose output the last ``step`` rebuilt from the filter
             (their IMU sample or their delayed scan arrived): their belief, map included,
             changed by more than the period's prediction and its own scan.
+        applied: The scans whose update the output's belief took last in the last ``step``
+            (the slow IMU: that period's; the delayed LiDAR: those measured d steps earlier
+            that arrived then), or ``None``. The association scores the estimator's labels of
+            their returns (:class:`~quadslam_env.association.UnknownAssociation`).
     """
 
     def __init__(self, estimator: BatchEstimator, log: PeriodLog) -> None:
@@ -160,6 +164,7 @@ class EstimatorCopies:
         self.output = estimator
         self.log = log
         self.refreshed = np.zeros(estimator.num_lanes, dtype=bool)
+        self.applied: Scans | None = None
 
     def reset_lanes(
         self,

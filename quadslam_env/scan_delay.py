@@ -17,7 +17,12 @@ software that keeps a short buffer of its inputs):
   scans in that window have not arrived). Between arrivals it predicts one period a step.
 
 So at a step with no scan in flight the output has done exactly the operations, in the same
-order, that an undelayed filter would have done: the same belief (tests/test_latency.py).
+order, that an undelayed filter would have done: the same belief (tests/test_latency.py). With
+unknown association (``lidar.association: unknown``) the logged scans are unlabeled returns,
+which the filter associates (χ²/JCBB) against its belief of their time, as the undelayed filter
+would; the scans that arrived in a step are :attr:`ScanDelay.applied`, so the association
+bookkeeping scores the estimator's labels of those returns and re-matches the lanes rebuilt
+from the filter (:attr:`ScanDelay.refreshed`; tests/test_latency_unknown.py).
 Scans still in flight when an episode ends are dropped with the lane's log. Every lane keeps
 its own phase (its own step count since reset), so lane i of a vector env equals the scalar
 env. The estimator must be deep-copyable: the scenario check refuses a delay with one whose class
@@ -83,6 +88,8 @@ class ScanDelay(EstimatorCopies):
         output: The output estimator :meth:`step` last returned (the env's).
         filter_step: (B,) int, the step (since the lane's reset) the filter's lane is at.
         refreshed: (B,) bool lanes whose delayed scan arrived in the last :meth:`step`.
+        applied: The scans that arrived in the last :meth:`step` (measured d steps earlier;
+            lanes :attr:`refreshed`), or ``None``.
     """
 
     def __init__(
@@ -148,8 +155,10 @@ class ScanDelay(EstimatorCopies):
             due &= log.has_scan(log.slots(np.maximum(measured, 1)))
         self.refreshed = due
         if not due.any():
+            self.applied = None
             predict_samples(output, samples, sigma, self.h, active)
             return output
+        self.applied = log.scan(log.slots(measured), due)  # the scans that arrive now
         self._advance(self.filter, due, measured, sigma, lidar_sigma)
         self.filter_step[due] = measured[due]
         output = self.output = copy.deepcopy(self.filter)

@@ -18,6 +18,26 @@ from quadslam_env.models.rigid_body import air_velocity_lanes, lane_array, pack_
 from quadslam_env.types import STATE_DIM, VEL, FloatArray
 
 
+def inertia_factor(scale: ArrayLike) -> FloatArray:
+    """The factor on the row-major inertia J (9 entries) of an inertia scale per lane.
+
+    One scale s of all axes gives ``J' = s J``; scales (s_x, s_y, s_z) of the body axes give
+    ``J' = D^½ J D^½`` with ``D = diag(s)``: ``J'_ij = J_ij √(s_i s_j)``, so the diagonal
+    scales by s_i and J' stays symmetric positive definite (``J'⁻¹`` is ``J⁻¹`` divided by the
+    same factor).
+
+    Args:
+        scale: (k,) one scale per lane, or (k, 3) per body axis; > 0.
+
+    Returns:
+        (k, 1) or (k, 9), broadcasting against (k, 9) rows of J.
+    """
+    s = np.asarray(scale, dtype=float)
+    if s.ndim == 1:
+        return s[:, None]
+    return np.sqrt(s[:, :, None] * s[:, None, :]).reshape(-1, 9)
+
+
 class VehicleBatch:
     """True states of B quadcopters, RK4 at a fixed physics substep (seed 001 eq. 2–3).
 
@@ -102,7 +122,9 @@ class VehicleBatch:
 
         Args:
             lanes: (k,) lane indices.
-            mass, inertia: (k,) scales of m and J (J⁻¹ scales by the inverse), > 0.
+            mass: (k,) scale of m, > 0.
+            inertia: (k,) scale of J, or (k, 3) scales of its body axes
+                (:func:`inertia_factor`; J⁻¹ scales by the inverse), > 0.
             thrust: (k,) scale of the thrust and torque produced for a command (collective:
                 the gain on the saturated command; rotors: k_f and k_m), > 0.
             lag: (k,) scale of the actuator or motor time constant, ≥ 0.
@@ -112,8 +134,9 @@ class VehicleBatch:
         ts, ls = np.asarray(thrust, dtype=float), np.asarray(lag, dtype=float)
         nominal = self._nominal_body
         self._bodies[idx, 0] = nominal[0] * ms
-        self._bodies[idx, 2:11] = nominal[2:11] * js[:, None]
-        self._bodies[idx, 11:20] = nominal[11:20] / js[:, None]
+        factor = inertia_factor(js)
+        self._bodies[idx, 2:11] = nominal[2:11] * factor
+        self._bodies[idx, 11:20] = nominal[11:20] / factor
         self._hover_thrust[idx] = self.params.hover_thrust * ms
         c = self._nominal_coeffs
         if self.params.rotors is not None:

@@ -168,7 +168,6 @@ def test_bad_delays_name_the_key_the_value_and_the_range(
     [
         ({"estimator": {"name": "isam2"}}, "cannot be copied"),
         ({"imu": {"rate_hz": 10.0}}, "imu.rate_hz"),
-        ({"lidar": {"association": "unknown"}}, "lidar.association"),
     ],
 )
 def test_delayed_lidar_refuses_what_it_cannot_run(over: dict, fragment: str) -> None:

@@ -20,6 +20,7 @@ FAST_FASTSLAM = {
     "episode": {"duration_s": 0.25},
     "estimator": {"params": {"n_particles": 30}},
 }
+UNKNOWN_LIDAR = {"association": "unknown", "clutter_rate": 3.0, "detection_prob": 0.9}
 CASES = {
     "QuadSLAM-Oracle-v0": SHORT,
     "QuadSLAM-EKF-v0": SHORT,
@@ -27,7 +28,7 @@ CASES = {
     "QuadSLAM-FastSLAM-v0": FAST_FASTSLAM,
     "QuadSLAM-EKF-v0-unknown": {
         "episode": {"duration_s": 0.45},
-        "lidar": {"association": "unknown", "clutter_rate": 3.0, "detection_prob": 0.9},
+        "lidar": UNKNOWN_LIDAR,
         "estimator": {"params": {"confirm_hits": 2, "confirm_window": 3}},
     },
     # imu.rate_hz: a slower IMU (filter replayed at its instants, lanes out of phase after
@@ -59,10 +60,20 @@ CASES = {
         "lidar": {"delay_steps": 12},
         "action": {"delay_steps": 1},
     },
+    # Unlabeled scans that arrive late: the lagging filter associates them at their own time.
+    "QuadSLAM-EKF-v0-unknown-latency": {
+        "episode": {"duration_s": 0.45},
+        "lidar": {**UNKNOWN_LIDAR, "delay_steps": 4},
+        "estimator": {"params": {"confirm_hits": 2, "confirm_window": 3}},
+    },
+    "QuadSLAM-FastSLAM-v0-unknown-latency": {
+        **FAST_FASTSLAM,
+        "lidar": {**UNKNOWN_LIDAR, "delay_steps": 3},
+    },
     "QuadSLAM-EKF-v0-unknown-imu5": {
         "episode": {"duration_s": 0.45},
         "imu": {"rate_hz": 5.0},
-        "lidar": {"association": "unknown", "clutter_rate": 3.0, "detection_prob": 0.9},
+        "lidar": UNKNOWN_LIDAR,
         "estimator": {"params": {"confirm_hits": 2, "confirm_window": 3}},
     },
 }

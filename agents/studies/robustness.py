@@ -47,7 +47,7 @@ from agents.evaluation.episodes import spread_cell
 from agents.studies.cost import TRAINED, scenario_kwargs, train_job
 from agents.studies.learned_rows import EKF, Row, box_plot, fly, write_json
 from agents.studies.training_pool import train_all
-from quadslam_env.randomize import RANDOMIZED_KEYS
+from quadslam_env.randomize import AXIS_INFO_KEYS, RANDOMIZED_KEYS
 
 __all__ = [
     "CONDITIONS",
@@ -144,7 +144,8 @@ def drawn_scales(kwargs: dict[str, Any], seeds: list[int]) -> list[dict[str, flo
         infos = [env.reset(seed=seed)[1] for seed in seeds]
     finally:
         env.close()
-    return [{k: float(v) for k, v in info.items() if k in RANDOMIZED_KEYS} for info in infos]
+    keys = (*RANDOMIZED_KEYS, *AXIS_INFO_KEYS)
+    return [{k: float(v) for k, v in info.items() if k in keys} for info in infos]
 
 
 def _train(
