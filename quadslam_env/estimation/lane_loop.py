@@ -173,8 +173,10 @@ class LaneLoop:
         """Call each listed lane's ``update`` with an unlabeled :class:`LidarScan`
         (``ids=None``) and collect its ``last_association`` (k,) into :attr:`last_association`."""
         width = returns.shape[1]
-        if self.last_association.shape[1] < width:
+        old = self.last_association
+        if old.shape[1] < width:  # wider: keep the labels of lanes updated earlier this step
             self.last_association = np.full((self.num_lanes, width), -1, dtype=np.int64)
+            self.last_association[:, : old.shape[1]] = old
         for lane in np.asarray(lanes).tolist():
             k = int(count[lane])
             scan = LidarScan(t=float(t[lane]), ids=None, meas=returns[lane, :k].copy(), sigma=sigma)
