@@ -24,8 +24,9 @@ from quadslam_env.types import POSE_DIM, FloatArray
 
 
 class Isam2Output:
-    """Mixin of :class:`~estimators.isam2.estimator.Isam2Slam`: its snapshots (reads the
-    keyframe state the smoother leaves behind, writes only the snapshot caches)."""
+    """Mixin of :class:`~estimators.isam2.estimator.Isam2Slam`: its snapshots. Reads the
+    keyframe state the smoother leaves behind; writes the snapshot caches, the landmark
+    covariances it recovers on request and, on a failure, the divergence flag."""
 
     settings: Isam2Settings
     last_error: str
