@@ -26,7 +26,7 @@ from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.tangent import state_jacobian, tangent_covariance
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.models.frames import dcm_from_euler, euler_from_dcm
-from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.lidar import lidar_measure, measure_from_body, measure_jacobian_body
 
 gtsam = pytest.importorskip("gtsam")
 
@@ -81,14 +81,18 @@ def test_lidar_factor_jacobians_match_finite_differences() -> None:
 
         np.testing.assert_allclose(H[:, 0:6], _numerical(err_pose, pose, 6), atol=1e-6)
         np.testing.assert_allclose(H[:, 6:9], _numerical(err_lm, lm, 3), atol=1e-6)
-        # The scalar hot path is the vectorised model.
-        e, H_pose, H_lm = lidar_error(
-            pose.rotation().matrix(), pose.translation(), lm[None], meas[None]
-        )
-        one = lidar_error_one(pose.rotation().matrix(), pose.translation(), lm, meas)
-        np.testing.assert_allclose(one[0], e[0], atol=1e-12)
-        np.testing.assert_allclose(one[1], H_pose[0], atol=1e-12)
-        np.testing.assert_allclose(one[2], H_lm[0], atol=1e-12)
+        # The factor's compiled loop is the model's vectorised h and ∂h/∂c composed as in
+        # the module docstring (∂e/∂δθ = Hc [c]×, ∂e/∂δt = −Hc, ∂e/∂l = Hc C_NBᵀ).
+        dcm = pose.rotation().matrix()
+        e, H_pose, H_lm = lidar_error(dcm, pose.translation(), lm[None], meas[None])
+        c = (lm - pose.translation()) @ dcm
+        Hc = measure_jacobian_body(c)
+        want = measure_from_body(c) - meas
+        want[:2] = (want[:2] + np.pi) % (2 * np.pi) - np.pi
+        skew = np.array([[0.0, -c[2], c[1]], [c[2], 0.0, -c[0]], [-c[1], c[0], 0.0]])
+        np.testing.assert_allclose(e[0], want, atol=1e-12)
+        np.testing.assert_allclose(H_pose[0], np.hstack((Hc @ skew, -Hc)), atol=1e-12)
+        np.testing.assert_allclose(H_lm[0], Hc @ dcm.T, atol=1e-12)
 
 
 def test_scan_factor_is_the_per_return_factors_stacked() -> None:

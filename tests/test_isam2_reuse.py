@@ -8,6 +8,8 @@
   prediction to the next) against a fresh one at each preintegration, and ``F``, ``Q`` against
   central differences of GTSAM's own prediction (``δ_j = F δ_i`` for the mean, ``Q`` the
   preintegration covariance mapped through the factor).
+* The landmark covariances recovered lazily (only when a snapshot asks for them) against
+  GTSAM's per-landmark ``marginalCovariance`` of the same keyframe, in the env.
 """
 
 from __future__ import annotations
@@ -105,3 +107,45 @@ def test_reused_transition_equals_fresh_and_differences() -> None:
         np.testing.assert_allclose((outs[0] - outs[1]) / (2 * h), F[:9, i], atol=1e-6)
     np.testing.assert_allclose(Q, Q.T, atol=1e-18)
     assert np.linalg.eigvalsh(Q).min() > 0.0
+
+
+def _landmark_marginals(lane: Any) -> dict[int, np.ndarray]:
+    """GTSAM's own per-landmark marginals of the lane's smoother now."""
+    isam = lane._smoother.getISAM2()
+    return {i: isam.marginalCovariance(gtsam.symbol("l", i)) for i in sorted(lane._lm_means)}
+
+
+def test_lazy_landmark_covariances_are_the_keyframes_marginals() -> None:
+    """The env's per-step snapshot leaves the landmark covariances out; asked for later, they
+    are the marginals of the keyframe the snapshot belongs to (not of an earlier one), and the
+    rest of the two snapshots is the same."""
+    import gymnasium as gym
+
+    import quadslam_env  # noqa: F401  (registers the env ids)
+    from agents.control.dflqr import DFLQRPolicy
+
+    env = gym.make(
+        "QuadSLAM-v0",
+        scenario="paper_ekf_figure8",
+        estimator={"name": "isam2"},
+        episode={"duration_s": 2.0},
+    )
+    policy = DFLQRPolicy.from_env(env)
+    obs, _ = env.reset(seed=4)
+    base: Any = env.unwrapped
+    lane = base.estimator.lanes[0]
+    for stop in (64, 97, 152):  # between keyframes, just before one and after several
+        while base.steps < stop:
+            obs = env.step(policy.predict(obs)[0])[0]
+        state = lane.state_estimate()
+        assert state.landmark_covs is None
+        want = _landmark_marginals(lane)
+        assert len(want) >= 4
+        full = base.last_estimate
+        ids, _, covs = full.mapped_landmarks()
+        assert ids.tolist() == list(want)
+        for i, cov in zip(ids.tolist(), covs, strict=True):
+            np.testing.assert_allclose(cov, want[i], rtol=1e-9, atol=1e-15)
+        for name in ("position", "vel_body", "euler", "rates", "pose_cov", "landmark_means"):
+            np.testing.assert_array_equal(getattr(full, name), getattr(state, name))
+        assert lane.state_estimate() is full  # the full snapshot of the step serves the batch

@@ -51,21 +51,17 @@ from estimators.isam2.graph import (
     preintegration_params,
     require_gtsam,
 )
+from estimators.isam2.output import Isam2Output
 from estimators.isam2.settings import Isam2Settings
-from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
 from estimators.isam2.transition import NAV_DIM, ImuTransition
 from quadslam_env.estimation import BatchEstimate, register
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.lidar import lidar_inverse
-from quadslam_env.types import POSE_DIM, RATE, FloatArray
-
-
-def _symbol(gtsam: Any, char: str, index: int) -> int:
-    return int(gtsam.symbol(char, index))
+from quadslam_env.types import RATE, FloatArray
 
 
 @register("isam2")
-class Isam2Slam:
+class Isam2Slam(Isam2Output):
     """Fixed-lag (or full) iSAM2 smoothing of IMU preintegration and LiDAR factors.
 
     Implements :class:`~quadslam_env.estimation.protocol.Estimator` in known-map
@@ -119,13 +115,16 @@ class Isam2Slam:
         self._params: Any = None
         self._known: dict[int, FloatArray] | None = None
         self._lm_means: dict[int, FloatArray] = {}
-        self._lm_covs: dict[int, FloatArray] = {}
-        self._lm_arrays: tuple[np.ndarray, FloatArray, FloatArray] | None = None
+        # Each landmark's marginal at the current keyframe; None: not recovered yet (lazily,
+        # on the first snapshot that needs them, :meth:`_landmark_covs`).
+        self._lm_covs: dict[int, FloatArray] | None = {}
+        self._lm_arrays: tuple[np.ndarray, FloatArray, FloatArray | None] | None = None
         self._unlabeled: bool | None = None
         self._rates = np.zeros(3)
         self._gyro: FloatArray | None = None
         self._diverged = False
         self._cache: BatchEstimate | None = None
+        self._state_cache: BatchEstimate | None = None  # the same without landmark covs
         self._last: BatchEstimate | None = None
 
     @property
@@ -148,9 +147,6 @@ class Isam2Slam:
     def keyframes(self) -> int:
         """Index of the latest keyframe (0 at reset)."""
         return self._k
-
-    def _key(self, char: str, index: int) -> int:
-        return _symbol(self._g, char, index)
 
     # ------------------------------------------------------------------ estimator protocol
     def reset(
@@ -236,7 +232,7 @@ class Isam2Slam:
         self._t += dt
         self._gyro = gyro
         self._rates = gyro - np.asarray(self._kf_bias.gyroscope())
-        self._cache = None
+        self._cache = self._state_cache = None
 
     def update(self, scan: LidarScan) -> None:
         """Add a keyframe at the scan with its LiDAR factors and update the smoother.
@@ -276,32 +272,7 @@ class Isam2Slam:
             self._keyframe(labeled, sigma)
         except Exception as exc:  # any GTSAM failure (C++ exceptions arrive as RuntimeError)
             self._diverge(exc)
-        self._cache = None
-
-    def estimate(self) -> BatchEstimate:
-        """Snapshot of the belief (B = 1, copies).
-
-        Returns:
-            :class:`BatchEstimate` of one lane with the keyframe's smoothed state predicted to
-            now with the current preintegration, ``pose_cov`` (9, 9) over (ρ, v_B, Λ),
-            ``rates`` = last gyro minus the gyro-bias estimate, the landmarks by id with their
-            covariances (known map: the map, zero covariance), the biases when estimated and
-            the diagnostics ``diverged``, ``n_keyframes``, ``n_mapped``.
-        """
-        if self._cache is None and self._smoother is None:  # before the first reset
-            self._cache = neutral(self._diagnostics(0))
-        if self._cache is None:
-            try:
-                est = self._build_estimate()
-            except Exception as exc:  # a failed prediction or covariance: keep the last one
-                self._diverge(exc)
-                est = flagged(
-                    self._last if self._last is not None else neutral(self._diagnostics(0))
-                )
-            self._cache = est
-            if not self._diverged:
-                self._last = est
-        return self._cache
+        self._cache = self._state_cache = None
 
     # ------------------------------------------------------------------ graph
     def _preintegration_params(self, accel_sigma: float, gyro_sigma: float, dt: float) -> Any:
@@ -317,6 +288,8 @@ class Isam2Slam:
 
     def _solve(self, graph: Any, values: Any, stamps: dict[int, float]) -> None:
         """One smoother update with the new factors, then ``iterations − 1`` more."""
+        if self._lm_covs is None:  # never asked for at this keyframe: after the update they
+            self._lm_covs = {}  # cannot be recovered (reported as zero if the update fails)
         if self.settings.window_s is None:
             self._smoother.update(graph, values)
             for _ in range(self.settings.iterations - 1):
@@ -356,7 +329,7 @@ class Isam2Slam:
         if self._known is not None:
             lms, covs = self._known, dict.fromkeys(self._known, np.zeros((3, 3)))
         else:
-            lms, covs = self._lm_means, self._lm_covs
+            lms, covs = self._lm_means, self._landmark_covs()
         return self._front.associate(meas, sigma, pred, lms, covs, joint)
 
     def _keyframe(self, scan: Labeled, sigma: FloatArray) -> None:
@@ -436,10 +409,13 @@ class Isam2Slam:
         bias = est.atConstantBias(bk)
         mapped = sorted({*self._lm_means, *(new or [])})
         means = {i: np.asarray(est.atPoint3(self._key("l", i)), float) for i in mapped}
-        with_maps = self.settings.landmark_covariances or bool(self._unlabeled)  # the gate's
-        lm_ids = mapped if with_maps else []
-        lm_keys = [self._key("l", i) for i in lm_ids]
-        cov, blocks = keyframe_marginals(self._isam, [xk, vk, bk], lm_keys)
+        # The association's screen needs the landmarks' marginals at the next scan: one query
+        # with the keyframe's. Otherwise they are recovered when a snapshot asks for them.
+        eager = bool(self._unlabeled)
+        lm_ids = mapped if eager else []
+        cov, blocks = keyframe_marginals(
+            self._isam, [xk, vk, bk], [self._key("l", i) for i in lm_ids]
+        )
         covs = dict(zip(lm_ids, blocks, strict=True))
         finite = (
             np.isfinite(pose.matrix()).all()
@@ -455,44 +431,8 @@ class Isam2Slam:
         self._transition = None  # rebuilt for the new keyframe on first use
         self._kf_cov = 0.5 * (cov + cov.T)
         self._lm_means = means
-        self._lm_covs = covs
+        self._lm_covs = covs if eager or not self.settings.landmark_covariances else None
         self._lm_arrays = None
         self._pim = None  # the next sample starts a new preintegration at the new bias
         if self._gyro is not None:
             self._rates = self._gyro - np.asarray(bias.gyroscope())
-
-    def _diverge(self, exc: BaseException) -> None:
-        self._diverged = True
-        self.last_error = f"{type(exc).__name__}: {exc}"
-
-    # ------------------------------------------------------------------ output
-    def _link(self) -> ImuTransition:
-        """The IMU factor's linearisation at the current keyframe (built once per keyframe)."""
-        if self._transition is None:
-            self._transition = ImuTransition(self._g, self._kf_pose, self._kf_vel, self._kf_bias)
-        return self._transition
-
-    def _predicted(self) -> tuple[Any, FloatArray, FloatArray]:
-        """``(pose, v_N (3,), Σ (9, 9) over (δθ, δt, δv_N))`` now: the keyframe state predicted
-        with the current preintegration, ``Σ = F Σ_i Fᵀ + Q`` (``estimators.isam2.transition``)."""
-        pim = self._pim
-        if pim is None or pim.deltaTij() <= 0.0:
-            return self._kf_pose, self._kf_vel, self._kf_cov[:POSE_DIM, :POSE_DIM]
-        pose, vel, F, Q = self._link()(pim)
-        Fp = F[:POSE_DIM]
-        return pose, vel, Fp @ self._kf_cov @ Fp.T + Q[:POSE_DIM, :POSE_DIM]
-
-    def _build_estimate(self) -> BatchEstimate:
-        pose, vel_n, cov_t = self._predicted()
-        if self._lm_arrays is None:  # the map changes at keyframes only (known map: no covs)
-            self._lm_arrays = landmark_arrays(self._known or self._lm_means, self._lm_covs)
-        lms = (self._lm_arrays[0].copy(), self._lm_arrays[1].copy(), self._lm_arrays[2].copy())
-        bias = self._kf_bias if self.settings.estimate_imu_bias else None
-        return snapshot(pose, vel_n, cov_t, self._rates, lms, bias, self._diagnostics(lms[0].size))
-
-    def _diagnostics(self, n_mapped: int) -> dict[str, float]:
-        return {
-            "diverged": float(self._diverged),
-            "n_keyframes": float(self._k),
-            "n_mapped": float(n_mapped),
-        }

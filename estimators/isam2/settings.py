@@ -123,8 +123,8 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
     landmark_covariances: bool = spec(
         True,
         kind="bool",
-        doc="recover every mapped landmark's marginal covariance at each keyframe (false: "
-        "reported as zero)",
+        doc="recover each mapped landmark's marginal covariance when a snapshot asks for it "
+        "(false: reported as zero; always on with unknown association)",
     )
     factor_per_return: bool = spec(
         False,

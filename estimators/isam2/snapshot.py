@@ -20,12 +20,14 @@ from quadslam_env.types import POSE_DIM, FloatArray
 
 
 def landmark_arrays(
-    means: dict[int, FloatArray], covs: dict[int, FloatArray]
-) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    means: dict[int, FloatArray], covs: dict[int, FloatArray] | None
+) -> tuple[np.ndarray, FloatArray, FloatArray | None]:
     """``(ids (n,), means (n, 3) m, covs (n, 3, 3) m²)`` sorted by id (a missing
-    covariance is reported as zero)."""
+    covariance is reported as zero; ``covs`` None: left out, ``None``)."""
     ids = np.array(sorted(means), dtype=np.int64)
     out_means = np.array([means[i] for i in ids.tolist()]).reshape(-1, 3)
+    if covs is None:
+        return ids, out_means, None
     out_covs = np.array([covs.get(i, np.zeros((3, 3))) for i in ids.tolist()]).reshape(-1, 3, 3)
     return ids, out_means, out_covs
 
@@ -35,7 +37,7 @@ def snapshot(
     vel_n: FloatArray,
     cov_t: FloatArray,
     rates: FloatArray,
-    landmarks: tuple[np.ndarray, FloatArray, FloatArray],
+    landmarks: tuple[np.ndarray, FloatArray, FloatArray | None],
     bias: Any,
     diagnostics: dict[str, float],
 ) -> BatchEstimate:
@@ -46,7 +48,7 @@ def snapshot(
         vel_n: (3,) velocity in N, m/s.
         cov_t: (9, 9) covariance over (δθ rad, δt m, δv_N m/s).
         rates: (3,) body rates, rad/s.
-        landmarks: :func:`landmark_arrays`.
+        landmarks: :func:`landmark_arrays` (covariances ``None``: left out).
         bias: ``imuBias.ConstantBias`` to report, or ``None`` (biases not estimated).
         diagnostics: The estimator's diagnostics.
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from quadslam_env.estimation.protocol import (
     ChecksMemory,
+    EstimatesState,
     Estimator,
     HasParticles,
     IntArray,
@@ -65,6 +66,8 @@ class LaneLoop:
             _check_memory(self.lanes[0], self.num_lanes, landmark_capacity)
         b = self.num_lanes
         self._estimates: list[BatchEstimate | None] = [None] * b
+        # Lanes whose per-step snapshot may leave the landmark covariances out (iSAM2).
+        self._states_only = [isinstance(e, EstimatesState) for e in self.lanes]
         self._out = empty_batch(b, max(landmark_capacity, 0))
         self.last_association = np.zeros((b, 0), dtype=np.int64)
         """(B, R) int the scalar estimators' labels of their last unlabeled scans' returns."""
@@ -195,10 +198,21 @@ class LaneLoop:
             self._estimates[lane] = est
         return est
 
+    def _lane_state(self, lane: int) -> BatchEstimate:
+        """Lane ``lane``'s snapshot for the batch: its cached one-lane snapshot, else, from an
+        :class:`~quadslam_env.estimation.protocol.EstimatesState` estimator, one without
+        landmark covariances (the batch leaves them out; the estimator caches it)."""
+        est = self._estimates[lane]
+        if est is not None:
+            return est
+        if self._states_only[lane]:
+            return self.lanes[lane].state_estimate()  # type: ignore[attr-defined]
+        return self.lane_estimate(lane)
+
     def estimate(self) -> BatchEstimate:
         """Copy lane 0 of every lane's one-lane snapshot into the batch arrays (without the
         landmark covariances)."""
-        snaps = [self.lane_estimate(lane) for lane in range(self.num_lanes)]
+        snaps = [self._lane_state(lane) for lane in range(self.num_lanes)]
         need = id_width(snaps)
         if need > self._out.landmark_means.shape[1]:
             self._out = empty_batch(self.num_lanes, need)

@@ -257,6 +257,21 @@ class LabelsReturns(Protocol):
 
 
 @runtime_checkable
+class EstimatesState(Protocol):
+    """A one-vehicle estimator whose snapshot can leave the landmark covariances out.
+
+    The env's per-step snapshot of every lane has no landmark covariances
+    (:func:`~quadslam_env.estimation.snapshot.stack_lanes`); an estimator for which they cost
+    more than the rest of the snapshot (iSAM2 recovers them from its Bayes tree) gives the
+    lane loop this cheaper one and computes them only when
+    :meth:`Estimator.estimate` is called.
+    """
+
+    def state_estimate(self) -> BatchEstimate:
+        """:meth:`Estimator.estimate` with ``landmark_covs`` None (the same belief otherwise)."""
+
+
+@runtime_checkable
 class HasParticles(Protocol):
     """A one-vehicle particle filter (FastSLAM)."""
 

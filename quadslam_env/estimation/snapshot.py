@@ -68,7 +68,7 @@ class BatchEstimate:
         pose_cov: FloatArray | None,
         landmark_ids: np.ndarray,
         landmark_means: FloatArray,
-        landmark_covs: FloatArray,
+        landmark_covs: FloatArray | None,
         accel_bias: FloatArray | None = None,
         gyro_bias: FloatArray | None = None,
         diagnostics: Mapping[str, float] | None = None,
@@ -89,7 +89,8 @@ class BatchEstimate:
             pose_cov: (9, 9) or ``None``.
             landmark_ids: (n,) distinct non-negative int ids of the mapped landmarks.
             landmark_means: (n, 3) their positions in N, m.
-            landmark_covs: (n, 3, 3) their covariances in m².
+            landmark_covs: (n, 3, 3) their covariances in m², or ``None`` to leave them out
+                (:class:`~quadslam_env.estimation.protocol.EstimatesState`).
             accel_bias: (3,) estimated accelerometer bias in m/s², or ``None``.
             gyro_bias: (3,) estimated gyro bias in rad/s, or ``None``.
             diagnostics: name → float.
@@ -102,17 +103,23 @@ class BatchEstimate:
         n = len(ids_list)
         if ids_list == list(range(n)):  # ids 0 … n-1 in order (the usual case): no scatter
             means = np.asarray(landmark_means, dtype=float).reshape(1, n, 3)
-            covs = np.asarray(landmark_covs, dtype=float).reshape(1, n, 3, 3)
+            covs = (
+                None
+                if landmark_covs is None
+                else np.asarray(landmark_covs, dtype=float).reshape(1, n, 3, 3)
+            )
             mapped = np.empty((1, n), dtype=bool)
             mapped.fill(True)  # half the cost of np.ones on a few ids
         else:
             # max of a list: a tenth of ndarray.max()'s cost on the few ids a snapshot holds
             width = max(ids_list) + 1
             means = np.zeros((1, width, 3))
-            covs = np.zeros((1, width, 3, 3))
+            covs = None
             mapped = np.zeros((1, width), dtype=bool)
             means[0, ids_list] = landmark_means
-            covs[0, ids_list] = landmark_covs
+            if landmark_covs is not None:
+                covs = np.zeros((1, width, 3, 3))
+                covs[0, ids_list] = landmark_covs
             mapped[0, ids_list] = True
         diag = diagnostics or {}
         values = np.array(list(diag.values()), dtype=float).reshape(-1, 1)  # one array

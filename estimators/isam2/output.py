@@ -1,0 +1,144 @@
+"""The iSAM2 estimator's output: its snapshot every control step, with or without the landmark
+covariances, and its handling of a failure (docs/isam2.md, "The estimate every control step").
+
+Between keyframes the estimate is the last keyframe's smoothed state predicted with the current
+preintegration; its covariance is the keyframe's joint marginal propagated through the IMU
+factor linearised from the keyframe to the prediction
+(:class:`~estimators.isam2.transition.ImuTransition`). The landmarks' marginals change at
+keyframes only and cost a Bayes-tree query over every landmark: they are recovered when a
+snapshot first asks for them, while the smoother is still at that keyframe.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from estimators.isam2.graph import keyframe_marginals
+from estimators.isam2.settings import Isam2Settings
+from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
+from estimators.isam2.transition import ImuTransition
+from quadslam_env.estimation import BatchEstimate
+from quadslam_env.types import POSE_DIM, FloatArray
+
+
+class Isam2Output:
+    """Mixin of :class:`~estimators.isam2.estimator.Isam2Slam`: its snapshots. Reads the
+    keyframe state the smoother leaves behind; writes the snapshot caches, the landmark
+    covariances it recovers on request and, on a failure, the divergence flag."""
+
+    settings: Isam2Settings
+    last_error: str
+    _g: Any
+    _isam: Any
+    _smoother: Any
+    _k: int
+    _kf_pose: Any
+    _kf_vel: FloatArray
+    _kf_bias: Any
+    _kf_cov: FloatArray
+    _transition: ImuTransition | None
+    _pim: Any
+    _rates: FloatArray
+    _known: dict[int, FloatArray] | None
+    _lm_means: dict[int, FloatArray]
+    _lm_covs: dict[int, FloatArray] | None
+    _lm_arrays: tuple[np.ndarray, FloatArray, FloatArray | None] | None
+    _diverged: bool
+    _cache: BatchEstimate | None
+    _state_cache: BatchEstimate | None
+    _last: BatchEstimate | None
+
+    def _key(self, char: str, index: int) -> int:
+        return int(self._g.symbol(char, index))
+
+    def estimate(self) -> BatchEstimate:
+        """Snapshot of the belief (B = 1, copies).
+
+        Returns:
+            :class:`BatchEstimate` of one lane with the keyframe's smoothed state predicted to
+            now with the current preintegration, ``pose_cov`` (9, 9) over (ρ, v_B, Λ),
+            ``rates`` = last gyro minus the gyro-bias estimate, the landmarks by id with their
+            covariances (known map: the map, zero covariance), the biases when estimated and
+            the diagnostics ``diverged``, ``n_keyframes``, ``n_mapped``. The landmark
+            covariances are recovered from the Bayes tree at the first call after a keyframe.
+        """
+        if self._cache is None:
+            self._cache = self._take(with_covs=True)
+        return self._cache
+
+    def state_estimate(self) -> BatchEstimate:
+        """:meth:`estimate` without the landmark covariances (``landmark_covs`` None).
+
+        The env's per-step snapshot leaves them out
+        (:class:`~quadslam_env.estimation.EstimatesState`), and recovering them costs more
+        than the rest of a keyframe's marginals (one Bayes-tree query over every landmark).
+        """
+        if self._cache is not None:  # the full snapshot of this step serves as well
+            return self._cache
+        if self._state_cache is None:
+            self._state_cache = self._take(with_covs=False)
+        return self._state_cache
+
+    def _take(self, with_covs: bool) -> BatchEstimate:
+        """A new snapshot; on a failure the last finite one, flagged as diverged."""
+        if self._smoother is None:  # before the first reset
+            return neutral(self._diagnostics(0))
+        try:
+            est = self._build_estimate(with_covs)
+        except Exception as exc:  # a failed prediction or covariance: keep the last one
+            self._diverge(exc)
+            est = flagged(self._last if self._last is not None else neutral(self._diagnostics(0)))
+            if with_covs and est.landmark_covs is None:  # the last one left them out
+                est.landmark_covs = np.zeros((*est.landmark_means.shape, 3))
+        if not self._diverged:
+            self._last = est
+        return est
+
+    def _diverge(self, exc: BaseException) -> None:
+        self._diverged = True
+        self.last_error = f"{type(exc).__name__}: {exc}"
+
+    def _link(self) -> ImuTransition:
+        """The IMU factor's linearisation at the current keyframe (built once per keyframe)."""
+        if self._transition is None:
+            self._transition = ImuTransition(self._g, self._kf_pose, self._kf_vel, self._kf_bias)
+        return self._transition
+
+    def _predicted(self) -> tuple[Any, FloatArray, FloatArray]:
+        """``(pose, v_N (3,), Σ (9, 9) over (δθ, δt, δv_N))`` now: the keyframe state predicted
+        with the current preintegration, ``Σ = F Σ_i Fᵀ + Q`` (``estimators.isam2.transition``)."""
+        pim = self._pim
+        if pim is None or pim.deltaTij() <= 0.0:
+            return self._kf_pose, self._kf_vel, self._kf_cov[:POSE_DIM, :POSE_DIM]
+        pose, vel, F, Q = self._link()(pim)
+        Fp = F[:POSE_DIM]
+        return pose, vel, Fp @ self._kf_cov @ Fp.T + Q[:POSE_DIM, :POSE_DIM]
+
+    def _landmark_covs(self) -> dict[int, FloatArray]:
+        """Each mapped landmark's marginal (3, 3) in m² at the current keyframe: recovered from
+        the Bayes tree on first use (the smoother has not moved since the keyframe), then kept."""
+        if self._lm_covs is None:
+            ids = sorted(self._lm_means)
+            keys = [self._key("l", i) for i in ids]
+            blocks = keyframe_marginals(self._isam, [], keys)[1] if ids else []
+            self._lm_covs = dict(zip(ids, blocks, strict=True))
+        return self._lm_covs
+
+    def _build_estimate(self, with_covs: bool) -> BatchEstimate:
+        pose, vel_n, cov_t = self._predicted()
+        cached = self._lm_arrays  # the map changes at keyframes only (known map: no covs)
+        if cached is None or (with_covs and cached[2] is None):
+            covs = self._landmark_covs() if with_covs else None
+            cached = self._lm_arrays = landmark_arrays(self._known or self._lm_means, covs)
+        lms = (cached[0].copy(), cached[1].copy(), None if cached[2] is None else cached[2].copy())
+        bias = self._kf_bias if self.settings.estimate_imu_bias else None
+        return snapshot(pose, vel_n, cov_t, self._rates, lms, bias, self._diagnostics(lms[0].size))
+
+    def _diagnostics(self, n_mapped: int) -> dict[str, float]:
+        return {
+            "diverged": float(self._diverged),
+            "n_keyframes": float(self._k),
+            "n_mapped": float(n_mapped),
+        }
