@@ -33,7 +33,7 @@ import math
 import numpy as np
 from scipy.special import gammaincinv
 
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.types import FloatArray
 
 UNASSOCIATED = -1
@@ -160,6 +160,35 @@ def _extend(
     return inc
 
 
+@inline_kernel
+def _candidates(d2: FloatArray, gate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The individually compatible landmarks of each return, for :func:`jcbb`'s search.
+
+    Args:
+        d2: (R, M) individual NIS.
+        gate: Individual-compatibility threshold ``χ²₃(p)``.
+
+    Returns:
+        ``cand`` (R, M) int: return i's candidates, nearest first (the order in which its
+        branches are tried), in its first ``n_cand[i]`` entries; ``n_cand`` (R,) int;
+        ``ahead`` (R + 1,) int: the most pairings still possible after return i (the returns
+        > i that have a candidate).
+    """
+    r_count, m = d2.shape
+    cand = np.full((r_count, m), -1, dtype=np.int64)
+    n_cand = np.zeros(r_count, dtype=np.int64)
+    for i in range(r_count):
+        order = np.argsort(d2[i])
+        for j in order:
+            if d2[i, j] <= gate:
+                cand[i, n_cand[i]] = j
+                n_cand[i] += 1
+    ahead = np.zeros(r_count + 1, dtype=np.int64)
+    for i in range(r_count - 1, -1, -1):
+        ahead[i] = ahead[i + 1] + (1 if n_cand[i] > 0 else 0)
+    return cand, n_cand, ahead
+
+
 @kernel
 def jcbb(
     nu: FloatArray,
@@ -184,19 +213,7 @@ def jcbb(
     """
     r_count, m = d2.shape
     out[:] = UNASSOCIATED
-    # Candidates of each return, nearest first (the order in which branches are tried).
-    cand = np.full((r_count, m), -1, dtype=np.int64)
-    n_cand = np.zeros(r_count, dtype=np.int64)
-    for i in range(r_count):
-        order = np.argsort(d2[i])
-        for j in order:
-            if d2[i, j] <= gate:
-                cand[i, n_cand[i]] = j
-                n_cand[i] += 1
-    # Most pairings still possible after return i: returns > i that have a candidate.
-    ahead = np.zeros(r_count + 1, dtype=np.int64)
-    for i in range(r_count - 1, -1, -1):
-        ahead[i] = ahead[i + 1] + (1 if n_cand[i] > 0 else 0)
+    cand, n_cand, ahead = _candidates(d2, gate)
     if ahead[0] == 0:
         return 0.0
     L = np.zeros((3 * r_count, 3 * r_count))

@@ -252,13 +252,9 @@ class ScenarioConfig:
             **sections,
         )
         if scenario.lidar.association == "unknown":
-            from quadslam_env.estimation import associates_unlabeled
+            from quadslam_env.estimation import associates_unlabeled, estimator_flag
 
-            try:
-                ok = associates_unlabeled(scenario.estimator.name)
-            except ValueError as exc:
-                raise ConfigError(str(exc)) from exc
-            if not ok:
+            if not estimator_flag(scenario.estimator.name, associates_unlabeled):
                 raise ConfigError(
                     f"lidar.association: got 'unknown' with estimator.name = "
                     f"{scenario.estimator.name!r}, which cannot associate unlabeled returns; "
@@ -365,13 +361,9 @@ def check_copyable(scenario: ScenarioConfig) -> None:
         allowed = f"lidar.delay_steps: 0 with {name!r}"
     else:
         return
-    from quadslam_env.estimation import copyable
+    from quadslam_env.estimation import copyable, estimator_flag
 
-    try:
-        ok = copyable(name)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from exc
-    if not ok:
+    if not estimator_flag(name, copyable):
         raise ConfigError(
             f"{got} with estimator.name = {name!r}, which cannot be copied ({why}); allowed: "
             f"{allowed}, or an estimator that can be copied (whose class does not say "

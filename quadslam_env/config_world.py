@@ -264,13 +264,9 @@ class WindConfig(Section):
         """
         if not self.inform_estimator:
             return
-        from quadslam_env.estimation import models_drag
+        from quadslam_env.estimation import estimator_flag, models_drag
 
-        try:
-            ok = models_drag(estimator)
-        except ValueError as exc:
-            raise ConfigError(str(exc)) from exc
-        if not ok:
+        if not estimator_flag(estimator, models_drag):
             raise ConfigError(
                 f"wind.inform_estimator: got true with estimator.name = {estimator!r}, whose "
                 "process model has no drag for a wind to act on (it is driven by the IMU's "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 
@@ -139,3 +140,22 @@ def test_broken_entry_point_error_names_it(tmp_path: Path, monkeypatch: pytest.M
 def test_register_rejects_a_bad_name() -> None:
     with pytest.raises(ValueError, match=r"estimators\.register: got ''"):
         estimators.register("")
+
+
+# docs/design.md §5: both filters associate unlabeled returns and can be copied; only
+# FastSLAM's process model has the drag (EKF-SLAM is driven by the sensed specific force).
+FLAGS = {
+    "associates_unlabeled": {"ekf_slam": True, "fastslam": True},
+    "copyable": {"ekf_slam": True, "fastslam": True},
+    "models_drag": {"ekf_slam": False, "fastslam": True},
+}
+
+
+@pytest.mark.parametrize("flag", [base.associates_unlabeled, base.copyable, base.models_drag])
+def test_estimator_flag_reads_the_flag_and_turns_an_unknown_name_into_a_config_error(
+    flag: Callable[[str], bool],
+) -> None:
+    for name, expected in FLAGS[flag.__name__].items():
+        assert base.estimator_flag(name, flag) is expected
+    with pytest.raises(ConfigError, match=r"^estimator\.name: got 'no_such_filter'; allowed: "):
+        base.estimator_flag("no_such_filter", flag)

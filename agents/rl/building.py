@@ -5,6 +5,7 @@ env as an SB3 ``VecEnv``, the SB3 model and its callbacks (docs/design.md §6).
 from __future__ import annotations
 
 import contextlib
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -88,6 +89,34 @@ def build_model(algo: str, settings: dict[str, Any], venv: Any, seed: int, verbo
         verbose=verbose,
         **settings["algo_kwargs"],
     )
+
+
+def check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, Any]:
+    """Build the lanes and the model once, on a throwaway vector env, before any folder exists.
+
+    Building the lanes validates ``env_kwargs`` and the wrapper (their errors propagate as
+    they are). SB3 validates many values only when the model is built (``n_steps=0`` is an
+    ``AssertionError``, ``learning_rate: fast`` a ``TypeError`` from the optimizer); those
+    become a one-line ``ValueError``.
+
+    Returns:
+        The env's full resolved scenario (for the run's ``config.yaml``).
+
+    Raises:
+        ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason).
+    """
+    venv = make_vec_env(env_id, settings, settings["n_envs"], 0, None)
+    try:
+        scenario: dict[str, Any] = venv.get_attr("scenario", [0])[0].to_dict()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            build_model(algo, settings, venv, 0)
+    except (AssertionError, ValueError, TypeError, KeyError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"hyperparameters rejected by {algo.upper()}: {reason}") from None
+    finally:
+        venv.close()
+    return scenario
 
 
 def training_callbacks(

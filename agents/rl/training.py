@@ -28,7 +28,13 @@ from agents.io.outputs import (
     write_text_atomic,
 )
 from agents.io.signals import Terminated, signals_deferred, sigterm_as_request
-from agents.rl.building import build_model, make_vec_env, torch_settings, training_callbacks
+from agents.rl.building import (
+    build_model,
+    check_setup,
+    make_vec_env,
+    torch_settings,
+    training_callbacks,
+)
 from agents.rl.checkpoints import Checkpoint, checkpoint_problem, saved_points
 from agents.rl.curves import plot_learning_curve
 from agents.rl.hyperparams import (
@@ -41,34 +47,6 @@ from agents.rl.hyperparams import (
 from agents.rl.manifest import MANIFEST, verify_run, write_manifest
 from agents.rl.run_folder import new_run_dir, read_run_config, versions
 from quadslam_env.config import deep_merge
-
-
-def _check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, Any]:
-    """Build the lanes and the model once, on a throwaway vector env, before any folder exists.
-
-    Building the lanes validates ``env_kwargs`` and the wrapper (their errors propagate as
-    they are). SB3 validates many values only when the model is built (``n_steps=0`` is an
-    ``AssertionError``, ``learning_rate: fast`` a ``TypeError`` from the optimizer); those
-    become a one-line ``ValueError``.
-
-    Returns:
-        The env's full resolved scenario (for the run's ``config.yaml``).
-
-    Raises:
-        ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason).
-    """
-    venv = make_vec_env(env_id, settings, settings["n_envs"], 0, None)
-    try:
-        scenario: dict[str, Any] = venv.get_attr("scenario", [0])[0].to_dict()
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            build_model(algo, settings, venv, 0)
-    except (AssertionError, ValueError, TypeError, KeyError) as exc:
-        reason = " ".join(str(exc).split()) or type(exc).__name__
-        raise ValueError(f"hyperparameters rejected by {algo.upper()}: {reason}") from None
-    finally:
-        venv.close()
-    return scenario
 
 
 def train(
@@ -134,9 +112,8 @@ def train(
     if n_envs is not None:
         entry["n_envs"] = int(n_envs)
     settings = resolve_settings(algo, entry)
-    threads = torch_threads
 
-    scenario_dict = _check_setup(algo, settings, env_id)  # before any folder is written
+    scenario_dict = check_setup(algo, settings, env_id)  # before any folder is written
     run_dir = new_run_dir(out_dir, algo, env_id, seed)
     config = {
         "algo": algo,
@@ -145,12 +122,22 @@ def train(
         "config_file": str(source.resolve()),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "hyperparams": {**{k: v for k, v in DEFAULTS.items() if k not in entry}, **entry},
-        "torch_threads": threads,
+        "torch_threads": torch_threads,
         "scenario": scenario_dict,
     }
+    _write_run_config(run_dir, config)
+    return _learn(run_dir, algo, env_id, settings, seed, progress, verbose, torch_threads, tic)
+
+
+def _write_run_config(run_dir: Path, config: dict[str, Any]) -> None:
+    """A new run folder's ``config.yaml``, ``seed.txt`` and ``versions.json``.
+
+    Raises:
+        agents.io.outputs.DiskFullError: No space left; the new folder was removed.
+    """
     try:
         write_text_atomic(run_dir / "config.yaml", yaml.safe_dump(config, sort_keys=False))
-        write_text_atomic(run_dir / "seed.txt", f"{int(seed)}\n")
+        write_text_atomic(run_dir / "seed.txt", f"{config['seed']}\n")
         write_text_atomic(run_dir / "versions.json", json.dumps(versions(), indent=2) + "\n")
     except OSError as exc:
         if not is_disk_full(exc):
@@ -160,8 +147,6 @@ def train(
             f"no space left on device writing {exc.filename or run_dir}; nothing was trained "
             f"(the new run folder was removed); free some space and train again"
         ) from None
-
-    return _learn(run_dir, algo, env_id, settings, seed, progress, verbose, threads, tic)
 
 
 def _timing_steps(run_dir: Path) -> str:
@@ -319,13 +304,8 @@ def _learn(
         agents.io.signals.Terminated: SIGTERM, after the run folder was saved (``run_dir`` set).
         agents.io.outputs.DiskFullError: No space left; the message names the last good save.
     """
-    from stable_baselines3.common.logger import configure
-    from stable_baselines3.common.vec_env import VecNormalize
-
     done = 0 if start is None else start.steps
     suffix = "" if start is None else f"_from_{done}"
-    norm = settings["normalize"]
-    full: OSError | None = None  # no space left on the device
     saving = contextlib.ExitStack()  # entered when the model is saved, left after timing.json
     try:
         with saving, torch_settings(threads):
@@ -335,44 +315,22 @@ def _learn(
             )  # fmt: skip
             eval_venv = eval_cb = None
             try:
-                if start is not None and start.vecnormalize is not None:
-                    venv = VecNormalize.load(str(start.vecnormalize), venv)
-                    venv.training = True
-                elif norm is not None:
-                    gamma = settings["algo_kwargs"].get("gamma", 0.99)
-                    venv = VecNormalize(venv, **{"gamma": gamma, **norm})
-                if start is None:
-                    model = build_model(algo, settings, venv, seed, verbose)
-                else:
-                    cls: Any = algorithms()[algo]
-                    model = cls.load(start.model, env=venv, device="cpu")
-                formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
-                log_dir = run_dir / "logs" / suffix.lstrip("_") if start else run_dir / "logs"
-                model.set_logger(configure(str(log_dir), formats))
+                venv, model = _model_on(venv, run_dir, algo, settings, seed, verbose, start)
                 callbacks, eval_venv, eval_cb = training_callbacks(
                     run_dir, env_id, settings, seed, progress, verbose, f"{algo} {env_id}"
                 )
+                # full: the ENOSPC (no space left on the device) that ended learning early.
                 stop, full, learn_s = _run_learn(
                     model, callbacks, settings["n_timesteps"], start is None
                 )
                 # A second Ctrl-C (or a SIGTERM) must not leave a half-written folder.
                 saving.enter_context(signals_deferred(SAVING_NOTE))
-                try:
-                    _save_model(model, run_dir, norm is not None)
-                    if stop is not None or full is not None:
-                        write_text_atomic(run_dir / "INTERRUPTED", f"{model.num_timesteps}\n")
-                except OSError as exc:
-                    if not is_disk_full(exc):
-                        raise
-                    full = full or exc
+                unsaved = _save_run(model, run_dir, settings, stop is not None or full is not None)
+                full = full or unsaved
             finally:
                 if eval_cb is not None:
                     eval_cb.clean_up()
-                for vec in (venv, eval_venv):
-                    # Workers may already be gone after Ctrl-C (they exit on KeyboardInterrupt).
-                    with contextlib.suppress(EOFError, BrokenPipeError, ConnectionError):
-                        if vec is not None:
-                            vec.close()
+                _close_lanes(venv, eval_venv)
             if full is not None:
                 raise _disk_full(run_dir, full, settings)
             _finish(run_dir, model, learn_s, tic, settings, finished=stop is None)
@@ -384,6 +342,62 @@ def _learn(
     if isinstance(stop, Terminated):
         raise Terminated(run_dir)
     return run_dir
+
+
+def _model_on(
+    venv: Any,
+    run_dir: Path,
+    algo: str,
+    settings: dict[str, Any],
+    seed: int,
+    verbose: int,
+    start: Checkpoint | None,
+) -> tuple[Any, Any]:
+    """``(venv, model)``: the lanes under ``VecNormalize`` (fresh, or with ``start``'s
+    statistics) when the settings normalise, and the model built on them (or loaded from
+    ``start``), logging to ``logs/`` (``logs/from_<steps>/`` for a resumed session)."""
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    norm = settings["normalize"]
+    if start is not None and start.vecnormalize is not None:
+        venv = VecNormalize.load(str(start.vecnormalize), venv)
+        venv.training = True
+    elif norm is not None:
+        gamma = settings["algo_kwargs"].get("gamma", 0.99)
+        venv = VecNormalize(venv, **{"gamma": gamma, **norm})
+    if start is None:
+        model = build_model(algo, settings, venv, seed, verbose)
+    else:
+        cls: Any = algorithms()[algo]
+        model = cls.load(start.model, env=venv, device="cpu")
+    formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
+    log_dir = run_dir / "logs" / f"from_{start.steps}" if start else run_dir / "logs"
+    model.set_logger(configure(str(log_dir), formats))
+    return venv, model
+
+
+def _save_run(model: Any, run_dir: Path, settings: dict[str, Any], early: bool) -> OSError | None:
+    """Save the model (:func:`_save_model`) and, when learning ended ``early`` (a stop or a
+    full disk), ``INTERRUPTED`` with its step count; the ``ENOSPC`` that cut this short."""
+    try:
+        _save_model(model, run_dir, settings["normalize"] is not None)
+        if early:
+            write_text_atomic(run_dir / "INTERRUPTED", f"{model.num_timesteps}\n")
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        return exc
+    return None
+
+
+def _close_lanes(*vecs: Any) -> None:
+    """Close the vector envs given (``None`` skipped)."""
+    for vec in vecs:
+        # Workers may already be gone after Ctrl-C (they exit on KeyboardInterrupt).
+        with contextlib.suppress(EOFError, BrokenPipeError, ConnectionError):
+            if vec is not None:
+                vec.close()
 
 
 def _finish(

@@ -162,45 +162,23 @@ def run_soak(
         and worst errors, whether any estimate was non-finite, and the termination reason.
     """
     from agents.control.dflqr import DFLQRPolicy
-    from agents.studies.consistency import truth_observation
     from estimators.oracle import OracleBatch
-    from quadslam_env.estimation import HasFullState
 
     if control not in ("estimate", "truth"):
         raise ValueError(f"control: got {control!r}; allowed: 'estimate' or 'truth'")
     env, scenario, overrides = make_soak_env(estimator, sim_seconds, n_particles)
     base = env.unwrapped
     policy = DFLQRPolicy.from_env(env)
-    full_state = base.estimator.full_state if isinstance(base.estimator, HasFullState) else None
     oracle = OracleBatch(num_lanes=1, landmark_capacity=0) if control == "truth" else None
 
     record = _SoakRecord()
     obs, info = env.reset(seed=seed)
     record.rss_start = rss_mb()
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(
-            total=base.max_steps,
-            unit="step",
-            desc=f"soak {estimator}",
-            file=sys.stderr,
-            mininterval=2.0,
-        )
+    bar = _progress_bar(base.max_steps, f"soak {estimator}") if progress else None
     tic = time.perf_counter()
-    terminated = truncated = False
-    while not (terminated or truncated):
-        action, _ = policy.predict(obs if oracle is None else truth_observation(env, oracle))
-        obs, _, terminated, truncated, info = env.step(action)
-        record.step(info, obs)
-        if record.steps % sample_every == 0 or terminated or truncated:
-            record.sample(base.last_estimate, full_state)
-            if bar is not None:
-                bar.update(record.steps - bar.n)
+    info, terminated, truncated = _fly(env, obs, policy, oracle, record, sample_every, bar)
     wall = time.perf_counter() - tic
     if bar is not None:
-        bar.update(record.steps - bar.n)
         bar.close()
     rss_end = rss_mb()
     env.close()
@@ -228,13 +206,57 @@ def run_soak(
         "final_map_rmse_m": json_float(info.get("est_map_rmse_m", math.nan)),
         "final_n_mapped": json_float(info["est_n_mapped"]),
         "sample_every": sample_every,
-        "machine": {
-            "python": platform.python_version(),
-            "numpy": np.__version__,
-            "platform": platform.platform(),
-            "cores": os.cpu_count(),
-            "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
-        },
+        "machine": _machine(),
+    }
+
+
+def _fly(
+    env: Any,
+    obs: np.ndarray,
+    policy: Any,
+    oracle: Any,
+    record: _SoakRecord,
+    sample_every: int,
+    bar: Any,
+) -> tuple[dict[str, Any], bool, bool]:
+    """Fly from ``obs`` to the episode's end; ``(last info, terminated, truncated)``.
+
+    Every step goes to ``record``; every ``sample_every`` steps and the last, the estimate's
+    health (and the full covariance's, for an estimator that has one) and the RSS too. The
+    policy sees ``obs``, or the true state's observation when an ``oracle`` is given.
+    """
+    from agents.studies.consistency import truth_observation
+    from quadslam_env.estimation import HasFullState
+
+    base = env.unwrapped
+    full_state = base.estimator.full_state if isinstance(base.estimator, HasFullState) else None
+    terminated = truncated = False
+    while not (terminated or truncated):
+        action, _ = policy.predict(obs if oracle is None else truth_observation(env, oracle))
+        obs, _, terminated, truncated, info = env.step(action)
+        record.step(info, obs)
+        if record.steps % sample_every == 0 or terminated or truncated:
+            record.sample(base.last_estimate, full_state)
+            if bar is not None:
+                bar.update(record.steps - bar.n)
+    return info, terminated, truncated
+
+
+def _progress_bar(total: int, desc: str) -> Any:
+    """A tqdm progress bar on stderr over ``total`` steps."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="step", desc=desc, file=sys.stderr, mininterval=2.0)
+
+
+def _machine() -> dict[str, Any]:
+    """Where the soak ran: Python, NumPy, the platform, its cores and BLAS threads."""
+    return {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+        "cores": os.cpu_count(),
+        "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
     }
 
 

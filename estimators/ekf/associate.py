@@ -46,7 +46,7 @@ from estimators.ekf.settings import EkfSlamSettings
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, innovation, innovation_covariance
 from estimators.tentative import m_of_n
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.types import FloatArray
 
 
@@ -121,42 +121,110 @@ def associate_lanes(
                 else:
                     cols[a] = nv + 3 * slot_of_id[b, ids[a]]
                     lms[a] = xb[cols[a] : cols[a] + 3]
-            h = np.empty((m, 3))
-            U = np.empty((3 * m, nb))
-            S = np.empty((3 * m, 3 * m))
-            innovation_covariance(xb, Pb, nb, lms, cols, r_diag, h, U, S)
-            nu = np.empty((r, m, 3))
-            for i in range(r):
-                for a in range(m):
-                    innovation(returns[b, i], h[a], nu[i, a])
-            d2 = np.empty((r, m))
-            individual_nis(nu, S, d2)
-            for i in range(r):
-                for a in range(m):
-                    gated[i] = gated[i] or d2[i, a] <= new_gate
-            if use_jcbb:
-                jcbb(nu, S, d2, gate, thresholds, paired)
-            else:
-                nearest_neighbour(d2, gate, paired)
-        free = 0
-        for i in range(r):
-            if paired[i] >= 0:
-                label = ids[paired[i]]
-                hits[b, label] += 1
-            elif gated[i] or known[b]:
-                continue  # ambiguous, or not in a known map: dropped
-            else:  # a new tentative landmark under the lowest free label
-                while free < lmax and (mapped[b, free] or visible[b, free]):
-                    free += 1
-                if free == lmax:
-                    continue  # no label left (the caller reserves enough)
-                label = free
-                tentative[b, label] = True
-                hits[b, label] = 1
-                age[b, label] = 0
-            visible[b, label] = True
-            meas[b, label] = returns[b, i]
-            assoc[b, i] = label
+            _pair_returns(
+                xb, Pb, nb, lms, cols, returns[b], r_diag, gate, new_gate, thresholds, use_jcbb,
+                paired, gated,
+            )  # fmt: skip
+        _label_returns(
+            paired, gated, ids, known[b], returns[b], mapped[b], visible[b], tentative[b],
+            hits[b], age[b], meas[b], assoc[b],
+        )  # fmt: skip
+
+
+@inline_kernel
+def _pair_returns(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    lms: FloatArray,
+    cols: np.ndarray,
+    returns: FloatArray,
+    r_diag: FloatArray,
+    gate: float,
+    new_gate: float,
+    thresholds: FloatArray,
+    use_jcbb: bool,
+    paired: np.ndarray,
+    gated: np.ndarray,
+) -> None:
+    """Pair one lane's r returns with its m mapped landmarks (JCBB or nearest neighbour).
+
+    Args:
+        xb, Pb, nb: The lane's mean (≥n,), covariance (≥n, ≥n) and state size n.
+        lms: (m, 3) the landmarks' positions (N, m); cols: (m,) their first state column
+            (-1: known landmark).
+        returns: (≥r, 3) the lane's returns (α rad, β rad, δ m).
+        r_diag, gate, new_gate, thresholds, use_jcbb: As in :func:`associate_lanes`.
+        paired: (r,) int, written: each return's landmark index into ``lms`` or -1.
+        gated: (r,) bool, updated: set where a return is within ``new_gate`` of a landmark.
+    """
+    m = lms.shape[0]
+    r = paired.shape[0]
+    h = np.empty((m, 3))
+    U = np.empty((3 * m, nb))
+    S = np.empty((3 * m, 3 * m))
+    innovation_covariance(xb, Pb, nb, lms, cols, r_diag, h, U, S)
+    nu = np.empty((r, m, 3))
+    for i in range(r):
+        for a in range(m):
+            innovation(returns[i], h[a], nu[i, a])
+    d2 = np.empty((r, m))
+    individual_nis(nu, S, d2)
+    for i in range(r):
+        for a in range(m):
+            gated[i] = gated[i] or d2[i, a] <= new_gate
+    if use_jcbb:
+        jcbb(nu, S, d2, gate, thresholds, paired)
+    else:
+        nearest_neighbour(d2, gate, paired)
+
+
+@inline_kernel
+def _label_returns(
+    paired: np.ndarray,
+    gated: np.ndarray,
+    ids: np.ndarray,
+    known: bool,
+    returns: FloatArray,
+    mapped: np.ndarray,
+    visible: np.ndarray,
+    tentative: np.ndarray,
+    hits: np.ndarray,
+    age: np.ndarray,
+    meas: FloatArray,
+    assoc: np.ndarray,
+) -> None:
+    """Give each of one lane's returns a label: its paired landmark's, else (not within
+    ``new_gate`` of one, not in a known map) a new tentative landmark's, the lowest free one.
+
+    Args:
+        paired, gated: (r,) from :func:`_pair_returns`; ids: (≥m,) int, the label of each
+            paired index.
+        known: Whether the lane is in known-map mode.
+        returns: (≥r, 3) the lane's returns.
+        mapped, visible, tentative, hits, age, meas, assoc: The lane's rows of the arrays of
+            :func:`associate_lanes`; written as described there.
+    """
+    lmax = mapped.shape[0]
+    free = 0
+    for i in range(paired.shape[0]):
+        if paired[i] >= 0:
+            label = ids[paired[i]]
+            hits[label] += 1
+        elif gated[i] or known:
+            continue  # ambiguous, or not in a known map: dropped
+        else:  # a new tentative landmark under the lowest free label
+            while free < lmax and (mapped[free] or visible[free]):
+                free += 1
+            if free == lmax:
+                continue  # no label left (the caller reserves enough)
+            label = free
+            tentative[label] = True
+            hits[label] = 1
+            age[label] = 0
+        visible[label] = True
+        meas[label] = returns[i]
+        assoc[i] = label
 
 
 @kernel

@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from quadslam_env.models.frames import dcm_and_partials, wrap_pi
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.lidar import lidar_models
 from quadslam_env.models.linalg import cholesky_lower
 from quadslam_env.types import POS, FloatArray
@@ -198,6 +198,57 @@ def _largest_scaled(v: FloatArray, sigma: FloatArray) -> float:
     return worst
 
 
+@inline_kernel
+def _first_order_error(
+    xb: FloatArray,
+    lms: FloatArray,
+    cols: np.ndarray,
+    dx: FloatArray,
+    hi: FloatArray,
+    sigma: FloatArray,
+) -> float:
+    """How far the first-order update is from linear, in noise stds: the largest
+    ``|h(x⁻ + dx) − h(x⁻) − H(x⁻) dx| / σ`` over the k landmarks' channels.
+
+    Args:
+        xb: (≥n,) prior mean x⁻. lms: (k, 3) the landmarks at x⁻ (N, m; not modified).
+        cols: (k,) their first state column (-1: known landmark).
+        dx: (n,) first-order correction. hi: (k, 3) ``h(x⁻ + dx)``.
+        sigma: (3,) measurement noise stds.
+    """
+    k = lms.shape[0]
+    h0 = np.empty((k, 3))
+    H0 = np.empty((k, 3, 9))
+    _models(xb, lms.copy(), cols, h0, H0)
+    lin = np.empty(3 * k)
+    _apply_jacobian(H0, cols, dx, lin)
+    err = np.empty(3 * k)
+    for i in range(k):
+        for r in range(3):
+            err[3 * i + r] = hi[i, r] - h0[i, r] - lin[3 * i + r]
+    return _largest_scaled(err, sigma)
+
+
+@inline_kernel
+def _take_iterate(
+    dn: FloatArray, Wn: FloatArray, zn: FloatArray, dx: FloatArray, Wt: FloatArray, z: FloatArray
+) -> bool:
+    """Copy an iterate's correction ``dn`` (n,), ``Wᵀ`` and ``z`` into ``dx``, ``Wt``, ``z``;
+    False (nothing copied) when ``dn`` is not finite."""
+    nb = dn.shape[0]
+    for j in range(nb):
+        if not math.isfinite(dn[j]):
+            return False
+    for j in range(nb):  # element by element: see estimators.ekf.update
+        dx[j] = dn[j]
+    for a in range(Wt.shape[0]):
+        for j in range(Wt.shape[1]):
+            Wt[a, j] = Wn[a, j]
+    for a in range(z.shape[0]):
+        z[a] = zn[a]
+    return True
+
+
 @kernel
 def relinearise(
     xb: FloatArray,
@@ -234,21 +285,12 @@ def relinearise(
     k = lms.shape[0]
     m = 3 * k
     sigma = np.sqrt(r_diag)
-    h0 = np.empty((k, 3))
-    H0 = np.empty((k, 3, 9))
-    _models(xb, lms.copy(), cols, h0, H0)
     xi = xb[:nb] + dx[:nb]
     lms_i = lms.copy()
     hi = np.empty((k, 3))
     Hi = np.empty((k, 3, 9))
     _models(xi, lms_i, cols, hi, Hi)
-    lin = np.empty(m)
-    _apply_jacobian(H0, cols, dx, lin)
-    err = np.empty(m)
-    for i in range(k):
-        for r in range(3):
-            err[3 * i + r] = hi[i, r] - h0[i, r] - lin[3 * i + r]
-    if _largest_scaled(err, sigma) <= tol:
+    if _first_order_error(xb, lms, cols, dx, hi, sigma) <= tol:
         return 0
     idx = np.arange(m)
     U = np.empty((m, nb))
@@ -276,18 +318,8 @@ def relinearise(
         for j in range(nb):
             step[j] = xb[j] + dn[j] - xi[j]
         _apply_jacobian(Hi, cols, step, shift)
-        finite = True
-        for j in range(nb):
-            finite = finite and math.isfinite(dn[j])
-        if not finite:
+        if not _take_iterate(dn, Wn, zn, dx, Wt, z):
             return done
-        for j in range(nb):  # element by element: see estimators.ekf.update
-            dx[j] = dn[j]
-        for a in range(Wt.shape[0]):
-            for j in range(Wt.shape[1]):
-                Wt[a, j] = Wn[a, j]
-        for a in range(z.shape[0]):
-            z[a] = zn[a]
         done = it
         for j in range(nb):
             xi[j] = xb[j] + dn[j]

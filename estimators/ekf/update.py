@@ -40,7 +40,7 @@ from estimators.ekf.kernels import (
     sync_lane,
 )
 from quadslam_env.models.frames import dcm_and_partials, wrap_pi
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.lidar import lidar_inverse_models
 from quadslam_env.types import EUL, POS, POSE_DIM, FloatArray
 
@@ -308,6 +308,29 @@ def _register(
     return True
 
 
+@inline_kernel
+def _split_visible(
+    visible: np.ndarray, mapped: np.ndarray, known: bool
+) -> tuple[np.ndarray, int, np.ndarray, int]:
+    """``(obs, k_obs, new, k_new)``: of one lane's returned ids ``visible`` (L,) bool, the
+    mapped ones (``obs[:k_obs]``, to correct with) and the unmapped ones (``new[:k_new]``, to
+    register; none in known-map mode), in id order."""
+    L = visible.shape[0]
+    obs = np.empty(L, dtype=np.int64)
+    new = np.empty(L, dtype=np.int64)
+    k_obs = 0
+    k_new = 0
+    for j in range(L):
+        if visible[j]:
+            if mapped[j]:
+                obs[k_obs] = j
+                k_obs += 1
+            elif not known:
+                new[k_new] = j
+                k_new += 1
+    return obs, k_obs, new, k_new
+
+
 @kernel
 def update_lanes(
     x: FloatArray,
@@ -349,24 +372,12 @@ def update_lanes(
         tol: Linearisation error in noise stds above which an update is iterated (inf:
             never; :mod:`estimators.ekf.correction`). max_iter: Most iterations.
     """
-    L = visible.shape[1]
     for b in lanes:
         xb, Pb, nb = x[b], P[b], n[b]
         if stale[b]:
             sync_lane(Pb, nb, nv)
             stale[b] = False
-        obs = np.empty(L, dtype=np.int64)
-        new = np.empty(L, dtype=np.int64)
-        k_obs = 0
-        k_new = 0
-        for j in range(L):
-            if visible[b, j]:
-                if mapped[b, j]:
-                    obs[k_obs] = j
-                    k_obs += 1
-                elif not known[b]:
-                    new[k_new] = j
-                    k_new += 1
+        obs, k_obs, new, k_new = _split_visible(visible[b], mapped[b], known[b])
         if k_obs:
             lms = np.empty((k_obs, 3))
             cols = np.full(k_obs, -1, dtype=np.int64)

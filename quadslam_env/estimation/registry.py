@@ -17,6 +17,7 @@ import importlib.metadata
 from collections.abc import Callable
 from typing import Any
 
+from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation.lane_loop import LaneLoop
 from quadslam_env.estimation.protocol import BatchEstimator, UsesTruth
 
@@ -161,6 +162,19 @@ def models_drag(name: str) -> bool:
         ValueError: Unknown name or a plug-in that cannot be loaded.
     """
     return bool(getattr(_load(name), "models_drag", False))
+
+
+def estimator_flag(name: str, flag: Callable[[str], bool]) -> bool:
+    """``flag(name)`` for a scenario check, with ``flag`` one of the class flags above
+    (:func:`associates_unlabeled`, :func:`copyable`, :func:`models_drag`).
+
+    Raises:
+        ConfigError: Unknown name or a plug-in that cannot be loaded (the registry's message).
+    """
+    try:
+        return flag(name)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from exc
 
 
 def make(name: str, num_lanes: int = 1, landmark_capacity: int = 0, **cfg: Any) -> BatchEstimator:
