@@ -40,7 +40,7 @@ demo: $(STAMP)
 	$(BIN)/quadslam run
 
 test: $(STAMP)
-	MPLBACKEND=Agg $(BIN)/python -m pytest -q
+	MPLBACKEND=Agg $(BIN)/python -m pytest -q --durations=15
 
 $(RLLIB_STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(RLLIB_VENV)
