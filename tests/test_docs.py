@@ -89,3 +89,41 @@ def test_mkdocs_build_strict(tmp_path: Path) -> None:
     assert done.returncode == 0, done.stderr[-3000:]
     scenarios = (tmp_path / "site" / "scenarios" / "index.html").read_text()
     assert "episode.duration_s" in scenarios and "generated:" not in scenarios
+
+
+def test_performance_page_shows_the_bench_json_as_measured() -> None:
+    """The generated tables carry each series' median from the JSON, the fastest B in bold,
+    and the page asks for them (its figures cannot drift from the measured ones)."""
+    import json
+
+    from agents.bench.report import figure
+
+    page = (DOCS / "performance.md").read_text()
+    assert "<!-- generated: bench-latest -->" in page
+    assert "<!-- generated: bench-physics -->" in page
+    doc = json.loads((DOCS / "results" / "bench_latest.json").read_text())
+    text = reference.bench_latest_markdown()
+    vector = [e for e in doc["results"] if e["group"] == "vector"]
+    assert vector
+    for name in {e["name"] for e in vector}:
+        row = next(r for r in text.splitlines() if r.startswith(f"| `{name.split('/')[1]}` |"))
+        series = [e for e in vector if e["name"] == name]
+        fastest = max(series, key=lambda e: e["median"])
+        assert f"**{figure(fastest['median'])}**" in row  # the best B, in bold
+        for e in series:
+            assert figure(e["median"]) in row
+    physics = json.loads((DOCS / "results" / "bench_physics.json").read_text())
+    ratio = next(e for e in physics["results"] if e["name"] == "full_over_nominal")
+    assert f"| `full_over_nominal` | {figure(ratio['median'])} (" in (
+        reference.bench_physics_markdown()
+    )
+
+
+def test_figures_round_to_four_significant_digits() -> None:
+    from agents.bench.report import figure
+
+    assert figure(80780.4) == "80,780"
+    assert figure(236346.0) == "236,300"
+    assert figure(819.84) == "819.8"
+    assert figure(0.905512) == "0.9055"
+    assert figure(0.0) == "0"

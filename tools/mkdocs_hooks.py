@@ -25,6 +25,8 @@ MARKERS: dict[str, Callable[[], str]] = {
     "<!-- generated: shipped-scenarios -->": reference.shipped_scenarios_markdown,
     "<!-- generated: estimator-params -->": reference.estimator_params_markdown,
     "<!-- generated: cli -->": reference.cli_markdown,
+    "<!-- generated: bench-latest -->": reference.bench_latest_markdown,
+    "<!-- generated: bench-physics -->": reference.bench_physics_markdown,
 }
 
 
