@@ -37,6 +37,7 @@ from agents.studies.estimator_cells import ROWS, SCENARIOS, Row, cell_overrides
 from agents.studies.particle_nees import block_nees
 from quadslam_env.metrics import anees_bounds
 from quadslam_env.models.frames import wrap_angle
+from quadslam_env.types import EUL, POS, VEL
 
 NEES_BLOCKS = ("pos", "vel", "att")
 
@@ -61,9 +62,9 @@ class NeesRecorder(TruthRecorder):
             x = state[lane]
             err = np.concatenate(
                 [
-                    est.position[lane] - x[0:3],
-                    est.vel_body[lane] - x[3:6],
-                    np.asarray(wrap_angle(est.euler[lane] - x[6:9])),
+                    est.position[lane] - x[POS],
+                    est.vel_body[lane] - x[VEL],
+                    np.asarray(wrap_angle(est.euler[lane] - x[EUL])),
                 ]
             )
             nees = block_nees(err, est.pose_cov[lane])
