@@ -344,7 +344,10 @@ def check_delays(scenario: ScenarioConfig) -> None:
 def check_copyable(scenario: ScenarioConfig) -> None:
     """An IMU slower than the control and a delayed LiDAR run a copy of the estimator beside
     it (:class:`~quadslam_env.period_log.EstimatorCopies`), so they need an estimator whose
-    class does not say ``copyable = False`` (:func:`quadslam_env.estimation.copyable`).
+    class does not say ``copyable = False`` (:func:`quadslam_env.estimation.copyable`); a
+    delayed LiDAR also goes with one whose class says ``takes_late_scans = True``
+    (:func:`quadslam_env.estimation.takes_late_scans`: it takes each scan at its own time
+    without a copy, :class:`~quadslam_env.scan_delay.LateScans`).
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.
@@ -361,14 +364,19 @@ def check_copyable(scenario: ScenarioConfig) -> None:
         allowed = f"lidar.delay_steps: 0 with {name!r}"
     else:
         return
-    from quadslam_env.estimation import copyable, estimator_flag
+    from quadslam_env.estimation import copyable, estimator_flag, takes_late_scans
 
-    if not estimator_flag(name, copyable):
-        raise ConfigError(
-            f"{got} with estimator.name = {name!r}, which cannot be copied ({why}); allowed: "
-            f"{allowed}, or an estimator that can be copied (whose class does not say "
-            "copyable = False)"
-        )
+    if estimator_flag(name, copyable):
+        return
+    late = scenario.steps_per_imu == 1  # a delayed LiDAR only
+    if late and estimator_flag(name, takes_late_scans):
+        return
+    also = " or takes late scans (takes_late_scans = True)" if late else ""
+    raise ConfigError(
+        f"{got} with estimator.name = {name!r}, which cannot be copied ({why}); allowed: "
+        f"{allowed}, or an estimator that can be copied (whose class does not say "
+        f"copyable = False){also}"
+    )
 
 
 def check_heading(scenario: ScenarioConfig) -> None:

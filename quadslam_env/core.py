@@ -261,7 +261,7 @@ class SimCore:
         if self.scenario.estimator.known_map:
             known = [(np.arange(n[i]), self.landmarks[i, : n[i]].copy()) for i in lanes.tolist()]
         cov0 = np.broadcast_to(self._cov0, (lanes.shape[0], STATE_DIM, STATE_DIM)).copy()
-        held = () if self._copies is None else (self._copies.filter,)
+        held = () if self._copies is None else self._copies.held
         self.randomizer.inform(lanes, (self.estimator, *held))
         if self._copies is not None:  # rng copies taken before the output's reset draws
             self._copies.reset_lanes(lanes, mean0, cov0, copy.deepcopy(rngs), known)

@@ -6,7 +6,9 @@ the slow-IMU filter (:mod:`quadslam_env.imu_replay`) when a sample covering the 
 arrives, and the delayed-LiDAR filter (:mod:`quadslam_env.scan_delay`) when a scan measured
 some steps ago arrives. Both keep what they need in a :class:`PeriodLog`: a ring of each
 lane's last n control periods, slot ``(own step − 1) % n``, so lanes keep their own phase
-after an autoreset (lane i of a vector env equals the scalar env).
+after an autoreset (lane i of a vector env equals the scalar env). An estimator that takes late
+scans itself is not copied; its scans wait in a :class:`PeriodLog` too
+(:class:`~quadslam_env.scan_delay.LateScans`).
 """
 
 from __future__ import annotations
@@ -165,6 +167,11 @@ class EstimatorCopies:
         self.log = log
         self.refreshed = np.zeros(estimator.num_lanes, dtype=bool)
         self.applied: Scans | None = None
+
+    @property
+    def held(self) -> tuple[BatchEstimator, ...]:
+        """The estimators run beside the output (the filter), which a reset informs too."""
+        return (self.filter,)
 
     def reset_lanes(
         self,

@@ -26,7 +26,15 @@ from the filter (:attr:`ScanDelay.refreshed`; tests/test_latency_unknown.py).
 Scans still in flight when an episode ends are dropped with the lane's log. Every lane keeps
 its own phase (its own step count since reset), so lane i of a vector env equals the scalar
 env. The estimator must be deep-copyable: the scenario check refuses a delay with one whose class
-says ``copyable = False`` (:func:`quadslam_env.config.check_copyable`).
+says ``copyable = False`` (:func:`quadslam_env.config.check_copyable`), unless it takes late
+scans itself.
+
+A smoother needs no copy (:class:`LateScans`): an estimator that
+:class:`~quadslam_env.estimation.protocol.TakesLateScans` (iSAM2, whose class says
+``takes_late_scans = True``) predicts every period as it comes, and each lane's scan is held d
+steps and then handed to it with its measurement time; the smoother puts the scan's factors
+on a keyframe at that time and carries its present (the IMU samples since) forward from there
+(docs/isam2.md "A delayed LiDAR"; tests/test_isam2_latency.py).
 """
 
 from __future__ import annotations
@@ -39,6 +47,7 @@ import numpy as np
 
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation.protocol import TakesLateScans
 from quadslam_env.imu_replay import ImuReplay
 from quadslam_env.period_log import EstimatorCopies, PeriodLog, Sample, predict_samples
 from quadslam_env.scans import Scans
@@ -47,9 +56,10 @@ from quadslam_env.types import FloatArray
 
 def copies_for(
     scenario: ScenarioConfig, estimator: BatchEstimator, params: Any
-) -> ImuReplay | ScanDelay | None:
+) -> ImuReplay | ScanDelay | LateScans | None:
     """The second run of ``estimator`` (the env's output) a scenario needs: the delayed-LiDAR
-    filter, the slow-IMU filter, or none (never both: ``config.check_delays``).
+    filter, the slow-IMU filter, or none (never both: ``config.check_delays``); or, for a
+    delayed LiDAR and an estimator that takes late scans, the scans' buffer.
 
     Args:
         scenario: The validated scenario.
@@ -57,12 +67,16 @@ def copies_for(
         params: The nominal :class:`~quadslam_env.models.params.VehicleParams`.
 
     Returns:
-        A :class:`ScanDelay` (``lidar.delay_steps`` > 0), an
-        :class:`~quadslam_env.imu_replay.ImuReplay` (``imu.rate_hz`` below the control rate)
-        or ``None``; the core steps either through its ``step``.
+        A :class:`LateScans` (``lidar.delay_steps`` > 0 and an estimator that
+        :class:`~quadslam_env.estimation.protocol.TakesLateScans`), a :class:`ScanDelay`
+        (``lidar.delay_steps`` > 0), an :class:`~quadslam_env.imu_replay.ImuReplay`
+        (``imu.rate_hz`` below the control rate) or ``None``; the core steps any of them
+        through its ``step``.
     """
     dt, m = 1.0 / scenario.episode.control_hz, scenario.imu_per_step
     if (delay := scenario.lidar.delay_steps) > 0:
+        if isinstance(estimator, TakesLateScans) and estimator.takes_late_scans:
+            return LateScans(estimator, delay, dt, m)
         return ScanDelay(estimator, delay, scenario.lidar_every, dt / m, m)
     if scenario.steps_per_imu == 1:
         return None
@@ -189,3 +203,83 @@ class ScanDelay(EstimatorCopies):
             scan = self.log.scan(slots, act)
             if scan is not None:
                 scan.apply(estimator, samples[-1][0], lidar_sigma)
+
+
+class LateScans:
+    """A delayed LiDAR for an estimator that takes late scans itself (module docstring): each
+    lane's scans held d steps, then handed to the env's estimator with their measurement time.
+    The same interface as :class:`ScanDelay` (what the core calls), with no copy.
+
+    Args:
+        estimator: The env's estimator
+            (:class:`~quadslam_env.estimation.protocol.TakesLateScans`).
+        delay_steps: d ≥ 1, control steps between a scan's measurement and its arrival.
+        dt: The control period in s (a scan measured at a lane's step s has the time s·dt, as
+            the core gives an undelayed scan).
+        per_period: IMU samples per control period.
+
+    Attributes:
+        output: The env's estimator, which :meth:`step` updates in place and returns.
+        held: The estimators run beside the output: none.
+        refreshed: (B,) bool, all False: the belief changes by the predictions and the scans
+            that arrive only (never rebuilt from a copy).
+        applied: The scans that arrived in the last :meth:`step` (measured d steps earlier),
+            or ``None``.
+    """
+
+    held: tuple[BatchEstimator, ...] = ()
+
+    def __init__(
+        self, estimator: BatchEstimator, delay_steps: int, dt: float, per_period: int = 1
+    ) -> None:
+        b, self.delay, self.dt = estimator.num_lanes, int(delay_steps), float(dt)
+        self.h = self.dt / per_period
+        self.output = estimator
+        # d + 1 periods: a scan is read d steps after it was logged, before its slot is reused.
+        self.log = PeriodLog(self.delay + 1, b, per_period)
+        self.refreshed = np.zeros(b, dtype=bool)
+        self.applied: Scans | None = None
+
+    def reset_lanes(
+        self,
+        lanes: np.ndarray,
+        mean0: FloatArray,
+        cov0: FloatArray,
+        rngs: Sequence[np.random.Generator],
+        known: Any,
+    ) -> None:
+        """Drop the scans in flight of ``lanes`` (k,) (the core resets the estimator itself;
+        the other arguments are :class:`ScanDelay`'s, unused)."""
+        del mean0, cov0, rngs, known
+        self.log.forget(lanes)
+
+    def reserve_landmarks(self, count: int) -> None:
+        """Nothing to size: the core sizes the env's estimator (no copy is held)."""
+        del count
+
+    def step(
+        self,
+        output: BatchEstimator,
+        steps: np.ndarray,
+        active: np.ndarray,
+        samples: list[Sample],
+        sigma: tuple[float, float],
+        scan: Scans | None,
+        lidar_sigma: FloatArray,
+    ) -> BatchEstimator:
+        """Log this period's scans (delivered d steps later), propagate ``output`` over the
+        period, then hand it the scans measured d steps ago with their times.
+
+        Args and returns as :meth:`ScanDelay.step` (``output`` is returned, updated).
+        """
+        log = self.log
+        log.record(steps, active, samples, scan)
+        predict_samples(output, samples, sigma, self.h, active)
+        measured = steps - self.delay  # the step whose scan arrives now
+        due = active & (measured >= 1)
+        self.applied = None
+        if due.any():
+            self.applied = log.scan(log.slots(np.maximum(measured, 1)), due)
+        if self.applied is not None:
+            self.applied.apply(output, measured * self.dt, lidar_sigma)
+        return output

@@ -23,6 +23,7 @@ from quadslam_env.estimation import (
     ParticleLaneLoop,
     ReservesLandmarks,
     ShowsParticles,
+    TakesLateScans,
     TakesVehicle,
     TakesWind,
     UsesTruth,
@@ -45,6 +46,8 @@ BATCH: dict[type, set[str]] = {
     # The LaneLoop passes a vehicle or a wind on to the lanes that use it (below).
     TakesVehicle: {"fastslam", "fastslam_kinematic", "isam2"},
     TakesWind: {"fastslam", "fastslam_kinematic", "isam2"},
+    # The LaneLoop says whether its lanes take late scans (their class flag, TAKES_LATE_SCANS).
+    TakesLateScans: {"fastslam", "fastslam_kinematic", "isam2"},
 }
 # Abilities of the one-vehicle estimators the LaneLoop runs (FastSLAM and iSAM2).
 ONE_VEHICLE: dict[type, set[str]] = {
@@ -61,6 +64,8 @@ LOOPED = {"fastslam", "fastslam_kinematic", "isam2"}
 # slow IMU or a delayed LiDAR) except iSAM2, whose GTSAM smoother has no copy (docs/isam2.md).
 COPYABLE = BUILT_IN - {"isam2"}
 MODELS_DRAG = {"fastslam"}
+# Only the smoother puts a delayed scan on a keyframe of its own time (docs/isam2.md).
+TAKES_LATE_SCANS = {"isam2"}
 
 
 def _built() -> dict[str, Any]:
@@ -105,6 +110,17 @@ def test_copyable_flag_is_the_documented_one(name: str) -> None:
 @pytest.mark.parametrize("name", sorted(BUILT_IN))
 def test_models_drag_flag_is_the_documented_one(name: str) -> None:
     assert registry.models_drag(name) == (name in MODELS_DRAG)
+
+
+@pytest.mark.parametrize("name", sorted(BUILT_IN))
+def test_takes_late_scans_flag_is_the_documented_one(name: str) -> None:
+    assert registry.takes_late_scans(name) == (name in TAKES_LATE_SCANS)
+
+
+def test_the_loop_says_its_lanes_flag(built: dict[str, Any]) -> None:
+    for name, est in built.items():
+        if isinstance(est, TakesLateScans):
+            assert est.takes_late_scans == (name in TAKES_LATE_SCANS)
 
 
 def test_copyable_estimators_copy_and_the_others_refuse(built: dict[str, Any]) -> None:
@@ -191,10 +207,12 @@ def test_a_plugin_that_cannot_be_copied_is_refused_like_isam2(
     monkeypatch: pytest.MonkeyPatch, over: dict[str, Any], got: str
 ) -> None:
     """The slow IMU and the delayed LiDAR ask the registry's one question (``copyable``) of a
-    plug-in as of a built-in, before any estimator is built."""
+    plug-in as of a built-in, before any estimator is built (iSAM2 takes a delayed LiDAR's
+    scans itself: tests/test_isam2_latency.py)."""
     monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
     registry.register("uncopyable")(_Uncopyable)
-    for name in ("uncopyable", "isam2"):
+    refused = ("uncopyable", "isam2") if "imu" in over else ("uncopyable",)
+    for name in refused:
         with pytest.raises(ConfigError) as err:
             load_scenario("paper_ekf_figure8", {**over, "estimator": {"name": name}})
         assert str(err.value).startswith(
@@ -205,3 +223,26 @@ def test_a_plugin_that_cannot_be_copied_is_refused_like_isam2(
     registry.register("uncopyable")(type("Copyable", (), {"__init__": _Uncopyable.__init__}))
     scenario = load_scenario("paper_ekf_figure8", {**over, "estimator": {"name": "uncopyable"}})
     assert scenario.estimator.name == "uncopyable"
+
+
+class _LateUncopyable(_Uncopyable):
+    """A plug-in that cannot be copied but takes late scans itself."""
+
+    takes_late_scans = True
+
+
+@pytest.mark.parametrize(
+    ("over", "accepted"),
+    [({"lidar": {"delay_steps": 2}}, True), ({"imu": {"rate_hz": 10.0}}, False)],
+)
+def test_an_uncopyable_plugin_that_takes_late_scans_goes_with_a_delayed_lidar_only(
+    monkeypatch: pytest.MonkeyPatch, over: dict[str, Any], accepted: bool
+) -> None:
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    registry.register("late")(_LateUncopyable)
+    if accepted:
+        scenario = load_scenario("paper_ekf_figure8", {**over, "estimator": {"name": "late"}})
+        assert scenario.lidar.delay_steps == 2
+        return
+    with pytest.raises(ConfigError, match=r"^imu\.rate_hz: got 10\.0 .*'late', which cannot"):
+        load_scenario("paper_ekf_figure8", {**over, "estimator": {"name": "late"}})

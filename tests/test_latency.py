@@ -163,18 +163,12 @@ def test_bad_delays_name_the_key_the_value_and_the_range(
     assert message.startswith(f"{key}.delay_steps: got {value!r}") and fragment in message
 
 
-@pytest.mark.parametrize(
-    ("over", "fragment"),
-    [
-        ({"estimator": {"name": "isam2"}}, "cannot be copied"),
-        ({"imu": {"rate_hz": 10.0}}, "imu.rate_hz"),
-    ],
-)
-def test_delayed_lidar_refuses_what_it_cannot_run(over: dict, fragment: str) -> None:
-    lidar = {"delay_steps": 2, **over.get("lidar", {})}
+def test_delayed_lidar_refuses_what_it_cannot_run() -> None:
+    """A slow IMU (iSAM2, which cannot be copied but takes late scans itself, is accepted:
+    tests/test_isam2_latency.py)."""
     with pytest.raises(ConfigError, match=r"lidar\.delay_steps: got 2") as err:
-        load_scenario("paper_ekf_figure8", {**over, "lidar": lidar})
-    assert fragment in str(err.value)
+        load_scenario("paper_ekf_figure8", {"imu": {"rate_hz": 10.0}, "lidar": {"delay_steps": 2}})
+    assert "imu.rate_hz" in str(err.value)
 
 
 # ------------------------------------------------------------------ consistency

@@ -48,9 +48,9 @@ from estimators.isam2.graph import (
     held_bias_prior,
     keyframe_marginals,
     known_map,
-    preintegration_params,
     require_gtsam,
 )
+from estimators.isam2.history import ImuHistory, KeptSample
 from estimators.isam2.output import Isam2Output
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.transition import NAV_DIM, ImuTransition
@@ -61,7 +61,7 @@ from quadslam_env.types import RATE, FloatArray
 
 
 @register("isam2")
-class Isam2Slam(Isam2Output):
+class Isam2Slam(Isam2Output, ImuHistory):
     """Fixed-lag (or full) iSAM2 smoothing of IMU preintegration and LiDAR factors.
 
     Implements :class:`~quadslam_env.estimation.protocol.Estimator` in known-map
@@ -80,8 +80,11 @@ class Isam2Slam(Isam2Output):
 
     uses_truth = False
     associates_unlabeled = True
-    # GTSAM's smoother is native state with no copy: the scenario check refuses a slow IMU or a
-    # delayed LiDAR, which run a copy of the estimator (quadslam_env.estimation.copyable).
+    # A scan measured in the past gets its keyframe at its own time (estimators.isam2.history):
+    # a delayed LiDAR needs no copy (quadslam_env.estimation.TakesLateScans).
+    takes_late_scans = True
+    # GTSAM's smoother is native state with no copy: the scenario check refuses a slow IMU,
+    # which runs a copy of the estimator (quadslam_env.estimation.copyable).
     copyable = False
 
     def __init__(self, vehicle: Any = None, **params: Any) -> None:
@@ -105,6 +108,8 @@ class Isam2Slam(Isam2Output):
         self._isam: Any = None
         self._k = 0
         self._t = 0.0
+        self._kf_t = 0.0  # the smoother's clock at keyframe k, s
+        self._kept: list[KeptSample] = []  # the IMU samples since keyframe k
         self._kf_pose: Any = None
         self._kf_vel = np.zeros(3)
         self._kf_bias: Any = None
@@ -220,16 +225,16 @@ class Isam2Slam(Isam2Output):
             raise ValueError("predict: call reset first (the smoother starts at reset)")
         if not 0.0 < dt < np.inf:
             raise ValueError(f"predict: dt must be a positive finite number of seconds, got {dt}")
-        accel = np.asarray(imu.accel, dtype=float).reshape(3)
-        gyro = np.asarray(imu.gyro, dtype=float).reshape(3)
+        accel = np.array(imu.accel, dtype=float).reshape(3)  # copies: a kept sample outlives
+        gyro = np.array(imu.gyro, dtype=float).reshape(3)  # the caller's buffer
         if not (np.isfinite(accel).all() and np.isfinite(gyro).all()):
             raise ValueError("predict: the IMU sample must be finite")
-        if self._pim is None:
-            self._pim = self._g.PreintegratedCombinedMeasurements(
-                self._preintegration_params(imu.accel_sigma, imu.gyro_sigma, dt), self._kf_bias
-            )
-        self._pim.integrateMeasurement(accel, gyro, dt)
-        self._t += dt
+        clock = self._t + dt
+        sample = KeptSample(float(imu.t), accel, gyro, imu.accel_sigma, imu.gyro_sigma, dt, clock)
+        self._pim = self._preintegrate(self._pim, sample)
+        self._t = clock
+        if not self._diverged:  # kept for a late scan (scans are ignored after a divergence)
+            self._kept.append(sample)
         self._gyro = gyro
         self._rates = gyro - np.asarray(self._kf_bias.gyroscope())
         self._cache = self._state_cache = None
@@ -237,7 +242,10 @@ class Isam2Slam(Isam2Output):
     def update(self, scan: LidarScan) -> None:
         """Add a keyframe at the scan with its LiDAR factors and update the smoother.
 
-        Every scan makes a keyframe (an empty one too: it bounds the preintegration). Ids
+        Every scan makes a keyframe (an empty one too: it bounds the preintegration). A scan
+        whose time ``scan.t`` is before the latest IMU samples (a delayed LiDAR) gets its
+        keyframe at that time and the samples since start the next interval
+        (:mod:`estimators.isam2.history`; scans must arrive in time order). Ids
         outside the known map are ignored in known-map mode. An unlabeled scan (``ids`` None)
         is labeled first (:mod:`estimators.isam2.associate`; :attr:`last_association`). After
         a divergence the scans are ignored (the episode ends on that step).
@@ -268,24 +276,15 @@ class Isam2Slam(Isam2Output):
         if self._diverged or self._smoother is None:
             return
         try:
-            labeled = self._associate(meas, sigma) if unlabeled else Labeled(ids, meas)
-            self._keyframe(labeled, sigma)
+            pim, stamp, n = self._until(float(scan.t))  # a late scan: its own interval
+            labeled = self._associate(meas, sigma, pim) if unlabeled else Labeled(ids, meas)
+            self._keyframe(labeled, sigma, pim, stamp)
+            self._resume(n, stamp)
         except Exception as exc:  # any GTSAM failure (C++ exceptions arrive as RuntimeError)
             self._diverge(exc)
         self._cache = self._state_cache = None
 
     # ------------------------------------------------------------------ graph
-    def _preintegration_params(self, accel_sigma: float, gyro_sigma: float, dt: float) -> Any:
-        """GTSAM preintegration settings for samples with the white-noise stds
-        ``accel_sigma`` (m/s²) and ``gyro_sigma`` (rad/s) per step ``dt`` (cached;
-        :func:`~estimators.isam2.graph.preintegration_params`)."""
-        noise = (float(accel_sigma) ** 2 * dt, float(gyro_sigma) ** 2 * dt)
-        if self._params is not None and self._pim_noise == noise:
-            return self._params
-        p = preintegration_params(self._g, self.settings, *noise)
-        self._params, self._pim_noise = p, noise
-        return p
-
     def _solve(self, graph: Any, values: Any, stamps: dict[int, float]) -> None:
         """One smoother update with the new factors, then ``iterations − 1`` more."""
         if self._lm_covs is None:  # never asked for at this keyframe: after the update they
@@ -300,13 +299,14 @@ class Isam2Slam(Isam2Output):
                 self._smoother.update()
             self._isam = self._smoother.getISAM2()
 
-    def _associate(self, meas: FloatArray, sigma: FloatArray) -> Labeled:
-        """Label an unlabeled scan on the smoother's belief (:mod:`estimators.isam2.associate`)."""
+    def _associate(self, meas: FloatArray, sigma: FloatArray, pim: Any) -> Labeled:
+        """Label an unlabeled scan on the smoother's belief at the scan, the latest keyframe
+        predicted with ``pim`` (:mod:`estimators.isam2.associate`)."""
         k, pose = self._k, self._kf_pose
         F, Q = np.eye(NAV_DIM), np.zeros((NAV_DIM, NAV_DIM))
-        if self._pim is not None and self._pim.deltaTij() > 0.0:
+        if pim is not None and pim.deltaTij() > 0.0:
             k += 1
-            pose, _, F, Q = self._link()(self._pim)
+            pose, _, F, Q = self._link()(pim)
         Fp, Qp = F[:6], Q[:6, :6]  # the pose rows: (δθ, δt) of the scan's keyframe
         pose_cov = Fp @ self._kf_cov @ Fp.T + Qp
         pred = PosePrediction(pose.rotation().matrix(), pose.translation(), pose_cov, k)
@@ -332,18 +332,17 @@ class Isam2Slam(Isam2Output):
             lms, covs = self._lm_means, self._landmark_covs()
         return self._front.associate(meas, sigma, pred, lms, covs, joint)
 
-    def _keyframe(self, scan: Labeled, sigma: FloatArray) -> None:
-        """Add keyframe k+1 (or, without IMU samples since keyframe k, factors on k) with the
-        scan's returns, and the earlier sightings of landmarks it confirms."""
+    def _keyframe(self, scan: Labeled, sigma: FloatArray, pim: Any, t: float) -> None:
+        """Add keyframe k+1 at the clock ``t`` s with the IMU factor ``pim`` (or, without IMU
+        samples since keyframe k, factors on k) with the scan's returns, and the earlier
+        sightings of landmarks it confirms."""
         ids, meas = scan.ids, scan.meas
         g = self._g
         graph = g.NonlinearFactorGraph()
         values = g.Values()
         stamps: dict[int, float] = {}
-        t = self._t
         k = self._k
         pose = self._kf_pose
-        pim = self._pim
         if pim is not None and pim.deltaTij() > 0.0:
             k += 1
             xi, vi, bi = self._key("x", k - 1), self._key("v", k - 1), self._key("b", k - 1)

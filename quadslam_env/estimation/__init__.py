@@ -22,6 +22,7 @@ from quadslam_env.estimation.protocol import (
     ModelsDrag,
     ReservesLandmarks,
     ShowsParticles,
+    TakesLateScans,
     TakesVehicle,
     TakesWind,
     UsesTruth,
@@ -36,6 +37,7 @@ from quadslam_env.estimation.registry import (
     make,
     models_drag,
     register,
+    takes_late_scans,
 )
 from quadslam_env.estimation.snapshot import BatchEstimate
 
@@ -58,6 +60,7 @@ __all__ = [
     "ParticleLaneLoop",
     "ReservesLandmarks",
     "ShowsParticles",
+    "TakesLateScans",
     "TakesVehicle",
     "TakesWind",
     "UsesTruth",
@@ -71,4 +74,5 @@ __all__ = [
     "models_drag",
     "position_std",
     "register",
+    "takes_late_scans",
 ]

@@ -165,6 +165,13 @@ class LaneLoop:
         """Whether the scalar estimators accept unlabeled scans (unknown association)."""
         return bool(getattr(self.lanes[0], "associates_unlabeled", False))
 
+    @property
+    def takes_late_scans(self) -> bool:
+        """Whether the scalar estimators' ``update`` takes a scan measured in the past and
+        keeps their present (their class flag;
+        :class:`~quadslam_env.estimation.protocol.TakesLateScans`)."""
+        return bool(getattr(self.lanes[0], "takes_late_scans", False))
+
     def update_unlabeled(
         self,
         t: FloatArray,

@@ -10,7 +10,8 @@ true state (the oracle, which says ``uses_truth = True``, is the one exception).
 Abilities that only some estimators have are protocols of their own, checked with
 ``isinstance(estimator, Ability)`` where they are used (docs/design.md §5): of a batch,
 :class:`ReservesLandmarks`, :class:`AssociatesUnlabeled`, :class:`UsesTruth`,
-:class:`ShowsParticles`, :class:`HasFullState`, :class:`TakesVehicle` and :class:`TakesWind`;
+:class:`ShowsParticles`, :class:`HasFullState`, :class:`TakesVehicle`, :class:`TakesWind` and
+:class:`TakesLateScans`;
 of one vehicle's estimator (what :class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its
 lanes), :class:`ChecksMemory`, :class:`LabelsReturns`, :class:`HasParticles`,
 :class:`UsesVehicle` and :class:`ModelsDrag`. A runtime-checkable protocol's
@@ -20,7 +21,8 @@ against them; the call sites are typed by the protocol, and
 ``tests/test_estimator_abilities.py`` checks which built-in has which ability. What the
 scenario check must know before any estimator is built is a class flag that the registry
 reads instead: ``associates_unlabeled``, ``uses_truth``, ``copyable = False`` (an estimator
-the env cannot deep-copy for a slow IMU or a delayed LiDAR) and ``models_drag`` (a process
+the env cannot deep-copy for a slow IMU or a delayed LiDAR), ``takes_late_scans`` (one that
+takes a delayed LiDAR's scans at their own time without a copy) and ``models_drag`` (a process
 model with drag, which ``wind.inform_estimator`` needs).
 """
 
@@ -228,6 +230,26 @@ class TakesWind(Protocol):
     def set_wind(self, wind: FloatArray) -> None:
         """The wind (B, 3) in N, m/s held over the next predictions (the simulator's wind of
         the step being predicted), read, not kept."""
+
+
+@runtime_checkable
+class TakesLateScans(Protocol):
+    """A batch estimator that takes a scan measured in the past (a delayed LiDAR,
+    ``lidar.delay_steps``) without a copy of itself: its ``update`` (and ``update_unlabeled``)
+    of a scan whose time ``t`` is before the lanes' latest IMU samples applies the scan to the
+    belief of time ``t`` and keeps the lanes' present, the IMU samples since ``t`` included
+    (the iSAM2 smoother inserts a keyframe at ``t``). A scan at the time of the latest sample
+    is an ordinary update. Scans of a lane must arrive in time order, each after the scans
+    measured before it.
+
+    Its class also says ``takes_late_scans = True``, which the scenario check reads
+    (:func:`~quadslam_env.estimation.registry.takes_late_scans`) before any estimator is built.
+    """
+
+    @property
+    def takes_late_scans(self) -> bool:
+        """Whether ``update`` of a past scan keeps the present (a batch of one-vehicle
+        estimators: their class flag)."""
 
 
 # ---------------------------------------------------------- abilities of one vehicle's

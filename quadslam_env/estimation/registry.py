@@ -150,6 +150,19 @@ def copyable(name: str) -> bool:
     return bool(getattr(_load(name), "copyable", True))
 
 
+def takes_late_scans(name: str) -> bool:
+    """Whether the estimator ``name`` takes a delayed LiDAR's scans at their own time without
+    being copied: its class says ``takes_late_scans = True``
+    (:class:`~quadslam_env.estimation.protocol.TakesLateScans`; :mod:`quadslam_env.scan_delay`
+    then hands it each scan when it arrives, with its measurement time). A copyable estimator
+    without the flag is run from copies instead.
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    return bool(getattr(_load(name), "takes_late_scans", False))
+
+
 def models_drag(name: str) -> bool:
     """Whether the estimator ``name``'s process model has the vehicle's drag, so that a known
     wind changes it (``wind.inform_estimator``): its class says ``models_drag = True`` and
@@ -166,7 +179,8 @@ def models_drag(name: str) -> bool:
 
 def estimator_flag(name: str, flag: Callable[[str], bool]) -> bool:
     """``flag(name)`` for a scenario check, with ``flag`` one of the class flags above
-    (:func:`associates_unlabeled`, :func:`copyable`, :func:`models_drag`).
+    (:func:`associates_unlabeled`, :func:`copyable`, :func:`models_drag`,
+    :func:`takes_late_scans`).
 
     Raises:
         ConfigError: Unknown name or a plug-in that cannot be loaded (the registry's message).
