@@ -185,26 +185,26 @@ def test_state_jacobian_maps_gtsam_tangent_to_env_state() -> None:
 
 def test_settings_validate_keys_and_values() -> None:
     with pytest.raises(ValueError) as err:
-        Isam2Settings.from_params({"relinearise_tolerance": 2.0})  # an EKF-only key
+        Isam2Settings.from_dict({"relinearise_tolerance": 2.0})  # an EKF-only key
     message = str(err.value)
     assert message.startswith("estimator.params.relinearise_tolerance: unknown key; allowed:")
     assert "'window_s'" in message and "'estimate_imu_bias'" in message
     with pytest.raises(ValueError, match=r"estimator\.params\.window_s: got -1\.0"):
-        Isam2Settings.from_params({"window_s": -1.0})
+        Isam2Settings.from_dict({"window_s": -1.0})
     with pytest.raises(ValueError, match=r"estimator\.params\.iterations: got 0"):
-        Isam2Settings.from_params({"iterations": 0})
+        Isam2Settings.from_dict({"iterations": 0})
     with pytest.raises(ValueError, match=r"estimator\.params\.process_noise"):
-        Isam2Settings.from_params({"process_noise": [0.0] * 8})
+        Isam2Settings.from_dict({"process_noise": [0.0] * 8})
     with pytest.raises(
         ValueError, match=r"estimator\.params\.estimate_imu_bias: got 1; allowed: true or false"
     ):
-        Isam2Settings.from_params({"estimate_imu_bias": 1})
+        Isam2Settings.from_dict({"estimate_imu_bias": 1})
     with pytest.raises(ValueError, match=r"factorization: got 'lu'; allowed: one of \['qr'"):
-        Isam2Settings.from_params({"factorization": "lu"})
-    assert Isam2Settings.from_params({"window_s": None}).window_s is None
-    assert Isam2Settings.from_params({}).window_s == 3.0
+        Isam2Settings.from_dict({"factorization": "lu"})
+    assert Isam2Settings.from_dict({"window_s": None}).window_s is None
+    assert Isam2Settings.from_dict({}).window_s == 3.0
     # The EKF's shared keys keep their meaning, so a scenario's EKF params carry over.
-    s = Isam2Settings.from_params({"process_noise": [0.0] * 9, "estimate_imu_bias": True})
+    s = Isam2Settings.from_dict({"process_noise": [0.0] * 9, "estimate_imu_bias": True})
     assert s.estimate_imu_bias and s.bias_prior_sigmas() == (0.05, 0.01)
 
 

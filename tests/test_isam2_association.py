@@ -176,7 +176,7 @@ def test_landmarks_out_of_view_longer_than_the_window_keep_their_variables() -> 
 
 
 def _front(method: str) -> ScanAssociation:
-    front = ScanAssociation(Isam2Settings.from_params({"association": method}))
+    front = ScanAssociation(Isam2Settings.from_dict({"association": method}))
     front.reset(known=False)
     return front
 
@@ -381,5 +381,5 @@ def test_mixed_labeled_and_unlabeled_scans_are_refused_in_slam() -> None:
 )
 def test_bad_association_settings_name_the_key(params: dict[str, Any], fragment: str) -> None:
     with pytest.raises(ValueError) as err:
-        Isam2Settings.from_params(params)
+        Isam2Settings.from_dict(params)
     assert fragment in str(err.value)

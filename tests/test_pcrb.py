@@ -144,7 +144,7 @@ def _hover_bound(known_map: bool, P0: np.ndarray):
         scan_ids=[np.arange(3)] * (_STEPS // _EVERY),
     )
     model = BoundModel(
-        settings=EkfSlamSettings.from_params({"process_noise": [0.0] * 9}),
+        settings=EkfSlamSettings.from_dict({"process_noise": [0.0] * 9}),
         accel_sigma=0.0,
         gyro_sigma=0.0,
         lidar_sigma=_SIGMA,

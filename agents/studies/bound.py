@@ -143,7 +143,7 @@ def bound_model(core: Any) -> BoundModel:
     b0_gyro = max(abs(b) for b in imu.gyro_bias)
     biased = max(b0_accel, b0_gyro, imu.accel_drift_sigma, imu.gyro_drift_sigma) > 0.0
     walk = math.sqrt(2.0 / imu.drift_tau_s)
-    settings = EkfSlamSettings.from_params(
+    settings = EkfSlamSettings.from_dict(
         {
             "process_noise": [0.0] * POSE_DIM,
             "estimate_imu_bias": bool(biased),

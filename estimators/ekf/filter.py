@@ -75,7 +75,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
     def __init__(
         self, num_lanes: int, landmark_capacity: int, vehicle: Any = None, **params: Any
     ) -> None:
-        self.settings = settings = EkfSlamSettings.from_params(params)
+        self.settings = settings = EkfSlamSettings.from_dict(params)
         if int(num_lanes) < 1:
             raise ValueError(f"num_lanes: got {num_lanes!r}; allowed: an integer >= 1")
         self.vehicle = vehicle

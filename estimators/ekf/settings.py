@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from scipy.special import gammaincinv
@@ -28,7 +27,7 @@ PAPER_Q_UNKNOWN = (0.2, 0.2, 0.05, 0.01, 0.01, 0.01, 0.02, 0.2, 0.2)
 
 @dataclass(frozen=True)
 class EkfSlamSettings(ImuBiasFields, AssociationFields):
-    """EKF-SLAM settings (``estimator.params`` of ``ekf_slam``), built by :meth:`from_params`.
+    """EKF-SLAM settings (``estimator.params`` of ``ekf_slam``), built by :meth:`from_dict`.
 
     Every key, its default, what it accepts and its meaning is declared below with
     :func:`~quadslam_env.config_schema.spec` (the docs' ``estimator.params`` table of
@@ -75,17 +74,6 @@ class EkfSlamSettings(ImuBiasFields, AssociationFields):
     max_iterations: int = spec(
         10, kind="int", lo=1, hi=100, doc="most iterations of such an update"
     )
-
-    @classmethod
-    def from_params(cls, params: dict[str, Any]) -> EkfSlamSettings:
-        """Validate ``estimator.params``.
-
-        Raises:
-            ConfigError: Unknown key, wrong type or out-of-range value (the message names the
-                key, the value and what is allowed).
-        """
-        settings: EkfSlamSettings = cls.from_dict(params)
-        return settings
 
     @property
     def nv(self) -> int:

@@ -116,7 +116,7 @@ class DynamicFastSLAM(FastSLAMBase):
             raise ValueError(
                 f"estimator 'fastslam': vehicle must be a VehicleParams, got {vehicle!r}"
             )
-        settings = DynamicFastSlamSettings.from_params(params)
+        settings = DynamicFastSlamSettings.from_dict(params)
         super().__init__(settings)
         self.bias_tau_s = settings.bias_tau_s
         self.accel_drift_sigma = settings.accel_drift_sigma

@@ -34,7 +34,7 @@ class KinematicFastSLAM(FastSLAMBase):
     """
 
     def __init__(self, vehicle: VehicleParams | None = None, **params: Any) -> None:
-        settings = KinematicFastSlamSettings.from_params(params)
+        settings = KinematicFastSlamSettings.from_dict(params)
         super().__init__(settings)
         self.imu_noise_scale = settings.imu_noise_scale
         self.vehicle = vehicle

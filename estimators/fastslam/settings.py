@@ -111,16 +111,6 @@ class FastSlamSettings(GatedFields):
         "weigh p0",
     )
 
-    @classmethod
-    def from_params(cls, params: dict[str, Any]) -> Any:
-        """Validate ``estimator.params`` (an instance of ``cls``).
-
-        Raises:
-            ConfigError: Unknown key, wrong type or out-of-range value (the message names the
-                key, the value and what is allowed).
-        """
-        return cls.from_dict(params)
-
     def noise_density(self) -> FloatArray:
         """(12,) ``process_noise`` expanded per state (one value or 4 groups of 3)."""
         arr = np.asarray(self.process_noise, dtype=float)

@@ -88,7 +88,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
     copyable = False
 
     def __init__(self, vehicle: Any = None, **params: Any) -> None:
-        self.settings = Isam2Settings.from_params(params)
+        self.settings = Isam2Settings.from_dict(params)
         self._g = require_gtsam()
         self.vehicle = vehicle
         self.last_error = ""

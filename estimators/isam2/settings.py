@@ -13,7 +13,6 @@ of accepted keys.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from estimators.association import chi2_threshold
 from estimators.association_settings import AssociationFields
@@ -50,7 +49,7 @@ FACTORIZATIONS = ("qr", "cholesky")
 
 @dataclass(frozen=True)
 class Isam2Settings(ImuBiasFields, AssociationFields):
-    """iSAM2 settings (``estimator.params`` of ``isam2``), built by :meth:`from_params`.
+    """iSAM2 settings (``estimator.params`` of ``isam2``), built by :meth:`from_dict`.
 
     Every key, its default, what it accepts and its meaning is declared below with
     :func:`~quadslam_env.config_schema.spec` (the docs' ``estimator.params`` table of
@@ -132,17 +131,6 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
         doc="unknown map: one LiDAR factor per return instead of one per scan (the same "
         "likelihood, more Python calls)",
     )
-
-    @classmethod
-    def from_params(cls, params: dict[str, Any]) -> Isam2Settings:
-        """Validate ``estimator.params``.
-
-        Raises:
-            ConfigError: Unknown key, wrong type or out-of-range value (the message names the
-                key, the value and what is allowed).
-        """
-        settings: Isam2Settings = cls.from_dict(params)
-        return settings
 
     @property
     def gate(self) -> float:
