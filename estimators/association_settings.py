@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+from estimators.association import chi2_threshold
 from quadslam_env.config_schema import ConfigError, Section, spec
 
 ASSOCIATION_METHODS = ("nn", "jcbb")
@@ -52,6 +53,11 @@ class GatedFields(Section):
         hi=MAX_CONFIRM,
         doc="N of the M-of-N rule, scans (at least confirm_hits)",
     )
+
+    @property
+    def gate(self) -> float:
+        """The χ²₃ quantile of :attr:`gate_probability` on a pair's NIS (inf when it is 1)."""
+        return chi2_threshold(3, self.gate_probability)
 
     def validate(self) -> None:
         """The window must hold the hits.

@@ -158,7 +158,12 @@ def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
         return value
     if kind == "vec":
         lengths = _lengths(meta["length"])
-        if lengths and 1 in lengths and isinstance(value, int | float):
+        if (
+            lengths
+            and 1 in lengths
+            and isinstance(value, int | float)
+            and not isinstance(value, bool)
+        ):
             value = [value]
         if not isinstance(value, list | tuple) or (lengths and len(value) not in lengths):
             raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")

@@ -114,8 +114,9 @@ class Randomizer:
             )
         if axes and "inertia_scale" in pins:
             raise ConfigError(
-                f"reset options.randomized.{axes[0]}: got it with inertia_scale; allowed: "
-                "inertia_scale (every axis) or some of the axes' scales, not both"
+                f"reset options.randomized.{axes[0]}: got {pins[axes[0]]!r} with "
+                f"inertia_scale = {pins['inertia_scale']!r}; allowed: inertia_scale (every "
+                "axis) or some of the axes' scales, not both"
             )
         if not ({"mass_scale", "thrust_scale"} & set(pins)):
             return

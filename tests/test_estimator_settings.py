@@ -131,3 +131,16 @@ def test_fastslam_process_noise_expands_a_value_or_four_groups_to_every_state() 
     every = np.arange(STATE_DIM, dtype=float)
     full = DynamicFastSlamSettings.from_dict({"process_noise": every}).noise_density()
     np.testing.assert_array_equal(full, every)
+
+
+def test_a_bool_is_not_a_one_number_process_noise() -> None:
+    """``true`` is an int in Python, not a density: refused under its own key."""
+    with pytest.raises(ConfigError, match=r"^estimator\.params\.process_noise: got True"):
+        DynamicFastSlamSettings.from_dict({"process_noise": True})
+
+
+def test_every_gated_filter_gates_at_the_chi2_quantile() -> None:
+    """χ²₃ at 0.99 is 11.345 (tables), and p = 1 turns the gate off."""
+    for cls in (EkfSlamSettings, DynamicFastSlamSettings, Isam2Settings):
+        assert cls.from_dict({}).gate == pytest.approx(11.345, abs=1e-3)
+        assert cls.from_dict({"gate_probability": 1.0}).gate == np.inf

@@ -39,7 +39,8 @@ def _raise_terminated(signum: int, frame: Any) -> None:
 
 
 def sigterm_received() -> bool:
-    """Whether a SIGTERM arrived inside the latest :func:`sigterm_as_interrupt` block."""
+    """Whether a SIGTERM arrived inside the latest :func:`sigterm_as_interrupt` block (or a
+    :func:`sigterm_as_request` block inside it)."""
     return _sigterm.is_set()
 
 

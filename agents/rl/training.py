@@ -12,6 +12,7 @@ import json
 import shutil
 import sys
 import tempfile
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -236,9 +237,10 @@ def resume(
 
 
 def _run_learn(
-    model: Any, callbacks: list[Any], total: int, fresh: bool
+    model: Any, callbacks: list[Any], total: int, fresh: bool, asked: threading.Event
 ) -> tuple[KeyboardInterrupt | None, OSError | None, float]:
-    """``model.learn`` up to ``total`` steps; ``(stop, full, seconds)``.
+    """``model.learn`` up to ``total`` steps, or until ``asked`` is set (a SIGTERM,
+    :func:`agents.io.signals.sigterm_as_request`); ``(stop, full, seconds)``.
 
     ``stop`` is the Ctrl-C (``KeyboardInterrupt``) or SIGTERM (:class:`Terminated`) that
     ended it early, ``full`` the ``ENOSPC`` of a checkpoint or log write that did.
@@ -253,9 +255,7 @@ def _run_learn(
     tic = time.perf_counter()
     stop: KeyboardInterrupt | None = None
     full: OSError | None = None
-    # SIGTERM ends learn at the next step (an exception raised at an arbitrary point of SB3's
-    # loop could leave a lock held that the save then waits for); Ctrl-C raises as usual.
-    with warnings.catch_warnings(), sigterm_as_request() as asked:
+    with warnings.catch_warnings():
         # The eval env is wrapped differently (VecNormalize with training=False).
         warnings.filterwarnings("ignore", message="Training and eval env are not of")
         try:
@@ -307,8 +307,12 @@ def _learn(
     done = 0 if start is None else start.steps
     suffix = "" if start is None else f"_from_{done}"
     saving = contextlib.ExitStack()  # entered when the model is saved, left after timing.json
+    # SIGTERM only asks (learning stops at its next step): an exception raised at an arbitrary
+    # point of SB3's loop could leave a lock held that the save then waits for. The request
+    # block spans the save too, so no SIGTERM can fall between learning and saving; while
+    # saving it is held (signals_deferred) and then noted here. Ctrl-C raises as usual.
     try:
-        with saving, torch_settings(threads):
+        with sigterm_as_request() as asked, saving, torch_settings(threads):
             venv = make_vec_env(
                 env_id, settings, settings["n_envs"], seed + done, run_dir / "monitor", True,
                 name=f"lanes{suffix}",
@@ -321,7 +325,7 @@ def _learn(
                 )
                 # full: the ENOSPC (no space left on the device) that ended learning early.
                 stop, full, learn_s = _run_learn(
-                    model, callbacks, settings["n_timesteps"], start is None
+                    model, callbacks, settings["n_timesteps"], start is None, asked
                 )
                 # A second Ctrl-C (or a SIGTERM) must not leave a half-written folder.
                 saving.enter_context(signals_deferred(SAVING_NOTE))
@@ -339,7 +343,7 @@ def _learn(
         if exc.run_dir is None and (run_dir / "timing.json").is_file():
             raise Terminated(run_dir) from None
         raise
-    if isinstance(stop, Terminated):
+    if isinstance(stop, Terminated) or asked.is_set():  # the latter: a SIGTERM while saving
         raise Terminated(run_dir)
     return run_dir
 

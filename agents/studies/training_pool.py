@@ -172,12 +172,13 @@ def _train_in_pool(
     stop = ctx.Event()  # set before the SIGTERMs: a run handed out but not started stays so
     pool = ProcessPoolExecutor(workers, ctx, initializer=_init_worker, initargs=(pids, stop))
     futures: dict[Future[Trained | None], int] = {}
-    try:
-        futures.update((pool.submit(_work, jobs[i]), i) for i in todo)
-        # SIGTERM is polled between short waits, not raised inside concurrent.futures (where
-        # it could leave a lock held that the pool's manager thread, and so the shutdown
-        # below, would wait for).
-        with sigterm_as_request() as asked:
+    # SIGTERM is polled between short waits, not raised inside concurrent.futures (where it
+    # could leave a lock held that the pool's manager thread, and so the shutdown below, would
+    # wait for), and a repeated one during the shutdown is only noted. Ctrl-C still raises
+    # where it lands (Python's own behaviour); the study's terminal is the user's.
+    with sigterm_as_request() as asked:
+        try:
+            futures.update((pool.submit(_work, jobs[i]), i) for i in todo)
             pending = set(futures)
             while pending:
                 done, pending = wait(pending, timeout=_POLL_S, return_when=FIRST_COMPLETED)
@@ -190,19 +191,21 @@ def _train_in_pool(
                     except Exception as exc:  # raised in the worker, or the worker died
                         raise _named(exc, jobs[i].label) from exc
                     runs[i] = _report(jobs[i], trained)
-    except BaseException:
-        # Not pool.shutdown(wait=False): it drops the pool's handle on its workers, and the
-        # shutdown below would then not wait for them to save.
-        for future in futures:
-            future.cancel()  # the runs not handed to a worker yet
-        stop.set()
-        # Every worker that may have started a run put its pid before checking `stop`.
-        while not pids.empty():
-            with contextlib.suppress(ProcessLookupError):  # that worker has already exited
-                os.kill(pids.get(), signal.SIGTERM)
-        raise
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)  # the stopped workers save first
+        except BaseException:
+            # Not pool.shutdown(wait=False): it drops the pool's handle on its workers, and
+            # the shutdown below would then not wait for them to save.
+            for future in futures:
+                future.cancel()  # the runs not handed to a worker yet
+            stop.set()
+            # Every worker that may have started a run put its pid before checking `stop`.
+            while not pids.empty():
+                with contextlib.suppress(ProcessLookupError):  # that worker has already exited
+                    os.kill(pids.get(), signal.SIGTERM)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)  # the stopped workers save first
+    if asked.is_set():  # a SIGTERM during the last shutdown: every run is saved; stop here
+        raise Terminated()
 
 
 _stop: Any = None

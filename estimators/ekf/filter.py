@@ -80,7 +80,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             raise ValueError(f"num_lanes: got {num_lanes!r}; allowed: an integer >= 1")
         self.vehicle = vehicle
         self.estimate_imu_bias = settings.estimate_imu_bias
-        self.gate_threshold = settings.gate_threshold
+        self.gate_threshold = settings.gate
         self.nv = settings.nv
         self._qc = settings.continuous_noise()
         self._relinearise = settings.relinearise_tolerance

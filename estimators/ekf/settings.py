@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincinv
 
 from estimators.association_settings import AssociationFields
 from estimators.imu_bias_settings import ImuBiasFields
@@ -79,13 +77,6 @@ class EkfSlamSettings(ImuBiasFields, AssociationFields):
     def nv(self) -> int:
         """Vehicle-state size: 9, or 13 with bias states."""
         return POSE_DIM + (BIAS_DIM if self.estimate_imu_bias else 0)
-
-    @property
-    def gate_threshold(self) -> float:
-        """Per-landmark 3-DOF NIS threshold (χ² quantile; inf when gating is off)."""
-        if self.gate_probability >= 1.0:
-            return math.inf
-        return float(2.0 * gammaincinv(1.5, self.gate_probability))
 
     def continuous_noise(self) -> FloatArray:
         """(nv,) diagonal of the continuous process-noise density over (s, b)."""

@@ -133,11 +133,6 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
     )
 
     @property
-    def gate(self) -> float:
-        """The association gate ``χ²₃(gate_probability)`` on a pair's NIS (inf when p = 1)."""
-        return chi2_threshold(3, self.gate_probability)
-
-    @property
     def new_gate(self) -> float:
         """The new-landmark gate ``χ²₃(new_landmark_probability)`` (≥ :attr:`gate` unless the
         association gate is off)."""
