@@ -74,7 +74,8 @@ class Association(Protocol):
         Args:
             est: The estimator's belief now.
             estimator: The estimator that produced it (its labelling of ``scans``' returns).
-            scans: This step's scans (``None``: no lane scanned, or a reset).
+            scans: The scans the estimator took this step (measured now, or arrived late:
+                ``EstimatorCopies.applied``; ``None``: none, or a reset).
             changed: (B,) bool lanes whose map changed other than by ``scans``: reset, or
                 rebuilt from a filter copy (``EstimatorCopies.refreshed``,
                 :mod:`quadslam_env.period_log`).

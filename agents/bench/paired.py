@@ -1,8 +1,8 @@
 """``quadslam bench --only physics``: a relative target measured in alternation.
 
 The full-physics target (rotors, Dryden wind and randomised physics at ≥ 80% of the nominal
-EKF-SLAM vector env's env-steps/s) is a ratio of two speeds, and this VM's speed drifts by
-up to a factor of two within minutes (docs/performance.md). Measured one after the other, as
+EKF-SLAM vector env's env-steps/s) is a ratio of two speeds, and a shared machine's speed
+drifts within minutes (docs/performance.md). Measured one after the other, as
 the ``vector`` section does, the two sides see different machines. Here both vector envs live
 in one process and are timed in short alternating samples, the order swapped every round, so
 each round's ratio compares the two on the same machine state; the median over the rounds is

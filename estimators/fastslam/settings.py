@@ -102,7 +102,11 @@ class FastSlamSettings(GatedFields):
         lo=0.0,
         doc="per-DOF NIS of the best 10 % of particles above which lock is considered lost; 0: off",
     )
-    nis_divergence_s: float = spec(2.0, lo=0.0, doc="... for this long, s: diverged = 1 (sticky)")
+    nis_divergence_s: float = spec(
+        2.0,
+        lo=0.0,
+        doc="time the NIS must stay above nis_divergence before diverged = 1 (sticky), s",
+    )
     new_landmark_likelihood: float = spec(
         1e-3,
         lo=0.0,
