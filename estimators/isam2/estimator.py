@@ -43,6 +43,7 @@ import numpy as np
 
 from estimators.isam2.associate import Labeled, PosePrediction, ScanAssociation
 from estimators.isam2.factors import known_map_error, landmark_error, scan_error
+from estimators.isam2.fixed_lag import FixedLagIsam2
 from estimators.isam2.graph import (
     first_keyframe,
     held_bias_prior,
@@ -191,12 +192,9 @@ class Isam2Slam(Isam2Output, ImuHistory):
         s = self.settings
         params = g.ISAM2Params()
         params.setRelinearizeThreshold(s.relinearize_threshold)
-        params.relinearizeSkip = s.relinearize_skip
         params.setFactorization(s.factorization.upper())  # "QR" or "CHOLESKY"
-        if s.window_s is None:
-            self._smoother = self._isam = g.ISAM2(params)
-        else:
-            self._smoother = g.IncrementalFixedLagSmoother(s.window_s, params)
+        self._smoother = FixedLagIsam2(g, s.window_s, params, s.relinearize_skip)
+        self._isam = self._smoother.isam
         keys = [self._key(c, 0) for c in "xvb"]
         first = first_keyframe(g, s, mean0, cov0, keys)
         self._kf_pose, self._kf_vel, self._kf_bias = first.pose, first.vel, first.bias
@@ -289,15 +287,9 @@ class Isam2Slam(Isam2Output, ImuHistory):
         """One smoother update with the new factors, then ``iterations − 1`` more."""
         if self._lm_covs is None:  # never asked for at this keyframe: after the update they
             self._lm_covs = {}  # cannot be recovered (reported as zero if the update fails)
-        if self.settings.window_s is None:
-            self._smoother.update(graph, values)
-            for _ in range(self.settings.iterations - 1):
-                self._smoother.update()
-        else:
-            self._smoother.update(graph, values, stamps)
-            for _ in range(self.settings.iterations - 1):
-                self._smoother.update()
-            self._isam = self._smoother.getISAM2()
+        self._smoother.update(graph, values, stamps)
+        for _ in range(self.settings.iterations - 1):
+            self._smoother.update()
 
     def _associate(self, meas: FloatArray, sigma: FloatArray, pim: Any) -> Labeled:
         """Label an unlabeled scan on the smoother's belief at the scan, the latest keyframe

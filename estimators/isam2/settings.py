@@ -103,7 +103,11 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
         doc="relinearise a variable when its tangent-space update exceeds this (rad, m, m/s)",
     )
     relinearize_skip: int = spec(
-        1, kind="int", lo=1, hi=100, doc="check for relinearisation every this many updates"
+        10,
+        kind="int",
+        lo=1,
+        hi=100,
+        doc="relinearise (and marginalise) every this many keyframes",
     )
     factorization: str = spec(
         "qr",

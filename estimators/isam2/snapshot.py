@@ -60,12 +60,7 @@ def snapshot(
     euler = euler_from_dcm(dcm)
     vel_body = dcm.T @ vel_n
     pose_cov = state_covariance(cov_t, dcm, vel_body, euler)
-    if not (
-        np.isfinite(position).all()
-        and np.isfinite(vel_n).all()
-        and np.isfinite(euler).all()
-        and np.isfinite(pose_cov).all()
-    ):
+    if not np.isfinite(np.concatenate((position, vel_n, euler, pose_cov.ravel()))).all():
         raise FloatingPointError("isam2: non-finite prediction")
     ids, means, covs = landmarks
     accel_bias = gyro_bias = None

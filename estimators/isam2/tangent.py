@@ -20,8 +20,33 @@ from __future__ import annotations
 
 import numpy as np
 
-from quadslam_env.models.frames import euler_rate_matrix, skew
-from quadslam_env.types import EUL, POS, POSE_DIM, VEL, FloatArray
+from quadslam_env.models.frames import euler_rate_matrix_kernel, skew_from_components
+from quadslam_env.models.jit import kernel
+from quadslam_env.types import POSE_DIM, FloatArray
+
+
+@kernel
+def _state_jacobian(dcm: FloatArray, vel_body: FloatArray, phi: float, theta: float) -> FloatArray:
+    """The (9, 9) ``J`` of :func:`state_jacobian` (kernel: the per-step snapshot calls it)."""
+    J = np.zeros((POSE_DIM, POSE_DIM))
+    vx = skew_from_components(vel_body[0], vel_body[1], vel_body[2])
+    D = euler_rate_matrix_kernel(phi, theta)
+    for i in range(3):
+        for j in range(3):
+            J[i, 3 + j] = dcm[i, j]  # ∂ρ/∂δt = C_NB
+            J[3 + i, j] = vx[i, j]  # ∂v_B/∂δθ = [v_B]×
+            J[3 + i, 6 + j] = dcm[j, i]  # ∂v_B/∂δv_N = C_NBᵀ
+            J[6 + i, j] = D[i, j]  # ∂Λ/∂δθ = D(Λ)
+    return J
+
+
+@kernel
+def _state_covariance(
+    cov_tangent: FloatArray, dcm: FloatArray, vel_body: FloatArray, phi: float, theta: float
+) -> FloatArray:
+    J = _state_jacobian(dcm, vel_body, phi, theta)
+    P = J @ cov_tangent @ J.T
+    return 0.5 * (P + P.T)
 
 
 def state_jacobian(dcm: FloatArray, vel_body: FloatArray, euler: FloatArray) -> FloatArray:
@@ -35,12 +60,12 @@ def state_jacobian(dcm: FloatArray, vel_body: FloatArray, euler: FloatArray) -> 
     Returns:
         (9, 9) Jacobian; rows (ρ m, v_B m/s, Λ rad), columns (δθ rad, δt m, δv_N m/s).
     """
-    J = np.zeros((POSE_DIM, POSE_DIM))
-    J[POS, 3:6] = dcm  # rows: the pose's entries; columns: (δθ, δt, δv_N)
-    J[VEL, 0:3] = skew(vel_body)
-    J[VEL, 6:9] = dcm.T
-    J[EUL, 0:3] = euler_rate_matrix(euler)
-    return J
+    return _state_jacobian(
+        np.ascontiguousarray(dcm, dtype=float),
+        np.ascontiguousarray(vel_body, dtype=float),
+        float(euler[0]),
+        float(euler[1]),
+    )
 
 
 def state_covariance(
@@ -57,9 +82,13 @@ def state_covariance(
     Returns:
         (9, 9) covariance over (ρ m, v_B m/s, Λ rad), exactly symmetric.
     """
-    J = state_jacobian(dcm, vel_body, euler)
-    P = J @ cov_tangent @ J.T
-    return 0.5 * (P + P.T)
+    return _state_covariance(
+        np.ascontiguousarray(cov_tangent, dtype=float),
+        np.ascontiguousarray(dcm, dtype=float),
+        np.ascontiguousarray(vel_body, dtype=float),
+        float(euler[0]),
+        float(euler[1]),
+    )
 
 
 def tangent_covariance(

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
 NAV_DIM = 15
@@ -31,6 +32,20 @@ NAV_DIM = 15
 # Column blocks of the linearised CombinedImuFactor, keys (X_i, V_i, X_j, V_j, B_i, B_j).
 _COLS_I = np.r_[0:9, 18:24]
 _COLS_J = np.r_[9:18, 24:30]
+
+
+@kernel
+def _transition(
+    A: FloatArray, cols_i: np.ndarray, cols_j: np.ndarray
+) -> tuple[FloatArray, FloatArray]:
+    """``(F, Q)`` of the module docstring from the whitened Jacobian ``A`` (15, 30)."""
+    Ai = np.empty((NAV_DIM, NAV_DIM))
+    Aj = np.empty((NAV_DIM, NAV_DIM))
+    for c in range(NAV_DIM):
+        Ai[:, c] = A[:, cols_i[c]]
+        Aj[:, c] = A[:, cols_j[c]]
+    Aj_inv = np.linalg.inv(Aj)
+    return -Aj_inv @ Ai, Aj_inv @ Aj_inv.T
 
 
 class ImuTransition:
@@ -78,6 +93,6 @@ class ImuTransition:
         self._values.update(2, pose_j)
         self._values.update(3, vel_j)
         factor = g.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)
-        A = np.asarray(factor.linearize(self._values).jacobian()[0])
-        Aj_inv = np.linalg.inv(A[:, _COLS_J])
-        return pose_j, vel_j, -Aj_inv @ A[:, _COLS_I], Aj_inv @ Aj_inv.T
+        A = np.ascontiguousarray(factor.linearize(self._values).jacobian()[0], dtype=float)
+        F, Q = _transition(A, _COLS_I, _COLS_J)
+        return pose_j, vel_j, F, Q

@@ -158,7 +158,7 @@ def _dcm_lanes(euler: FloatArray) -> FloatArray:
 
 
 @kernel
-def _euler_rate_matrix(phi: float, theta: float) -> FloatArray:
+def euler_rate_matrix_kernel(phi: float, theta: float) -> FloatArray:
     """D(Λ) as a (3, 3) matrix: column j is ``D(Λ) e_j`` from :func:`euler_rates_from_trig`."""
     cf, sf, ct, st = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
     out = np.empty((3, 3))
@@ -241,13 +241,23 @@ def euler_rate_matrix(euler: ArrayLike) -> FloatArray:
         (3, 3) matrix mapping body rates (p, q, r) in rad/s to Euler-angle rates.
     """
     angles = np.asarray(euler, dtype=float)
-    return _euler_rate_matrix(float(angles[0]), float(angles[1]))
+    return euler_rate_matrix_kernel(float(angles[0]), float(angles[1]))
+
+
+@kernel
+def skew_from_components(x: float, y: float, z: float) -> FloatArray:
+    """Cross-product matrix (3, 3) of the vector ``(x, y, z)``: ``[a]× b == a × b``."""
+    out = np.zeros((3, 3))
+    out[0, 1], out[0, 2] = -z, y
+    out[1, 0], out[1, 2] = z, -x
+    out[2, 0], out[2, 1] = -y, x
+    return out
 
 
 def skew(vec: ArrayLike) -> FloatArray:
     """Cross-product matrix (3, 3): ``skew(a) @ b == a × b`` for (3,) vectors."""
     x, y, z = (float(a) for a in np.asarray(vec, dtype=float))
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return skew_from_components(x, y, z)
 
 
 def rotation_angle_between(dcm_a: ArrayLike, dcm_b: ArrayLike) -> float:
