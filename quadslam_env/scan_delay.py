@@ -84,6 +84,26 @@ def copies_for(
     return ImuReplay.for_vehicle(estimator, scenario.steps_per_imu, dt, params, rate)
 
 
+def _arriving(
+    log: PeriodLog, steps: np.ndarray, active: np.ndarray, delay: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where this step's arriving scans are: each lane's scan measured ``delay`` steps ago.
+
+    Args:
+        log: The lanes' period log.
+        steps: (B,) control steps since each lane's reset (after this one).
+        active: (B,) bool lanes that stepped.
+        delay: d, in control steps.
+
+    Returns:
+        ``(measured (B,) int, due (B,) bool, slots (B,) int)``: the step each lane's arriving
+        scan was measured at, the active lanes for which that step exists (≥ 1), and its log
+        slots (of step 1 where it does not exist).
+    """
+    measured = steps - delay
+    return measured, active & (measured >= 1), log.slots(np.maximum(measured, 1))
+
+
 class ScanDelay(EstimatorCopies):
     """The lagging filter, its log of the periods since, and the output it re-propagates
     (module docstring).
@@ -163,16 +183,15 @@ class ScanDelay(EstimatorCopies):
         """
         log = self.log
         log.record(steps, active, samples, scan)
-        measured = steps - self.delay  # the step whose scan would arrive now
-        due = active & (measured >= 1)
+        measured, due, slots = _arriving(log, steps, active, self.delay)
         if due.any():
-            due &= log.has_scan(log.slots(np.maximum(measured, 1)))
+            due &= log.has_scan(slots)
         self.refreshed = due
         if not due.any():
             self.applied = None
             predict_samples(output, samples, sigma, self.h, active)
             return output
-        self.applied = log.scan(log.slots(measured), due)  # the scans that arrive now
+        self.applied = log.scan(slots, due)  # the scans that arrive now
         self._advance(self.filter, due, measured, sigma, lidar_sigma)
         self.filter_step[due] = measured[due]
         output = self.output = copy.deepcopy(self.filter)
@@ -275,11 +294,8 @@ class LateScans:
         log = self.log
         log.record(steps, active, samples, scan)
         predict_samples(output, samples, sigma, self.h, active)
-        measured = steps - self.delay  # the step whose scan arrives now
-        due = active & (measured >= 1)
-        self.applied = None
-        if due.any():
-            self.applied = log.scan(log.slots(np.maximum(measured, 1)), due)
+        measured, due, slots = _arriving(log, steps, active, self.delay)
+        self.applied = log.scan(slots, due) if due.any() else None
         if self.applied is not None:
             self.applied.apply(output, measured * self.dt, lidar_sigma)
         return output
