@@ -109,6 +109,24 @@ def test_reused_transition_equals_fresh_and_differences() -> None:
     assert np.linalg.eigvalsh(Q).min() > 0.0
 
 
+def test_rebased_transition_equals_one_built_at_the_new_keyframe() -> None:
+    """A transition moved to another keyframe (:meth:`ImuTransition.rebase`, as the estimator
+    does at every keyframe) keeps its ``B_j`` from the first one: the prediction and the
+    Jacobians are those of a transition built there."""
+    first = gtsam.imuBias.ConstantBias(np.array([0.2, -0.1, 0.05]), np.array([0.01, 0, 0.02]))
+    moved = ImuTransition(gtsam, gtsam.Pose3(), np.zeros(3), first)
+    pose = gtsam.Pose3(gtsam.Rot3.Ypr(-0.4, 0.2, 0.1), np.array([-2.0, 0.5, -1.0]))
+    vel = np.array([0.3, 1.2, -0.4])
+    bias = gtsam.imuBias.ConstantBias(np.array([-0.03, 0.01, 0.0]), np.array([0, 2e-3, 1e-3]))
+    moved.rebase(pose, vel, bias)
+    pim = _pim(10, bias)
+    got, want = moved(pim), ImuTransition(gtsam, pose, vel, bias)(pim)
+    assert got[0].equals(want[0], 1e-15)
+    np.testing.assert_array_equal(got[1], want[1])
+    for a, b in zip(got[2:], want[2:], strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
+
+
 def _landmark_marginals(lane: Any) -> dict[int, np.ndarray]:
     """GTSAM's own per-landmark marginals of the lane's smoother now."""
     isam = lane._smoother.getISAM2()

@@ -23,8 +23,10 @@ Registered as ``estimator.name: isam2`` (:func:`quadslam_env.estimation.register
   :mod:`estimators.isam2.tangent`) and on ``B_0``.
 
 The graph is solved incrementally by iSAM2 (Kaess et al. 2012), within a fixed lag
-(``window_s``, GTSAM's ``IncrementalFixedLagSmoother``: older vehicle states are marginalised)
-or over the whole episode (``window_s: null``). Between keyframes the estimate is the last
+(``window_s``: older vehicle states are marginalised) or over the whole episode (``window_s:
+null``), in the order of a sliding-window filter (:mod:`estimators.isam2.fixed_lag`: oldest
+states first, the newest keyframe and the landmarks last), relinearised and marginalised every
+``relinearize_skip`` keyframes. Between keyframes the estimate is the last
 keyframe's smoothed state predicted with the current preintegration, and its covariance the
 keyframe's joint marginal (pose, velocity, biases) propagated through the linearised IMU
 factor, which adds the preintegration noise; both are mapped to (ρ, v_B, Λ).
@@ -56,6 +58,7 @@ from estimators.isam2.output import Isam2Output
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.transition import NAV_DIM, ImuTransition
 from quadslam_env.estimation import BatchEstimate, register
+from quadslam_env.estimation.snapshot import LaneMap
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.lidar import lidar_inverse
 from quadslam_env.types import RATE, FloatArray
@@ -115,7 +118,8 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self._kf_vel = np.zeros(3)
         self._kf_bias: Any = None
         self._kf_cov = np.zeros((NAV_DIM, NAV_DIM))
-        self._transition: ImuTransition | None = None
+        self._transition: ImuTransition | None = None  # built at the first prediction
+        self._transition_current = False  # linearised at the current keyframe
         self._pim: Any = None
         self._pim_noise: tuple[float, float] | None = None
         self._params: Any = None
@@ -124,7 +128,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
         # Each landmark's marginal at the current keyframe; None: not recovered yet (lazily,
         # on the first snapshot that needs them, :meth:`_landmark_covs`).
         self._lm_covs: dict[int, FloatArray] | None = {}
-        self._lm_arrays: tuple[np.ndarray, FloatArray, FloatArray | None] | None = None
+        self._lm_map: LaneMap | None = None  # the snapshots' landmarks, per keyframe
         self._unlabeled: bool | None = None
         self._rates = np.zeros(3)
         self._gyro: FloatArray | None = None
@@ -399,7 +403,8 @@ class Isam2Slam(Isam2Output, ImuHistory):
         vel = np.asarray(est.atVector(vk), dtype=float).reshape(3)
         bias = est.atConstantBias(bk)
         mapped = sorted({*self._lm_means, *(new or [])})
-        means = {i: np.asarray(est.atPoint3(self._key("l", i)), float) for i in mapped}
+        points = np.array([est.atPoint3(self._key("l", i)) for i in mapped], dtype=float)
+        points = points.reshape(-1, 3)
         # The association's screen needs the landmarks' marginals at the next scan: one query
         # with the keyframe's. Otherwise they are recovered when a snapshot asks for them.
         eager = bool(self._unlabeled)
@@ -408,22 +413,17 @@ class Isam2Slam(Isam2Output, ImuHistory):
             self._isam, [xk, vk, bk], [self._key("l", i) for i in lm_ids]
         )
         covs = dict(zip(lm_ids, blocks, strict=True))
-        finite = (
-            np.isfinite(pose.matrix()).all()
-            and np.isfinite(vel).all()
-            and np.isfinite(bias.vector()).all()
-            and np.isfinite(cov).all()
-            and all(np.isfinite(m).all() for m in means.values())
-        )
+        parts = (pose.matrix().ravel(), vel, bias.vector(), cov.ravel(), points.ravel())
+        finite = np.isfinite(np.concatenate(parts)).all()
         if not finite:
             raise FloatingPointError(f"isam2: non-finite smoothed state at keyframe {k}")
         self._k = k
         self._kf_pose, self._kf_vel, self._kf_bias = pose, vel, bias
-        self._transition = None  # rebuilt for the new keyframe on first use
+        self._transition_current = False  # moved to the new keyframe on first use
         self._kf_cov = 0.5 * (cov + cov.T)
-        self._lm_means = means
+        self._lm_means = dict(zip(mapped, points, strict=True))  # rows: read, never written
         self._lm_covs = covs if eager or not self.settings.landmark_covariances else None
-        self._lm_arrays = None
+        self._lm_map = None
         self._pim = None  # the next sample starts a new preintegration at the new bias
         if self._gyro is not None:
             self._rates = self._gyro - np.asarray(bias.gyroscope())

@@ -17,9 +17,10 @@ import numpy as np
 
 from estimators.isam2.graph import keyframe_marginals
 from estimators.isam2.settings import Isam2Settings
-from estimators.isam2.snapshot import flagged, landmark_arrays, neutral, snapshot
+from estimators.isam2.snapshot import flagged, landmark_map, neutral, snapshot
 from estimators.isam2.transition import ImuTransition
 from quadslam_env.estimation import BatchEstimate
+from quadslam_env.estimation.snapshot import LaneMap
 from quadslam_env.types import POSE_DIM, FloatArray
 
 
@@ -39,12 +40,13 @@ class Isam2Output:
     _kf_bias: Any
     _kf_cov: FloatArray
     _transition: ImuTransition | None
+    _transition_current: bool
     _pim: Any
     _rates: FloatArray
     _known: dict[int, FloatArray] | None
     _lm_means: dict[int, FloatArray]
     _lm_covs: dict[int, FloatArray] | None
-    _lm_arrays: tuple[np.ndarray, FloatArray, FloatArray | None] | None
+    _lm_map: LaneMap | None
     _diverged: bool
     _cache: BatchEstimate | None
     _state_cache: BatchEstimate | None
@@ -101,9 +103,12 @@ class Isam2Output:
         self.last_error = f"{type(exc).__name__}: {exc}"
 
     def _link(self) -> ImuTransition:
-        """The IMU factor's linearisation at the current keyframe (built once per keyframe)."""
+        """The IMU factor's linearisation at the current keyframe (moved there on first use)."""
         if self._transition is None:
             self._transition = ImuTransition(self._g, self._kf_pose, self._kf_vel, self._kf_bias)
+        elif not self._transition_current:
+            self._transition.rebase(self._kf_pose, self._kf_vel, self._kf_bias)
+        self._transition_current = True
         return self._transition
 
     def _predicted(self) -> tuple[Any, FloatArray, FloatArray]:
@@ -128,13 +133,15 @@ class Isam2Output:
 
     def _build_estimate(self, with_covs: bool) -> BatchEstimate:
         pose, vel_n, cov_t = self._predicted()
-        cached = self._lm_arrays  # the map changes at keyframes only (known map: no covs)
-        if cached is None or (with_covs and cached[2] is None):
+        lane_map = self._lm_map  # the map changes at keyframes only (known map: no covs)
+        if lane_map is None or (with_covs and lane_map.covs is None):
             covs = self._landmark_covs() if with_covs else None
-            cached = self._lm_arrays = landmark_arrays(self._known or self._lm_means, covs)
-        lms = (cached[0].copy(), cached[1].copy(), None if cached[2] is None else cached[2].copy())
+            lane_map = self._lm_map = landmark_map(self._known or self._lm_means, covs)
         bias = self._kf_bias if self.settings.estimate_imu_bias else None
-        return snapshot(pose, vel_n, cov_t, self._rates, lms, bias, self._diagnostics(lms[0].size))
+        n_mapped = int(np.count_nonzero(lane_map.mapped))
+        return snapshot(
+            pose, vel_n, cov_t, self._rates, lane_map, bias, self._diagnostics(n_mapped)
+        )
 
     def _diagnostics(self, n_mapped: int) -> dict[str, float]:
         return {

@@ -57,7 +57,9 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
     EKF's (see the module docstring).
 
     ``window_s`` bounds the cost per scan: vehicle states (pose, velocity, biases) older than
-    it are marginalised (GTSAM's ``IncrementalFixedLagSmoother``) while landmarks stay in the
+    it are marginalised (:class:`~estimators.isam2.fixed_lag.FixedLagIsam2`, every
+    ``relinearize_skip`` keyframes, with the relinearisation: the window holds ``window_s`` to
+    ``window_s`` plus ``relinearize_skip − 1`` scan periods) while landmarks stay in the
     window for the whole episode (their timestamps are refreshed at every keyframe, so a
     landmark that comes back into view still has its variable); ``null`` is full iSAM2 (Kaess
     et al. 2012), whose cost grows with the episode. ``process_noise`` is added to the

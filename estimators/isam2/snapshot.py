@@ -15,21 +15,26 @@ import numpy as np
 
 from estimators.isam2.tangent import state_covariance
 from quadslam_env.estimation import BatchEstimate
+from quadslam_env.estimation.snapshot import LaneMap
 from quadslam_env.models.frames import euler_from_dcm
 from quadslam_env.types import POSE_DIM, FloatArray
 
 
-def landmark_arrays(
-    means: dict[int, FloatArray], covs: dict[int, FloatArray] | None
-) -> tuple[np.ndarray, FloatArray, FloatArray | None]:
-    """``(ids (n,), means (n, 3) m, covs (n, 3, 3) m²)`` sorted by id (a missing
-    covariance is reported as zero; ``covs`` None: left out, ``None``)."""
+def landmark_map(means: dict[int, FloatArray], covs: dict[int, FloatArray] | None) -> LaneMap:
+    """The landmarks by id in a snapshot's layout, read-only (shared by the snapshots until the
+    next keyframe; a missing covariance is reported as zero, ``covs`` None leaves them out).
+
+    Args:
+        means: id → (3,) position in N, m.
+        covs: id → (3, 3) covariance in m², or ``None``.
+    """
     ids = np.array(sorted(means), dtype=np.int64)
     out_means = np.array([means[i] for i in ids.tolist()]).reshape(-1, 3)
-    if covs is None:
-        return ids, out_means, None
-    out_covs = np.array([covs.get(i, np.zeros((3, 3))) for i in ids.tolist()]).reshape(-1, 3, 3)
-    return ids, out_means, out_covs
+    out_covs = None
+    if covs is not None:
+        out_covs = np.array([covs.get(i, np.zeros((3, 3))) for i in ids.tolist()])
+        out_covs = out_covs.reshape(-1, 3, 3)
+    return LaneMap.of(ids, out_means, out_covs, shared=True)
 
 
 def snapshot(
@@ -37,7 +42,7 @@ def snapshot(
     vel_n: FloatArray,
     cov_t: FloatArray,
     rates: FloatArray,
-    landmarks: tuple[np.ndarray, FloatArray, FloatArray | None],
+    landmarks: LaneMap,
     bias: Any,
     diagnostics: dict[str, float],
 ) -> BatchEstimate:
@@ -48,7 +53,7 @@ def snapshot(
         vel_n: (3,) velocity in N, m/s.
         cov_t: (9, 9) covariance over (δθ rad, δt m, δv_N m/s).
         rates: (3,) body rates, rad/s.
-        landmarks: :func:`landmark_arrays` (covariances ``None``: left out).
+        landmarks: :func:`landmark_map`.
         bias: ``imuBias.ConstantBias`` to report, or ``None`` (biases not estimated).
         diagnostics: The estimator's diagnostics.
 
@@ -62,21 +67,18 @@ def snapshot(
     pose_cov = state_covariance(cov_t, dcm, vel_body, euler)
     if not np.isfinite(np.concatenate((position, vel_n, euler, pose_cov.ravel()))).all():
         raise FloatingPointError("isam2: non-finite prediction")
-    ids, means, covs = landmarks
     accel_bias = gyro_bias = None
     if bias is not None:
         accel_bias = np.asarray(bias.accelerometer(), dtype=float).copy()
         gyro_bias = np.asarray(bias.gyroscope(), dtype=float).copy()
-    return BatchEstimate.one_lane(
+    return BatchEstimate.on_map(
+        landmarks,
         position=position.copy(),
         vel_body=vel_body,
         vel_inertial=np.array(vel_n, dtype=float),
         euler=euler,
         rates=np.array(rates, dtype=float),
         pose_cov=pose_cov,
-        landmark_ids=ids,
-        landmark_means=means,
-        landmark_covs=covs,
         accel_bias=accel_bias,
         gyro_bias=gyro_bias,
         diagnostics=diagnostics,

@@ -49,13 +49,16 @@ def _transition(
 
 
 class ImuTransition:
-    """The keyframe's side of the IMU factor, built once per keyframe and reused for every
-    prediction from it (every control step between two scans, and the association's).
+    """The keyframe's side of the IMU factor, reused for every prediction from a keyframe
+    (every control step between two scans, and the association's) and moved to the next
+    keyframe with :meth:`rebase`.
 
-    The factor's linearisation point ``(X_i, V_i, X_j, V_j, B_i, B_j)`` is a ``gtsam.Values``
-    whose keyframe entries stay fixed; each call only updates the prediction's pose and
-    velocity in place (inserting a value into a fresh ``Values`` costs far more in the Python
-    bindings than updating it).
+    The factor's linearisation point ``(X_i, V_i, X_j, V_j, B_i, B_j)`` is one ``gtsam.Values``
+    for the transition's life: a call updates the prediction's pose and velocity in place,
+    :meth:`rebase` the keyframe's entries (a value inserted into a fresh ``Values`` costs far
+    more in the Python bindings than one updated, a bias most). ``B_j`` keeps the first
+    keyframe's bias: the factor's Jacobians do not depend on it (its bias part is the linear
+    walk ``B_j − B_i``, and the preintegration involves ``B_i`` only), and only they are used.
 
     Args:
         gtsam: The ``gtsam`` module.
@@ -73,6 +76,15 @@ class ImuTransition:
         for key, value in enumerate((pose, vel, pose, vel, bias, bias)):
             values.insert(key, value)
         self._values = values
+
+    def rebase(self, pose: Any, vel: FloatArray, bias: Any) -> None:
+        """Move the transition to another keyframe (arguments as for the constructor)."""
+        vel = np.asarray(vel, dtype=float)
+        self._nav = self._g.NavState(pose, vel)
+        self._bias = bias
+        self._values.update(0, pose)
+        self._values.update(1, vel)
+        self._values.update(4, bias)
 
     def __call__(self, pim: Any) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
         """The keyframe state predicted with ``pim`` and the linear map of its error (module

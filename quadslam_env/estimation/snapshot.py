@@ -16,6 +16,59 @@ import numpy as np
 from quadslam_env.types import POSE_DIM, FloatArray
 
 
+@dataclass(frozen=True)
+class LaneMap:
+    """One lane's landmarks in a snapshot's layout: arrays by id with a leading lane axis.
+
+    Attributes:
+        means: (1, W, 3) positions by id in N, m (rows of unmapped ids zero), W = max id + 1.
+        mapped: (1, W) bool, which ids are mapped.
+        covs: (1, W, 3, 3) covariances by id in m², or ``None`` (left out).
+    """
+
+    means: FloatArray
+    mapped: np.ndarray
+    covs: FloatArray | None
+
+    @classmethod
+    def of(
+        cls,
+        ids: np.ndarray,
+        means: FloatArray,
+        covs: FloatArray | None,
+        shared: bool = False,
+    ) -> LaneMap:
+        """The layout of the landmarks ``ids`` (n,) with ``means`` (n, 3) and ``covs`` (n, 3, 3)
+        (or ``None``); with ``shared`` the arrays are copies made read-only, so one map can
+        serve the snapshots of several steps."""
+        ids_list = np.asarray(ids).tolist()
+        n = len(ids_list)
+        if ids_list == list(range(n)):  # ids 0 … n-1 in order (the usual case): no scatter
+            out_means = np.asarray(means, dtype=float).reshape(1, n, 3)
+            out_covs = None if covs is None else np.asarray(covs, dtype=float).reshape(1, n, 3, 3)
+            mapped = np.empty((1, n), dtype=bool)
+            mapped.fill(True)  # half the cost of np.ones on a few ids
+        else:
+            # max of a list: a tenth of ndarray.max()'s cost on the few ids a snapshot holds
+            width = max(ids_list) + 1
+            out_means = np.zeros((1, width, 3))
+            out_covs = None
+            mapped = np.zeros((1, width), dtype=bool)
+            out_means[0, ids_list] = means
+            if covs is not None:
+                out_covs = np.zeros((1, width, 3, 3))
+                out_covs[0, ids_list] = covs
+            mapped[0, ids_list] = True
+        if shared:
+            arrays = [out_means, mapped] + ([] if out_covs is None else [out_covs])
+            out_means, mapped, *rest = [np.array(a) for a in arrays]
+            out_covs = rest[0] if rest else None
+            for a in (out_means, mapped, out_covs):
+                if a is not None:
+                    a.setflags(write=False)
+        return cls(out_means, mapped, out_covs)
+
+
 @dataclass
 class BatchEstimate:
     """The belief of B lanes (B = 1 from an estimator of one vehicle).
@@ -99,28 +152,41 @@ class BatchEstimate:
             A :class:`BatchEstimate` of width ``Lmax = max(landmark_ids) + 1`` (0 without
             landmarks).
         """
-        ids_list = np.asarray(landmark_ids).tolist()
-        n = len(ids_list)
-        if ids_list == list(range(n)):  # ids 0 … n-1 in order (the usual case): no scatter
-            means = np.asarray(landmark_means, dtype=float).reshape(1, n, 3)
-            covs = (
-                None
-                if landmark_covs is None
-                else np.asarray(landmark_covs, dtype=float).reshape(1, n, 3, 3)
-            )
-            mapped = np.empty((1, n), dtype=bool)
-            mapped.fill(True)  # half the cost of np.ones on a few ids
-        else:
-            # max of a list: a tenth of ndarray.max()'s cost on the few ids a snapshot holds
-            width = max(ids_list) + 1
-            means = np.zeros((1, width, 3))
-            covs = None
-            mapped = np.zeros((1, width), dtype=bool)
-            means[0, ids_list] = landmark_means
-            if landmark_covs is not None:
-                covs = np.zeros((1, width, 3, 3))
-                covs[0, ids_list] = landmark_covs
-            mapped[0, ids_list] = True
+        return cls.on_map(
+            LaneMap.of(landmark_ids, landmark_means, landmark_covs),
+            position,
+            vel_body,
+            vel_inertial,
+            euler,
+            rates,
+            pose_cov,
+            accel_bias,
+            gyro_bias,
+            diagnostics,
+        )
+
+    @classmethod
+    def on_map(
+        cls,
+        lane_map: LaneMap,
+        position: FloatArray,
+        vel_body: FloatArray,
+        vel_inertial: FloatArray,
+        euler: FloatArray,
+        rates: FloatArray,
+        pose_cov: FloatArray | None,
+        accel_bias: FloatArray | None = None,
+        gyro_bias: FloatArray | None = None,
+        diagnostics: Mapping[str, float] | None = None,
+    ) -> BatchEstimate:
+        """:meth:`one_lane` with the map already in the snapshot's layout (an estimator whose
+        map changes less often than its state keeps one :class:`LaneMap` between steps).
+
+        Args:
+            lane_map: The lane's landmarks (its arrays become the snapshot's, not copied).
+            position, vel_body, vel_inertial, euler, rates, pose_cov, accel_bias, gyro_bias,
+            diagnostics: As for :meth:`one_lane`.
+        """
         diag = diagnostics or {}
         values = np.array(list(diag.values()), dtype=float).reshape(-1, 1)  # one array
 
@@ -131,9 +197,9 @@ class BatchEstimate:
             euler=_lane_axis(euler),
             rates=_lane_axis(rates),
             pose_cov=None if pose_cov is None else _lane_axis(pose_cov),
-            landmark_means=means,
-            landmark_mapped=mapped,
-            landmark_covs=covs,
+            landmark_means=lane_map.means,
+            landmark_mapped=lane_map.mapped,
+            landmark_covs=lane_map.covs,
             accel_bias=None if accel_bias is None else _lane_axis(accel_bias),
             gyro_bias=None if gyro_bias is None else _lane_axis(gyro_bias),
             diagnostics=dict(zip(diag, values, strict=True)),
