@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from quadslam_env.estimation import BatchEstimate
-from quadslam_env.estimation.snapshot import empty_batch, id_width, stack_lanes
+from quadslam_env.estimation.snapshot import LaneMap, empty_batch, id_width, stack_lanes
 
 
 def _lane(seed: int, ids: list[int], diagnostics: dict[str, float], cov: bool = True):
@@ -87,3 +87,35 @@ def test_stack_lanes_drops_the_covariance_when_the_first_lane_has_none() -> None
     stack_lanes(out, snaps)
     assert out.pose_cov is None
     np.testing.assert_array_equal(out.landmark_mapped, [[1, 0], [0, 1]])
+
+
+@pytest.mark.parametrize("ids", [[0, 1, 2], [1, 4], []], ids=["in-order", "scattered", "none"])
+def test_shared_lane_map_is_a_read_only_copy_in_the_layout_by_id(ids: list[int]) -> None:
+    """A shared map (one per keyframe, several steps' snapshots) holds copies, row ``i`` of
+    landmark id ``i``, and refuses writes; a snapshot on it equals :meth:`one_lane`'s."""
+    rng = np.random.default_rng(5)
+    means, covs = rng.normal(size=(len(ids), 3)), rng.normal(size=(len(ids), 3, 3))
+    lane_map = LaneMap.of(np.array(ids, dtype=np.int64), means, covs, shared=True)
+    width = max(ids, default=-1) + 1
+    assert lane_map.means.shape == (1, width, 3) and lane_map.covs is not None
+    assert np.flatnonzero(lane_map.mapped[0]).tolist() == ids
+    for row, i in enumerate(ids):
+        np.testing.assert_array_equal(lane_map.means[0, i], means[row])
+        np.testing.assert_array_equal(lane_map.covs[0, i], covs[row])
+    for a in (lane_map.means, lane_map.mapped, lane_map.covs):
+        assert not a.flags.writeable
+    means[:] = 7.0  # the caller's arrays are not the map's
+    assert not np.any(lane_map.means == 7.0)
+    state = {"position": np.ones(3), "vel_body": np.zeros(3), "vel_inertial": np.zeros(3),
+             "euler": np.zeros(3), "rates": np.zeros(3), "pose_cov": np.eye(9)}  # fmt: skip
+    on_map = BatchEstimate.on_map(lane_map, **state, diagnostics={"diverged": 0.0})
+    one = BatchEstimate.one_lane(
+        **state,
+        landmark_ids=np.array(ids, dtype=np.int64),
+        landmark_means=lane_map.means[0, ids],
+        landmark_covs=lane_map.covs[0, ids],
+        diagnostics={"diverged": 0.0},
+    )
+    for name in ("position", "pose_cov", "landmark_means", "landmark_mapped", "landmark_covs"):
+        np.testing.assert_array_equal(getattr(on_map, name), getattr(one, name))
+    assert on_map.diagnostics == one.diagnostics

@@ -44,6 +44,7 @@ def _state_jacobian(dcm: FloatArray, vel_body: FloatArray, phi: float, theta: fl
 def _state_covariance(
     cov_tangent: FloatArray, dcm: FloatArray, vel_body: FloatArray, phi: float, theta: float
 ) -> FloatArray:
+    """``J Σ Jᵀ`` of :func:`state_covariance`, symmetrised (kernel: called every step)."""
     J = _state_jacobian(dcm, vel_body, phi, theta)
     P = J @ cov_tangent @ J.T
     return 0.5 * (P + P.T)

@@ -38,9 +38,15 @@ class LaneMap:
         covs: FloatArray | None,
         shared: bool = False,
     ) -> LaneMap:
-        """The layout of the landmarks ``ids`` (n,) with ``means`` (n, 3) and ``covs`` (n, 3, 3)
-        (or ``None``); with ``shared`` the arrays are copies made read-only, so one map can
-        serve the snapshots of several steps."""
+        """The landmarks in the snapshot's layout.
+
+        Args:
+            ids: (n,) distinct non-negative int ids.
+            means: (n, 3) their positions in N, m.
+            covs: (n, 3, 3) their covariances in m², or ``None`` to leave them out.
+            shared: Make the arrays copies and read-only, so that one map can serve the
+                snapshots of several steps (otherwise they may be views of the inputs).
+        """
         ids_list = np.asarray(ids).tolist()
         n = len(ids_list)
         if ids_list == list(range(n)):  # ids 0 … n-1 in order (the usual case): no scatter
@@ -60,9 +66,8 @@ class LaneMap:
                 out_covs[0, ids_list] = covs
             mapped[0, ids_list] = True
         if shared:
-            arrays = [out_means, mapped] + ([] if out_covs is None else [out_covs])
-            out_means, mapped, *rest = [np.array(a) for a in arrays]
-            out_covs = rest[0] if rest else None
+            out_means, mapped = np.array(out_means), np.array(mapped)
+            out_covs = None if out_covs is None else np.array(out_covs)
             for a in (out_means, mapped, out_covs):
                 if a is not None:
                     a.setflags(write=False)
@@ -184,8 +189,18 @@ class BatchEstimate:
 
         Args:
             lane_map: The lane's landmarks (its arrays become the snapshot's, not copied).
-            position, vel_body, vel_inertial, euler, rates, pose_cov, accel_bias, gyro_bias,
-            diagnostics: As for :meth:`one_lane`.
+            position: (3,) ρ̂ in N, m.
+            vel_body: (3,) v̂ in B, m/s.
+            vel_inertial: (3,) ``C_NB(Λ̂) v̂`` in N, m/s.
+            euler: (3,) Λ̂ = (φ̂, θ̂, ψ̂) in rad.
+            rates: (3,) ω̂ in B, rad/s.
+            pose_cov: (9, 9) or ``None``.
+            accel_bias: (3,) estimated accelerometer bias in m/s², or ``None``.
+            gyro_bias: (3,) estimated gyro bias in rad/s, or ``None``.
+            diagnostics: name → float.
+
+        Returns:
+            A :class:`BatchEstimate` of the map's width.
         """
         diag = diagnostics or {}
         values = np.array(list(diag.values()), dtype=float).reshape(-1, 1)  # one array
