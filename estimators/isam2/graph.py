@@ -11,6 +11,7 @@ import numpy as np
 
 from estimators.isam2.settings import (
     FIXED_BIAS_SIGMA,
+    HORIZONTAL_ACCEL_VARIANCE,
     NOISE_FLOOR,
     PRIOR_VARIANCE_FLOOR,
     Isam2Settings,
@@ -99,8 +100,7 @@ def first_keyframe(
     linpoint.insert(v0, vel0)
     graph = g.NonlinearFactorGraph()
     graph.add(g.LinearContainerFactor(prior, linpoint))
-    sa, sg = settings.bias_prior_sigmas()
-    bias_sigmas = np.array([sa] * 3 + [sg] * 3)
+    bias_sigmas = settings.bias_prior_sigmas()
     bias0 = g.imuBias.ConstantBias()
     graph.add(g.PriorFactorConstantBias(b0, bias0, g.noiseModel.Diagonal.Sigmas(bias_sigmas)))
     values = g.Values()
@@ -158,14 +158,17 @@ def preintegration_params(
     """
     q = np.asarray(settings.process_noise)
     p = gtsam.PreintegrationCombinedParams(np.array([0.0, 0.0, GRAVITY]))
-    p.setAccelerometerCovariance(np.diag(np.maximum(accel_density + q[VEL], NOISE_FLOOR)))
+    accel = np.full(3, accel_density)
+    if settings.thrust_axis_accel:  # the horizontal specific force is taken as zero
+        accel[:2] = HORIZONTAL_ACCEL_VARIANCE
+    p.setAccelerometerCovariance(np.diag(np.maximum(accel + q[VEL], NOISE_FLOOR)))
     p.setGyroscopeCovariance(np.diag(np.maximum(gyro_density + q[EUL], NOISE_FLOOR)))
     p.setIntegrationCovariance(
         np.diag(np.maximum(settings.integration_sigma**2 + q[POS], NOISE_FLOOR))
     )
-    walk_a, walk_g = settings.bias_walks()
-    p.setBiasAccCovariance(np.eye(3) * walk_a**2)
-    p.setBiasOmegaCovariance(np.eye(3) * walk_g**2)
+    walks = settings.bias_walks()
+    p.setBiasAccCovariance(np.diag(walks[:3] ** 2))
+    p.setBiasOmegaCovariance(np.diag(walks[3:] ** 2))
     return p
 
 

@@ -17,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from estimators.isam2.graph import preintegration_params
 from estimators.isam2.settings import Isam2Settings
 from quadslam_env.types import FloatArray
@@ -76,7 +78,10 @@ class ImuHistory:
         if pim is None:
             params = self._preintegration_params(sample.accel_sigma, sample.gyro_sigma, sample.dt)
             pim = self._g.PreintegratedCombinedMeasurements(params, self._kf_bias)
-        pim.integrateMeasurement(sample.accel, sample.gyro, sample.dt)
+        accel = sample.accel
+        if self.settings.thrust_axis_accel:  # EKF-SLAM's model: the thrust axis only
+            accel = np.array([0.0, 0.0, accel[2]])
+        pim.integrateMeasurement(accel, sample.gyro, sample.dt)
         return pim
 
     def _until(self, t_scan: float) -> tuple[Any, float, int]:

@@ -14,11 +14,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from estimators.association import chi2_threshold
 from estimators.association_settings import AssociationFields
 from estimators.imu_bias_settings import ImuBiasFields
 from quadslam_env.config_schema import spec
-from quadslam_env.types import POSE_DIM
+from quadslam_env.types import POSE_DIM, FloatArray
 
 FIXED_BIAS_SIGMA = 1e-5
 """With ``estimate_imu_bias: false`` the biases are held at zero by a prior of this std on
@@ -32,6 +34,12 @@ bias the simulated IMU does not have (on ``paper_ekf_figure8_known`` it made the
 variance 25% larger; docs/isam2.md, "Consistency"). Over one 0.1 s keyframe interval a bias
 of this std moves the attitude by 1e-6 rad and the position by 5e-8 m, far below the
 sensors' noise."""
+
+HORIZONTAL_ACCEL_VARIANCE = 1e-8
+"""With ``thrust_axis_accel`` the variance density of the horizontal specific force taken as
+zero, (m/s²)²·s: what the preintegration gets instead of the samples' ``a_x, a_y`` and their
+noise (small against the accelerometer's ~1e-5, above :data:`NOISE_FLOOR` so that the IMU
+factor stays well conditioned)."""
 
 NOISE_FLOOR = 1e-12
 """Smallest continuous-time variance (per axis) handed to GTSAM's preintegration (an ideal
@@ -131,6 +139,13 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
         doc="recover each mapped landmark's marginal covariance when a snapshot asks for it "
         "(false: reported as zero; always on with unknown association)",
     )
+    thrust_axis_accel: bool = spec(
+        False,
+        kind="bool",
+        doc="EKF-SLAM's specific-force model (seed 001 eq. 25): use only the accelerometer's "
+        "z axis, the horizontal specific force taken as zero (exact without drag) and the "
+        "horizontal accelerometer biases held",
+    )
     factor_per_return: bool = spec(
         False,
         kind="bool",
@@ -144,22 +159,22 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
         association gate is off)."""
         return chi2_threshold(3, self.new_landmark_probability)
 
-    def bias_prior_sigmas(self) -> tuple[float, float]:
-        """Prior std per axis of (accelerometer m/s², gyro rad/s) biases at the first keyframe
-        (at least :data:`FIXED_BIAS_SIGMA`: a zero std is a singular factor)."""
-        if not self.estimate_imu_bias:
-            return FIXED_BIAS_SIGMA, FIXED_BIAS_SIGMA
-        return (
-            max(self.accel_bias_sigma0, FIXED_BIAS_SIGMA),
-            max(self.gyro_bias_sigma0, FIXED_BIAS_SIGMA),
-        )
+    def bias_prior_sigmas(self) -> FloatArray:
+        """(6,) prior std of the (accelerometer x, y, z in m/s², gyro x, y, z in rad/s) biases
+        at the first keyframe, at least :data:`FIXED_BIAS_SIGMA` (a zero std is a singular
+        factor); with ``thrust_axis_accel`` the horizontal accelerometer biases are held."""
+        return self._per_axis(self.accel_bias_sigma0, self.gyro_bias_sigma0)
 
-    def bias_walks(self) -> tuple[float, float]:
-        """Random-walk densities of (accelerometer m/s²/√s, gyro rad/s/√s) biases (at least
-        :data:`FIXED_BIAS_SIGMA`)."""
-        if not self.estimate_imu_bias:
-            return FIXED_BIAS_SIGMA, FIXED_BIAS_SIGMA
-        return (
-            max(self.accel_bias_walk, FIXED_BIAS_SIGMA),
-            max(self.gyro_bias_walk, FIXED_BIAS_SIGMA),
-        )
+    def bias_walks(self) -> FloatArray:
+        """(6,) random-walk densities of the same biases (m/s²/√s, rad/s/√s), at least
+        :data:`FIXED_BIAS_SIGMA`, held as in :meth:`bias_prior_sigmas`."""
+        return self._per_axis(self.accel_bias_walk, self.gyro_bias_walk)
+
+    def _per_axis(self, accel: float, gyro: float) -> FloatArray:
+        out = np.full(6, FIXED_BIAS_SIGMA)
+        if self.estimate_imu_bias:
+            out[:3] = max(accel, FIXED_BIAS_SIGMA)
+            out[3:] = max(gyro, FIXED_BIAS_SIGMA)
+        if self.thrust_axis_accel:
+            out[:2] = FIXED_BIAS_SIGMA  # EKF-SLAM's model: only b_az
+        return out
