@@ -67,6 +67,9 @@ class FixedLagIsam2:
         if graph is None:
             self.isam.update(g.NonlinearFactorGraph(), g.Values(), force_relinearize=True)
             return
+        # Every stamped key must be (or enter here as) a variable of iSAM2: a group names
+        # only existing keys (GTSAM raises on an unknown one in a batch step). The estimator
+        # stamps exactly the keys of its new values and its landmarks.
         self._stamps.update(stamps or {})
         self._updates += 1
         newest = max(self._stamps.values())
