@@ -20,8 +20,11 @@ import quadslam_env  # noqa: F401  (registers the env ids)
 from agents.cli import main as cli
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import run_episodes
-from agents.studies.estimator_cells import ROWS, cell_overrides
+from agents.studies.bound import bound_model
+from agents.studies.estimator_cells import ROWS, cell_overrides, cell_scenario
 from agents.studies.estimators import NeesRecorder, format_markdown, run_cell
+from estimators.isam2.settings import PRIOR_VARIANCE_FLOOR
+from quadslam_env.types import POS, POSE_DIM
 
 SCENARIO = "paper_ekf_figure8_known"
 EKF = next(r for r in ROWS if r.key == "ekf_slam")
@@ -123,3 +126,25 @@ def test_cli_prints_the_tables_and_writes_json(
     assert cells["isam2_lag"]["estimator"] == "isam2" and cells["isam2_lag"]["ended_early"] == 0
     with pytest.raises(SystemExit):
         cli.main(["study", "estimators", "--rows", "ukf"])
+
+
+def test_told_start_cell_gives_every_estimator_the_bounds_prior() -> None:
+    """In ``paper_ekf_figure8_known@start`` the estimate starts at the truth with a zero pose
+    covariance: the prior the bound computes with (a zero prior when the error is not drawn)."""
+    cell = "paper_ekf_figure8_known@start"
+    assert cell_scenario(cell) == SCENARIO
+    for row in ROWS:
+        if row.name == "isam2" and importlib.util.find_spec("gtsam") is None:
+            continue
+        env = gym.make("QuadSLAM-v0", scenario=SCENARIO, **cell_overrides(cell, row))
+        env.reset(seed=4)
+        core = env.unwrapped._core  # type: ignore[attr-defined]
+        np.testing.assert_array_equal(bound_model(core).cov0, np.zeros((POSE_DIM, POSE_DIM)))
+        est = core.est
+        np.testing.assert_allclose(est.position[0], core.vehicle.state[0, POS], atol=1e-12)
+        # iSAM2's prior factor needs a variance: its floor (FastSLAM's particles start on one
+        # point, no spread to report).
+        floor = PRIOR_VARIANCE_FLOOR if row.name == "isam2" else 0.0
+        if est.pose_cov is not None:
+            np.testing.assert_allclose(np.diagonal(est.pose_cov[0]), floor, rtol=1e-6, atol=1e-12)
+        env.close()

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from agents.studies.bound import BLOCKS, TruthRecorder, fly_and_bound, summarize_seeds
-from agents.studies.estimator_cells import ROWS, SCENARIOS, Row, cell_overrides
+from agents.studies.estimator_cells import ROWS, SCENARIOS, Row, cell_overrides, cell_scenario
 from agents.studies.particle_nees import block_nees
 from quadslam_env.metrics import anees_bounds
 from quadslam_env.models.frames import wrap_angle
@@ -105,21 +105,20 @@ def anees_share(nees: list[np.ndarray], t: np.ndarray, settle_s: float) -> dict[
 
 
 def run_cell(
-    scenario: str, row: Row, seeds: list[int], duration_s: float | None = None
+    cell: str, row: Row, seeds: list[int], duration_s: float | None = None
 ) -> dict[str, Any]:
-    """Fly one cell and summarise it (module docstring); ``{"applies": False, "reason"}`` when
-    the estimator cannot run there."""
+    """Fly one cell (a key of :data:`SCENARIOS`) and summarise it (module docstring);
+    ``{"applies": False, "reason"}`` when the estimator cannot run there."""
     from quadslam_env.config_schema import ConfigError
 
     if row.name == "isam2" and importlib.util.find_spec("gtsam") is None:
         return {"applies": False, "reason": "GTSAM not installed (pip install 'quadslam[gtsam]')"}
     if duration_s is None:
-        duration_s = SCENARIOS[scenario].get("duration_s")
+        duration_s = SCENARIOS[cell].get("duration_s")
     recorder = NeesRecorder()
+    overrides = cell_overrides(cell, row)
     try:
-        flight = fly_and_bound(
-            scenario, seeds, duration_s, cell_overrides(scenario, row), None, recorder, 1
-        )
+        flight = fly_and_bound(cell_scenario(cell), seeds, duration_s, overrides, None, recorder, 1)
     except ConfigError as exc:
         return {"applies": False, "reason": str(exc)}
     per_seed = [s.summary(flight.settle_s) for s in flight.series]
