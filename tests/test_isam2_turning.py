@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from estimators.isam2 import Isam2Slam
+from estimators.isam2.history import KeptSample
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import skew
 from quadslam_env.types import GRAVITY
@@ -56,3 +57,23 @@ def test_velocity_of_a_turning_thrust_is_integrated_exactly(thrust_axis: bool) -
     turned = _left_jacobian(RATE * SECONDS)
     expected = SECONDS * turned @ accel + np.array([0.0, 0.0, GRAVITY * SECONDS])
     np.testing.assert_allclose(out.vel_inertial[0], expected, atol=1e-9)
+
+
+def test_turn_uses_the_bias_corrected_sample() -> None:
+    """With a bias estimate the sample is turned by the corrected rate and the corrected
+    specific force: the preintegrated velocity (in the keyframe's frame, at that bias) is the
+    closed form of the true rate and thrust, the biases removed."""
+    import gtsam
+
+    b_accel, b_gyro = np.array([0.1, -0.2, 0.15]), np.array([0.05, -0.03, 0.02])
+    est = Isam2Slam(thrust_axis_accel=False)
+    no_map = (np.zeros(0), np.zeros((0, 3)))
+    est.reset(np.zeros(12), np.diag([1e-4] * 9 + [0.0] * 3), np.random.default_rng(0), no_map)
+    est._kf_bias = gtsam.imuBias.ConstantBias(b_accel, b_gyro)  # as a solved keyframe's
+    accel = np.array([0.0, 0.0, -THRUST])
+    pim = None
+    for n in range(1, round(SECONDS / DT) + 1):
+        sample = KeptSample(n * DT, accel + b_accel, RATE + b_gyro, 1e-3, 1e-5, DT, n * DT)
+        pim = est._preintegrate(pim, sample)
+    expected = SECONDS * _left_jacobian(RATE * SECONDS) @ accel
+    np.testing.assert_allclose(pim.deltaVij(), expected, atol=1e-9)

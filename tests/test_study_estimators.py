@@ -22,7 +22,7 @@ from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import run_episodes
 from agents.studies.bound import bound_model
 from agents.studies.estimator_cells import ROWS, cell_overrides, cell_scenario
-from agents.studies.estimators import NeesRecorder, format_markdown, run_cell
+from agents.studies.estimators import NeesRecorder, anees_share, format_markdown, run_cell
 from estimators.isam2.settings import PRIOR_VARIANCE_FLOOR
 from quadslam_env.types import POS, POSE_DIM
 
@@ -148,3 +148,15 @@ def test_told_start_cell_gives_every_estimator_the_bounds_prior() -> None:
         if est.pose_cov is not None:
             np.testing.assert_allclose(np.diagonal(est.pose_cov[0]), floor, rtol=1e-6, atol=1e-12)
         env.close()
+
+
+def test_anees_share_leaves_out_undefined_steps() -> None:
+    """A step where a run's covariance is singular has no NEES (NaN): it is counted, and left
+    out of the share and the mean, which are a recount over the other steps."""
+    lo, hi = chi2.ppf(0.025, 6) / 2, chi2.ppf(0.975, 6) / 2
+    runs = [np.array([np.nan, 3.0, 0.1, 3.0, 20.0]), np.array([1.0, 3.0, 0.1, 3.0, 20.0])]
+    out = anees_share(runs, np.arange(1, 6, dtype=float), settle_s=2.5)
+    assert out["undefined"] == 1 and math.isnan(out["anees"][0])
+    assert lo <= 3.0 <= hi and lo > 0.1 and hi < 20.0
+    assert out["share"] == pytest.approx(2 / 4) and out["share_steady"] == pytest.approx(1 / 3)
+    assert out["mean"] == pytest.approx((3.0 + 0.1 + 3.0 + 20.0) / 4)

@@ -87,20 +87,24 @@ def anees_share(nees: list[np.ndarray], t: np.ndarray, settle_s: float) -> dict[
 
     Returns:
         ``anees`` (K,) (a list) over the K = min K_i steps every run reached, its ``interval``, the
-        ``share`` of steps inside it (and ``share_steady``, over ``t > settle_s``) and its
-        time average ``mean``.
+        ``share`` of steps inside it (and ``share_steady``, over ``t > settle_s``), its time
+        average ``mean`` and the number of ``undefined`` steps, where a run's covariance is
+        singular (an estimator told its exact start: zero variance at first). The share and
+        the mean are over the defined steps.
     """
     length = min(len(n) for n in nees)
     anees = np.mean([n[:length] for n in nees], axis=0)
     lo, hi = anees_bounds(3, len(nees))
-    inside = (anees >= lo) & (anees <= hi)
-    steady = t[:length] > settle_s
+    defined = np.isfinite(anees)
+    inside = (anees[defined] >= lo) & (anees[defined] <= hi)
+    steady = t[:length][defined] > settle_s
     return {
         "anees": anees.tolist(),
         "interval": [lo, hi],
-        "share": float(inside.mean()),
+        "share": float(inside.mean()) if inside.size else math.nan,
         "share_steady": float(inside[steady].mean()) if steady.any() else math.nan,
-        "mean": float(anees.mean()),
+        "mean": float(anees[defined].mean()) if inside.size else math.nan,
+        "undefined": int(length - np.count_nonzero(defined)),
     }
 
 

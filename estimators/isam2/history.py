@@ -86,8 +86,11 @@ class ImuHistory:
         # constant ω and a; J_l the left Jacobian of SO(3), GTSAM's ExpmapDerivative(−φ)).
         # GTSAM's rule takes ΔR a dt, the orientation at the period's start: a velocity error
         # of |a| |ω| dt²/2 per sample, about 6 mm/s after the take-off's first 0.1 rad of pitch.
-        accel = self._g.Rot3.ExpmapDerivative(-sample.dt * sample.gyro) @ accel
-        pim.integrateMeasurement(accel, sample.gyro, sample.dt)
+        # Both at the preintegration's bias (GTSAM subtracts b_a after the turn).
+        bias = pim.biasHat()
+        b_a = np.asarray(bias.accelerometer(), dtype=float)
+        turn = self._g.Rot3.ExpmapDerivative(-sample.dt * (sample.gyro - bias.gyroscope()))
+        pim.integrateMeasurement(b_a + turn @ (accel - b_a), sample.gyro, sample.dt)
         return pim
 
     def _until(self, t_scan: float) -> tuple[Any, float, int]:
