@@ -148,6 +148,12 @@ def test_told_start_cell_gives_every_estimator_the_bounds_prior() -> None:
         if est.pose_cov is not None:
             np.testing.assert_allclose(np.diagonal(est.pose_cov[0]), floor, rtol=1e-6, atol=1e-12)
         env.close()
+        # The plain cell starts at the truth too, under Table 6's P0: a belief, not the bound's.
+        env = gym.make("QuadSLAM-v0", scenario=SCENARIO, **cell_overrides(SCENARIO, row))
+        env.reset(seed=4)
+        cov = env.unwrapped._core.est.pose_cov  # type: ignore[attr-defined]
+        assert cov is None or np.diagonal(cov[0])[:3].min() > 1e-3
+        env.close()
 
 
 def test_anees_share_leaves_out_undefined_steps() -> None:

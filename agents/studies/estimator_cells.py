@@ -11,7 +11,7 @@ ZERO_Q = [0.0] * 9
 # The known-map scenario starts the estimate at the true pose (``sample_initial_error: false``)
 # under Table 6's P0, a belief: the bound's prior is then zero (agents/studies/bound.py), and an
 # estimator told P0 weighs its first scans as if its start were 0.1 m off. This P0 tells it the
-# start it has (pose block zero; the bias entries are the scenario's).
+# start it has (pose block zero; the body rates' 1e-6 rad²/s² as in the scenario file).
 TOLD_START_P0 = [0.0] * 9 + [1.0e-6] * 3
 SCENARIOS: dict[str, dict[str, Any]] = {
     "paper_ekf_figure8_known": {"imu": {"process_noise": ZERO_Q}},

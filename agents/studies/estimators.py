@@ -211,6 +211,14 @@ def _bound_range(cells: list[dict[str, Any]], name: str, unit: str, span: str, f
 FORMATS = {"pos": "{:.4f}", "vel": "{:.4f}", "att": "{:.3f}"}
 
 
+def _anees_cell(block: dict[str, Any]) -> str:
+    """``ANEES (share inside %)``, with the steps that had no NEES when there are any."""
+    share = None if block["share"] is None else 100 * block["share"]
+    text = f"{_num(block['mean'], '{:.2f}')} ({_num(share, '{:.0f}')}%"
+    undefined = block.get("undefined", 0)
+    return text + (f"; {undefined} step(s) undefined)" if undefined else ")")
+
+
 def format_markdown(result: dict[str, Any]) -> str:
     """The accuracy table (RMSE / PCRB, whole flight and steady state) and the consistency and
     cost table, as markdown."""
@@ -240,10 +248,7 @@ def format_markdown(result: dict[str, Any]) -> str:
             acc.append(
                 head + " | ".join(_rmse_cell(cell, n, u, s, FORMATS[n]) for n, u, s in spans) + " |"
             )
-            anees = [
-                f"{cell['anees'][b]['mean']:.2f} ({100 * cell['anees'][b]['share']:.0f}%)"
-                for b in NEES_BLOCKS
-            ]
+            anees = [_anees_cell(cell["anees"][b]) for b in NEES_BLOCKS]
             n = len(cell["seeds"])
             cons.append(
                 head

@@ -86,7 +86,9 @@ class ImuHistory:
         # constant ω and a; J_l the left Jacobian of SO(3), GTSAM's ExpmapDerivative(−φ)).
         # GTSAM's rule takes ΔR a dt, the orientation at the period's start: a velocity error
         # of |a| |ω| dt²/2 per sample, about 6 mm/s after the take-off's first 0.1 rad of pitch.
-        # Both at the preintegration's bias (GTSAM subtracts b_a after the turn).
+        # Both at the preintegration's bias (GTSAM subtracts b_a after the turn). GTSAM's
+        # first-order bias correction misses the turn's own dependence on b_g: about a tenth
+        # of its ∂Δv/∂b_g over a 0.1 s interval, applied to the bias change only.
         bias = pim.biasHat()
         b_a = np.asarray(bias.accelerometer(), dtype=float)
         turn = self._g.Rot3.ExpmapDerivative(-sample.dt * (sample.gyro - bias.gyroscope()))
