@@ -5,6 +5,7 @@ writing of their ``--json``/``--plots`` outputs."""
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import time
 from collections.abc import Callable
@@ -233,8 +234,27 @@ def add_study_parser(
     )
     bound.add_argument("--json", type=Path, help="write the per-seed values and summary as JSON")
     bound.add_argument("--plots", type=Path, help="write the error-vs-bound figure (PNG) here")
+    bound.add_argument(
+        "--phases",
+        type=_phase_edges,
+        metavar="T0,T1,...",
+        help="also print (and write) RMSE / bound per phase between these times in s",
+    )
     bound.set_defaults(func=cmd_study_bound)
     _add_estimators_parser(studies, positive_int, positive_float)
+
+
+def _phase_edges(text: str) -> list[float]:
+    """``--phases``: two or more increasing times in s, from 0 on."""
+    try:
+        edges = [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        edges = []
+    if len(edges) < 2 or edges[0] < 0.0 or any(b <= a for a, b in itertools.pairwise(edges)):
+        raise argparse.ArgumentTypeError(
+            f"got {text!r}; allowed: two or more increasing times in s from 0, e.g. 0,2,5,10,50"
+        )
+    return edges
 
 
 def _add_estimators_parser(

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.studies.phases import format_phases, phase_ratios
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.pcrb import BoundModel, TruthRecord, error_bounds, slam_bound
 from quadslam_env.metrics import step_metrics
@@ -39,8 +40,13 @@ from quadslam_env.models.frames import dcm_from_euler, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.types import EUL, POS, POSE_DIM, VEL, FloatArray
 
-BLOCKS = (("pos", "m", 1.0), ("vel", "mps", 1.0), ("att", "deg", math.degrees(1.0)))
-"""The error blocks: name, unit suffix of the JSON keys, factor from SI (rad → deg)."""
+BLOCKS = (
+    ("pos", "m", 1.0, "pos_m2"),
+    ("vel", "mps", 1.0, "vel_m2ps2"),
+    ("att", "deg", math.degrees(1.0), "att_rad2"),
+)
+"""The error blocks: name, unit suffix of the JSON keys, factor from SI (rad → deg), key of
+the bound's trace (:func:`estimators.pcrb.error_bounds`)."""
 
 
 @dataclass
@@ -189,9 +195,8 @@ class SeedBound:
         """RMSE-equivalents of the bound and RMSEs of the estimate, episode and steady."""
         out: dict[str, Any] = {"seed": self.seed, "duration_s": float(self.t[-1])}
         steady = self.t > steady_from_s
-        keys = ("pos_m2", "vel_m2ps2", "att_rad2")
-        for j, (name, unit, scale) in enumerate(BLOCKS):
-            b2 = self.bound[keys[j]]
+        for j, (name, unit, scale, term) in enumerate(BLOCKS):
+            b2 = self.bound[term]
             e2 = self.err_norm[:, j] ** 2
             f2 = self._filter_trace(j)
             for span, sel in (("", slice(None)), ("_steady", steady)):
@@ -415,7 +420,7 @@ def bound_figure(result: dict[str, Any], series: list[SeedBound]) -> Any:
         ("Euler angle error [deg]", "attitude error angle [deg]"),
     )
     colors = ("tab:blue", "tab:orange", "tab:green")
-    for j, (_, _, scale) in enumerate(BLOCKS):
+    for j, (_, _, scale, _) in enumerate(BLOCKS):
         ax = axes[j, 0]
         sd = scale * np.sqrt(np.clip(first.bound[axis_keys[j]], 0.0, None))
         for a in range(3):
@@ -485,6 +490,9 @@ def cli_bound(args: Any) -> int:
         args.scenario, seeds, args.duration, parse_overrides(args.set), args.estimator
     )
     print(format_bound(result))
+    if args.phases is not None:
+        result["phases"] = phase_ratios(series, args.phases, BLOCKS)
+        print(format_phases(result["phases"], BLOCKS))
     saver = Saver()
     if args.json is not None:
         print(f"json: {saver.write_json(args.json, clean_json(result), '--json')}")

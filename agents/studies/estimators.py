@@ -135,7 +135,7 @@ def run_cell(
         rec["est_step_time_ms"] = float(np.mean(steady_ms[-1])) if steady_ms[-1].size else None
     summary = summarize_seeds(per_seed)
     ratios = {}
-    for name, unit, _ in BLOCKS:
+    for name, unit, *_ in BLOCKS:
         for span in ("", "_steady"):
             est = summary[f"est_{name}_rmse_{unit}{span}"]["pooled"]
             bound = summary[f"bound_{name}_rmse_{unit}{span}"]["pooled"]
@@ -223,7 +223,7 @@ def format_markdown(result: dict[str, Any]) -> str:
     """The accuracy table (RMSE / PCRB, whole flight and steady state) and the consistency and
     cost table, as markdown."""
     labels = {k: v["label"] for k, v in result["settings"]["rows"].items()}
-    spans = [(name, unit, span) for name, unit, _ in BLOCKS for span in ("", "_steady")]
+    spans = [(name, unit, span) for name, unit, *_ in BLOCKS for span in ("", "_steady")]
     heads = {"pos": "position [m]", "vel": "velocity [m/s]", "att": "attitude [deg]"}
     acc = [
         "| scenario | estimator | "
