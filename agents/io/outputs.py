@@ -29,6 +29,7 @@ import contextlib
 import errno
 import io
 import json
+import math
 import os
 import secrets
 import shutil
@@ -38,6 +39,8 @@ import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from agents.io.paths import (
     THROUGH,
@@ -223,6 +226,19 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 
 # ------------------------------------------------------------------------------- SIGTERM
+def clean_json(value: Any) -> Any:
+    """``value`` with every non-finite float as ``None`` (JSON null)."""
+    if isinstance(value, dict):
+        return {k: clean_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [clean_json(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer | np.bool_):
+        return value.item()
+    return value
+
+
 def json_text(obj: Any) -> str:
     """Pretty JSON text of a result document (two-space indent, trailing newline)."""
     return json.dumps(obj, indent=2) + "\n"

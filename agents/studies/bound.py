@@ -462,22 +462,9 @@ def figure_name(result: dict[str, Any]) -> str:
     return f"bound_{result['scenario']}{suffix}.png"
 
 
-def clean_json(value: Any) -> Any:
-    """``value`` with every non-finite float as ``None`` (JSON null)."""
-    if isinstance(value, dict):
-        return {k: clean_json(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [clean_json(v) for v in value]
-    if isinstance(value, float | np.floating):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, np.integer | np.bool_):
-        return value.item()
-    return value
-
-
 def cli_bound(args: Any) -> int:
     """``quadslam study bound``: fly, bound, print the table, write JSON and the figure."""
-    from agents.io.outputs import Saver
+    from agents.io.outputs import Saver, clean_json
     from agents.io.overrides import parse_overrides
     from agents.io.paths import check_output_dir, check_output_file
 

@@ -266,9 +266,8 @@ def format_markdown(result: dict[str, Any]) -> str:
 
 def cli_estimators(args: Any) -> int:
     """``quadslam study estimators``: fly every cell, print the tables, write ``--json``."""
-    from agents.io.outputs import Saver
+    from agents.io.outputs import Saver, clean_json
     from agents.io.paths import check_output_file
-    from agents.studies.bound import clean_json
 
     if args.json is not None:
         check_output_file(args.json, "--json")
