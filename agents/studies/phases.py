@@ -53,16 +53,14 @@ def phase_ratios(
     """
     out = []
     for a, b in itertools.pairwise(edges):
-        reached = [s for s in series if np.any((s.t > a) & (s.t <= b))]
+        spans = [(s, (s.t > a) & (s.t <= b)) for s in series]
+        reached = [(s, sel) for s, sel in spans if sel.any()]
         if not reached:
             continue
         row: dict[str, Any] = {"from_s": float(a), "to_s": float(b), "seeds": len(reached)}
         for j, (name, _, scale, term) in enumerate(blocks):
-            e2, b2 = [], []
-            for s in reached:
-                sel = (s.t > a) & (s.t <= b)
-                e2.append(float(np.mean(s.err_norm[sel, j] ** 2)))
-                b2.append(float(np.mean(s.bound[term][sel])))
+            e2 = [np.mean(s.err_norm[sel, j] ** 2) for s, sel in reached]
+            b2 = [np.mean(s.bound[term][sel]) for s, sel in reached]
             est, bound = math.sqrt(np.mean(e2)), math.sqrt(np.mean(b2))
             row[name] = {
                 "est": scale * est,
