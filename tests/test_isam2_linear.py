@@ -195,7 +195,7 @@ class LinearModel:
             "gyro_bias_walk": 0.0,
             "integration_sigma": 1e-4,
             # Relinearised at every keyframe: the equalities below are the Gaussian algebra's,
-            # which the default schedule (every 10 keyframes) meets only to ~1e-6 σ.
+            # which the default schedule (every 50 keyframes) meets only to ~1e-6 σ.
             "relinearize_skip": 1,
         }
         if estimate_bias:
@@ -441,9 +441,9 @@ def test_full_smoother_equals_kalman_filter_and_rts_smoother(
 def test_fixed_lag_last_state_equals_kalman_filter(
     every: int, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Fixed lag (``window_s: 0.35``, older keyframes marginalised at every keyframe, or every
-    third with the relinearisation): after each scan the last keyframe is the Kalman filter's
-    estimate, and halfway between scans the prediction is."""
+    """Fixed lag (``window_s: 0.35``, older keyframes marginalised every fifth keyframe,
+    relinearised at every keyframe or every third): after each scan the last keyframe is the
+    Kalman filter's estimate, and halfway between scans the prediction is."""
     model = LinearModel.of(True, window_s=0.35)
     model.params["relinearize_skip"] = every
     flight = _simulate(model, np.random.default_rng(8))

@@ -5,9 +5,9 @@
   and each landmark's ``marginalCovariance``, on a pose seeing four landmarks through the
   project's LiDAR factor.
 * :class:`estimators.isam2.transition.ImuTransition` (the linearisation point reused from one
-  prediction to the next) against a fresh one at each preintegration, and ``F``, ``Q`` against
-  central differences of GTSAM's own prediction (``δ_j = F δ_i`` for the mean, ``Q`` the
-  preintegration covariance mapped through the factor).
+  prediction to the next) against a fresh one at each preintegration, ``F`` against central
+  differences of GTSAM's own prediction (``δ_j = F δ_i`` for the mean), and ``F``, ``Q``
+  against GTSAM's linearisation of the ``CombinedImuFactor`` itself.
 * The landmark covariances recovered lazily (only when a snapshot asks for them) against
   GTSAM's per-landmark ``marginalCovariance`` of the same keyframe, in the env.
 """
@@ -107,6 +107,33 @@ def test_reused_transition_equals_fresh_and_differences() -> None:
         np.testing.assert_allclose((outs[0] - outs[1]) / (2 * h), F[:9, i], atol=1e-6)
     np.testing.assert_allclose(Q, Q.T, atol=1e-18)
     assert np.linalg.eigvalsh(Q).min() > 0.0
+
+
+def _factor_transition(pose: Any, vel: np.ndarray, bias: Any, pim: Any) -> tuple[Any, Any]:
+    """``(F, Q)`` from GTSAM's whitened Jacobian ``[A_i | A_j]`` of the ``CombinedImuFactor``
+    linearised at the keyframe and its prediction: ``F = −A_j⁻¹ A_i``, ``Q = A_j⁻¹ A_j⁻ᵀ``."""
+    nav = pim.predict(gtsam.NavState(pose, vel), bias)
+    values = gtsam.Values()
+    for key, value in enumerate((pose, vel, nav.pose(), nav.velocity(), bias, bias)):
+        values.insert(key, value)
+    A = gtsam.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim).linearize(values).jacobian()[0]
+    A_i, A_j = A[:, np.r_[0:9, 18:24]], A[:, np.r_[9:18, 24:30]]
+    A_j_inv = np.linalg.inv(A_j)
+    return -A_j_inv @ A_i, A_j_inv @ A_j_inv.T
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_transition_is_the_imu_factors_linearisation(seed: int) -> None:
+    """``F`` and ``Q`` equal what GTSAM's own linearisation of the factor gives."""
+    rng = np.random.default_rng(seed)
+    pose = gtsam.Pose3(gtsam.Rot3.Ypr(*rng.normal(0.0, 1.0, 3)), rng.normal(0.0, 3.0, 3))
+    vel = rng.normal(0.0, 2.0, 3)
+    bias = gtsam.imuBias.ConstantBias(rng.normal(0.0, 0.05, 3), rng.normal(0.0, 0.01, 3))
+    pim = _pim(int(rng.integers(1, 12)), bias)
+    _, _, F, Q = ImuTransition(gtsam, pose, vel, bias)(pim)
+    F_ref, Q_ref = _factor_transition(pose, vel, bias, pim)
+    np.testing.assert_allclose(F, F_ref, atol=1e-12)
+    np.testing.assert_allclose(Q, Q_ref, rtol=0.0, atol=1e-12 * np.abs(Q_ref).max())
 
 
 def test_rebased_transition_equals_one_built_at_the_new_keyframe() -> None:

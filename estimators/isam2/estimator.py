@@ -24,12 +24,12 @@ Registered as ``estimator.name: isam2`` (:func:`quadslam_env.estimation.register
 
 The graph is solved incrementally by iSAM2 (Kaess et al. 2012), within a fixed lag
 (``window_s``: older vehicle states are marginalised) or over the whole episode (``window_s:
-null``), in the order of a sliding-window filter (:mod:`estimators.isam2.fixed_lag`: oldest
-states first, the newest keyframe and the landmarks last), relinearised and marginalised every
-``relinearize_skip`` keyframes. Between keyframes the estimate is the last
-keyframe's smoothed state predicted with the current preintegration, and its covariance the
-keyframe's joint marginal (pose, velocity, biases) propagated through the linearised IMU
-factor, which adds the preintegration noise; both are mapped to (ρ, v_B, Λ).
+null``), in the order of a sliding-window filter (:mod:`estimators.isam2.fixed_lag`: by time,
+oldest states first, the landmarks last), so that the states leaving the window are leaves of
+the Bayes tree; relinearised every ``relinearize_skip`` keyframes. Between keyframes the
+estimate is the last keyframe's smoothed state predicted with the current preintegration, and
+its covariance the keyframe's joint marginal (pose, velocity, biases) propagated through the
+linearised IMU factor, which adds the preintegration noise; both are mapped to (ρ, v_B, Λ).
 
 A GTSAM exception inside :meth:`Isam2Slam.update` (an indeterminate system, a failed
 Cholesky) never escapes: the estimator sets ``diagnostics["diverged"] = 1`` (the env ends the
@@ -387,23 +387,24 @@ class Isam2Slam(Isam2Output, ImuHistory):
                 if self._isam.valueExists(self._key("x", kf)):
                     lk = self._key("l", i)
                     graph.add(g.CustomFactor(noise, [self._key("x", kf), lk], landmark_error(z)))
-        if self._known is None:
-            # Landmarks never leave the window, also through scans without a return (the map
-            # out of view for longer than the window): a landmark seen again keeps its variable.
-            stamps.update({self._key("l", i): t for i in [*self._lm_means, *new]})
+        # The landmarks have no stamp: they never leave the window, also through scans without
+        # a return (the map out of view for longer than the window), so a landmark seen again
+        # keeps its variable.
         self._solve(graph, values, stamps)
         self._read_keyframe(k, new)
 
     def _read_keyframe(self, k: int, new: list[int] | None = None) -> None:
         """Take keyframe k's smoothed state, its joint marginal and the landmarks (the
         mapped ones and ``new``, the ids added with this keyframe)."""
-        est = self._smoother.calculateEstimate()
+        isam = self._isam  # one variable at a time: the whole window's estimate costs more
         xk, vk, bk = self._key("x", k), self._key("v", k), self._key("b", k)
-        pose = est.atPose3(xk)
-        vel = np.asarray(est.atVector(vk), dtype=float).reshape(3)
-        bias = est.atConstantBias(bk)
+        pose = isam.calculateEstimatePose3(xk)
+        vel = np.asarray(isam.calculateEstimateVector(vk), dtype=float).reshape(3)
+        bias = isam.calculateEstimateConstantBias(bk)
         mapped = sorted({*self._lm_means, *(new or [])})
-        points = np.array([est.atPoint3(self._key("l", i)) for i in mapped], dtype=float)
+        points = np.array(
+            [isam.calculateEstimatePoint3(self._key("l", i)) for i in mapped], dtype=float
+        )
         points = points.reshape(-1, 3)
         # The association's screen needs the landmarks' marginals at the next scan: one query
         # with the keyframe's. Otherwise they are recovered when a snapshot asks for them.

@@ -65,12 +65,12 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
     EKF's (see the module docstring).
 
     ``window_s`` bounds the cost per scan: vehicle states (pose, velocity, biases) older than
-    it are marginalised (:class:`~estimators.isam2.fixed_lag.FixedLagIsam2`, every
-    ``relinearize_skip`` keyframes, with the relinearisation: the window holds ``window_s`` to
-    ``window_s`` plus ``relinearize_skip − 1`` scan periods) while landmarks stay in the
-    window for the whole episode (their timestamps are refreshed at every keyframe, so a
-    landmark that comes back into view still has its variable); ``null`` is full iSAM2 (Kaess
-    et al. 2012), whose cost grows with the episode. ``process_noise`` is added to the
+    it are marginalised (:class:`~estimators.isam2.fixed_lag.FixedLagIsam2`, every fifth
+    keyframe: the window holds ``window_s`` to ``window_s`` plus four scan periods) while
+    landmarks stay in the window for the whole episode (they have no timestamp, so a landmark
+    that comes back into view still has its variable); ``null`` is full iSAM2 (Kaess et al.
+    2012), whose cost grows with the episode. ``relinearize_skip`` keyframes apart, the
+    smoother relinearises and re-eliminates the whole window. ``process_noise`` is added to the
     preintegration's inputs: the ρ block to the integration covariance, the v_B block to the
     accelerometer's and the Λ block to the gyro's (exact for isotropic blocks in level
     flight); the simulator has no process noise beyond the IMU's, so the default is none.
@@ -113,11 +113,11 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
         doc="relinearise a variable when its tangent-space update exceeds this (rad, m, m/s)",
     )
     relinearize_skip: int = spec(
-        10,
+        50,
         kind="int",
         lo=1,
         hi=100,
-        doc="relinearise (and marginalise) every this many keyframes",
+        doc="relinearise every this many keyframes (re-eliminating the whole window)",
     )
     factorization: str = spec(
         "qr",

@@ -6,15 +6,23 @@ for data association, where the predicted pose's cross-covariance with the landm
 innovation covariance of each (return, landmark) pair.
 
 GTSAM's ``CombinedImuFactor`` (Forster et al. 2017, "On-Manifold Preintegration for Real-Time
-Visual-Inertial Odometry", IEEE T-RO 33(1), eq. 44–45, with the bias random walk) linearised
-at the keyframe state ``i`` and its prediction ``j`` (where its error is zero) gives whitened
-rows ``A_i δ_i + A_j δ_j = w``, ``w ~ N(0, I)``, over the 15-dim tangent
-``δ = (δθ, δt, δv_N, δb_a, δb_ω)`` (Pose3 in B, velocity in N, biases). Solved for ``δ_j``::
+Visual-Inertial Odometry", IEEE T-RO 33(1), eq. 44–45, with the bias random walk) has the error
+a 15-dim error ``e ~ N(0, Σ)`` over the NavState at j against the prediction from i, and
+``b_j − b_i``, with Σ (15 × 15) its noise model's covariance (the preintegration's, with the
+nav–bias cross terms in the factor's convention, not the signs ``preintMeasCov`` has in GTSAM
+4.3). At the prediction (``e = 0``) the NavState error is, to first order,
+``δn_j − H_1 δn_i − H_2 δb_i`` with ``H_1 = ∂predict/∂n_i`` (9 × 9)
+and ``H_2 = ∂predict/∂b_i`` (9 × 6), which GTSAM's ``predict`` returns, over the NavState
+tangent ``δn = (δθ, δt, δv_B)`` (all in the body frame). Solved for the keyframe tangent
+``δ = (δθ, δt, δv_N, δb_a, δb_ω)`` of the graph's variables (Pose3 in B, velocity in N:
+``δv_B = C_NBᵀ δv_N``, so ``δn = T δ`` with ``T = diag(I, I, C_NBᵀ)``)::
 
-    δ_j = F δ_i + A_j⁻¹ w,   F = −A_j⁻¹ A_i,   Q = A_j⁻¹ A_j⁻ᵀ,
+    δ_j = F δ_i + w,   F = [[T_j⁻¹ H_1 T_i, T_j⁻¹ H_2], [0, I]],   Q = Cov(w) = S Σ Sᵀ,
 
-so ``Σ_j = F Σ_i Fᵀ + Q`` and ``Cov(δ_j, δ_l) = F Cov(δ_i, δ_l)`` for any other variable l
-(a landmark), which the IMU factor does not involve.
+``S = diag(T_j⁻¹, I)``, so ``Σ_j = F Σ_i Fᵀ + Q`` and ``Cov(δ_j, δ_l) = F Cov(δ_i, δ_l)`` for
+any other variable l (a landmark), which the IMU factor does not involve. This is the factor's
+own linearisation (a test checks it against GTSAM's ``linearize``) without linearising the
+factor at every control step.
 """
 
 from __future__ import annotations
@@ -29,36 +37,40 @@ from quadslam_env.types import FloatArray
 NAV_DIM = 15
 """Keyframe tangent (δθ, δt, δv_N, δb_a, δb_ω): Pose3 (6) + velocity (3) + biases (6)."""
 
-# Column blocks of the linearised CombinedImuFactor, keys (X_i, V_i, X_j, V_j, B_i, B_j).
-_COLS_I = np.r_[0:9, 18:24]
-_COLS_J = np.r_[9:18, 24:30]
-
 
 @kernel
 def _transition(
-    A: FloatArray, cols_i: np.ndarray, cols_j: np.ndarray
+    H1: FloatArray, H2: FloatArray, cov: FloatArray, R_i: FloatArray, R_j: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """``(F, Q)`` of the module docstring from the whitened Jacobian ``A`` (15, 30)."""
-    Ai = np.empty((NAV_DIM, NAV_DIM))
-    Aj = np.empty((NAV_DIM, NAV_DIM))
-    for c in range(NAV_DIM):
-        Ai[:, c] = A[:, cols_i[c]]
-        Aj[:, c] = A[:, cols_j[c]]
-    Aj_inv = np.linalg.inv(Aj)
-    return -Aj_inv @ Ai, Aj_inv @ Aj_inv.T
+    """``(F, Q)`` (15, 15) of the module docstring from ``predict``'s Jacobians ``H1`` (9, 9),
+    ``H2`` (9, 6), the factor's noise covariance ``cov`` (15, 15) and ``C_NB`` at i and j."""
+    F = np.zeros((NAV_DIM, NAV_DIM))
+    S = np.zeros((NAV_DIM, NAV_DIM))
+    for r in range(9):
+        for c in range(6):
+            F[r, c] = H1[r, c]
+            F[r, 9 + c] = H2[r, c]
+        for c in range(3):  # H_1 T_i: the velocity columns turned into N
+            F[r, 6 + c] = H1[r, 6] * R_i[c, 0] + H1[r, 7] * R_i[c, 1] + H1[r, 8] * R_i[c, 2]
+    for c in range(NAV_DIM):  # T_j⁻¹: the velocity rows turned into N
+        a, b, d = F[6, c], F[7, c], F[8, c]
+        for r in range(3):
+            F[6 + r, c] = R_j[r, 0] * a + R_j[r, 1] * b + R_j[r, 2] * d
+    for r in range(6):
+        F[9 + r, 9 + r] = 1.0
+        S[r, r] = 1.0
+        S[9 + r, 9 + r] = 1.0
+    for r in range(3):
+        for c in range(3):
+            S[6 + r, 6 + c] = R_j[r, c]
+    Q = S @ cov @ S.T
+    return F, 0.5 * (Q + Q.T)
 
 
 class ImuTransition:
     """The keyframe's side of the IMU factor, reused for every prediction from a keyframe
     (every control step between two scans, and the association's) and moved to the next
     keyframe with :meth:`rebase`.
-
-    The factor's linearisation point ``(X_i, V_i, X_j, V_j, B_i, B_j)`` is one ``gtsam.Values``
-    for the transition's life: a call updates the prediction's pose and velocity in place,
-    :meth:`rebase` the keyframe's entries (a value inserted into a fresh ``Values`` costs far
-    more in the Python bindings than one updated, a bias most). ``B_j`` keeps the first
-    keyframe's bias: the factor's Jacobians do not depend on it (its bias part is the linear
-    walk ``B_j − B_i``, and the preintegration involves ``B_i`` only), and only they are used.
 
     Args:
         gtsam: The ``gtsam`` module.
@@ -69,22 +81,16 @@ class ImuTransition:
 
     def __init__(self, gtsam: Any, pose: Any, vel: FloatArray, bias: Any) -> None:
         self._g = gtsam
-        vel = np.asarray(vel, dtype=float)
-        self._nav = gtsam.NavState(pose, vel)
-        self._bias = bias
-        values = gtsam.Values()
-        for key, value in enumerate((pose, vel, pose, vel, bias, bias)):
-            values.insert(key, value)
-        self._values = values
+        self.rebase(pose, vel, bias)
+        # predict() fills these in place (column-major, as the bindings' Eigen maps want).
+        self._H1 = np.zeros((9, 9), order="F")
+        self._H2 = np.zeros((9, 6), order="F")
 
     def rebase(self, pose: Any, vel: FloatArray, bias: Any) -> None:
         """Move the transition to another keyframe (arguments as for the constructor)."""
-        vel = np.asarray(vel, dtype=float)
-        self._nav = self._g.NavState(pose, vel)
+        self._nav = self._g.NavState(pose, np.asarray(vel, dtype=float))
         self._bias = bias
-        self._values.update(0, pose)
-        self._values.update(1, vel)
-        self._values.update(4, bias)
+        self._R_i = np.ascontiguousarray(pose.rotation().matrix(), dtype=float)
 
     def __call__(self, pim: Any) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
         """The keyframe state predicted with ``pim`` and the linear map of its error (module
@@ -99,12 +105,12 @@ class ImuTransition:
             velocity (m/s, N), and ``δ_j = F δ_i + noise`` with noise covariance Q, over the
             tangent (δθ rad, δt m, δv_N m/s, δb_a m/s², δb_ω rad/s).
         """
-        g = self._g
-        nav = pim.predict(self._nav, self._bias)
-        pose_j, vel_j = nav.pose(), np.asarray(nav.velocity(), dtype=float)
-        self._values.update(2, pose_j)
-        self._values.update(3, vel_j)
-        factor = g.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)
-        A = np.ascontiguousarray(factor.linearize(self._values).jacobian()[0], dtype=float)
-        F, Q = _transition(A, _COLS_I, _COLS_J)
-        return pose_j, vel_j, F, Q
+        nav = pim.predict(self._nav, self._bias, self._H1, self._H2)
+        pose_j = nav.pose()
+        R_j = np.ascontiguousarray(pose_j.rotation().matrix(), dtype=float)
+        factor = self._g.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)  # for its noise model only
+        cov = np.ascontiguousarray(factor.noiseModel().covariance(), dtype=float)
+        F, Q = _transition(
+            np.ascontiguousarray(self._H1), np.ascontiguousarray(self._H2), cov, self._R_i, R_j
+        )
+        return pose_j, np.asarray(nav.velocity(), dtype=float), F, Q
