@@ -64,6 +64,9 @@ class FixedLagIsam2:
         self.lag = lag
         self.every = every
         params.enableRelinearization = False  # relinearised on this class's schedule
+        # A marginalisation removes factors; without this their slots stay, empty, for ever
+        # (GTSAM's own fixed-lag smoother sets it too).
+        params.findUnusedFactorSlots = lag is not None
         self.isam = gtsam.ISAM2(params)
         self._stamps: dict[int, float] = {}
         self._kept: set[int] = set()  # the variables without a stamp
