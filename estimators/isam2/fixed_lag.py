@@ -1,6 +1,6 @@
 """iSAM2 over a sliding window kept in the order of a sliding-window filter, so that the states
-leaving it are leaves of the Bayes tree at every keyframe (docs/isam2.md, "A sliding window
-ordered by time").
+leaving it are leaves of the Bayes tree without a batch step (docs/isam2.md, "Leaves without a
+batch step").
 
 GTSAM's ``IncrementalFixedLagSmoother`` constrains only the variables it is about to marginalise
 and orders the rest by CCOLAMD. In landmark SLAM every keyframe sees part of the map, so CCOLAMD
@@ -20,14 +20,15 @@ variables without a stamp, which never leave the window (the landmarks), in a la
   (the groups of the newest timestamps, as many as CCOLAMD accepts for the variables of the new
   factors), and a subtree left in place hangs below the first-eliminated variable of its
   separator, whose ancestors it already had.
-* So after each update the states older than the lag are normally leaves, and
-  ``ISAM2.marginalizeLeaves`` replaces them by their linear marginal on their neighbours, as
-  GTSAM's smoother does. GTSAM checks that they are leaves in its debug builds only (a release
-  build corrupts its memory), so this class checks it on the Bayes tree (``ISAM2.dot``, the
-  only view of the tree the bindings give) and, if a deeper update broke the order, first
-  re-eliminates the window in time order.
+* So the states older than the lag are normally leaves, and every :data:`MARGINALIZE_EVERY`
+  updates ``ISAM2.marginalizeLeaves`` replaces them by their linear marginal on their
+  neighbours, as GTSAM's smoother does. GTSAM checks that they are leaves in its debug builds
+  only (a release build corrupts its memory), so this class checks it on the Bayes tree
+  (``ISAM2.dot``, the only view of the tree the bindings give) and, if a deeper update broke
+  the order, first re-eliminates the window in time order.
 
-The window so holds exactly ``lag`` seconds of states.
+The window so holds ``lag`` seconds of states plus up to ``MARGINALIZE_EVERY − 1`` updates'
+worth.
 """
 
 from __future__ import annotations
@@ -52,8 +53,9 @@ class FixedLagIsam2:
 
     Args:
         gtsam: The ``gtsam`` module.
-        lag: Window length in s: after every update, the stamped variables more than ``lag``
-            before the newest are marginalised. ``None``: never (full graph).
+        lag: Window length in s: every :data:`MARGINALIZE_EVERY` updates, the stamped
+            variables more than ``lag`` before the newest are marginalised. ``None``: never
+            (full graph).
         params: ``gtsam.ISAM2Params``; its own relinearisation schedule is switched off
             (this class asks for relinearisation every ``every`` updates).
         every: Updates between two relinearisations, ≥ 1.
@@ -80,8 +82,9 @@ class FixedLagIsam2:
         self, graph: Any = None, values: Any = None, stamps: dict[int, float] | None = None
     ) -> None:
         """One iSAM2 update with the new factors and values (relinearised every ``every``
-        calls), then the marginalisation of the states older than the lag; without factors,
-        one more relinearised iteration (``iterations`` > 1).
+        calls), then, every :data:`MARGINALIZE_EVERY` calls, the marginalisation of the states
+        older than the lag; without factors, one more relinearised iteration (``iterations``
+        > 1).
 
         Args:
             graph: ``NonlinearFactorGraph`` of the new factors (``None``: an iteration).
@@ -133,8 +136,9 @@ class FixedLagIsam2:
 
     def _groups(self, top: int | None) -> Any:
         """The order constraint: group ``r`` for the ``r``-th oldest timestamp, the kept
-        variables after all; with ``top``, only the newest timestamps get groups of their own,
-        the newest ``top`` and the kept ones ``top + 1`` (``None`` below zero: iSAM2's order)."""
+        variables after all. With ``top``, only the newest timestamps get groups of their own
+        (the newest ``top``, the older ones down to 0 and then all 0) and the kept ones
+        ``top + 1``; ``top`` below zero gives ``None`` (iSAM2's own order)."""
         times = sorted(set(self._stamps.values()))
         if top is None:
             top = len(times) - 1

@@ -6,8 +6,8 @@ for data association, where the predicted pose's cross-covariance with the landm
 innovation covariance of each (return, landmark) pair.
 
 GTSAM's ``CombinedImuFactor`` (Forster et al. 2017, "On-Manifold Preintegration for Real-Time
-Visual-Inertial Odometry", IEEE T-RO 33(1), eq. 44–45, with the bias random walk) has the error
-a 15-dim error ``e ~ N(0, Σ)`` over the NavState at j against the prediction from i, and
+Visual-Inertial Odometry", IEEE T-RO 33(1), eq. 44–45, with the bias random walk) has a
+15-dim error ``e ~ N(0, Σ)``: the NavState at j against the prediction from i, and
 ``b_j − b_i``, with Σ (15 × 15) its noise model's covariance (the preintegration's, with the
 nav–bias cross terms in the factor's convention, not the signs ``preintMeasCov`` has in GTSAM
 4.3). At the prediction (``e = 0``) the NavState error is, to first order,
