@@ -73,10 +73,9 @@ class FixedLagIsam2:
         self._stamps: dict[int, float] = {}
         self._kept: set[int] = set()  # the variables without a stamp
         self._updates = 0
-        self.batch_steps = 0
-        """Whole-window re-eliminations so far (relinearisations and order repairs)."""
         self.repairs = 0
-        """Of those, the ones made because the states to marginalise were not leaves."""
+        """Whole-window re-eliminations made because the states to marginalise were not
+        leaves."""
 
     def update(
         self, graph: Any = None, values: Any = None, stamps: dict[int, float] | None = None
@@ -121,7 +120,6 @@ class FixedLagIsam2:
             window = self._g.KeyList()
             for key in [*self._stamps, *self._kept]:
                 window.push_back(key)
-            self.batch_steps += 1
         new = list(values.keys())
         self._add(new, stamps)
         # CCOLAMD needs every group number below the count of the variables it orders (a
@@ -148,7 +146,8 @@ class FixedLagIsam2:
         rank = {t: max(r - shift, 0) for r, t in enumerate(times)}
         groups = self._g.KeyGroupMap()
         for key, t in self._stamps.items():
-            groups.insert2(key, rank[t])
+            if rank[t]:  # CCOLAMD puts a variable without a group in group 0
+                groups.insert2(key, rank[t])
         for key in self._kept:
             groups.insert2(key, top + 1)
         return groups
