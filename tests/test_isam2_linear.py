@@ -353,7 +353,7 @@ def _run_estimator(
             sample = ImuSample(t, flight.accel[k, j], np.zeros(3), ACCEL_SIGMA, 0.0)
             est.predict(sample, control, DT)
             if j == SAMPLES_PER_SCAN // 2 - 1:
-                pose, vel, cov = est._predicted()
+                pose, vel, _, cov = est._predicted()
                 snap = est.estimate()
                 mean = np.concatenate((np.asarray(pose.translation()), vel))
                 position = np.asarray(snap.position[0])

@@ -117,6 +117,9 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self._kf_pose: Any = None
         self._kf_vel = np.zeros(3)
         self._kf_bias: Any = None
+        self._kf_dcm = np.eye(3)
+        self._kf_biases = (np.zeros(3), np.zeros(3))  # (accelerometer m/s², gyro rad/s)
+        self._n_mapped = 0
         self._kf_cov = np.zeros((NAV_DIM, NAV_DIM))
         self._transition: ImuTransition | None = None  # built at the first prediction
         self._transition_current = False  # linearised at the current keyframe
@@ -201,7 +204,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self._isam = self._smoother.isam
         keys = [self._key(c, 0) for c in "xvb"]
         first = first_keyframe(g, s, mean0, cov0, keys)
-        self._kf_pose, self._kf_vel, self._kf_bias = first.pose, first.vel, first.bias
+        self._set_keyframe(first.pose, first.vel, first.bias)
         self._kf_cov = first.cov
         try:
             self._solve(first.graph, first.values, dict.fromkeys(keys, 0.0))
@@ -238,7 +241,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
         if not self._diverged:  # kept for a late scan (scans are ignored after a divergence)
             self._kept.append(sample)
         self._gyro = gyro
-        self._rates = gyro - np.asarray(self._kf_bias.gyroscope())
+        self._rates = gyro - self._kf_biases[1]
         self._cache = self._state_cache = None
 
     def update(self, scan: LidarScan) -> None:
@@ -419,7 +422,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
         if not finite:
             raise FloatingPointError(f"isam2: non-finite smoothed state at keyframe {k}")
         self._k = k
-        self._kf_pose, self._kf_vel, self._kf_bias = pose, vel, bias
+        self._set_keyframe(pose, vel, bias)
         self._transition_current = False  # moved to the new keyframe on first use
         self._kf_cov = 0.5 * (cov + cov.T)
         self._lm_means = dict(zip(mapped, points, strict=True))  # rows: read, never written
@@ -427,4 +430,12 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self._lm_map = None
         self._pim = None  # the next sample starts a new preintegration at the new bias
         if self._gyro is not None:
-            self._rates = self._gyro - np.asarray(bias.gyroscope())
+            self._rates = self._gyro - self._kf_biases[1]
+
+    def _set_keyframe(self, pose: Any, vel: FloatArray, bias: Any) -> None:
+        """The keyframe's state, with its attitude and biases as arrays for every step's
+        prediction and snapshot."""
+        self._kf_pose, self._kf_vel, self._kf_bias = pose, vel, bias
+        self._kf_dcm = np.ascontiguousarray(pose.rotation().matrix(), dtype=float)
+        accel = np.asarray(bias.accelerometer(), dtype=float)
+        self._kf_biases = (accel, np.asarray(bias.gyroscope(), dtype=float))

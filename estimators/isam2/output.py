@@ -39,6 +39,9 @@ class Isam2Output:
     _kf_vel: FloatArray
     _kf_bias: Any
     _kf_cov: FloatArray
+    _kf_dcm: FloatArray
+    _kf_biases: tuple[FloatArray, FloatArray]
+    _n_mapped: int
     _transition: ImuTransition | None
     _transition_current: bool
     _pim: Any
@@ -111,15 +114,15 @@ class Isam2Output:
         self._transition_current = True
         return self._transition
 
-    def _predicted(self) -> tuple[Any, FloatArray, FloatArray]:
-        """``(pose, v_N (3,), Σ (9, 9) over (δθ, δt, δv_N))`` now: the keyframe state predicted
-        with the current preintegration, ``Σ = F Σ_i Fᵀ + Q`` (``estimators.isam2.transition``)."""
+    def _predicted(self) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
+        """``(pose, v_N (3,), C_NB (3, 3), Σ (9, 9) over (δθ, δt, δv_N))`` now: the keyframe
+        state predicted with the current preintegration, ``Σ = F Σ_i Fᵀ + Q``
+        (:meth:`~estimators.isam2.transition.ImuTransition.propagate`)."""
         pim = self._pim
         if pim is None or pim.deltaTij() <= 0.0:
-            return self._kf_pose, self._kf_vel, self._kf_cov[:POSE_DIM, :POSE_DIM]
-        pose, vel, F, Q = self._link()(pim)
-        Fp = F[:POSE_DIM]
-        return pose, vel, Fp @ self._kf_cov @ Fp.T + Q[:POSE_DIM, :POSE_DIM]
+            cov = np.ascontiguousarray(self._kf_cov[:POSE_DIM, :POSE_DIM])
+            return self._kf_pose, self._kf_vel, self._kf_dcm, cov
+        return self._link().propagate(pim, self._kf_cov)
 
     def _landmark_covs(self) -> dict[int, FloatArray]:
         """Each mapped landmark's marginal (3, 3) in m² at the current keyframe: recovered from
@@ -132,15 +135,22 @@ class Isam2Output:
         return self._lm_covs
 
     def _build_estimate(self, with_covs: bool) -> BatchEstimate:
-        pose, vel_n, cov_t = self._predicted()
+        pose, vel_n, dcm, cov_t = self._predicted()
         lane_map = self._lm_map  # the map changes at keyframes only (known map: no covs)
         if lane_map is None or (with_covs and lane_map.covs is None):
             covs = self._landmark_covs() if with_covs else None
             lane_map = self._lm_map = landmark_map(self._known or self._lm_means, covs)
-        bias = self._kf_bias if self.settings.estimate_imu_bias else None
-        n_mapped = int(np.count_nonzero(lane_map.mapped))
+            self._n_mapped = int(np.count_nonzero(lane_map.mapped))
+        biases = self._kf_biases if self.settings.estimate_imu_bias else None
         return snapshot(
-            pose, vel_n, cov_t, self._rates, lane_map, bias, self._diagnostics(n_mapped)
+            pose.translation(),
+            dcm,
+            vel_n,
+            cov_t,
+            self._rates,
+            lane_map,
+            biases,
+            self._diagnostics(self._n_mapped),
         )
 
     def _diagnostics(self, n_mapped: int) -> dict[str, float]:

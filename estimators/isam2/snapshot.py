@@ -3,17 +3,18 @@
 
 The smoothed (or IMU-predicted) ``Pose3`` and velocity in N and their covariance over GTSAM's
 tangent (δθ, δt, δv_N) become (ρ, v_B, Λ) and their (9, 9) covariance
-(:func:`~estimators.isam2.tangent.state_covariance`); the landmarks are reported sorted by id.
+(:func:`~estimators.isam2.tangent.state_covariance_kernel`); the landmarks are reported sorted
+by id.
 """
 
 from __future__ import annotations
 
 import copy
-from typing import Any
+import math
 
 import numpy as np
 
-from estimators.isam2.tangent import state_covariance
+from estimators.isam2.tangent import state_covariance_kernel
 from quadslam_env.estimation import BatchEstimate
 from quadslam_env.estimation.snapshot import LaneMap
 from quadslam_env.models.frames import euler_from_dcm
@@ -38,49 +39,47 @@ def landmark_map(means: dict[int, FloatArray], covs: dict[int, FloatArray] | Non
 
 
 def snapshot(
-    pose: Any,
+    position: FloatArray,
+    dcm: FloatArray,
     vel_n: FloatArray,
     cov_t: FloatArray,
     rates: FloatArray,
     landmarks: LaneMap,
-    bias: Any,
+    biases: tuple[FloatArray, FloatArray] | None,
     diagnostics: dict[str, float],
 ) -> BatchEstimate:
     """The estimate of one state (B = 1).
 
     Args:
-        pose: ``gtsam.Pose3`` (``C_NB``, ρ in N, m).
+        position: (3,) ρ in N, m (the snapshot keeps this array).
+        dcm: (3, 3) ``C_NB``, C order.
         vel_n: (3,) velocity in N, m/s.
-        cov_t: (9, 9) covariance over (δθ rad, δt m, δv_N m/s).
+        cov_t: (9, 9) covariance over (δθ rad, δt m, δv_N m/s), C order.
         rates: (3,) body rates, rad/s.
         landmarks: :func:`landmark_map`.
-        bias: ``imuBias.ConstantBias`` to report, or ``None`` (biases not estimated).
+        biases: ``(accelerometer (3,) m/s², gyro (3,) rad/s)`` to report, or ``None`` (biases
+            not estimated).
         diagnostics: The estimator's diagnostics.
 
     Raises:
         FloatingPointError: A non-finite state or covariance.
     """
-    dcm = np.asarray(pose.rotation().matrix(), dtype=float)
-    position = np.asarray(pose.translation(), dtype=float).reshape(3)
     euler = euler_from_dcm(dcm)
     vel_body = dcm.T @ vel_n
-    pose_cov = state_covariance(cov_t, dcm, vel_body, euler)
-    if not np.isfinite(np.concatenate((position, vel_n, euler, pose_cov.ravel()))).all():
+    pose_cov = state_covariance_kernel(cov_t, dcm, vel_body, euler[0], euler[1])
+    # A NaN or an infinity anywhere makes the sum non-finite (one reduction, not a check each).
+    if not math.isfinite(position.sum() + vel_n.sum() + euler.sum() + pose_cov.sum()):
         raise FloatingPointError("isam2: non-finite prediction")
-    accel_bias = gyro_bias = None
-    if bias is not None:
-        accel_bias = np.asarray(bias.accelerometer(), dtype=float).copy()
-        gyro_bias = np.asarray(bias.gyroscope(), dtype=float).copy()
     return BatchEstimate.on_map(
         landmarks,
-        position=position.copy(),
+        position=position,
         vel_body=vel_body,
         vel_inertial=np.array(vel_n, dtype=float),
         euler=euler,
         rates=np.array(rates, dtype=float),
         pose_cov=pose_cov,
-        accel_bias=accel_bias,
-        gyro_bias=gyro_bias,
+        accel_bias=None if biases is None else biases[0].copy(),
+        gyro_bias=None if biases is None else biases[1].copy(),
         diagnostics=diagnostics,
     )
 

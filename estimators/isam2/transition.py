@@ -67,6 +67,23 @@ def _transition(
     return F, 0.5 * (Q + Q.T)
 
 
+@kernel
+def _propagate(
+    H1: FloatArray,
+    H2: FloatArray,
+    cov: FloatArray,
+    R_i: FloatArray,
+    R_j: FloatArray,
+    P: FloatArray,
+) -> FloatArray:
+    """``Σ_j = F P Fᵀ + Q`` (9, 9) over (δθ, δt, δv_N) at j: :func:`_transition`'s map of the
+    keyframe's (15, 15) covariance ``P``, its navigation rows only."""
+    F, Q = _transition(H1, H2, cov, R_i, R_j)
+    Fn = np.ascontiguousarray(F[:9])
+    out = Fn @ P @ Fn.T + Q[:9, :9]
+    return 0.5 * (out + out.T)
+
+
 class ImuTransition:
     """The keyframe's side of the IMU factor, reused for every prediction from a keyframe
     (every control step between two scans, and the association's) and moved to the next
@@ -85,6 +102,8 @@ class ImuTransition:
         # predict() fills these in place (column-major, as the bindings' Eigen maps want).
         self._H1 = np.zeros((9, 9), order="F")
         self._H2 = np.zeros((9, 6), order="F")
+        self._H1c = np.zeros((9, 9))
+        self._H2c = np.zeros((9, 6))
 
     def rebase(self, pose: Any, vel: FloatArray, bias: Any) -> None:
         """Move the transition to another keyframe (arguments as for the constructor)."""
@@ -105,12 +124,33 @@ class ImuTransition:
             velocity (m/s, N), and ``δ_j = F δ_i + noise`` with noise covariance Q, over the
             tangent (δθ rad, δt m, δv_N m/s, δb_a m/s², δb_ω rad/s).
         """
+        pose_j, vel_j, R_j, cov = self._linearise(pim)
+        F, Q = _transition(self._H1c, self._H2c, cov, self._R_i, R_j)
+        return pose_j, vel_j, F, Q
+
+    def propagate(self, pim: Any, P: FloatArray) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
+        """The keyframe state predicted with ``pim`` and its covariance: the estimate between
+        keyframes, every control step.
+
+        Args:
+            pim: As for :meth:`__call__`.
+            P: (15, 15) the keyframe's joint marginal over (δθ, δt, δv_N, δb_a, δb_ω).
+
+        Returns:
+            ``(pose_j, vel_j (3,), C_NB (3, 3) at j, Σ_j (9, 9))`` with ``Σ_j = F P Fᵀ + Q`` over
+            (δθ rad, δt m, δv_N m/s), exactly symmetric.
+        """
+        pose_j, vel_j, R_j, cov = self._linearise(pim)
+        return pose_j, vel_j, R_j, _propagate(self._H1c, self._H2c, cov, self._R_i, R_j, P)
+
+    def _linearise(self, pim: Any) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
+        """``predict`` with its Jacobians (into ``_H1c``, ``_H2c``, C order for the kernels),
+        and the factor's noise covariance: ``(pose_j, vel_j, C_NB at j, Σ (15, 15))``."""
         nav = pim.predict(self._nav, self._bias, self._H1, self._H2)
         pose_j = nav.pose()
         R_j = np.ascontiguousarray(pose_j.rotation().matrix(), dtype=float)
         factor = self._g.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)  # for its noise model only
         cov = np.ascontiguousarray(factor.noiseModel().covariance(), dtype=float)
-        F, Q = _transition(
-            np.ascontiguousarray(self._H1), np.ascontiguousarray(self._H2), cov, self._R_i, R_j
-        )
-        return pose_j, np.asarray(nav.velocity(), dtype=float), F, Q
+        self._H1c[:] = self._H1
+        self._H2c[:] = self._H2
+        return pose_j, np.asarray(nav.velocity(), dtype=float), R_j, cov
