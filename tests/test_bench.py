@@ -92,13 +92,17 @@ def test_physics_ratio_pairs_the_alternating_samples(tiny_run) -> None:
 
 
 def test_association_entries(tiny_run) -> None:
-    """Scalar known/NN/JCBB and vector known/NN at every B, each with its returns per scan."""
+    """Scalar known/NN/JCBB (EKF-SLAM, and iSAM2 with GTSAM) and vector known/NN at every B,
+    each with its returns per scan."""
     doc, _, _, _ = tiny_run
     assoc = _by_name(doc, "association")
-    assert set(assoc) == {
-        "steps_per_s/scalar/known", "steps_per_s/scalar/nn", "steps_per_s/scalar/jcbb",
-        "env_steps_per_s/vector/known", "env_steps_per_s/vector/nn",
-    }  # fmt: skip
+    scalar_names = {f"steps_per_s/scalar/{m}" for m in ("known", "nn", "jcbb")}
+    if importlib.util.find_spec("gtsam") is not None:
+        scalar_names |= {f"steps_per_s/scalar/isam2/{m}" for m in ("known", "nn", "jcbb")}
+        assert assoc["steps_per_s/scalar/isam2/jcbb"][0]["params"]["estimator"] == "isam2"
+    vector_names = {"env_steps_per_s/vector/known", "env_steps_per_s/vector/nn"}
+    assert set(assoc) == scalar_names | vector_names
+    assert assoc["steps_per_s/scalar/jcbb"][0]["params"]["estimator"] == "ekf_slam"
     assert len(assoc["env_steps_per_s/vector/nn"]) == len(TINY.vec_batches)
     scalar = assoc["steps_per_s/scalar/jcbb"][0]["params"]
     assert (

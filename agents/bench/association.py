@@ -3,7 +3,8 @@
 * scalar env (``gymnasium.make``, DF-LQR in the loop): EKF-SLAM with JCBB and with NN on
   ``paper_ekf_figure8_unknown`` (40 landmarks, detection 0.9, 2 false returns per scan) with
   the azimuth FOV widened to ±90° so that about 10 landmarks are returned per scan, against the
-  same scenario with known association, measured in the same run;
+  same scenario with known association, measured in the same run; the same three for the
+  iSAM2 smoother (fixed lag; skipped without GTSAM);
 * native vector env (env-steps/s vs lanes B): unknown association with NN against known
   association on the same scenario.
 
@@ -12,6 +13,7 @@ Each entry records the mean number of returns per scan (landmarks and clutter) i
 
 from __future__ import annotations
 
+import importlib.util
 from typing import Any
 
 import numpy as np
@@ -60,22 +62,28 @@ def bench_association(results: Results, plan: Plan) -> None:
     import quadslam_env  # noqa: F401
     from agents.control.dflqr import DFLQRPolicy
 
-    for label, method in METHODS:
-        env = gym.make("QuadSLAM-v0", scenario=SCENARIO, **_merge(WIDE, method))
-        per_scan = _returns_per_scan(env, 500)
-        rates = _env_rate(env, DFLQRPolicy.from_env(env), plan.env_steps, plan.repeats)
-        results.add(
-            "association",
-            f"steps_per_s/scalar/{label}",
-            rates,
-            "steps/s",
-            note="scalar env, DF-LQR; azimuth FOV ±90° for about 10 landmark returns per scan",
-            scenario=SCENARIO,
-            association=label,
-            returns_per_scan=round(per_scan, 2),
-            landmarks=40,
-        )
-        env.close()
+    estimators = [("ekf_slam", "")]
+    if importlib.util.find_spec("gtsam") is not None:
+        estimators.append(("isam2", "isam2/"))
+    for name, prefix in estimators:
+        for label, method in METHODS:
+            kwargs = _merge(WIDE, method, {"estimator": {"name": name}})
+            env = gym.make("QuadSLAM-v0", scenario=SCENARIO, **kwargs)
+            per_scan = _returns_per_scan(env, 500)
+            rates = _env_rate(env, DFLQRPolicy.from_env(env), plan.env_steps, plan.repeats)
+            results.add(
+                "association",
+                f"steps_per_s/scalar/{prefix}{label}",
+                rates,
+                "steps/s",
+                note="scalar env, DF-LQR; azimuth FOV ±90° for about 10 landmark returns per scan",
+                scenario=SCENARIO,
+                estimator=name,
+                association=label,
+                returns_per_scan=round(per_scan, 2),
+                landmarks=40,
+            )
+            env.close()
     for label, method in METHODS[:2]:
         for b in plan.vec_batches:
             rates, dt, _ = vector_rates("QuadSLAM-v0", b, plan, scenario=SCENARIO, **method)
