@@ -330,6 +330,27 @@ def test_gtsam_exception_becomes_divergence() -> None:
     assert snap.diagnostics["diverged"][0] == 1.0 and np.isfinite(snap.position[0]).all()
 
 
+def test_non_finite_prediction_becomes_divergence() -> None:
+    """A NaN in the keyframe's marginal, met between keyframes by the snapshot's propagation,
+    ends the episode as diverged and never reaches the observation or the estimate."""
+    env = _make(duration=2.0)
+    policy = DFLQRPolicy.from_env(env)
+    obs, _ = env.reset(seed=0)
+    est = env.unwrapped.estimator.lanes[0]
+    for _ in range(3):  # between the first two keyframes (scans every 10 steps)
+        obs, *_ = env.step(policy.predict(obs)[0])
+    est._kf_cov = est._kf_cov.copy()
+    est._kf_cov[4, 4] = np.nan  # a position variance
+    obs, _, terminated, _, info = env.step(policy.predict(obs)[0])
+    assert terminated
+    assert info["termination_reason"] == "estimator_diverged: estimator reported divergence"
+    assert est.last_error.startswith("FloatingPointError: isam2: non-finite prediction")
+    assert np.isfinite(obs).all()
+    snap = est.estimate()
+    assert snap.diagnostics["diverged"][0] == 1.0
+    assert snap.pose_cov is not None and np.isfinite(snap.pose_cov).all()
+
+
 # ------------------------------------------------------------------ smoother vs batch
 
 

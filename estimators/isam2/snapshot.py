@@ -10,7 +10,6 @@ by id.
 from __future__ import annotations
 
 import copy
-import math
 
 import numpy as np
 
@@ -67,8 +66,7 @@ def snapshot(
     euler = euler_from_dcm(dcm)
     vel_body = dcm.T @ vel_n
     pose_cov = state_covariance_kernel(cov_t, dcm, vel_body, euler[0], euler[1])
-    # A NaN or an infinity anywhere makes the sum non-finite (one reduction, not a check each).
-    if not math.isfinite(position.sum() + vel_n.sum() + euler.sum() + pose_cov.sum()):
+    if not np.isfinite(np.concatenate((position, vel_n, euler, pose_cov.ravel()))).all():
         raise FloatingPointError("isam2: non-finite prediction")
     return BatchEstimate.on_map(
         landmarks,
