@@ -124,7 +124,8 @@ def _factor_transition(pose: Any, vel: np.ndarray, bias: Any, pim: Any) -> tuple
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_transition_is_the_imu_factors_linearisation(seed: int) -> None:
-    """``F`` and ``Q`` equal what GTSAM's own linearisation of the factor gives."""
+    """``F`` and ``Q`` equal what GTSAM's own linearisation of the factor gives, and so does the
+    covariance :meth:`ImuTransition.propagate` maps through them."""
     rng = np.random.default_rng(seed)
     pose = gtsam.Pose3(gtsam.Rot3.Ypr(*rng.normal(0.0, 1.0, 3)), rng.normal(0.0, 3.0, 3))
     vel = rng.normal(0.0, 2.0, 3)
@@ -134,6 +135,15 @@ def test_transition_is_the_imu_factors_linearisation(seed: int) -> None:
     F_ref, Q_ref = _factor_transition(pose, vel, bias, pim)
     np.testing.assert_allclose(F, F_ref, atol=1e-12)
     np.testing.assert_allclose(Q, Q_ref, rtol=0.0, atol=1e-12 * np.abs(Q_ref).max())
+    # The per-step covariance: a keyframe marginal P mapped by the same linearisation.
+    L = rng.normal(0.0, 0.1, (15, 15))
+    P = L @ L.T + 1e-4 * np.eye(15)
+    _, _, R_j, cov = ImuTransition(gtsam, pose, vel, bias).propagate(pim, P)
+    cov_ref = (F_ref @ P @ F_ref.T + Q_ref)[:9, :9]
+    np.testing.assert_allclose(cov, cov_ref, rtol=0.0, atol=1e-12 * np.abs(cov_ref).max())
+    np.testing.assert_array_equal(cov, cov.T)
+    pose_j = pim.predict(gtsam.NavState(pose, vel), bias).pose()
+    np.testing.assert_allclose(R_j, pose_j.rotation().matrix(), atol=1e-15)
 
 
 def test_rebased_transition_equals_one_built_at_the_new_keyframe() -> None:
