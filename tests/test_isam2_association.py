@@ -317,6 +317,50 @@ def test_two_unknown_association_rollouts_with_the_same_seed_are_identical() -> 
     np.testing.assert_array_equal(runs[0][1].pose_cov, runs[1][1].pose_cov)
 
 
+def test_keyframe_query_answers_the_association_as_gtsam_would(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The association reads its joint marginals off the keyframe's query; asking GTSAM anew
+    for each (the smoother has not moved since) flies the same 1.5 s to round-off."""
+    stored = _fly(seed=3, duration=1.5)
+
+    def query(self: Isam2Slam, nav: list[int], ids: list[int]) -> np.ndarray:
+        keys = nav + [self._key("l", i) for i in ids]
+        return np.asarray(self._isam.jointMarginalCovariance(keys).fullMatrix())
+
+    monkeypatch.setattr(Isam2Slam, "_joint_marginal", query)
+    asked = _fly(seed=3, duration=1.5)
+    for key in ("assoc_n_associated", "assoc_n_wrong", "est_n_mapped"):
+        assert [i[key] for i in stored[0]] == [i[key] for i in asked[0]], key
+    assert sum(i["assoc_n_associated"] for i in stored[0]) > 20
+    np.testing.assert_allclose(stored[1].landmark_means, asked[1].landmark_means, atol=1e-9)
+    np.testing.assert_allclose(stored[1].pose_cov, asked[1].pose_cov, rtol=1e-7, atol=1e-14)
+
+
+def test_keyframe_query_sub_blocks_are_gtsams_joint_marginals() -> None:
+    """After a keyframe, the joint marginal of the keyframe and any landmarks, in any order,
+    read off the keyframe's query equals GTSAM's own query for them."""
+    env = gym.make(
+        "QuadSLAM-v0",
+        scenario="paper_ekf_figure8_unknown",
+        estimator_name="isam2",
+        episode={"duration_s": 2.0},
+    )
+    policy = DFLQRPolicy.from_env(env)
+    obs, _ = env.reset(seed=1)
+    for _ in range(151):  # one step after the keyframe of t = 1.5 s
+        obs, *_ = env.step(policy.predict(obs)[0])
+    est = env.unwrapped.estimator.lanes[0]
+    mapped = sorted(est._lm_means)
+    assert len(mapped) >= 4 and est._kf_joint is not None
+    ids = [int(i) for i in np.random.default_rng(0).permutation(mapped)[:4]]
+    nav = [est._key(c, est.keyframes) for c in "xvb"]
+    keys = nav + [est._key("l", i) for i in ids]
+    want = np.asarray(est._isam.jointMarginalCovariance(keys).fullMatrix())
+    got = est._joint_marginal(nav, ids)
+    np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-12 * np.abs(want).max())
+
+
 # ------------------------------------------------------------------ bad input
 
 
@@ -351,6 +395,7 @@ def test_gtsam_exception_during_association_becomes_divergence() -> None:
             raise RuntimeError("Indeterminant linear system detected while working near variable")
 
     est._isam = Broken()
+    est._kf_joint = None  # the association asks the smoother (not the keyframe's query)
     meas = lidar_measure(np.zeros(3), np.eye(3), np.array(AHEAD, dtype=float))
     est.update(LidarScan(0.5, None, meas, SIGMA))
     snap = est.estimate()

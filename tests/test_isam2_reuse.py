@@ -3,7 +3,8 @@
 * :func:`estimators.isam2.graph.keyframe_marginals` (one joint marginal of a keyframe and its
   landmarks) against GTSAM's per-variable queries: the keyframe's ``jointMarginalCovariance``
   and each landmark's ``marginalCovariance``, on a pose seeing four landmarks through the
-  project's LiDAR factor.
+  project's LiDAR factor; a subset of the landmarks read off the whole joint
+  (:func:`~estimators.isam2.graph.sub_joint`) against that subset's own joint query.
 * :class:`estimators.isam2.transition.ImuTransition` (the linearisation point reused from one
   prediction to the next) against a fresh one at each preintegration, ``F`` against central
   differences of GTSAM's own prediction (``δ_j = F δ_i`` for the mean), and ``F``, ``Q``
@@ -20,7 +21,7 @@ import numpy as np
 import pytest
 
 from estimators.isam2.factors import landmark_error
-from estimators.isam2.graph import keyframe_marginals
+from estimators.isam2.graph import keyframe_marginals, sub_joint
 from estimators.isam2.transition import ImuTransition
 from quadslam_env.models.lidar import measure_from_body
 
@@ -53,15 +54,19 @@ def test_keyframe_marginals_equal_per_variable_queries() -> None:
         values.insert(key, lm)
     isam = gtsam.ISAM2()
     isam.update(graph, values)
-    cov, blocks = keyframe_marginals(isam, [x, v, b], lms)
+    cov, blocks, joint = keyframe_marginals(isam, [x, v, b], lms)
     ref = np.asarray(isam.jointMarginalCovariance([x, v, b]).fullMatrix())
     np.testing.assert_allclose(cov, ref, rtol=1e-9, atol=1e-12)
     assert cov.shape == (15, 15) and len(blocks) == len(lms)
     for key, block in zip(lms, blocks, strict=True):
         np.testing.assert_allclose(block, isam.marginalCovariance(key), rtol=1e-9, atol=1e-12)
-    nav_only, none = keyframe_marginals(isam, [x, v, b], [])
+    nav_only, none, _ = keyframe_marginals(isam, [x, v, b], [])
     np.testing.assert_allclose(nav_only, ref, rtol=1e-9, atol=1e-12)
     assert none == []
+    # A subset of the landmarks, in another order: its own joint marginal with the keyframe.
+    subset = [len(lms) - 1, 0, 2]
+    want = isam.jointMarginalCovariance([x, v, b, *(lms[j] for j in subset)]).fullMatrix()
+    np.testing.assert_allclose(sub_joint(joint, 15, subset), want, rtol=1e-9, atol=1e-12)
 
 
 def _pim(samples: int, bias: Any) -> Any:

@@ -52,6 +52,7 @@ from estimators.isam2.graph import (
     keyframe_marginals,
     known_map,
     require_gtsam,
+    sub_joint,
 )
 from estimators.isam2.history import ImuHistory, KeptSample
 from estimators.isam2.output import Isam2Output
@@ -131,6 +132,9 @@ class Isam2Slam(Isam2Output, ImuHistory):
         # Each landmark's marginal at the current keyframe; None: not recovered yet (lazily,
         # on the first snapshot that needs them, :meth:`_landmark_covs`).
         self._lm_covs: dict[int, FloatArray] | None = {}
+        # The keyframe's joint marginal with the landmarks (unknown association): their row
+        # by id, and the (15 + 3L)² matrix.
+        self._kf_joint: tuple[dict[int, int], FloatArray] | None = None
         self._lm_map: LaneMap | None = None  # the snapshots' landmarks, per keyframe
         self._unlabeled: bool | None = None
         self._rates = np.zeros(3)
@@ -294,6 +298,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
         """One smoother update with the new factors, then ``iterations − 1`` more."""
         if self._lm_covs is None:  # never asked for at this keyframe: after the update they
             self._lm_covs = {}  # cannot be recovered (reported as zero if the update fails)
+        self._kf_joint = None  # the next keyframe's, once read
         self._smoother.update(graph, values, stamps)
         for _ in range(self.settings.iterations - 1):
             self._smoother.update()
@@ -318,8 +323,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
             out = np.zeros((6 + n, 6 + n))
             out[:6, :6] = pose_cov
             if self._known is None:
-                keys = nav + [self._key("l", i) for i in ids]
-                full = np.asarray(self._isam.jointMarginalCovariance(keys).fullMatrix())
+                full = self._joint_marginal(nav, ids)
                 out[:6, 6:] = Fp @ full[:NAV_DIM, NAV_DIM:]
                 out[6:, :6] = out[:6, 6:].T
                 out[6:, 6:] = full[NAV_DIM:, NAV_DIM:]
@@ -330,6 +334,15 @@ class Isam2Slam(Isam2Output, ImuHistory):
         else:
             lms, covs = self._lm_means, self._landmark_covs()
         return self._front.associate(meas, sigma, pred, lms, covs, joint)
+
+    def _joint_marginal(self, nav: list[int], ids: list[int]) -> FloatArray:
+        """(15 + 3M)² joint marginal of keyframe k (``nav``) and the landmarks ``ids``: read off
+        the keyframe's query when it holds them all, else one more Bayes-tree query."""
+        if self._kf_joint is not None and all(i in self._kf_joint[0] for i in ids):
+            rows, joint = self._kf_joint
+            return sub_joint(joint, NAV_DIM, [rows[i] for i in ids])
+        keys = nav + [self._key("l", i) for i in ids]
+        return np.asarray(self._isam.jointMarginalCovariance(keys).fullMatrix())
 
     def _keyframe(self, scan: Labeled, sigma: FloatArray, pim: Any, t: float) -> None:
         """Add keyframe k+1 at the clock ``t`` s with the IMU factor ``pim`` (or, without IMU
@@ -413,10 +426,13 @@ class Isam2Slam(Isam2Output, ImuHistory):
         # with the keyframe's. Otherwise they are recovered when a snapshot asks for them.
         eager = bool(self._unlabeled)
         lm_ids = mapped if eager else []
-        cov, blocks = keyframe_marginals(
+        cov, blocks, joint = keyframe_marginals(
             self._isam, [xk, vk, bk], [self._key("l", i) for i in lm_ids]
         )
         covs = dict(zip(lm_ids, blocks, strict=True))
+        # The same query answers the next scan's association (the smoother does not move
+        # before it): its joint marginals of the keyframe and some landmarks are sub-blocks.
+        self._kf_joint = (dict(zip(lm_ids, range(len(lm_ids)), strict=True)), joint)
         parts = (pose.matrix().ravel(), vel, bias.vector(), cov.ravel(), points.ravel())
         finite = np.isfinite(np.concatenate(parts)).all()
         if not finite:

@@ -194,7 +194,7 @@ def known_map(ids: np.ndarray, positions: FloatArray) -> dict[int, FloatArray]:
 
 def keyframe_marginals(
     isam: Any, nav_keys: list[int], landmark_keys: list[int]
-) -> tuple[FloatArray, list[FloatArray]]:
+) -> tuple[FloatArray, list[FloatArray], FloatArray]:
     """A keyframe's joint marginal and each landmark's marginal, from one Bayes-tree query.
 
     The landmarks' marginals are the diagonal blocks of the joint marginal of the keyframe
@@ -208,7 +208,9 @@ def keyframe_marginals(
         landmark_keys: The landmarks' keys (may be empty).
 
     Returns:
-        ``(Σ (15, 15) over (δθ, δt, δv_N, δb_a, δb_ω), [Σ_l (3, 3) m² per landmark key])``.
+        ``(Σ (15, 15) over (δθ, δt, δv_N, δb_a, δb_ω), [Σ_l (3, 3) m² per landmark key],
+        the whole joint (15 + 3L, 15 + 3L))``: the whole joint's rows and columns of the
+        keyframe and any subset of the landmarks are that subset's joint marginal with it.
     """
     joint = np.asarray(isam.jointMarginalCovariance([*nav_keys, *landmark_keys]).fullMatrix())
     n = joint.shape[0] - 3 * len(landmark_keys)
@@ -216,4 +218,19 @@ def keyframe_marginals(
         joint[n + 3 * j : n + 3 * j + 3, n + 3 * j : n + 3 * j + 3].copy()
         for j in range(len(landmark_keys))
     ]
-    return joint[:n, :n].copy(), blocks
+    return joint[:n, :n].copy(), blocks, joint
+
+
+def sub_joint(joint: FloatArray, n: int, positions: list[int]) -> FloatArray:
+    """The joint marginal of the keyframe and some landmarks, read off a larger one.
+
+    Args:
+        joint: (n + 3L, n + 3L) the whole joint of :func:`keyframe_marginals`.
+        n: Its keyframe rows (15).
+        positions: Indices into its landmark list, in the order wanted.
+
+    Returns:
+        (n + 3M, n + 3M) the joint marginal of the keyframe and those M landmarks.
+    """
+    rows = np.concatenate([np.arange(n), *(n + 3 * j + np.arange(3) for j in positions)])
+    return joint[np.ix_(rows, rows)]
