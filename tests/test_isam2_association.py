@@ -271,14 +271,19 @@ def test_clutter_is_not_confirmed_and_pairings_are_right() -> None:
     assert wrong == 0  # precision 1
 
 
-def _fly(seed: int, duration: float) -> tuple[list[dict[str, Any]], Any]:
+def _unknown_env(duration: float) -> tuple[Any, DFLQRPolicy]:
+    """``paper_ekf_figure8_unknown`` with isam2 for ``duration`` s, and DF-LQR for it."""
     env = gym.make(
         "QuadSLAM-v0",
         scenario="paper_ekf_figure8_unknown",
         estimator_name="isam2",
         episode={"duration_s": duration},
     )
-    policy = DFLQRPolicy.from_env(env)
+    return env, DFLQRPolicy.from_env(env)
+
+
+def _fly(seed: int, duration: float) -> tuple[list[dict[str, Any]], Any]:
+    env, policy = _unknown_env(duration)
     obs, _ = env.reset(seed=seed)
     infos: list[dict[str, Any]] = []
     done = False
@@ -340,13 +345,7 @@ def test_keyframe_query_answers_the_association_as_gtsam_would(
 def test_keyframe_query_sub_blocks_are_gtsams_joint_marginals() -> None:
     """After a keyframe, the joint marginal of the keyframe and any landmarks, in any order,
     read off the keyframe's query equals GTSAM's own query for them."""
-    env = gym.make(
-        "QuadSLAM-v0",
-        scenario="paper_ekf_figure8_unknown",
-        estimator_name="isam2",
-        episode={"duration_s": 2.0},
-    )
-    policy = DFLQRPolicy.from_env(env)
+    env, policy = _unknown_env(2.0)
     obs, _ = env.reset(seed=1)
     for _ in range(151):  # one step after the keyframe of t = 1.5 s
         obs, *_ = env.step(policy.predict(obs)[0])
