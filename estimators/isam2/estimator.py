@@ -120,7 +120,6 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self._kf_bias: Any = None
         self._kf_dcm = np.eye(3)
         self._kf_biases = (np.zeros(3), np.zeros(3))  # (accelerometer m/s², gyro rad/s)
-        self._n_mapped = 0
         self._kf_cov = np.zeros((NAV_DIM, NAV_DIM))
         self._transition: ImuTransition | None = None  # built at the first prediction
         self._transition_current = False  # linearised at the current keyframe

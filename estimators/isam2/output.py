@@ -41,7 +41,6 @@ class Isam2Output:
     _kf_cov: FloatArray
     _kf_dcm: FloatArray
     _kf_biases: tuple[FloatArray, FloatArray]
-    _n_mapped: int
     _transition: ImuTransition | None
     _transition_current: bool
     _pim: Any
@@ -140,7 +139,6 @@ class Isam2Output:
         if lane_map is None or (with_covs and lane_map.covs is None):
             covs = self._landmark_covs() if with_covs else None
             lane_map = self._lm_map = landmark_map(self._known or self._lm_means, covs)
-            self._n_mapped = int(np.count_nonzero(lane_map.mapped))
         biases = self._kf_biases if self.settings.estimate_imu_bias else None
         return snapshot(
             pose.translation(),
@@ -150,7 +148,7 @@ class Isam2Output:
             self._rates,
             lane_map,
             biases,
-            self._diagnostics(self._n_mapped),
+            self._diagnostics(int(np.count_nonzero(lane_map.mapped))),
         )
 
     def _diagnostics(self, n_mapped: int) -> dict[str, float]:

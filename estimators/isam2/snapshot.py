@@ -3,8 +3,7 @@
 
 The smoothed (or IMU-predicted) ``Pose3`` and velocity in N and their covariance over GTSAM's
 tangent (δθ, δt, δv_N) become (ρ, v_B, Λ) and their (9, 9) covariance
-(:func:`~estimators.isam2.tangent.state_covariance_kernel`); the landmarks are reported sorted
-by id.
+(:func:`~estimators.isam2.tangent.state_covariance`); the landmarks are reported sorted by id.
 """
 
 from __future__ import annotations
@@ -13,7 +12,7 @@ import copy
 
 import numpy as np
 
-from estimators.isam2.tangent import state_covariance_kernel
+from estimators.isam2.tangent import state_covariance
 from quadslam_env.estimation import BatchEstimate
 from quadslam_env.estimation.snapshot import LaneMap
 from quadslam_env.models.frames import euler_from_dcm
@@ -51,9 +50,9 @@ def snapshot(
 
     Args:
         position: (3,) ρ in N, m (the snapshot keeps this array).
-        dcm: (3, 3) ``C_NB``, C order.
+        dcm: (3, 3) ``C_NB``.
         vel_n: (3,) velocity in N, m/s.
-        cov_t: (9, 9) covariance over (δθ rad, δt m, δv_N m/s), C order.
+        cov_t: (9, 9) covariance over (δθ rad, δt m, δv_N m/s).
         rates: (3,) body rates, rad/s.
         landmarks: :func:`landmark_map`.
         biases: ``(accelerometer (3,) m/s², gyro (3,) rad/s)`` to report, or ``None`` (biases
@@ -65,7 +64,7 @@ def snapshot(
     """
     euler = euler_from_dcm(dcm)
     vel_body = dcm.T @ vel_n
-    pose_cov = state_covariance_kernel(cov_t, dcm, vel_body, euler[0], euler[1])
+    pose_cov = state_covariance(cov_t, dcm, vel_body, euler)
     if not np.isfinite(np.concatenate((position, vel_n, euler, pose_cov.ravel()))).all():
         raise FloatingPointError("isam2: non-finite prediction")
     return BatchEstimate.on_map(

@@ -41,7 +41,7 @@ def _state_jacobian(dcm: FloatArray, vel_body: FloatArray, phi: float, theta: fl
 
 
 @kernel
-def state_covariance_kernel(
+def _state_covariance(
     cov_tangent: FloatArray, dcm: FloatArray, vel_body: FloatArray, phi: float, theta: float
 ) -> FloatArray:
     """``J Σ Jᵀ`` of :func:`state_covariance`, symmetrised (kernel: called every step)."""
@@ -83,7 +83,7 @@ def state_covariance(
     Returns:
         (9, 9) covariance over (ρ m, v_B m/s, Λ rad), exactly symmetric.
     """
-    return state_covariance_kernel(
+    return _state_covariance(
         np.ascontiguousarray(cov_tangent, dtype=float),
         np.ascontiguousarray(dcm, dtype=float),
         np.ascontiguousarray(vel_body, dtype=float),

@@ -84,6 +84,10 @@ def _propagate(
     return 0.5 * (out + out.T)
 
 
+_KernelArgs = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
+"""``(H1, H2, Σ, C_NB at i, C_NB at j)``: :func:`_transition`'s arguments."""
+
+
 class ImuTransition:
     """The keyframe's side of the IMU factor, reused for every prediction from a keyframe
     (every control step between two scans, and the association's) and moved to the next
@@ -102,8 +106,6 @@ class ImuTransition:
         # predict() fills these in place (column-major, as the bindings' Eigen maps want).
         self._H1 = np.zeros((9, 9), order="F")
         self._H2 = np.zeros((9, 6), order="F")
-        self._H1c = np.zeros((9, 9))
-        self._H2c = np.zeros((9, 6))
 
     def rebase(self, pose: Any, vel: FloatArray, bias: Any) -> None:
         """Move the transition to another keyframe (arguments as for the constructor)."""
@@ -124,8 +126,8 @@ class ImuTransition:
             velocity (m/s, N), and ``δ_j = F δ_i + noise`` with noise covariance Q, over the
             tangent (δθ rad, δt m, δv_N m/s, δb_a m/s², δb_ω rad/s).
         """
-        pose_j, vel_j, R_j, cov = self._linearise(pim)
-        F, Q = _transition(self._H1c, self._H2c, cov, self._R_i, R_j)
+        pose_j, vel_j, args = self._linearise(pim)
+        F, Q = _transition(*args)
         return pose_j, vel_j, F, Q
 
     def propagate(self, pim: Any, P: FloatArray) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
@@ -140,17 +142,17 @@ class ImuTransition:
             ``(pose_j, vel_j (3,), C_NB (3, 3) at j, Σ_j (9, 9))`` with ``Σ_j = F P Fᵀ + Q`` over
             (δθ rad, δt m, δv_N m/s), exactly symmetric.
         """
-        pose_j, vel_j, R_j, cov = self._linearise(pim)
-        return pose_j, vel_j, R_j, _propagate(self._H1c, self._H2c, cov, self._R_i, R_j, P)
+        pose_j, vel_j, args = self._linearise(pim)
+        return pose_j, vel_j, args[4], _propagate(*args, P)
 
-    def _linearise(self, pim: Any) -> tuple[Any, FloatArray, FloatArray, FloatArray]:
-        """``predict`` with its Jacobians (into ``_H1c``, ``_H2c``, C order for the kernels),
-        and the factor's noise covariance: ``(pose_j, vel_j, C_NB at j, Σ (15, 15))``."""
+    def _linearise(self, pim: Any) -> tuple[Any, FloatArray, _KernelArgs]:
+        """``predict`` with its Jacobians and the factor's noise covariance: ``(pose_j, vel_j,
+        the kernels' arguments (H1, H2, Σ (15, 15), C_NB at i, C_NB at j), C order)``."""
         nav = pim.predict(self._nav, self._bias, self._H1, self._H2)
         pose_j = nav.pose()
         R_j = np.ascontiguousarray(pose_j.rotation().matrix(), dtype=float)
         factor = self._g.CombinedImuFactor(0, 1, 2, 3, 4, 5, pim)  # for its noise model only
         cov = np.ascontiguousarray(factor.noiseModel().covariance(), dtype=float)
-        self._H1c[:] = self._H1
-        self._H2c[:] = self._H2
-        return pose_j, np.asarray(nav.velocity(), dtype=float), R_j, cov
+        H1, H2 = np.ascontiguousarray(self._H1), np.ascontiguousarray(self._H2)
+        args = (H1, H2, cov, self._R_i, R_j)
+        return pose_j, np.asarray(nav.velocity(), dtype=float), args
