@@ -31,10 +31,11 @@ estimate is the last keyframe's smoothed state predicted with the current preint
 its covariance the keyframe's joint marginal (pose, velocity, biases) propagated through the
 linearised IMU factor, which adds the preintegration noise; both are mapped to (ρ, v_B, Λ).
 
-A GTSAM exception inside :meth:`Isam2Slam.update` (an indeterminate system, a failed
-Cholesky) never escapes: the estimator sets ``diagnostics["diverged"] = 1`` (the env ends the
-episode as diverged, :func:`~quadslam_env.estimation.health.health_codes`), keeps its last
-finite estimate and dead-reckons from it.
+A GTSAM exception inside :meth:`Isam2Slam.update` or :meth:`Isam2Slam.predict` (an
+indeterminate system, a failed Cholesky) and a non-finite IMU sample never escape: the
+estimator sets ``diagnostics["diverged"] = 1`` (the env ends the episode as diverged,
+:func:`~quadslam_env.estimation.health.health_codes`), keeps its last finite estimate and
+dead-reckons from it (a non-finite sample is dropped).
 """
 
 from __future__ import annotations
@@ -218,6 +219,11 @@ class Isam2Slam(Isam2Output, ImuHistory):
     def predict(self, imu: ImuSample, control: Control, dt: float) -> None:
         """Preintegrate one IMU sample held over ``dt`` (Forster et al. 2017, eq. 24–26).
 
+        A sample with a NaN or infinite entry, or a GTSAM exception while preintegrating, is
+        never raised: the sample is dropped (the smoother's clock still advances by ``dt``)
+        and the estimator reports divergence, ``diagnostics["diverged"] = 1`` with its last
+        finite estimate, as a failure in :meth:`update` does.
+
         Args:
             imu: Sample with ``accel`` (3,) specific force [m/s², B], ``gyro`` (3,) [rad/s,
                 B] and their white-noise stds per sample (continuous densities ``σ² dt``).
@@ -225,8 +231,8 @@ class Isam2Slam(Isam2Output, ImuHistory):
             dt: Sample period in s (> 0).
 
         Raises:
-            ValueError: Before the first :meth:`reset`, if ``dt`` is not a positive finite
-                number, or if the sample is not finite.
+            ValueError: Before the first :meth:`reset`, or if ``dt`` is not a positive finite
+                number.
         """
         del control
         if self._smoother is None:
@@ -235,17 +241,27 @@ class Isam2Slam(Isam2Output, ImuHistory):
             raise ValueError(f"predict: dt must be a positive finite number of seconds, got {dt}")
         accel = np.array(imu.accel, dtype=float).reshape(3)  # copies: a kept sample outlives
         gyro = np.array(imu.gyro, dtype=float).reshape(3)  # the caller's buffer
-        if not (np.isfinite(accel).all() and np.isfinite(gyro).all()):
-            raise ValueError("predict: the IMU sample must be finite")
         clock = self._t + dt
+        self._cache = self._state_cache = None
+        if not (np.isfinite(accel).all() and np.isfinite(gyro).all()):
+            self._t = clock
+            bad = FloatingPointError(
+                f"isam2: non-finite IMU sample at t = {float(imu.t):g} s (accel "
+                f"{accel.tolist()} m/s², gyro {gyro.tolist()} rad/s)"
+            )
+            self._diverge(bad)
+            return
         sample = KeptSample(float(imu.t), accel, gyro, imu.accel_sigma, imu.gyro_sigma, dt, clock)
-        self._pim = self._preintegrate(self._pim, sample)
         self._t = clock
+        try:
+            self._pim = self._preintegrate(self._pim, sample)
+        except Exception as exc:  # a GTSAM failure (C++ exceptions arrive as RuntimeError)
+            self._diverge(exc)
+            return
         if not self._diverged:  # kept for a late scan (scans are ignored after a divergence)
             self._kept.append(sample)
         self._gyro = gyro
         self._rates = gyro - self._kf_biases[1]
-        self._cache = self._state_cache = None
 
     def update(self, scan: LidarScan) -> None:
         """Add a keyframe at the scan with its LiDAR factors and update the smoother.
