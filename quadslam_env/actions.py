@@ -13,6 +13,7 @@ to any thrust and torque). Works on B lanes at once.
 from __future__ import annotations
 
 import math
+import numbers
 from typing import Any
 
 import numpy as np
@@ -84,13 +85,7 @@ def validate_actions(action: Any, num_lanes: int | None, dim: int = ACTION_DIM) 
             return out
     name = "action" if single else "actions"
     allowed = f"{dim} finite numbers in [-1, 1]" if single else f"shape {want}, finite, in [-1, 1]"
-    try:
-        arr = np.asarray(action)
-        if arr.dtype.kind in "cmM":  # complex, timedelta, datetime: not real numbers
-            raise TypeError(f"dtype {arr.dtype}")
-        arr = arr.astype(float, copy=False)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise ActionError(f"{name}: got {action!r}; allowed: {allowed}") from exc
+    arr = _real_array(action, name, allowed)
     if arr.shape != want:
         raise ActionError(f"{name}: got shape {arr.shape}; allowed: shape {want} in [-1, 1]")
     finite = np.isfinite(arr)
@@ -103,6 +98,37 @@ def validate_actions(action: Any, num_lanes: int | None, dim: int = ACTION_DIM) 
             "stepped"
         )
     return np.clip(arr.reshape(-1, dim), -1.0, 1.0)
+
+
+def _real_array(action: Any, name: str, allowed: str) -> FloatArray:
+    """``action`` as a float array, if it holds real numbers only: a numeric dtype (bool,
+    integer, float), or objects that are all real numbers. Strings and bytes (even of
+    digits), complex numbers, dates, other objects and masked arrays are refused.
+
+    Raises:
+        ActionError: Naming ``name``, what it got (on one line) and ``allowed``.
+    """
+    if isinstance(action, np.ma.MaskedArray):  # a masked entry has no value to act on
+        raise ActionError(
+            f"{name}: got a masked array; allowed: {allowed}, as a plain array or list"
+        )
+    try:
+        arr = np.asarray(action)
+        kind = arr.dtype.kind
+        if kind not in "biuf" and not (kind == "O" and all(map(_is_real, arr.flat))):
+            raise TypeError(f"dtype {arr.dtype}")
+        return arr.astype(float, copy=False)
+    except (TypeError, ValueError, OverflowError) as exc:
+        shown = " ".join(repr(action).split())  # one line, whatever the repr
+        shown = shown if len(shown) <= 120 else f"{shown[:117]}..."
+        raise ActionError(
+            f"{name}: got {shown}; allowed: {allowed} (real numbers, not strings or bytes)"
+        ) from exc
+
+
+def _is_real(value: Any) -> bool:
+    """True for a real number (Python or NumPy: bool, int, float), not for strings or bytes."""
+    return isinstance(value, numbers.Real)
 
 
 class ActionMap:

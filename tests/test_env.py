@@ -267,6 +267,12 @@ def test_reset_options_are_applied():
         (np.array([math.inf, 0.0, 0.0, 0.0]), "non-finite"),
         (np.array([0.0, 0.0, -math.inf, 0.0]), "non-finite"),
         ("up", "action"),
+        (["0"] * 4, "not strings"),  # digits: NumPy would read them as numbers
+        ([b"0.5"] * 4, "not strings or bytes"),
+        (np.array(["0"] * 4), "not strings"),
+        (np.array([0.1, "0.2", 0.0, 0.0], dtype=object), "not strings"),
+        (np.ma.masked_array(np.zeros(4), mask=[False, True, False, False]), "masked array"),
+        (np.ma.masked_array(np.zeros(4)), "masked array"),  # nothing masked: refused too
     ],
 )
 def test_bad_actions_raise_and_do_not_corrupt(action, fragment):
