@@ -51,7 +51,7 @@ paper's 10 Hz IMU it is 4 rad/s (with 20 rad/s the vehicle tips over within a se
 INTEGRAL_LIMIT = 0.3 * GRAVITY
 """Default cap of the integral action per axis, m/s²: a thrust-to-weight error of 30 %, beyond
 the ±20 % mass and ±10 % thrust of the randomised scenario (``ekf_figure8_randomized``)."""
-_NO_BIAS = np.empty((0, 3))
+_NO_OFFSET = np.empty((0, 4))
 BRAKING_RATE = 1.5
 """Rate error in rad/s from which the saturated attitude loop must stop without overshoot.
 A PD loop ``τ = −J ω_n² e − 2ζω_n J ė`` whose torque saturates at ``J α`` brakes at α only
@@ -116,15 +116,16 @@ def _command_lanes(
     kd: FloatArray,
     mass: float,
     limits: FloatArray,
-    acc_bias: FloatArray,
+    u_offset: FloatArray,
     out: FloatArray,
 ) -> None:
     """DF-LQR command ``out`` (n, 4) for observations ``obs`` (n, ≥16), steps 1–4.
 
     With ``limits`` = (max thrust N, max torques (3) N·m) the command is written as the
     normalised ``thrust_torque`` action clipped to [-1, 1]; with an empty ``limits`` as
-    physical thrust (N) and torque (N·m). ``acc_bias`` (n, 3), m/s² in the heading frame, is
-    added to ``u_p`` (the integral action); an empty (0, 3) array adds nothing.
+    physical thrust (N) and torque (N·m). ``u_offset`` (n, k), k ≤ 4, is added to the first k
+    entries of ``u = (u_p [m/s², heading frame], u_ψ [rad/s])`` before the inverse map (the
+    integral action); an empty (0, k) array adds nothing.
     """
     r_err = np.empty(7)
     v = np.empty(4)
@@ -140,9 +141,9 @@ def _command_lanes(
             for j in range(7):
                 acc -= K[i, j] * r_err[j]
             v[i] = acc
-        if acc_bias.shape[0]:
-            for i in range(3):
-                v[i] += acc_bias[b, i]
+        if u_offset.shape[0]:
+            for i in range(u_offset.shape[1]):
+                v[i] += u_offset[b, i]
         thrust, phi_d, theta_d, r_d = inverse_map(v[0], v[1], v[2], v[3], mass)
         out[b, 0] = thrust
         out[b, 1] = -kp[0] * (o[6] - phi_d) - kd[0] * o[9]
@@ -152,6 +153,30 @@ def _command_lanes(
             out[b, 0] = min(1.0, max(-1.0, 2.0 * out[b, 0] / limits[0] - 1.0))
             for i in range(1, 4):
                 out[b, i] = min(1.0, max(-1.0, out[b, i] / limits[i]))
+
+
+def heading_frame_step(
+    integral: FloatArray, obs: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """One Euler step of ``∫ ρ̃ dt`` kept in the reference-heading frame.
+
+    The heading frame turns by ``ψ̇_d dt`` (obs[:, 15]) each step, so the components of the
+    world-frame integral rotate by ``−ψ̇_d dt`` in it; the step then adds ``ρ̃ dt`` (obs[:, 0:3]).
+
+    Args:
+        integral: (n, 3) integral of the position error in the heading frame, m·s.
+        obs: (n, ≥16) observations (base layout of ``QuadSLAMEnv``).
+        dt: Control period, s.
+
+    Returns:
+        ``(turned, grown)``, both (n, 3) m·s: the integral in the new heading frame without and
+        with this step's error.
+    """
+    angle = -obs[:, 15] * dt
+    c, s = np.cos(angle), np.sin(angle)
+    x, y = integral[:, 0], integral[:, 1]
+    turned = np.stack([c * x - s * y, s * x + c * y, integral[:, 2]], axis=1)
+    return turned, turned + obs[:, 0:3] * dt
 
 
 class DFLQRPolicy:
@@ -254,7 +279,7 @@ class DFLQRPolicy:
         """
         out = np.empty((obs.shape[0], 4))
         _command_lanes(np.asarray(obs, dtype=float), self.K, self.kp, self.kd,
-                       float(self.vehicle.mass), np.empty(0), _NO_BIAS, out)  # fmt: skip
+                       float(self.vehicle.mass), np.empty(0), _NO_OFFSET, out)  # fmt: skip
         return out[:, 0], out[:, 1:]
 
     def predict(
@@ -270,12 +295,12 @@ class DFLQRPolicy:
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
         act = np.zeros((batch.shape[0], self.action_dim))
-        bias = _NO_BIAS
+        offset = _NO_OFFSET
         if self.integral_gain > 0.0:
             state = self._integral_state(state, episode_start, batch.shape[0])
-            bias = -self.integral_gain * state[:, :3]
+            offset = -self.integral_gain * state[:, :3]
         _command_lanes(batch, self.K, self.kp, self.kd, float(self.vehicle.mass), self._limits,
-                       bias, act)  # fmt: skip
+                       offset, act)  # fmt: skip
         if self.integral_gain > 0.0:
             state = self._integrate(state, batch, np.abs(act[:, 0]) >= 1.0)
         act = act.astype(np.float32)
@@ -292,17 +317,13 @@ class DFLQRPolicy:
         return out
 
     def _integrate(self, state: FloatArray, obs: FloatArray, saturated: np.ndarray) -> FloatArray:
-        """One Euler step of the (n, 4) state: ``∫ ρ̃ dt`` in the heading frame, which turns by
-        ``ψ̇_d dt`` (obs[15]) each step, so the world-frame integral's components rotate by
-        ``−ψ̇_d dt``; frozen on the lanes whose thrust is ``saturated`` (n,) or that are
-        still within ``integral_hold_s`` of their start; clamped to ``integral_limit / k_i``.
-        Column 3, the time since the episode started, advances by ``control_dt``."""
+        """One Euler step of the (n, 4) state: ``∫ ρ̃ dt`` in the heading frame
+        (:func:`heading_frame_step`); frozen on the lanes whose thrust is ``saturated`` (n,) or
+        that are still within ``integral_hold_s`` of their start; clamped to
+        ``integral_limit / k_i``. Column 3, the time since the episode started, advances by
+        ``control_dt``."""
         dt = self.control_dt
-        angle = -obs[:, 15] * dt
-        c, s = np.cos(angle), np.sin(angle)
-        x, y = state[:, 0], state[:, 1]
-        turned = np.stack([c * x - s * y, s * x + c * y, state[:, 2]], axis=1)
-        grown = turned + obs[:, 0:3] * dt
+        turned, grown = heading_frame_step(state[:, :3], obs, dt)
         cap = self.integral_limit / self.integral_gain
         frozen = saturated | (state[:, 3] < self.integral_hold_s)
         integral = np.where(frozen[:, None], turned, np.clip(grown, -cap, cap))

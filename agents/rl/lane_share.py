@@ -86,6 +86,7 @@ class LaneShare:
         parsed = parse_wrapper_spec(wrapper)
         self.residual = None if parsed is None else ResidualDFLQR(self.vec, **parsed[1])
         self._obs: np.ndarray | None = None
+        self._start = np.ones(num_lanes, dtype=bool)  # lanes whose next step starts an episode
         self.stagger = stagger
         self.privileged = privileged
         self._cut = np.full(num_lanes, NO_CUT)
@@ -120,6 +121,7 @@ class LaneShare:
             for j, info in zip(lanes, self._infos(g_info, range(len(lanes))), strict=True):
                 infos[j] = info
         self._obs = obs
+        self._start = np.ones(len(seeds), dtype=bool)
         if self.stagger is not None:
             g0, n = self.stagger
             lanes_global = g0 + np.arange(len(seeds)) + 1
@@ -150,7 +152,7 @@ class LaneShare:
             raise gym.error.ResetNeeded("QuadSLAMVecEnv: call reset() before step()")
         act = actions
         if self.residual is not None:
-            act, base = self.residual(self._obs, actions)
+            act, base = self.residual(self._obs, actions, self._start)
         core = self.core
         obs, reward, terminated, truncated, info = core.step(np.asarray(act, dtype=float))
         cut = core.steps >= self._cut  # staggered first episodes end here (truncated)
@@ -159,6 +161,7 @@ class LaneShare:
             truncated = truncated | cut
             add_summaries(info, core.episode.summary(), cut)
         dones = terminated | truncated
+        self._start = dones
         self._cut[dones] = NO_CUT  # later episodes run their full length
         infos = self._infos(info, range(core.num_lanes), dones)
         for j, lane_dict in enumerate(infos):

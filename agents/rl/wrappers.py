@@ -40,6 +40,7 @@ import numpy as np
 
 from agents.control.dflqr import DFLQRPolicy
 from agents.control.lookat import LookAtPolicy
+from agents.control.named import CONTROLLERS, build_controller
 
 RESIDUAL_DFLQR = "residual_dflqr"
 WRAPPERS = (RESIDUAL_DFLQR,)
@@ -79,22 +80,23 @@ def as_residual_scale(scale: float | Sequence[float]) -> np.ndarray:
     return arr.astype(np.float32)
 
 
-BASES = ("dflqr", "lookat")
-"""Controllers a residual can sit on: DF-LQR, or DF-LQR with the look-at heading rule
+BASES = (*CONTROLLERS, "lookat")
+"""Controllers a residual can sit on: the baselines by name (DF-LQR, the LQI of
+:mod:`agents.control.lqi`), or DF-LQR with the look-at heading rule
 (:mod:`agents.control.lookat`, for scenarios with the heading channel)."""
 
 
-def base_controller(env: Any, base: str) -> DFLQRPolicy | LookAtPolicy:
+def base_controller(env: Any, base: str) -> Any:
     """The controller named ``base`` (one of :data:`BASES`) for ``env``.
 
     Raises:
         ValueError: Unknown name, or ``lookat`` on a scenario without the heading channel.
     """
-    if base == "dflqr":
-        return DFLQRPolicy.from_env(env)
     if base == "lookat":
         return LookAtPolicy(env)
-    raise ValueError(f"wrapper.base: got {base!r}; allowed: {list(BASES)}")
+    if base not in CONTROLLERS:
+        raise ValueError(f"wrapper.base: got {base!r}; allowed: {list(BASES)}")
+    return build_controller(base, env, "wrapper.base")
 
 
 class ResidualDFLQR:
@@ -107,9 +109,12 @@ class ResidualDFLQR:
         base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`), when no ``controller`` is given.
 
     Attributes:
-        controller: The base policy (DF-LQR, or DF-LQR with the look-at heading).
+        controller: The base policy (DF-LQR, LQI, or DF-LQR with the look-at heading).
         scale: (4,) float32 residual scale ((5,) with the heading channel, whose scale is 1).
         dim: Components of one action (4, or 5 with the heading channel).
+        state: The base's ``predict`` state over the lanes (the LQI's integrals; ``None`` for
+            a memoryless base), carried from call to call and reset per lane by
+            ``episode_start``.
 
     Raises:
         ValueError: Bad ``scale`` or an env not in ``thrust_torque`` mode.
@@ -129,13 +134,18 @@ class ResidualDFLQR:
         # A heading channel (fifth component) is the agent's own command, not a residual:
         # DF-LQR's is 0 and its scale 1, so the formula passes it through.
         self.scale = np.concatenate([as_residual_scale(scale), np.ones(self.dim - 4, np.float32)])
+        self.state: Any = None
 
-    def __call__(self, obs: np.ndarray, residual: Any) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(
+        self, obs: np.ndarray, residual: Any, episode_start: Any = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Actions for residuals given the observations the agent acted on.
 
         Args:
             obs: (obs_dim,) or (B, obs_dim) observations.
             residual: Residuals of shape (4,) or (B, 4) matching ``obs``.
+            episode_start: () or (B,) bool, the lanes whose ``obs`` starts an episode (their
+                base state is reset); ``None``: none of them, unless no state exists yet.
 
         Returns:
             ``(action, dflqr_action)``, both float32 of the residual's shape.
@@ -147,7 +157,9 @@ class ResidualDFLQR:
         want = (*np.shape(obs)[:-1], self.dim)
         if res.shape != want:
             raise ValueError(f"residual action: got shape {res.shape}; allowed: {want}")
-        base, _ = self.controller.predict(obs)
+        base, self.state = self.controller.predict(
+            obs, state=self.state, episode_start=episode_start
+        )
         return residual_action(base, res, self.scale), base
 
 
@@ -157,20 +169,25 @@ class _ResidualSteps:
     env: Any
     residual: ResidualDFLQR
     _obs: np.ndarray | None = None
+    _start: np.ndarray | None = None
 
     def reset(self, *, seed: Any = None, options: dict[str, Any] | None = None) -> tuple[Any, Any]:
-        """Reset the env and remember the observation(s) for the next DF-LQR command."""
+        """Reset the env and remember the observation(s) for the next base command."""
         obs, info = self.env.reset(seed=seed, options=options)
         self._obs = obs
+        self._start = np.ones(np.shape(obs)[:-1], dtype=bool)
         return obs, info
 
     def _residual_step(self, action: Any) -> tuple[np.ndarray, np.ndarray, tuple]:
-        """``(action sent, DF-LQR action, env.step result)`` for residual ``action``."""
+        """``(action sent, base action, env.step result)`` for residual ``action``; a lane
+        that ends starts its next episode (the vector env's autoreset) with a fresh base
+        state."""
         if self._obs is None:
             raise gym.error.ResetNeeded(f"{type(self).__name__}: call reset() before step()")
-        act, base = self.residual(self._obs, action)
+        act, base = self.residual(self._obs, action, self._start)
         out = self.env.step(act)
         self._obs = out[0]
+        self._start = np.asarray(out[2]) | np.asarray(out[3])
         return act, base, out
 
 
