@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import multiprocessing as mp
 import os
 import signal
@@ -64,11 +65,53 @@ class Trained:
 
 def finished_run(folder: Path) -> Trained | None:
     """The first finished run in ``folder``: ``timing.json`` (written last by ``train()``)
-    and no ``INTERRUPTED`` marker; ``None`` when there is none."""
+    and no ``INTERRUPTED`` marker; ``None`` when there is none.
+
+    Raises:
+        ValueError: That run's ``timing.json`` is not the one ``train()`` writes
+            (:func:`recorded_wall_s`).
+    """
     for done in sorted(folder.glob("*/timing.json")):
         if not (done.parent / "INTERRUPTED").exists():
-            return Trained(done.parent, float(json.loads(done.read_text())["wall_s"]))
+            return Trained(done.parent, recorded_wall_s(done))
     return None
+
+
+def recorded_wall_s(timing: Path) -> float:
+    """The wall time in s of a run's ``train()``, from its ``timing.json``.
+
+    A ``timing.json`` marks a run as finished, and ``train()`` always records ``wall_s`` in
+    it, so a file that cannot be read, is not a JSON object or has no finite ``wall_s`` >= 0
+    is not one ``train()`` wrote: the run is not reused on its word.
+
+    Raises:
+        ValueError: One line naming the file, what is wrong with it, and what to do.
+    """
+    try:
+        data = json.loads(timing.read_text(encoding="utf-8"))
+    except OSError as exc:
+        problem = f"cannot be read ({exc.strerror or exc})"
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        problem = f"is not JSON ({' '.join(str(exc).split())})"
+    else:
+        value = data.get("wall_s") if isinstance(data, dict) else None
+        seconds = math.nan  # stays NaN unless value is a number (a bool is not)
+        if isinstance(value, int | float) and not isinstance(value, bool):
+            with contextlib.suppress(OverflowError):  # an integer beyond any float
+                seconds = float(value)
+        if not isinstance(data, dict):
+            problem = f"holds {type(data).__name__}, not a JSON object"
+        elif "wall_s" not in data:
+            problem = "has no 'wall_s' (the wall time train() records)"
+        elif not 0.0 <= seconds < math.inf:
+            shown = repr(value) if len(repr(value)) <= 40 else f"{repr(value)[:37]}..."
+            problem = f"has 'wall_s' {shown}, not a finite number of seconds >= 0"
+        else:
+            return seconds
+    raise ValueError(
+        f"{timing}: {problem}; allowed: the timing.json train() writes, with 'wall_s' in s "
+        f"(delete the run folder {timing.parent} to train it again)"
+    )
 
 
 def train_all(jobs: list[TrainJob], n_jobs: int) -> list[Trained]:
@@ -133,7 +176,7 @@ def _train(job: TrainJob, progress: bool) -> Trained | None:
     )
     if (run / "INTERRUPTED").exists():
         return None
-    return Trained(run, float(json.loads((run / "timing.json").read_text())["wall_s"]))
+    return Trained(run, recorded_wall_s(run / "timing.json"))
 
 
 def _report(job: TrainJob, trained: Trained | None) -> Trained:
