@@ -10,7 +10,9 @@ The files themselves are written by a :class:`Saver`: each file is produced unde
 name in its destination folder and moved into place with :func:`os.replace`, so a reader never
 sees half a file. When a write still fails at the end (the disk filled up, the folder was removed
 or made read-only during the run), the file is written next to the intended place under another
-name or, failing that, into a fresh temporary folder; :meth:`Saver.check` then raises one
+name (only where that place is a regular file or a new name: never beside a FIFO or a device
+such as ``/dev/full``, nor into ``/dev``, ``/proc`` or ``/sys``) or, failing that, into a fresh
+temporary folder; :meth:`Saver.check` then raises one
 :class:`OutputWriteError` that says what could not be written and where it went instead.
 
 Which targets are written through or refused, and the checks before the work, are
@@ -244,6 +246,25 @@ def json_text(obj: Any) -> str:
     return json.dumps(obj, indent=2) + "\n"
 
 
+_SYSTEM_DIRS = (Path("/dev"), Path("/proc"), Path("/sys"))
+"""Folders of devices and kernel files, never of results: no copy is written into them."""
+
+
+def _beside_allowed(path: Path) -> bool:
+    """Whether a failed write's copy may go next to ``path``: when ``path`` is a regular file
+    (or a link to one) or a name not yet taken, outside :data:`_SYSTEM_DIRS`. Beside a FIFO,
+    a device (``/dev/full``) or anything else that is not a file, the folder is not one of
+    results, and the copy goes to a temporary folder instead."""
+    try:
+        kind, dest = output_target(path, "output")
+    except OutputPathError:  # a folder, socket, block device or dangling link by now
+        return False
+    if kind == THROUGH:
+        return False
+    folder = Path(os.path.realpath(dest.parent))
+    return not any(folder == root or folder.is_relative_to(root) for root in _SYSTEM_DIRS)
+
+
 class Saver:
     """Writes result files atomically and keeps every failed write's result somewhere.
 
@@ -305,12 +326,12 @@ class Saver:
         produce: Callable[[Path], Any],
         exc: OSError | OutputPathError,
     ) -> Path:
-        """Write the file next to ``path`` under another name, else into a temporary folder."""
+        """Write the file next to ``path`` under another name (only beside a regular file or a
+        new name, :func:`_beside_allowed`), else into a temporary folder."""
         beside = path.with_name(f"{path.stem}.recovered-{secrets.token_hex(3)}{path.suffix}")
-        places: tuple[Callable[[], Path], ...] = (
-            lambda: beside,
-            lambda: self._temp_dir() / path.name,
-        )
+        places: list[Callable[[], Path]] = [lambda: self._temp_dir() / path.name]
+        if _beside_allowed(path):
+            places.insert(0, lambda: beside)
         for place in places:
             try:
                 target = place()
