@@ -243,9 +243,10 @@ def slam_bound(record: TruthRecord, model: BoundModel) -> BoundResult:
     sa = model.accel_sigma * dt if settings.imu_noise_in_q else 0.0
     sg = model.gyro_sigma * dt if settings.imu_noise_in_q else 0.0
     r_diag = np.asarray(model.lidar_sigma, dtype=float) ** 2
-    F, G = np.empty((POSE_DIM, POSE_DIM)), np.empty((POSE_DIM, 4))
+    nl = settings.input_dim
+    F, G = np.empty((POSE_DIM, POSE_DIM)), np.empty((POSE_DIM, nl))
     A, M, Phi = (np.empty((nv, nv)) for _ in range(3))
-    Gam, Pvv, T = np.empty((nv, 4)), np.empty((nv, nv)), np.empty((nv, nmax))
+    Gam, Pvv, T = np.empty((nv, nl)), np.empty((nv, nv)), np.empty((nv, nmax))
     xb = np.empty(nv)
     scans = dict(zip(record.scan_steps.tolist(), record.scan_ids, strict=True))
     pose = np.empty((K + 1, POSE_DIM, POSE_DIM))

@@ -210,7 +210,7 @@ _AZ = -9.3
 
 def _rk4(s: np.ndarray, az: float, rates: np.ndarray, dt: float) -> np.ndarray:
     y = np.concatenate([s, rates])
-    strapdown_rk4(y, az, dt, np.empty((6, 12)))
+    strapdown_rk4(y, 0.0, 0.0, az, dt, np.empty((6, 12)))
     return y[:9]
 
 

@@ -4,12 +4,13 @@ State of lane b (seed 001 eq. 21–23), in fixed-capacity arrays::
 
     x[b] = (s, b_imu, m)                                      (nmax,), first n[b] entries used
     s = (ρ [m, N], v_B [m/s, B], Λ = (φ, θ, ψ) [rad])         9 vehicle states (eq. 21)
-    b_imu = (b_ω [rad/s, B], b_az [m/s²])                     4 IMU biases (only with
-                                                              ``estimate_imu_bias``)
+    b_imu = (b_ω [rad/s, B], b_az [m/s²][, b_ax, b_ay])       4 IMU biases (only with
+                                                              ``estimate_imu_bias``), 6 with
+                                                              ``specific_force: full``
     m = (l_slot0, l_slot1, …) [m, N]                          3 per mapped landmark
     P[b]                                                      (nmax, nmax), eq. 23
 
-with ``nmax = nv + 3 Lmax`` (nv = 9 or 13). Landmarks are identified by their id
+with ``nmax = nv + 3 Lmax`` (nv = 9, 13 or 15). Landmarks are identified by their id
 ``0 … Lmax-1``; ``slot_of_id`` / ``id_of_slot`` map ids to map slots, which are filled in
 registration order (ascending id within a scan). Known-map mode is chosen per lane at reset.
 
@@ -36,7 +37,7 @@ from estimators.ekf.kernels import (
     fill_outputs,
     predict_lanes,
 )
-from estimators.ekf.settings import ACCEL_BIAS_Z, GYRO_BIAS, EkfSlamSettings
+from estimators.ekf.settings import ACCEL_BIAS_XY, ACCEL_BIAS_Z, GYRO_BIAS, EkfSlamSettings
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.memory import check_ekf_map
@@ -271,7 +272,8 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
 
         Args:
             t: (B,) sample times in s (unused).
-            accel: (B, 3) measured specific force [m/s², B]; only the z column is used (eq. 25).
+            accel: (B, 3) measured specific force [m/s², B]; only the z column is used (eq. 25)
+                unless ``specific_force: full``.
             gyro: (B, 3) measured body rates [rad/s, B].
             accel_sigma: Accelerometer white-noise std per step of ``dt`` (ND/√dt) in m/s².
             gyro_sigma: Gyro white-noise std per step of ``dt`` in rad/s.
@@ -299,6 +301,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             np.ascontiguousarray(active, dtype=bool),
             np.ascontiguousarray(accel, dtype=float),
             np.ascontiguousarray(gyro, dtype=float),
+            self.settings.full_specific_force,
             float(sa),
             float(sg),
             float(dt),
@@ -421,6 +424,8 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             self._batch_estimate = out
         if self.estimate_imu_bias:
             self._accel_bias[:, 2] = x[:, ACCEL_BIAS_Z]
+            if self.settings.full_specific_force:
+                self._accel_bias[:, :2] = x[:, ACCEL_BIAS_XY]
         np.logical_and(self.state.mapped, ~self.state.tentative, out=self._reported)
         return out
 
@@ -446,6 +451,8 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         if self.estimate_imu_bias:
             gyro_bias = x[GYRO_BIAS].copy()
             accel_bias = np.array([0.0, 0.0, x[ACCEL_BIAS_Z]])
+            if self.settings.full_specific_force:
+                accel_bias[:2] = x[ACCEL_BIAS_XY]
         return BatchEstimate.one_lane(
             position=x[POS].copy(),
             vel_body=x[VEL].copy(),

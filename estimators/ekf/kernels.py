@@ -57,23 +57,28 @@ def transition_matrices(
 
     ``A = F dt`` over ``(s, b)`` (the biases enter through ``λ = λ̃ - b``, so ``∂f/∂b = -G``),
     ``M = I + ½A``, ``Φ = I + A M = I + A + ½A²`` (eq. 27 to second order) and
-    ``Γ = M G diag(σ_a, σ_ω, σ_ω, σ_ω) dt``: the IMU white noise (per-sample std held over the
-    sample) mapped into the state, so that ``Q_d = Γ Γᵀ + Q dt``
+    ``Γ = M G diag(σ_a, σ_ω, σ_ω, σ_ω[, σ_a, σ_a]) dt``: the IMU white noise (per-sample std
+    held over the sample) mapped into the state, so that ``Q_d = Γ Γᵀ + Q dt``
     (:func:`propagate_covariance`). The EKF evaluates this at its estimate; the posterior
-    Cramér–Rao bound (:mod:`estimators.pcrb`) at the true state.
+    Cramér–Rao bound (:mod:`estimators.pcrb`) at the true state. With the whole specific force
+    (``G`` of 6 columns, :mod:`quadslam_env.models.strapdown`) the horizontal accelerometer
+    axes are two more inputs, and with their biases (nv = 15) two more bias columns.
 
     Args:
         xb: (≥nv,) state whose first 9 entries are the linearisation point s.
-        nv: Vehicle-state size (9, or 13 with biases).
+        nv: Vehicle-state size (9; 13 with the biases (b_ω, b_az); 15 with (b_ω, b_az, b_ax,
+            b_ay), the whole specific force's).
         p, q, r: Bias-corrected body rates in rad/s.
         sa: Accelerometer white-noise std times dt (0: no IMU noise in Q_d).
         sg: Gyro white-noise std times dt (0 likewise).
         dt: Sample period in s.
-        F: (9, 9) receives ``∂f_s/∂s``; G: (9, 4) receives ``∂f_s/∂λ``.
+        F: (9, 9) receives ``∂f_s/∂s``; G: (9, nλ) receives ``∂f_s/∂λ`` (nλ = 4, or 6 for
+            the whole specific force).
         A, M, Phi: (nv, nv) receive ``F dt`` (bias columns included), ``I + ½A`` and ``Φ``.
-        Gam: (nv, 4) receives ``Γ``.
+        Gam: (nv, nλ) receives ``Γ``.
     """
     strapdown_jacobians(xb, p, q, r, F, G)
+    full = G.shape[1] > 4
     A[:, :] = 0.0
     for i in range(POSE_DIM):
         for j in range(POSE_DIM):
@@ -85,6 +90,8 @@ def transition_matrices(
                 -G[i, 3] * dt,
                 -G[i, 0] * dt,
             )
+        if full and nv > POSE_DIM + 4:
+            A[i, 13], A[i, 14] = -G[i, 4] * dt, -G[i, 5] * dt
     # The products run with the output index innermost (independent sums, same k order) and
     # skip the many exact zeros of A.
     for i in range(nv):
@@ -105,6 +112,8 @@ def transition_matrices(
                 Gam[i, 0] += a * (G[k, 0] * sa)
                 for j in range(1, 4):
                     Gam[i, j] += a * (G[k, j] * sg)
+                for j in range(4, G.shape[1]):
+                    Gam[i, j] += a * (G[k, j] * sa)
 
 
 @kernel
@@ -129,7 +138,7 @@ def propagate_covariance(
         Pb: (≥n, ≥n) covariance whose rows ``:nv`` and the block ``[:nv, :nv]`` are current.
         nb: State size n.
         nv: Vehicle-state size.
-        Phi: (nv, nv) transition; Gam: (nv, 4) noise input (:func:`transition_matrices`).
+        Phi: (nv, nv) transition; Gam: (nv, nλ) noise input (:func:`transition_matrices`).
         qc: (nv,) diagonal of the continuous process-noise density.
         dt: Sample period in s.
         T: (nv, ≥n) receives ``Φ P[:nv, :n]``.
@@ -157,7 +166,7 @@ def propagate_covariance(
                 xij += T[i, k] * Phi[j, k]
                 xji += T[j, k] * Phi[i, k]
             gg = 0.0
-            for k in range(4):
+            for k in range(Gam.shape[1]):
                 gg += Gam[i, k] * Gam[j, k]
             v = (xij + xji) * 0.5 + gg
             if i == j:
@@ -188,6 +197,8 @@ def _predict_lane(
     Pb: FloatArray,
     nb: int,
     nv: int,
+    ax: float,
+    ay: float,
     az: float,
     p: float,
     q: float,
@@ -203,11 +214,11 @@ def _predict_lane(
     ``work`` is the scratch of :func:`predict_work`.
     """
     stages, y, F, G, A, M, Phi, Gam, Pvv, T = work
-    # Mean: RK4 on y = (s, ω) with ω and a_z held (eq. 26); ŝ⁺ = y[:9].
+    # Mean: RK4 on y = (s, ω) with ω and the specific force held (eq. 26); ŝ⁺ = y[:9].
     for i in range(POSE_DIM):
         y[i] = xb[i]
     y[9], y[10], y[11] = p, q, r
-    strapdown_rk4(y, az, dt, stages)
+    strapdown_rk4(y, ax, ay, az, dt, stages)
     s_new = y[:POSE_DIM]
     # Covariance: Jacobians at the prior mean, P_vv ← Φ P_vv Φᵀ + Q_d, P_vm ← Φ P_vm.
     transition_matrices(xb, nv, p, q, r, sa, sg, dt, F, G, A, M, Phi, Gam)
@@ -225,18 +236,18 @@ def _predict_lane(
 
 
 @kernel
-def predict_work(nv: int, nmax: int) -> tuple:
-    """Scratch of :func:`_predict_lane`: RK4 work (6, 12), y = (s, ω) (12,), F (9, 9), G (9, 4),
-    A, M, Φ (nv, nv), Γ (nv, 4), P_vv (nv, nv) and T (nv, nmax)."""
+def predict_work(nv: int, nmax: int, nl: int) -> tuple:
+    """Scratch of :func:`_predict_lane`: RK4 work (6, 12), y = (s, ω) (12,), F (9, 9), G (9, nλ),
+    A, M, Φ (nv, nv), Γ (nv, nλ), P_vv (nv, nv) and T (nv, nmax) (nλ = ``nl``, 4 or 6)."""
     return (
         np.empty((6, 12)),
         np.empty(12),
         np.empty((POSE_DIM, POSE_DIM)),
-        np.empty((POSE_DIM, 4)),
+        np.empty((POSE_DIM, nl)),
         np.empty((nv, nv)),
         np.empty((nv, nv)),
         np.empty((nv, nv)),
-        np.empty((nv, 4)),
+        np.empty((nv, nl)),
         np.empty((nv, nv)),
         np.empty((nv, nmax)),
     )
@@ -254,6 +265,7 @@ def predict_lanes(
     active: np.ndarray,
     accel: FloatArray,
     gyro: FloatArray,
+    full: bool,
     sa: float,
     sg: float,
     dt: float,
@@ -276,25 +288,33 @@ def predict_lanes(
         rates: (B, 3) receives the bias-corrected gyro in rad/s.
         diag: (7, B) diagnostics (row ``D_DIVERGED`` is set on failure).
         active: (B,) bool, lanes to propagate.
-        accel: (B, 3) measured specific force in m/s² (only the z column is used, eq. 25).
+        accel: (B, 3) measured specific force in m/s² (only the z column is used, eq. 25,
+            unless ``full``).
         gyro: (B, 3) measured body rates in rad/s.
+        full: The whole specific force (:mod:`quadslam_env.models.strapdown`); its biases
+            (b_ax, b_ay) are the states 13–14 when nv = 15.
         sa: Accelerometer white-noise std times dt (0 to leave IMU noise out of Q_d).
         sg: Gyro white-noise std times dt (0 likewise).
         dt: Sample period in s.
         qc: (nv,) diagonal of the continuous process-noise density.
     """
-    work = predict_work(nv, x.shape[1])
+    work = predict_work(nv, x.shape[1], 6 if full else 4)
     for b in range(x.shape[0]):
         if not active[b]:
             continue
         xb = x[b]
         p, q, r, az = gyro[b, 0], gyro[b, 1], gyro[b, 2], accel[b, 2]
+        ax = accel[b, 0] if full else 0.0
+        ay = accel[b, 1] if full else 0.0
         if nv > POSE_DIM:
             p -= xb[9]
             q -= xb[10]
             r -= xb[11]
             az -= xb[12]
-        if _predict_lane(xb, P[b], n[b], nv, az, p, q, r, sa, sg, dt, qc, work):
+        if nv > POSE_DIM + 4:
+            ax -= xb[13]
+            ay -= xb[14]
+        if _predict_lane(xb, P[b], n[b], nv, ax, ay, az, p, q, r, sa, sg, dt, qc, work):
             stale[b] = stale[b] or n[b] > nv
             rates[b, 0], rates[b, 1], rates[b, 2] = p, q, r
         else:

@@ -11,6 +11,18 @@ which are the kinematic rows of the rigid body (eq. 2) with the specific force `
 :mod:`quadslam_env.models.rigid_body` (``kinematics``, ``rk4_step`` with ``hold_rates``) on the
 12-vector ``y = (s, ω)``; this module adds what only the filter needs, the analytic Jacobians
 ``F = ∂f/∂s`` (eq. 28) and ``G = ∂f/∂λ``, and NumPy-facing wrappers for tests.
+
+**The whole specific force.** Eq. 25 keeps only the accelerometer's z axis, so a horizontal
+specific force (rotor and body drag: ``−c v_air`` along b1, b2) is read as gravity tilted into
+the body, i.e. as an attitude error. The textbook strapdown mechanisation in body-frame velocity
+(Groves 2013, *Principles of GNSS, Inertial, and Multisensor Integrated Navigation Systems*,
+§5.4, resolved in B) takes all three axes, ``λ = (a_z, ω, a_x, a_y)``:
+
+    v̇ = -ω×v + C_NBᵀ g n3 + (a_x, a_y, a_z),
+
+the same rigid-body rows with the full measured specific force as the input. ``F`` does not
+change; ``G`` gains the columns ``∂v̇/∂a_x = b1`` and ``∂v̇/∂a_y = b2``. The column order keeps
+eq. 25's four first, so the thrust-axis model is the first four columns of the full one.
 """
 
 from __future__ import annotations
@@ -30,19 +42,23 @@ _BODY = pack_bodies(1.0, 0.0, _EYE, _EYE)[0]
 
 
 @kernel
-def strapdown_rk4(y: FloatArray, accel_z: float, dt: float, work: FloatArray) -> None:
+def strapdown_rk4(
+    y: FloatArray, accel_x: float, accel_y: float, accel_z: float, dt: float, work: FloatArray
+) -> None:
     """One classical RK4 step of eq. 24 with the input λ held over ``dt`` (eq. 26).
 
     Args:
         y: (12,) ``(s, ω)``: the state s (9,) is advanced in place, ω (rad/s) is the held
             input. Angles are not wrapped.
+        accel_x, accel_y: Specific force along b1 and b2 in m/s² (0 in eq. 25's model).
         accel_z: Specific force along b3 in m/s².
         dt: Step in s.
         work: (6, 12) scratch (RK4 stages, stage state, input vector).
     """
     u = work[5, :7]
     u[:] = 0.0
-    u[6] = accel_z  # input (f_T, τ, a) of the rigid body: only the extra specific force a_z b3
+    # input (f_T, τ, a) of the rigid body: only the extra specific force a (B)
+    u[4], u[5], u[6] = accel_x, accel_y, accel_z
     rk4_step(y, u, _BODY, True, dt, work[:5], NO_AIR, False)
 
 
@@ -52,7 +68,7 @@ def strapdown_jacobians(
 ) -> None:
     """Analytic Jacobians of eq. 24: ``F = ∂f_s/∂s`` (eq. 28) and ``G = ∂f_s/∂λ``.
 
-    ``a_z`` enters f_s linearly, so neither Jacobian depends on it.
+    The specific force enters f_s linearly, so neither Jacobian depends on it.
 
     Args:
         s: (≥9,) state (ρ [m, N], v_B [m/s, B], Λ [rad]) in its first 9 entries.
@@ -60,7 +76,8 @@ def strapdown_jacobians(
         q: Body rate about b2 in rad/s.
         r: Body rate about b3 in rad/s.
         F: (9, 9) receives ∂f_s/∂s (every entry is written).
-        G: (9, 4) receives ∂f_s/∂λ for λ = (a_z, p, q, r) (every entry is written).
+        G: (9, 4) receives ∂f_s/∂λ for λ = (a_z, p, q, r), or (9, 6) for the whole specific
+            force λ = (a_z, p, q, r, a_x, a_y) (every entry is written).
     """
     u, v, w = s[3], s[4], s[5]
     cf, sf = math.cos(s[6]), math.sin(s[6])
@@ -97,29 +114,36 @@ def strapdown_jacobians(
     G[6, 1], G[6, 2], G[6, 3] = 1.0, sf * tt, cf * tt
     G[7, 2], G[7, 3] = cf, -sf
     G[8, 2], G[8, 3] = sf * sec, cf * sec
+    if G.shape[1] > 4:
+        G[3, 4], G[4, 5] = 1.0, 1.0
 
 
-def process_derivative(s: FloatArray, accel_z: float, gyro: FloatArray) -> FloatArray:
+def process_derivative(
+    s: FloatArray, accel_z: float, gyro: FloatArray, accel_xy: tuple[float, float] = (0.0, 0.0)
+) -> FloatArray:
     """Process model ``ṡ = f_s(s, λ)`` of seed 001 eq. 24 (noise-free).
 
-    ``ρ̇ = C_NB v``, ``v̇ = -ω×v + C_NBᵀ g n3 + a_z b3``, ``Λ̇ = D(Λ) ω``.
+    ``ρ̇ = C_NB v``, ``v̇ = -ω×v + C_NBᵀ g n3 + a``, ``Λ̇ = D(Λ) ω`` with
+    ``a = (a_x, a_y, a_z)`` (eq. 25: ``a_x = a_y = 0``).
 
     Args:
         s: (9,) vehicle state (ρ [m, N], v_B [m/s, B], Λ [rad]).
         accel_z: Bias-corrected specific force along b3 in m/s² (``-g`` in hover).
         gyro: (3,) bias-corrected body rates ω in rad/s.
+        accel_xy: Bias-corrected specific force along b1 and b2 in m/s² (the whole specific
+            force; 0 for eq. 25).
 
     Returns:
         (9,) time derivative of s.
     """
     y = np.concatenate((np.asarray(s, dtype=float), np.asarray(gyro, dtype=float)))
     out = np.empty(POSE_DIM)
-    kinematics(y, (0.0, 0.0, float(accel_z)), out)
+    kinematics(y, (float(accel_xy[0]), float(accel_xy[1]), float(accel_z)), out)
     return out
 
 
 def process_jacobians(
-    s: FloatArray, accel_z: float, gyro: FloatArray
+    s: FloatArray, accel_z: float, gyro: FloatArray, full: bool = False
 ) -> tuple[FloatArray, FloatArray]:
     """Analytic Jacobians of :func:`process_derivative` (seed 001 eq. 28).
 
@@ -127,15 +151,16 @@ def process_jacobians(
         s: (9,) vehicle state.
         accel_z: Specific force along b3 in m/s² (does not enter the Jacobians).
         gyro: (3,) body rates in rad/s.
+        full: The whole specific force's ``G`` (9, 6) instead of eq. 25's (9, 4).
 
     Returns:
-        ``(F, G)``: ``F = ∂f_s/∂s`` (9, 9) and ``G = ∂f_s/∂λ`` (9, 4) for ``λ = (a_z, ω)``.
-        With bias states ``b = (b_ω, b_az)`` and ``λ = λ̃ - b``, ``∂f/∂b_ω = -G[:, 1:4]`` and
-        ``∂f/∂b_az = -G[:, 0]``.
+        ``(F, G)``: ``F = ∂f_s/∂s`` (9, 9) and ``G = ∂f_s/∂λ`` (9, 4) for ``λ = (a_z, ω)``
+        ((9, 6) for ``λ = (a_z, ω, a_x, a_y)`` when ``full``). With bias states and
+        ``λ = λ̃ - b``, ``∂f/∂b = -G`` column by column.
     """
     del accel_z
     F = np.empty((POSE_DIM, POSE_DIM))
-    G = np.empty((POSE_DIM, 4))
+    G = np.empty((POSE_DIM, 6 if full else 4))
     p, q, r = (float(c) for c in gyro)
     strapdown_jacobians(np.ascontiguousarray(s, dtype=float), p, q, r, F, G)
     return F, G
