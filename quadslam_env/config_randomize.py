@@ -119,33 +119,58 @@ class RandomizeConfig(Section):
     def check_feasible(self, vehicle: VehicleParams) -> None:
         """The worst corner of the ranges (least thrust, most mass) must still hover.
 
+        The message leads with ``mass_scale`` when the thrust range does not go below the
+        nominal thrust (only the mass can be at fault), else with ``thrust_scale``.
+
         Raises:
             ConfigError: ``thrust_scale`` lo × max thrust ≤ ``mass_scale`` hi × m g.
         """
-        check_thrust_to_weight(vehicle, self.thrust_scale[0], self.mass_scale[1], "randomize")
+        thrust = ("randomize.thrust_scale[0]", self.thrust_scale[0])
+        mass = ("randomize.mass_scale[1]", self.mass_scale[1])
+        blame = "mass_scale" if self.thrust_scale[0] >= 1.0 else "thrust_scale"
+        check_thrust_to_weight(vehicle, thrust, mass, blame)
 
 
 def check_thrust_to_weight(
-    vehicle: VehicleParams, thrust_scale: float, mass_scale: float, where: str
+    vehicle: VehicleParams,
+    thrust: tuple[str, float],
+    mass: tuple[str, float],
+    blame: str = "thrust_scale",
 ) -> None:
     """Thrust-to-weight ``thrust_scale f_max / (mass_scale m g)`` must exceed 1.
 
     Args:
-        vehicle: The nominal vehicle. thrust_scale, mass_scale: The scales to check.
-        where: ``randomize`` (the ranges' worst corner) or the reset option's name.
+        vehicle: The nominal vehicle.
+        thrust: ``(key, scale)``: the thrust scale and the key it comes from, as the message
+            names it (``randomize.thrust_scale[0]``, a range's lower bound, or
+            ``reset options.randomized.thrust_scale``, a pin).
+        mass: ``(key, scale)`` of the mass scale, the same way.
+        blame: The scale the message leads with, as the one at fault: ``"thrust_scale"``
+            or ``"mass_scale"`` (the one the user set; both are named).
 
     Raises:
-        ConfigError: Naming both keys, the values and what is allowed.
+        ConfigError: Naming both keys, their values and what either would need.
     """
-    ratio = thrust_scale * vehicle.max_thrust / (mass_scale * vehicle.mass * GRAVITY)
-    if not math.isfinite(ratio) or ratio <= 1.0:
-        need = mass_scale * vehicle.mass * GRAVITY / vehicle.max_thrust
-        raise ConfigError(
-            f"{where}.thrust_scale: got {thrust_scale} with {where}.mass_scale {mass_scale}: "
-            f"thrust-to-weight {ratio:.3f} (max thrust {vehicle.max_thrust:.3f} N, mass "
-            f"{vehicle.mass:.4f} kg); allowed: a thrust scale > {need:.4f} at that mass scale "
-            "(thrust-to-weight > 1, so the vehicle can hover)"
-        )
+    (thrust_key, thrust_scale), (mass_key, mass_scale) = thrust, mass
+    weight = vehicle.mass * GRAVITY
+    ratio = thrust_scale * vehicle.max_thrust / (mass_scale * weight)
+    if math.isfinite(ratio) and ratio > 1.0:
+        return
+    least_thrust = mass_scale * weight / vehicle.max_thrust
+    most_mass = thrust_scale * vehicle.max_thrust / weight
+    more_thrust = f"a thrust scale > {least_thrust:.4g} at that mass scale"
+    less_mass = f"a mass scale < {most_mass:.4g} at that thrust scale"
+    if blame == "mass_scale":
+        got = f"{mass_key}: got {mass_scale:g} with {thrust_key} {thrust_scale:g}"
+        allowed = f"{less_mass}, or {more_thrust}"
+    else:
+        got = f"{thrust_key}: got {thrust_scale:g} with {mass_key} {mass_scale:g}"
+        allowed = f"{more_thrust}, or {less_mass}"
+    raise ConfigError(
+        f"{got}: thrust-to-weight {ratio:.3g} (max thrust {vehicle.max_thrust:.4g} N, mass "
+        f"{vehicle.mass:.4g} kg); allowed: {allowed} (thrust-to-weight > 1, so the vehicle "
+        "can hover)"
+    )
 
 
 def parse_pins(value: Any) -> dict[str, float]:

@@ -120,9 +120,19 @@ class Randomizer:
             )
         if not ({"mass_scale", "thrust_scale"} & set(pins)):
             return
-        thrust = pins.get("thrust_scale", self.cfg.thrust_scale[0])
-        mass = pins.get("mass_scale", self.cfg.mass_scale[1])
-        check_thrust_to_weight(self.vehicle, thrust, mass, "reset options.randomized")
+        pin = "reset options.randomized"
+        thrust = (
+            (f"{pin}.thrust_scale", pins["thrust_scale"])
+            if "thrust_scale" in pins
+            else ("randomize.thrust_scale[0]", self.cfg.thrust_scale[0])
+        )
+        mass = (
+            (f"{pin}.mass_scale", pins["mass_scale"])
+            if "mass_scale" in pins
+            else ("randomize.mass_scale[1]", self.cfg.mass_scale[1])
+        )
+        blame = "thrust_scale" if "thrust_scale" in pins else "mass_scale"  # a pinned one
+        check_thrust_to_weight(self.vehicle, thrust, mass, blame)
 
     def begin(
         self,

@@ -215,8 +215,9 @@ def test_pins_apply_and_the_estimator_keeps_the_nominal_model() -> None:
         ({"thrust_scale": [1.0]}, "randomize.thrust_scale"),
         ({"inertia_scale": [0.0, 1.0]}, "randomize.inertia_scale"),
         ({"gain_scale": [1.0, 1.0]}, "randomize.gain_scale"),
-        ({"thrust_scale": [0.3, 1.0]}, "randomize.thrust_scale"),  # T/W = 0.75 possible
-        ({"mass_scale": [1.0, 3.0]}, "randomize.thrust_scale"),  # T/W = 0.83 possible
+        # T/W = 0.75 possible: the range set away from nominal leads the message
+        ({"thrust_scale": [0.3, 1.0]}, "randomize.thrust_scale[0]: got 0.3 with"),
+        ({"mass_scale": [1.0, 3.0]}, "randomize.mass_scale[1]: got 3 with"),  # T/W = 0.83
     ],
 )
 def test_bad_ranges_name_the_key_before_the_episode(section: dict, key: str) -> None:
@@ -233,7 +234,13 @@ def test_bad_ranges_name_the_key_before_the_episode(section: dict, key: str) -> 
         ({"lidar_noise_scale": math.nan}, "randomized.lidar_noise_scale"),
         ({"heavy": 1.0}, "randomized.heavy"),
         ([1.2], "randomized"),
-        ({"mass_scale": 2.6}, "randomized.thrust_scale"),  # T/W < 1
+        # T/W < 1: the pinned scale leads the message, with the other one's key and value
+        ({"mass_scale": 2.6}, "randomized.mass_scale: got 2.6 with randomize.thrust_scale[0] 1"),
+        ({"thrust_scale": 0.3}, "randomized.thrust_scale: got 0.3 with randomize.mass_scale[1]"),
+        (
+            {"mass_scale": 2.0, "thrust_scale": 0.7},
+            "randomized.thrust_scale: got 0.7 with reset options.randomized.mass_scale 2",
+        ),
     ],
 )
 def test_bad_pins_name_the_key_and_change_nothing(pins: object, key: str) -> None:
@@ -244,3 +251,26 @@ def test_bad_pins_name_the_key_and_change_nothing(pins: object, key: str) -> Non
         env.reset(seed=2, options={"randomized": pins})
     assert key in str(err.value)
     np.testing.assert_array_equal(env.unwrapped._core.vehicle.state, state)
+
+
+@pytest.mark.parametrize("key", ["mass_scale", "thrust_scale"])
+def test_an_infeasible_pin_names_the_scale_that_would_hover(key: str) -> None:
+    """The bound the message allows is the nominal thrust-to-weight T/(m g) (a mass scale
+    below it, a thrust scale above its inverse): a pin just inside it resets and one just
+    outside does not."""
+    nominal = load_scenario("paper_ekf_figure8").vehicle.params()
+    ratio = nominal.max_thrust / (nominal.mass * GRAVITY)
+    bound, inside, outside = (
+        (ratio, 0.99 * ratio, 1.01 * ratio)
+        if key == "mass_scale"
+        else (1.0 / ratio, 1.01 / ratio, 0.99 / ratio)
+    )
+    env = _env()
+    with pytest.raises(ConfigError) as err:
+        env.reset(seed=0, options={"randomized": {key: outside}})
+    message = str(err.value)
+    word = "a mass scale <" if key == "mass_scale" else "a thrust scale >"
+    assert message.startswith(f"reset options.randomized.{key}: got {outside:g} with")
+    assert float(message.split(word)[1].split()[0]) == pytest.approx(bound, rel=1e-3)
+    _, info = env.reset(seed=0, options={"randomized": {key: inside}})
+    assert info[f"rand_{key}"] == inside
