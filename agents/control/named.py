@@ -23,9 +23,16 @@ def _lqi(env: Any) -> Any:
     return LQIPolicy.from_env(env)
 
 
-CONTROLLERS: dict[str, Callable[[Any], Any]] = {"dflqr": _dflqr, "lqi": _lqi}
-"""Name → builder from an env: ``dflqr`` (seed 001 §2.2, the paper's gains) and ``lqi`` (DF-LQR
-with integral action in the Riccati design, :mod:`agents.control.lqi`)."""
+def _se3(env: Any) -> Any:
+    from agents.control.se3 import SE3Policy
+
+    return SE3Policy.from_env(env)
+
+
+CONTROLLERS: dict[str, Callable[[Any], Any]] = {"dflqr": _dflqr, "lqi": _lqi, "se3": _se3}
+"""Name → builder from an env: ``dflqr`` (seed 001 §2.2, the paper's gains), ``lqi`` (DF-LQR
+with integral action in the Riccati design, :mod:`agents.control.lqi`) and ``se3`` (geometric
+tracking on SE(3) with integral action, :mod:`agents.control.se3`)."""
 
 
 def build_controller(name: str, env: Any, key: str = "--policy") -> Any:
