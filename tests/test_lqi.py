@@ -232,7 +232,7 @@ def test_as_a_residual_base_a_zero_residual_flies_lqi_across_autoresets() -> Non
         state, start = None, np.ones(2, dtype=bool)
         ends = 0
         for _ in range(250):  # two and a half episodes of 100 steps
-            o_w, _, term_w, trunc_w, _ = wrapped.step(np.zeros((2, 4), np.float32))
+            o_w, *_ = wrapped.step(np.zeros((2, 4), np.float32))
             act, state = policy.predict(o_p, state=state, episode_start=start)
             o_p, _, term, trunc, _ = plain.step(act)
             start = term | trunc
