@@ -798,7 +798,10 @@ def test_train_on_a_full_disk_exits_2_naming_the_last_good_checkpoint(
     assert "checkpoints/model_64_steps.zip, 64 of 256 steps" in err[0]
     assert err[0].endswith(f"quadslam train --resume {run}")
     names = sorted(p.name for p in (run / "checkpoints").iterdir())
-    assert names == ["model_64_steps.zip", "model_vecnormalize_64_steps.pkl"]  # nothing torn
+    assert names == [  # nothing torn
+        "model_64_steps.zip", "model_policy_64_steps.npz",
+        "model_vecnormalize_64_steps.npz", "model_vecnormalize_64_steps.pkl",
+    ]  # fmt: skip
     assert not (run / "model.zip").exists() and not list(run.rglob(".*.tmp-*"))
 
     monkeypatch.setattr(PPO, "save", real_save)

@@ -5,14 +5,16 @@
   the SB3 logger (TensorBoard/CSV), ignoring NaN, plus failure rates by termination reason.
 - :class:`TqdmProgressCallback`: a plain ``tqdm`` progress bar (SB3's own
   ``ProgressBarCallback`` needs ``rich``, which is not a dependency).
-- :class:`SaveVecNormalizeCallback`: saves the ``VecNormalize`` statistics next to
-  ``EvalCallback``'s ``best_model.zip`` so the best model can be evaluated like the final one.
+- :class:`SaveVecNormalizeCallback`: saves the ``VecNormalize`` statistics (pickle and
+  arrays) next to ``EvalCallback``'s ``best_model.zip`` so the best model can be evaluated like
+  the final one.
 - :class:`StopWhenSet`: ends ``learn`` at the next step once an event is set (a SIGTERM
   asked for it, :func:`agents.io.signals.sigterm_as_request`).
 - :class:`AtomicCheckpointCallback`, :class:`AtomicEvalCallback`: SB3's checkpoint and
   evaluation callbacks with every file written atomically (SB3 writes in place, so a kill or a
   full disk during a save left a truncated checkpoint, ``best_model.zip`` or
-  ``evaluations.npz``, which ``--resume`` and the learning curve then failed on).
+  ``evaluations.npz``, which ``--resume`` and the learning curve then failed on), and each
+  saved model's weights and statistics also as arrays (:mod:`agents.rl.safe_files`).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback,
 from tqdm import tqdm
 
 from agents.io.outputs import atomic_produce, atomic_produce_all, commit
+from agents.rl.safe_files import Normalization, save_files, write_normalization, write_policy
 
 STEP_PREFIXES = ("est_", "track_", "reward_")
 EPISODE_PREFIX = "episode_"
@@ -212,7 +215,8 @@ class StopWhenSet(BaseCallback):
 
 
 class SaveVecNormalizeCallback(BaseCallback):
-    """Save the training ``VecNormalize`` statistics (use as ``callback_on_new_best``).
+    """Save the training ``VecNormalize`` statistics (use as ``callback_on_new_best``): SB3's
+    pickle at ``path`` and the arrays beside it (``.npz``), written atomically together.
 
     Args:
         path: File to write (e.g. ``run/eval/best_vecnormalize.pkl``).
@@ -226,15 +230,22 @@ class SaveVecNormalizeCallback(BaseCallback):
         vec_normalize = self.model.get_vec_normalize_env()
         if vec_normalize is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            atomic_produce(self.path, lambda tmp: vec_normalize.save(str(tmp)))
+            norm = Normalization.from_vec_normalize(vec_normalize)
+            atomic_produce_all(
+                [
+                    (self.path, lambda tmp: vec_normalize.save(str(tmp))),
+                    (self.path.with_suffix(".npz"), lambda tmp: write_normalization(tmp, norm)),
+                ]
+            )
         return True
 
 
 class AtomicCheckpointCallback(CheckpointCallback):
     """SB3's ``CheckpointCallback`` with a checkpoint's files written atomically together.
 
-    All of them (``VecNormalize`` statistics, a replay buffer if asked, the model zip) are
-    written under temporary names first and then moved into place, the zip last: a checkpoint
+    All of them (a replay buffer if asked, the ``VecNormalize`` statistics and the policy's
+    weights as arrays and SB3's pickle, the model zip) are written under temporary names first
+    and then moved into place, the zip last: a checkpoint
     whose zip exists is complete, and a save that fails (a kill, a full disk) leaves no file
     under a checkpoint's name.
     """
@@ -244,15 +255,13 @@ class AtomicCheckpointCallback(CheckpointCallback):
             return True
         model: Any = self.model
         items: list[tuple[Path, Any]] = []
-        vec_normalize = model.get_vec_normalize_env() if self.save_vecnormalize else None
-        if vec_normalize is not None:
-            path = Path(self._checkpoint_path("vecnormalize_", extension="pkl"))
-            items.append((path, lambda tmp: vec_normalize.save(str(tmp))))
         if self.save_replay_buffer and getattr(model, "replay_buffer", None) is not None:
             path = Path(self._checkpoint_path("replay_buffer_", extension="pkl"))
             items.append((path, lambda tmp: model.save_replay_buffer(tmp)))
         zip_path = Path(self._checkpoint_path(extension="zip"))
-        atomic_produce_all([*items, (zip_path, lambda tmp: model.save(tmp))])
+        # The statistics and policy as arrays and pickles, the zip last (safe_files.save_files).
+        saved = save_files(model, zip_path, zip_path.parent.parent, self.save_vecnormalize)
+        atomic_produce_all([*items, *saved])
         return True
 
 
@@ -262,7 +271,8 @@ class AtomicEvalCallback(EvalCallback):
 
     SB3 writes both in place (``np.savez``, ``model.save``); here it writes them into a hidden
     staging folder beside them, and each is moved into place after the evaluation that wrote
-    it. Takes the arguments of ``EvalCallback``; call :meth:`clean_up` when training ends
+    it; a new best model's weights are written as arrays (``best_policy.npz``) before its zip
+    lands. Takes the arguments of ``EvalCallback``; call :meth:`clean_up` when training ends
     (also after an interruption).
     """
 
@@ -294,6 +304,10 @@ class AtomicEvalCallback(EvalCallback):
 
     def _on_step(self) -> bool:
         continue_training = super()._on_step()
+        best = None if self._stage is None else self._stage / "best_model.zip"
+        if self._best_dir is not None and best is not None and best.exists():
+            model = self.model  # a new best: its weights as arrays, before its zip lands
+            atomic_produce(self._best_dir / "best_policy.npz", lambda t: write_policy(t, model))
         if self._stage is not None:
             for name, folder in (
                 ("evaluations.npz", self._log_dir),

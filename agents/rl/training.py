@@ -47,6 +47,7 @@ from agents.rl.hyperparams import (
 )
 from agents.rl.manifest import MANIFEST, verify_run, write_manifest
 from agents.rl.run_folder import new_run_dir, read_run_config, versions
+from agents.rl.safe_files import save_files
 from quadslam_env.config import deep_merge
 
 
@@ -168,11 +169,13 @@ def resume(
     """Continue a run folder from its latest checkpoint up to its ``n_timesteps``.
 
     The model, optimizer state, ``VecNormalize`` statistics and step count come from the
-    checkpoint (or an interrupted run's ``model.zip``); lane i restarts with seed
+    checkpoint (or an interrupted run's ``model.zip``): SB3's zip and ``VecNormalize`` pickle,
+    the only files that hold the optimizer state, so resuming unpickles the run's own files
+    (resume only run folders you trust; evaluating one never does). Lane i restarts with seed
     ``seed + steps + i`` (fresh episodes, not those of the first session). The new session's
     episodes go to ``monitor/lanes_from_<steps>.monitor.csv``, its logs to
-    ``logs/from_<steps>/``; ``model.zip``, ``vecnormalize.pkl`` and ``timing.json`` are
-    replaced. A saved point that does not load (a truncated checkpoint) is skipped for the
+    ``logs/from_<steps>/``; ``model.zip``, ``policy.npz``, the statistics and ``timing.json``
+    are replaced. A saved point that does not load (a truncated checkpoint) is skipped for the
     newest one that does; ``INTERRUPTED`` stays until the new session's final save is in
     place. A run stopped after its last step was saved is only finished (model, curve,
     ``timing.json``). Before anything is loaded the folder is checked against its
@@ -446,14 +449,10 @@ SAVING_NOTE = "quadslam train: saving the run folder, please wait"
 
 
 def _save_model(model: Any, run_dir: Path, normalized: bool) -> None:
-    """``model.zip`` (and ``vecnormalize.pkl``), written atomically together: a failed save
-    (a full disk, a kill) leaves the previous pair whole, never a new model with old
-    statistics."""
-    items: list[tuple[Path, Any]] = [(run_dir / "model.zip", lambda tmp: model.save(tmp))]
-    if normalized:
-        vec = model.get_vec_normalize_env()
-        items.insert(0, (run_dir / "vecnormalize.pkl", lambda tmp: vec.save(str(tmp))))
-    atomic_produce_all(items)
+    """``policy.npz`` and ``model.zip`` (and ``vecnormalize.npz``, ``vecnormalize.pkl``),
+    written atomically together: a failed save (a full disk, a kill) leaves the previous set
+    whole, never a new model with old statistics (:func:`agents.rl.safe_files.save_files`)."""
+    atomic_produce_all(save_files(model, run_dir / "model.zip", run_dir, normalized))
 
 
 def _plot_curve(run_dir: Path) -> None:
