@@ -191,8 +191,8 @@ class VehicleConfig(Section):
                 )
         if params.max_thrust <= params.mass * GRAVITY:
             raise ConfigError(
-                f"vehicle.max_thrust_n: got {params.max_thrust:.3f}; allowed: > m g = "
-                f"{params.mass * GRAVITY:.3f} N (the vehicle must be able to hover)"
+                f"vehicle.max_thrust_n: got {float(params.max_thrust)!r}; allowed: > m g = "
+                f"{params.mass * GRAVITY:.6g} N (the vehicle must be able to hover)"
             )
 
     def _check_rotors(self, params: VehicleParams) -> None:
@@ -216,8 +216,8 @@ class VehicleConfig(Section):
             raise ConfigError(
                 f"vehicle.rotor_omega_max_rad_s: got {rotors.omega_max:g}, so the rotors lift "
                 f"4 k_f ω_max² = {rotors.max_collective_thrust:.4g} N (thrust-to-weight "
-                f"{rotors.max_collective_thrust / weight:.3f}); allowed: thrust-to-weight > 1, "
-                f"ω_max > {rotors.hover_speed(weight):.1f} rad/s with k_f = {rotors.k_f:g} and "
+                f"{rotors.max_collective_thrust / weight:.3g}); allowed: thrust-to-weight > 1, "
+                f"ω_max > {rotors.hover_speed(weight):.5g} rad/s with k_f = {rotors.k_f:g} and "
                 f"m g = {weight:.4g} N"
             )
 

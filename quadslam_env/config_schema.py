@@ -13,6 +13,7 @@ import copy
 import math
 from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
+from decimal import Decimal
 from typing import Any, ClassVar
 
 import numpy as np
@@ -114,16 +115,41 @@ def _describe_vec(length: int | tuple[int, ...] | None) -> str:
 
 def _check_number(key: str, value: Any, meta: dict[str, Any]) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
-    num = float(value)
+        raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
+    try:
+        num = float(value)
+    except OverflowError:  # an integer beyond any float: out of every range
+        raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}") from None
     lo, hi = meta["lo"], meta["hi"]
     inf_ok = meta.get("allow_inf") and num == math.inf
     bad = (not math.isfinite(num) and not inf_ok) or (
         lo is not None and (num <= lo if meta["lo_open"] else num < lo)
     )
     if bad or (hi is not None and num > hi):
-        raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+        raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
     return num
+
+
+_LONGEST_SHOWN = 200
+"""Characters of a value's repr an error message shows at most."""
+
+
+def shown_value(value: Any) -> str:
+    """``value`` as an error message prints it: a float as its ``repr`` (``1e+300``), an integer
+    of more than 16 digits in ``%g`` form (``1e+300``, not 301 digits), lists and tuples item by
+    item, anything else as its ``repr``, cut to :data:`_LONGEST_SHOWN` characters."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**16:
+        try:
+            return f"{float(value):g}"
+        except OverflowError:  # beyond any float (and maybe beyond int's str limit)
+            return f"{Decimal(value).normalize():.6g}"
+    if isinstance(value, list | tuple):
+        items = ", ".join(shown_value(v) for v in value)
+        one = "," if isinstance(value, tuple) and len(value) == 1 else ""
+        text = f"[{items}]" if isinstance(value, list) else f"({items}{one})"
+    else:
+        text = repr(value)
+    return text if len(text) <= _LONGEST_SHOWN else f"{text[: _LONGEST_SHOWN - 3]}..."
 
 
 def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
@@ -146,15 +172,15 @@ def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
         return _check_number(key, value, meta)
     if kind == "int":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+            raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
         return int(_check_number(key, value, meta))
     if kind == "bool":
         if not isinstance(value, bool):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+            raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
         return value
     if kind == "str":
         if not isinstance(value, str) or (meta["choices"] and value not in meta["choices"]):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+            raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
         return value
     if kind == "vec":
         lengths = _lengths(meta["length"])
@@ -166,18 +192,18 @@ def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
         ):
             value = [value]
         if not isinstance(value, list | tuple) or (lengths and len(value) not in lengths):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+            raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
         return tuple(_check_number(f"{key}[{i}]", v, meta) for i, v in enumerate(value))
     if kind == "vecs":
         if not isinstance(value, list | tuple):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+            raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
         point_meta = {**meta, "length": 3, "lo": None, "hi": None}
         return tuple(
             coerce(f"{key}[{i}]", p, {**point_meta, "kind": "vec"}) for i, p in enumerate(value)
         )
     if kind == "dict":
         if not isinstance(value, dict):
-            raise ConfigError(f"{key}: got {value!r}; allowed: {describe(meta)}")
+            raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
         return copy.deepcopy(value)
     raise AssertionError(f"unhandled field kind {kind}")  # pragma: no cover - programming error
 
