@@ -167,7 +167,7 @@ def test_evaluate_missing_policy_path(capsys):
 def test_evaluate_garbage_zip(capsys, tmp_path):
     garbage = tmp_path / "some_file.zip"
     garbage.write_bytes(bytes(range(256)) * 4)
-    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(garbage)])
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(garbage), "--trust-pickle"])
     assert str(garbage) in line
     assert "model" in line
 
@@ -175,7 +175,7 @@ def test_evaluate_garbage_zip(capsys, tmp_path):
 def test_evaluate_zip_header_without_archive(capsys, tmp_path):
     fake = tmp_path / "truncated.zip"
     fake.write_bytes(b"PK\x03\x04" + b"\x00" * 40)
-    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(fake)])
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(fake), "--trust-pickle"])
     assert str(fake) in line
 
 
@@ -200,7 +200,7 @@ def test_evaluate_model_of_another_env(capsys, tmp_path):
     )
     path = Path(tmp_path) / "other_env_model.zip"
     PPO("MlpPolicy", train_env, n_steps=16, batch_size=16, device="cpu").save(path)
-    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(path)])
+    line = _one_line_error(capsys, [*EVALUATE, "--policy", str(path), "--trust-pickle"])
     assert str(path) in line
     assert "(19,)" in line  # the model's observation shape
     assert "(16,)" in line  # the env's

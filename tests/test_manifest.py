@@ -63,6 +63,7 @@ def test_manifest_lists_every_file_with_its_size_and_sha256(finished: Path) -> N
     }
     assert set(doc["files"]) == set(on_disk)
     for name in ("config.yaml", "model.zip", "vecnormalize.pkl", "timing.json",
+                 "policy.npz", "vecnormalize.npz", "eval/best_policy.npz",
                  "learning_curve.png", "eval/best_model.zip", "monitor/lanes.monitor.csv",
                  "checkpoints/model_64_steps.zip"):  # fmt: skip
         assert name in on_disk, name
@@ -89,7 +90,8 @@ def test_a_truncated_model_zip_is_refused_before_it_is_loaded(
     def forbidden(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("the model was loaded before the manifest was checked")
 
-    monkeypatch.setattr(agents.rl.loading, "_load_sb3", forbidden)
+    monkeypatch.setattr(agents.rl.loading, "rebuild_model", forbidden)
+    monkeypatch.setattr(agents.rl.loading, "load_pickled_model", forbidden)
     model = run / "model.zip"
     size = model.stat().st_size
     model.write_bytes(model.read_bytes()[: size // 2])  # a torn copy
@@ -120,7 +122,11 @@ def test_a_model_the_manifest_does_not_list_is_refused(run: Path) -> None:
     shutil.copy(run / "model.zip", foreign)
     shutil.copy(run / "vecnormalize.pkl", run / "checkpoints" / "model_vecnormalize_9999_steps.pkl")
     with pytest.raises(ManifestError, match=r"checkpoints/model_9999_steps.zip is not listed"):
-        load_model(foreign, gym.make(ENV))
+        load_model(foreign, gym.make(ENV), trust_pickle=True)  # read from its pickles
+    shutil.copy(run / "policy.npz", run / "checkpoints" / "model_policy_9999_steps.npz")
+    shutil.copy(run / "vecnormalize.npz", run / "checkpoints" / "model_vecnormalize_9999_steps.npz")
+    with pytest.raises(ManifestError, match=r"checkpoints/model_policy_9999_steps.npz is not"):
+        load_model(foreign, gym.make(ENV))  # read from its arrays
     assert load_model(run, gym.make(ENV)).algo == "ppo"  # unlisted extras are not read
 
 

@@ -284,6 +284,8 @@ def test_smoke_training_with_shipped_config_loads_and_evaluates(
         assert (run_dir / name).is_file(), name
     normalized = entry["normalize"] not in (False, None)
     assert (run_dir / "vecnormalize.pkl").is_file() == normalized
+    assert (run_dir / "policy.npz").is_file()  # the weights as arrays, loaded without pickle
+    assert (run_dir / "vecnormalize.npz").is_file() == normalized
     config = yaml.safe_load((run_dir / "config.yaml").read_text())
     assert run_config(run_dir) == config == run_config(run_dir / "eval" / "best_model.zip")
     assert config["algo"] == algo and config["env_id"] == env_id and config["seed"] == 1
@@ -302,7 +304,7 @@ def test_smoke_training_with_shipped_config_loads_and_evaluates(
     env = gym.make(env_id, **{**entry["env_kwargs"], **SHORT})
     policy, name = load_policy(str(run_dir), env)
     assert isinstance(policy, TrainedPolicy) and policy.algo == algo and name == str(run_dir)
-    assert (policy.vec_normalize is not None) == normalized
+    assert (policy.normalization is not None) == normalized
     wrapped = entry["wrapper"] not in (None, "none")
     assert (policy.controller is not None) == wrapped
     record = run_episode(env, policy, seed=5)
@@ -317,7 +319,7 @@ def test_smoke_training_with_shipped_config_loads_and_evaluates(
     # Checkpoints and the best model load with their own VecNormalize statistics.
     for other in [run_dir / "eval" / "best_model.zip", *(run_dir / "checkpoints").glob("*.zip")]:
         loaded = load_model(other, env)
-        assert loaded.algo == algo and (loaded.vec_normalize is not None) == normalized
+        assert loaded.algo == algo and (loaded.normalization is not None) == normalized
 
 
 @pytest.fixture(scope="module")
@@ -513,19 +515,19 @@ def test_model_for_another_observation_space_raises_naming_both_shapes(tmp_path:
     PPO("MlpPolicy", other, policy_kwargs={"net_arch": [4]}, device="cpu").save(tmp_path / "m")
     env = gym.make(env_id, **SHORT)
     with pytest.raises(ValueError, match=r"\(19,\).*\(16,\)"):
-        load_policy(str(tmp_path / "m.zip"), env)
-    code = cli.main(["evaluate", "--policy", str(tmp_path / "m.zip"), "--env", env_id])
-    assert code == 2
+        load_policy(str(tmp_path / "m.zip"), env, trust_pickle=True)  # a bare SB3 zip
+    args = ["evaluate", "--policy", str(tmp_path / "m.zip"), "--env", env_id, "--trust-pickle"]
+    assert cli.main(args) == 2
 
 
 def test_bare_zips_are_detected_as_ppo_or_sac(tmp_path: Path) -> None:
     env = gym.make(main_env(), **SHORT)
     SAC("MlpPolicy", env, policy_kwargs={"net_arch": [4]}, device="cpu").save(tmp_path / "s")
     PPO("MlpPolicy", env, policy_kwargs={"net_arch": [4]}, device="cpu").save(tmp_path / "p")
-    sac = load_model(tmp_path / "s.zip", env)
-    ppo = load_model(tmp_path / "p.zip", env)
+    sac = load_model(tmp_path / "s.zip", env, trust_pickle=True)  # bare zips: SB3's pickles
+    ppo = load_model(tmp_path / "p.zip", env, trust_pickle=True)
     assert (sac.algo, ppo.algo) == ("sac", "ppo")
-    assert sac.vec_normalize is None and sac.controller is None
+    assert sac.normalization is None and sac.controller is None
     obs, _ = env.reset(seed=0)
     assert sac.predict(obs)[0].shape == (4,)
 
@@ -535,13 +537,13 @@ def test_unreadable_files_give_clear_errors(tmp_path: Path) -> None:
     junk = tmp_path / "junk.zip"
     junk.write_bytes(b"not a zip at all")
     with pytest.raises(ValueError, match="not a stable-baselines3 model"):
-        load_model(junk, env)
+        load_model(junk, env, trust_pickle=True)
     empty = tmp_path / "empty.zip"
     with zipfile.ZipFile(empty, "w") as archive:
         archive.writestr("hello.txt", "hi")
     with pytest.raises(ValueError, match="cannot load as a stable-baselines3 model"):
-        load_model(empty, env)
-    with pytest.raises(FileNotFoundError, match=r"run folder without model\.zip"):
+        load_model(empty, env, trust_pickle=True)
+    with pytest.raises(FileNotFoundError, match=r"run folder without policy\.npz or model\.zip"):
         load_model(tmp_path, env)
     with pytest.raises(FileNotFoundError):
         load_policy(str(tmp_path / "missing"), env)

@@ -183,7 +183,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         )
     env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
     check_outputs(args.plots, args.json, args.video)  # before loading and flying
-    policy, name = load_policy(args.policy, env)
+    policy, name = load_policy(args.policy, env, trust_pickle=args.trust_pickle)
     seeds = list(range(args.seed, args.seed + args.episodes))
     fly(env, policy, name, seeds, args.plots, args.json, args.video)
     return 0
@@ -257,4 +257,11 @@ def add_fly_parsers(sub: Any) -> None:
     )
     ev.add_argument("--episodes", type=positive_int, default=10, help="number of episodes")
     ev.add_argument("--plots", type=Path, help="write figures of the first episode here")
+    ev.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="read SB3's model.zip and vecnormalize.pkl when the run has no policy.npz (a run "
+        "saved before it, or a bare .zip): unpickling runs any code the files hold, so only "
+        "for files you trust (quadslam convert-run converts a run once)",
+    )
     ev.set_defaults(func=cmd_evaluate)

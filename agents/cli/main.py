@@ -1,4 +1,5 @@
-"""The ``quadslam`` command line: ``run``, ``evaluate``, ``train``, ``study``, ``sweep``, ``bench``.
+"""The ``quadslam`` command line: ``run``, ``evaluate``, ``train``, ``convert-run``, ``study``,
+``sweep``, ``bench``.
 
 Bad input (unknown scenario, malformed YAML, wrong model file, bad numbers), a file system
 that refuses a write and a full disk are reported in one line on stderr with exit status 2
@@ -127,6 +128,41 @@ def _report_run(run_dir: Path, status: int = 130) -> int:
     return 0
 
 
+def cmd_convert_run(args: argparse.Namespace) -> int:
+    """Write a run folder's weights and statistics as arrays, from its pickles (trusted)."""
+    if not args.trust_pickle:
+        raise ValueError(
+            f"convert-run reads {args.run}'s SB3 zips and VecNormalize pickles, which run any "
+            "code they hold: pass --trust-pickle if you trust who wrote the folder"
+        )
+    from agents.rl.convert import convert_run
+
+    done = convert_run(args.run)
+    for line in done.skipped:
+        print(f"skipped {line}", file=sys.stderr)
+    names = ", ".join(str(path.relative_to(args.run)) for path in done.written) or "nothing"
+    print(f"{args.run}: wrote {names}" + ("; manifest.json rewritten" if done.manifest else ""))
+    print(f"evaluate:   quadslam evaluate --policy {args.run}")
+    return 0
+
+
+def _add_convert_parser(sub: Any) -> None:
+    """``quadslam convert-run``."""
+    conv = sub.add_parser(
+        "convert-run",
+        help="give a run folder saved before policy.npz its weights and statistics as arrays "
+        "(reads its pickles once: --trust-pickle)",
+    )
+    conv.add_argument("run", type=Path, metavar="RUN", help="the run folder")
+    conv.add_argument(
+        "--trust-pickle",
+        action="store_true",
+        help="confirm that you trust who wrote RUN: its model.zip and vecnormalize.pkl are "
+        "unpickled, which runs any code they hold (required)",
+    )
+    conv.set_defaults(func=cmd_convert_run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for tests and docs)."""
     parser = argparse.ArgumentParser(
@@ -139,6 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_fly_parsers(sub)
     _add_train_parser(sub)
+    _add_convert_parser(sub)
     add_study_parser(sub, positive_int, positive_float)
     from agents.sweep.driver import add_sweep_parser  # light: Ray is imported when a sweep runs
 

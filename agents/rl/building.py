@@ -74,18 +74,25 @@ def make_vec_env(
     return VecMonitor(venv, filename=filename)
 
 
-def build_model(algo: str, settings: dict[str, Any], venv: Any, seed: int, verbose: int = 0) -> Any:
-    """The SB3 algorithm on ``venv`` with the resolved settings."""
+def policy_arguments(settings: dict[str, Any]) -> tuple[Any, dict[str, Any] | None]:
+    """``(policy, policy_kwargs)`` for an SB3 constructor: the policy's name (or the
+    privileged critic's class) and its keyword arguments built from the plain data."""
     policy: Any = settings["policy"]
     if policy == ASYMMETRIC:
         from agents.rl.asymmetric import AsymmetricActorCriticPolicy
 
         policy = AsymmetricActorCriticPolicy
+    return policy, build_policy_kwargs(settings["policy_kwargs"]) or None
+
+
+def build_model(algo: str, settings: dict[str, Any], venv: Any, seed: int, verbose: int = 0) -> Any:
+    """The SB3 algorithm on ``venv`` with the resolved settings."""
+    policy, policy_kwargs = policy_arguments(settings)
     return algorithms()[algo](
         policy,
         venv,
         seed=seed,
-        policy_kwargs=build_policy_kwargs(settings["policy_kwargs"]) or None,
+        policy_kwargs=policy_kwargs,
         verbose=verbose,
         **settings["algo_kwargs"],
     )

@@ -1,12 +1,20 @@
-"""Load a trained run (or a bare SB3 zip) back as a policy on raw env observations.
+"""Load a trained run back as a policy on raw env observations, without running its files.
 
-:func:`load_model` turns a run folder (or a model ``.zip``) into a :class:`TrainedPolicy` whose
-``predict`` takes the *raw* env observation, applying the same ``VecNormalize`` statistics and
-residual wrapper as in training.
+:func:`load_model` turns a run folder (or a model ``.zip`` of one) into a :class:`TrainedPolicy`
+whose ``predict`` takes the *raw* env observation, applying the same ``VecNormalize``
+statistics and residual wrapper as in training. It never unpickles unless told to: the SB3
+model is rebuilt from the run's plain ``config.yaml`` (algorithm, policy, its keyword
+arguments) and the spaces and weights of ``policy.npz``, the statistics from
+``vecnormalize.npz`` (:mod:`agents.rl.safe_files`). SB3's ``model.zip`` and
+``vecnormalize.pkl`` hold pickles, which run whatever code they name when read: they are read
+only with ``trust_pickle=True`` (``quadslam evaluate --trust-pickle``), for a run folder saved
+before the arrays existed or a bare SB3 zip; ``quadslam convert-run``
+(:func:`agents.rl.convert.convert_run`) writes the arrays of such a folder once.
 """
 
 from __future__ import annotations
 
+import inspect
 import json
 import pickle
 import warnings
@@ -19,10 +27,18 @@ import numpy as np
 
 from agents.control.dflqr import DFLQRPolicy
 from agents.control.lookat import LookAtPolicy
-from agents.rl.hyperparams import algorithms, parse_normalize
+from agents.rl.building import policy_arguments
+from agents.rl.hyperparams import algorithms, parse_normalize, resolve_settings
 from agents.rl.lane_share import ACTOR_KEY
 from agents.rl.manifest import verify_run
-from agents.rl.run_folder import find_run_dir, read_run_config, vecnormalize_path
+from agents.rl.run_folder import find_run_dir, read_run_config, safe_paths, vecnormalize_path
+from agents.rl.safe_files import (
+    Normalization,
+    PolicyFile,
+    SafeFileError,
+    read_normalization,
+    read_policy,
+)
 from agents.rl.wrappers import (
     ResidualDFLQR,
     parse_wrapper_spec,
@@ -42,7 +58,8 @@ class TrainedPolicy:
         model: The SB3 algorithm instance.
         algo: Algorithm name.
         config: The run's ``config.yaml`` (``None`` for a bare ``.zip``).
-        vec_normalize: ``VecNormalize`` statistics (``training=False``) or ``None``.
+        normalization: The ``VecNormalize`` statistics
+            (:class:`agents.rl.safe_files.Normalization`) or ``None``.
         controller: DF-LQR controller for residual runs, else ``None``.
         scale: (4,) residual scale for residual runs, else ``None``.
     """
@@ -52,14 +69,14 @@ class TrainedPolicy:
         model: Any,
         algo: str,
         config: dict[str, Any] | None = None,
-        vec_normalize: Any = None,
+        normalization: Normalization | None = None,
         controller: DFLQRPolicy | LookAtPolicy | None = None,
         scale: np.ndarray | None = None,
     ) -> None:
         self.model = model
         self.algo = algo
         self.config = config
-        self.vec_normalize = vec_normalize
+        self.normalization = normalization
         self.controller = controller
         self.scale = scale
         # An asymmetric actor-critic deploys its actor alone, on the plain observation.
@@ -86,13 +103,13 @@ class TrainedPolicy:
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
-        vec_normalize = self.vec_normalize
-        if vec_normalize is None:
+        norm = self.normalization
+        if norm is None:
             model_obs = batch
-        elif self.actor_only:  # the statistics of the actor's entry only
-            model_obs = vec_normalize._normalize_obs(batch, vec_normalize.obs_rms[ACTOR_KEY])
-        else:
-            model_obs = vec_normalize.normalize_obs(batch)
+        else:  # a privileged critic's statistics are per entry: the actor's alone here
+            model_obs = norm.normalize_obs(
+                batch, ACTOR_KEY if isinstance(norm.obs_rms, dict) else None
+            )
         if self.actor_only:
             act = self.model.policy.actor_action(model_obs, deterministic=deterministic)
         else:
@@ -107,15 +124,75 @@ class TrainedPolicy:
 
     def __repr__(self) -> str:
         extras = []
-        if self.vec_normalize is not None:
+        if self.normalization is not None:
             extras.append("VecNormalize")
         if self.controller is not None and self.scale is not None:
             extras.append(f"residual_dflqr(scale={self.scale.tolist()})")
         return f"TrainedPolicy({self.algo}{', ' if extras else ''}{', '.join(extras)})"
 
 
+# ---------------------------------------------------------------------------- without pickle
+def rebuild_model(config: dict[str, Any], weights: PolicyFile, source: Path) -> Any:
+    """The SB3 model a run's ``config.yaml`` describes, on the spaces and with the weights of
+    its policy file (``source``, named in errors); nothing is unpickled.
+
+    The algorithm is constructed as SB3's own ``load`` does, without an env
+    (``_init_setup_model=False``, then the spaces, then ``_setup_model``), with the run's
+    algorithm arguments (``use_sde`` among them: it shapes the policy) on the CPU; an off-policy
+    algorithm gets a replay buffer of one transition (nothing is collected).
+
+    Raises:
+        agents.rl.safe_files.SafeFileError: The weights are another algorithm's or policy
+            class's, or do not fit the policy the config describes.
+    """
+    algo = config["algo"]
+    if weights.algo != algo:
+        raise SafeFileError(
+            f"{source}: the weights of a {weights.algo.upper()} model, but the run's config.yaml "
+            f"names {algo!r}"
+        )
+    settings = resolve_settings(algo, config["hyperparams"])
+    policy, policy_kwargs = policy_arguments(settings)
+    cls: Any = algorithms()[algo]
+    kwargs = {**settings["algo_kwargs"], "device": "cpu"}
+    if "buffer_size" in inspect.signature(cls).parameters:
+        kwargs["buffer_size"] = 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = cls(policy, None, policy_kwargs=policy_kwargs, _init_setup_model=False, **kwargs)
+        model.observation_space, model.action_space = (
+            weights.observation_space,
+            weights.action_space,
+        )
+        model.n_envs = 1
+        if getattr(model, "target_entropy", None) == "auto":  # SAC would ask its env for it
+            model.target_entropy = -float(np.prod(weights.action_space.shape or ()))
+        model._setup_model()
+    if type(model.policy).__name__ != weights.policy_class:
+        raise SafeFileError(
+            f"{source}: the weights of a {weights.policy_class}, but the run's config.yaml "
+            f"builds a {type(model.policy).__name__}"
+        )
+    import torch
+
+    state = {name: torch.as_tensor(np.array(arr)) for name, arr in weights.tensors.items()}
+    try:
+        model.policy.load_state_dict(state, strict=True)
+    except (RuntimeError, TypeError, ValueError) as exc:
+        reason = " ".join(str(exc).split())[:300]
+        raise SafeFileError(
+            f"{source}: its weights do not fit the {algo.upper()} policy the run's config.yaml "
+            f"describes ({reason})"
+        ) from None
+    model.num_timesteps = weights.num_timesteps
+    if model.use_sde:  # as SB3's load: a gSDE exploration matrix on this device
+        model.policy.reset_noise()
+    return model
+
+
+# ---------------------------------------------------------------------------- trusted pickles
 def _algo_hint(zip_path: Path) -> str | None:
-    """Guess the algorithm from the policy class recorded in an SB3 zip."""
+    """Guess the algorithm from the policy class recorded in an SB3 zip (read as JSON)."""
     try:
         with zipfile.ZipFile(zip_path) as archive:
             data = json.loads(archive.read("data").decode())
@@ -128,7 +205,15 @@ def _algo_hint(zip_path: Path) -> str | None:
     return None
 
 
-def _load_sb3(zip_path: Path, algo: str | None) -> tuple[Any, str]:
+def load_pickled_model(zip_path: Path, algo: str | None) -> tuple[Any, str]:
+    """``(model, algo)`` from SB3's ``model.zip``, by ``<Algorithm>.load``.
+
+    This unpickles the zip's ``data``, which runs whatever code it names: call it only for a
+    file you trust (``trust_pickle=True``).
+
+    Raises:
+        ValueError: Not an SB3 model of a known algorithm.
+    """
     algos = algorithms()
     if algo is not None and algo not in algos:
         raise ValueError(f"{zip_path}: run config names algorithm {algo!r}; known: {list(algos)}")
@@ -148,7 +233,13 @@ def _load_sb3(zip_path: Path, algo: str | None) -> tuple[Any, str]:
     raise ValueError(f"{zip_path}: cannot load as a stable-baselines3 model ({'; '.join(errors)})")
 
 
-def _load_vecnormalize(path: Path) -> Any:
+def load_pickled_stats(path: Path) -> Normalization:
+    """The statistics of SB3's ``vecnormalize.pkl``, by unpickling it (runs whatever code the
+    file names: only for a file you trust, ``trust_pickle=True``).
+
+    Raises:
+        ValueError: Unreadable, or not a ``VecNormalize`` pickle.
+    """
     from stable_baselines3.common.vec_env import VecNormalize
 
     try:
@@ -158,56 +249,112 @@ def _load_vecnormalize(path: Path) -> Any:
         raise ValueError(f"{path}: cannot read the VecNormalize statistics ({exc})") from exc
     if not isinstance(vec_normalize, VecNormalize):
         raise ValueError(f"{path}: not a VecNormalize file (got {type(vec_normalize).__name__})")
-    vec_normalize.training = False
-    vec_normalize.norm_reward = False
-    return vec_normalize
+    return Normalization.from_vec_normalize(vec_normalize)
 
 
-def load_model(path: str | Path, env: gym.Env) -> TrainedPolicy:
-    """Load a run folder or a model ``.zip`` as a policy for ``env``.
+# ---------------------------------------------------------------------------- loading
+def _locate(path: Path) -> tuple[Path | None, Path]:
+    """``(run folder or None, model zip)`` of a run folder or a zip.
 
-    A run folder gives ``model.zip``; a zip inside a run folder (``model.zip``,
-    ``eval/best_model.zip``, ``checkpoints/model_<N>_steps.zip``) uses that run's config and
-    matching ``VecNormalize`` statistics; a bare zip is tried as the algorithm named in it,
-    then PPO, SAC, TD3, without normalisation or wrapper. Like any pickle-based format, only
-    load files you trust. A run folder is first checked against its ``manifest.json``
-    (:func:`agents.rl.manifest.verify_run`): a file that differs, or a model or statistics file
-    it does not list, is refused before anything is loaded; a folder without a manifest (an
-    older run) is loaded after a :class:`~agents.rl.manifest.ManifestWarning`.
+    Raises:
+        FileNotFoundError: A folder with neither ``policy.npz`` nor ``model.zip``.
+        ValueError: A folder with one of them but no readable ``config.yaml``.
+    """
+    if not path.is_dir():
+        return find_run_dir(path), path
+    zip_path = path / "model.zip"
+    if not zip_path.is_file() and not safe_paths(zip_path, path)[0].is_file():
+        ckpts = sorted((path / "checkpoints").glob("*.zip"))
+        hint = f"; checkpoints: {[c.name for c in ckpts]}" if ckpts else ""
+        raise FileNotFoundError(f"{path}: run folder without policy.npz or model.zip{hint}")
+    if read_run_config(path) is None:
+        raise ValueError(
+            f"{path}: a model found but config.yaml is missing or unreadable (not a run folder "
+            "written by quadslam train)"
+        )
+    return path, zip_path
+
+
+def _untrusted(path: Path, run_dir: Path | None, missing: Path | None) -> ValueError:
+    """The one-line refusal to unpickle, with what to do instead."""
+    if run_dir is None or missing is None:
+        return ValueError(
+            f"{path}: a model .zip outside a run folder loads only by unpickling it, which runs "
+            "any code it holds; if you trust who wrote it, pass --trust-pickle "
+            "(trust_pickle=True; a sweep's trust_pickle: true)"
+        )
+    return ValueError(
+        f"{path}: no {missing.relative_to(run_dir)} (a run saved before quadslam wrote its "
+        "weights and statistics as arrays), and its SB3 zip and pickle run any code they hold "
+        f"when read; if you trust who wrote it, convert it once: quadslam convert-run {run_dir} "
+        "--trust-pickle (or read the pickles as they are: --trust-pickle)"
+    )
+
+
+def _load_files(
+    path: Path, run_dir: Path, zip_path: Path, config: dict[str, Any], trust_pickle: bool
+) -> tuple[Any, str, Normalization | None]:
+    """The model and statistics of a run's ``zip_path``: from the arrays, or (trusted and
+    without them) from the pickles; each file checked against the manifest first."""
+    normalized = parse_normalize(config.get("hyperparams", {}).get("normalize", False)) is not None
+    weights, stats = safe_paths(zip_path, run_dir)
+    config_file = run_dir / "config.yaml"
+    if weights.is_file():
+        verify_run(run_dir, [config_file, weights, *([stats] if normalized else [])])
+        model = rebuild_model(config, read_policy(weights), weights)
+        if normalized and not stats.is_file():
+            raise FileNotFoundError(f"{path}: the run used VecNormalize but {stats} is missing")
+        return model, config["algo"], read_normalization(stats) if normalized else None
+    if not trust_pickle:
+        raise _untrusted(path, run_dir, weights)
+    pkl = vecnormalize_path(zip_path, run_dir)
+    verify_run(run_dir, [config_file, zip_path, *([pkl] if normalized else [])])
+    model, algo = load_pickled_model(zip_path, config["algo"])
+    if normalized and not pkl.is_file():
+        raise FileNotFoundError(f"{path}: the run used VecNormalize but {pkl} is missing")
+    return model, algo, load_pickled_stats(pkl) if normalized else None
+
+
+def load_model(path: str | Path, env: gym.Env, *, trust_pickle: bool = False) -> TrainedPolicy:
+    """Load a run folder or a model ``.zip`` as a policy for ``env``, without running code.
+
+    A run folder gives its final model; a zip inside a run folder (``model.zip``,
+    ``eval/best_model.zip``, ``checkpoints/model_<N>_steps.zip``) names that saved model.
+    Either is rebuilt from the run's ``config.yaml`` and the weights and statistics saved as
+    arrays beside the zip (:func:`agents.rl.run_folder.safe_paths`); the zip itself is not
+    read. Only with ``trust_pickle`` are SB3's zip and ``VecNormalize`` pickle read, when the
+    arrays are missing (a run saved before they existed), and a bare zip outside a run folder
+    is tried as the algorithm named in it, then PPO, SAC, TD3, without normalisation or
+    wrapper: unpickling runs whatever code the files name. A run folder is first checked
+    against its ``manifest.json`` (:func:`agents.rl.manifest.verify_run`): a file that
+    differs, or a file to be read that it does not list, is refused before anything is read;
+    a folder without a manifest is loaded after a :class:`~agents.rl.manifest.ManifestWarning`.
 
     Args:
         path: Run folder or ``.zip``.
         env: The evaluation env (raw ``QuadSLAMEnv`` observations and actions).
+        trust_pickle: Read the pickles of a run without arrays, or a bare zip.
 
     Raises:
-        FileNotFoundError: The path, or a run folder's ``model.zip``, does not exist.
-        ValueError: Unreadable file, or the model's observation/action shape differs from
-            ``env``'s (the message names both).
+        FileNotFoundError: The path, or a run folder's model, does not exist.
+        ValueError: Unreadable file, a run without arrays or a bare zip without
+            ``trust_pickle`` (the message says how to convert it), or the model's
+            observation/action shape differs from ``env``'s (the message names both).
         agents.rl.manifest.ManifestError: A run folder's file differs from its manifest or is
             not listed (a ``ValueError``).
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
-    if path.is_dir():
-        run_dir: Path | None = path
-        zip_path = path / "model.zip"
-        if not zip_path.is_file():
-            ckpts = sorted((path / "checkpoints").glob("*.zip"))
-            hint = f"; checkpoints: {[c.name for c in ckpts]}" if ckpts else ""
-            raise FileNotFoundError(f"{path}: run folder without model.zip{hint}")
-        if find_run_dir(zip_path) != path:
-            raise ValueError(f"{path}: model.zip found but config.yaml is missing or unreadable")
-    else:
-        zip_path = path
-        run_dir = find_run_dir(zip_path)
+    run_dir, zip_path = _locate(path)
     config = read_run_config(run_dir) if run_dir else None
-    if config is not None and run_dir is not None:  # before anything is unpickled
-        needed = [run_dir / "config.yaml", zip_path]
-        if parse_normalize(config.get("hyperparams", {}).get("normalize", False)) is not None:
-            needed.append(vecnormalize_path(zip_path, run_dir))
-        verify_run(run_dir, needed)
-    model, algo = _load_sb3(zip_path, config["algo"] if config else None)
+    norm: Normalization | None = None
+    if config is None or run_dir is None:
+        if not trust_pickle:
+            raise _untrusted(path, None, None)
+        model, algo = load_pickled_model(zip_path, None)
+    else:
+        model, algo, norm = _load_files(path, run_dir, zip_path, config, trust_pickle)
 
     obs_shape, act_shape = actor_space(model.observation_space).shape, model.action_space.shape
     env_obs, env_act = env.observation_space.shape, env.action_space.shape
@@ -218,30 +365,20 @@ def load_model(path: str | Path, env: gym.Env) -> TrainedPolicy:
             f"{path}: model observation/action shapes {obs_shape}/{act_shape}{trained} do not "
             f"match the env {env_name} observation/action shapes {env_obs}/{env_act}"
         )
-
-    vec_normalize = controller = scale = None
-    if config is not None and run_dir is not None:
-        hp = config.get("hyperparams", {})
+    controller = scale = None
+    if config is not None:
         _warn_if_env_differs(config, env)
-        if parse_normalize(hp.get("normalize", False)) is not None:
-            vn_path = vecnormalize_path(zip_path, run_dir)
-            if not vn_path.is_file():
-                raise FileNotFoundError(
-                    f"{path}: the run used VecNormalize but {vn_path} is missing"
-                )
-            vec_normalize = _load_vecnormalize(vn_path)
-            rms = vec_normalize.obs_rms
-            shape = (rms[ACTOR_KEY] if isinstance(rms, dict) else rms).mean.shape
-            if shape != env_obs:
-                raise ValueError(
-                    f"{vn_path}: VecNormalize statistics of shape {shape} do not match the env "
-                    f"{env_name} observation shape {env_obs}"
-                )
-        wrapper = parse_wrapper_spec(hp.get("wrapper"))
+        stats = None if norm is None else norm.obs_stats(ACTOR_KEY)  # a Box's: key unused
+        if stats is not None and stats.mean.shape != env_obs:
+            raise ValueError(
+                f"{path}: VecNormalize statistics of shape {stats.mean.shape} do not match the "
+                f"env {env_name} observation shape {env_obs}"
+            )
+        wrapper = parse_wrapper_spec(config.get("hyperparams", {}).get("wrapper"))
         if wrapper is not None:
             residual = ResidualDFLQR(env, **wrapper[1])
             controller, scale = residual.controller, residual.scale
-    return TrainedPolicy(model, algo, config, vec_normalize, controller, scale)
+    return TrainedPolicy(model, algo, config, norm, controller, scale)
 
 
 def _warn_if_env_differs(config: dict[str, Any], env: gym.Env) -> None:

@@ -4,21 +4,23 @@
 saved everything (the model, the learning curve, ``timing.json``, and the ``INTERRUPTED``
 marker of a session stopped by Ctrl-C or SIGTERM); each file is hashed once, there. The
 commands that read a run folder (``evaluate`` and everything that loads a trained model
-through :func:`agents.rl.loading.load_model`: the studies, the sweep; ``train --resume``) call
-:func:`verify_run` first, before anything of the folder is unpickled:
+through :func:`agents.rl.loading.load_model`: the studies, the sweep; ``convert-run``;
+``train --resume``) call :func:`verify_run` first, before anything of the folder is read:
 
 - every listed file that is present must still have its recorded size and SHA-256, else the
   folder is refused with one line naming the file (a truncated or tampered ``model.zip``);
-- the files the command is about to read (``config.yaml``, the model zip, its
-  ``VecNormalize`` statistics) must be listed: a file added to the folder afterwards is
-  refused;
+- the files the command is about to read (``config.yaml``, the model's arrays and statistics
+  or, when trusted, its zip and ``VecNormalize`` pickle) must be listed: a file added to the
+  folder afterwards is refused;
 - a listed file that is missing is not an error here (a checkpoint deleted to save space);
   the command reports the files it needs;
 - a folder without a manifest (a run from before manifests, or a session killed before it
   saved) is accepted with a one-line :class:`ManifestWarning`.
 
 ``train --resume`` removes the manifest before the new session changes the folder; the
-session writes a new one when it has saved.
+session writes a new one when it has saved. The manifest shows that the files are those the
+training saved, not who wrote the folder (whoever crafts a folder can write its manifest):
+loading does not rely on it to make a pickle safe, it reads none (:mod:`agents.rl.loading`).
 """
 
 from __future__ import annotations

@@ -8,12 +8,14 @@ from typing import Any
 from agents.control.dflqr import DFLQRPolicy
 
 
-def load_policy(spec: str, env: Any) -> tuple[Any, str]:
+def load_policy(spec: str, env: Any, *, trust_pickle: bool = False) -> tuple[Any, str]:
     """Return ``(policy, name)`` for ``spec``.
 
     Args:
         spec: ``"dflqr"``, a run folder written by ``quadslam train`` or a model ``.zip``.
         env: The evaluation env (its spaces must match the model's).
+        trust_pickle: Let a model without its arrays be read from SB3's pickles
+            (:func:`agents.rl.loading.load_model`).
 
     Raises:
         FileNotFoundError: The path does not exist.
@@ -26,4 +28,4 @@ def load_policy(spec: str, env: Any) -> tuple[Any, str]:
     path = Path(spec)
     if not path.exists():
         raise FileNotFoundError(f"--policy: {spec!r} is neither 'dflqr' nor an existing path")
-    return load_model(path, env), str(path)
+    return load_model(path, env, trust_pickle=trust_pickle), str(path)

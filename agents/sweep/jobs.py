@@ -111,7 +111,8 @@ def _evaluate(params: dict[str, Any], folder: Path) -> dict[str, Any]:
 
     env = make_env(params["env"], params["scenario"], params["estimator"], params["overrides"])
     try:
-        policy, name = load_policy(params["policy"], env)
+        trust = bool(params.get("trust_pickle", False))
+        policy, name = load_policy(params["policy"], env, trust_pickle=trust)
         plots = folder / "plots" if params["plots"] else None
         return fly(env, policy, name, params["seeds"], plots)
     finally:

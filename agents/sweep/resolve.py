@@ -56,7 +56,8 @@ class Resolver:
             kind: ``run``, ``evaluate`` or ``train``.
             point: The grid point: axis keys (``scenario``, ``env``, …) and ``set:<key>`` /
                 ``hp:<key>`` entries, each with one value.
-            fixed: The block's non-axis settings (``plots``, ``episodes``, ``eval_seed``).
+            fixed: The block's non-axis settings (``plots``, ``episodes``, ``eval_seed``,
+                ``trust_pickle``).
             where: How error messages name the point (spec, block, axis values).
 
         Returns:
@@ -153,6 +154,8 @@ class Resolver:
         }
         if kind == "evaluate":
             params["policy"] = policy
+            if fixed.get("trust_pickle"):  # only when set: the other jobs keep their ids
+                params["trust_pickle"] = True
         return params, resolved
 
     def _train(

@@ -31,7 +31,9 @@ kind          one job is
 ``--seed``/``--seeds``) or a list; ``cpus`` (default 1) is what Ray reserves for each job.
 ``seeds_per_job: K`` (run and evaluate; default 1) flies K consecutive seeds of a grid point in
 one job, as K lanes of one vector env (``quadslam run --seed S --seeds K``: the same numbers,
-less start-up per episode, fewer and longer jobs).
+less start-up per episode, fewer and longer jobs). ``trust_pickle: true`` (evaluate; default
+false) is ``quadslam evaluate --trust-pickle``: a run folder without ``policy.npz`` or a bare
+SB3 zip is read by unpickling it, which runs any code it holds.
 
 Everything is checked before any job starts (:func:`load_spec`): unknown keys or kinds,
 empty grids, unknown scenarios, env ids, algorithms or estimators, bad ``set`` keys or values
@@ -62,7 +64,7 @@ KINDS = ("run", "evaluate", "train")
 _COMMON = ("kind", "name", "scenario", "estimator", "seed", "seeds", "set", "cpus")
 KIND_KEYS: dict[str, tuple[str, ...]] = {
     "run": (*_COMMON, "seeds_per_job", "plots"),
-    "evaluate": (*_COMMON, "seeds_per_job", "policy", "env", "plots"),
+    "evaluate": (*_COMMON, "seeds_per_job", "policy", "env", "plots", "trust_pickle"),
     "train": (
         *_COMMON,
         "algo",
@@ -240,7 +242,7 @@ def _expand_block(
     cpus = block.get("cpus", 1)
     if isinstance(cpus, bool) or not isinstance(cpus, int | float) or not cpus > 0:
         raise SweepSpecError(f"{where}.cpus: got {cpus!r}; allowed: a positive number")
-    fixed = {k: block[k] for k in ("plots", "episodes", "eval_seed") if k in block}
+    fixed = {k: block[k] for k in ("plots", "episodes", "eval_seed", "trust_pickle") if k in block}
     _check_scalars(fixed, where)
 
     axes: list[tuple[str, list[Any]]] = []
@@ -328,8 +330,9 @@ def _seeds(block: dict[str, Any], where: str) -> list[int]:
 
 
 def _check_scalars(fixed: dict[str, Any], where: str) -> None:
-    if "plots" in fixed and not isinstance(fixed["plots"], bool):
-        raise SweepSpecError(f"{where}.plots: got {fixed['plots']!r}; allowed: true or false")
+    for key in ("plots", "trust_pickle"):
+        if key in fixed and not isinstance(fixed[key], bool):
+            raise SweepSpecError(f"{where}.{key}: got {fixed[key]!r}; allowed: true or false")
     if "episodes" in fixed and (not is_int(fixed["episodes"]) or fixed["episodes"] < 0):
         raise SweepSpecError(
             f"{where}.episodes: got {fixed['episodes']!r}; allowed: an integer >= 0"
