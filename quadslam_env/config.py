@@ -268,6 +268,7 @@ class ScenarioConfig:
                 f"episode.control_hz = {scenario.episode.control_hz} (integer ratio >= 1)"
             )
         check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
+        scenario.episode.check_substep(scenario.vehicle.physics_dt_s)
         check_delays(scenario)
         check_copyable(scenario)
         check_heading(scenario)

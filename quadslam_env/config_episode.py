@@ -7,11 +7,15 @@ assembles them with the others into a scenario.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
 from quadslam_env.config_schema import ConfigError, Section
 from quadslam_env.config_schema import spec as _spec
+
+SUBSTEP_TOLERANCE = 1e-9
+"""Relative rounding allowed in ``control period / vehicle.physics_dt_s`` being whole."""
 
 
 @dataclass(frozen=True)
@@ -147,6 +151,29 @@ class EpisodeConfig(Section):
                 f"episode.settle_s: got {self.settle_s}; allowed: null or 0 <= settle_s < "
                 f"episode.duration_s = {self.duration_s} (a steady phase must remain)"
             )
+
+    def check_substep(self, physics_dt_s: float) -> None:
+        """The control period ``1 / control_hz`` must be a whole multiple n ≥ 1 of the RK4
+        substep ``vehicle.physics_dt_s``, so that the vehicle is integrated in substeps of
+        exactly that length; the ratio may differ from n by float rounding (a relative
+        :data:`SUBSTEP_TOLERANCE`: 0.01 / 0.002 is 5.000000000000001).
+
+        Raises:
+            ConfigError: Naming ``vehicle.physics_dt_s``, both values and the nearest shorter
+                substep that would do.
+        """
+        period = 1.0 / self.control_hz
+        ratio = period / physics_dt_s
+        n = round(ratio)
+        if n >= 1 and abs(ratio - n) <= SUBSTEP_TOLERANCE * ratio:
+            return
+        shorter = period / max(1, math.ceil(ratio))  # the longest that divides the period
+        raise ConfigError(
+            f"vehicle.physics_dt_s: got {physics_dt_s:g} with episode.control_hz = "
+            f"{self.control_hz:g}, whose control period {period:g} s is {ratio:.6g} substeps; "
+            f"allowed: a substep the control period is a whole multiple of, period / n for a "
+            f"whole n >= 1 (e.g. {shorter!r} s)"
+        )
 
 
 @dataclass(frozen=True)
