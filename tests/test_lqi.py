@@ -116,7 +116,8 @@ def _oracle_env(**kwargs: Any) -> gym.Env:
 def test_without_integral_weight_it_is_dflqr_bit_for_bit() -> None:
     env = _oracle_env()
     try:
-        lqi = LQIPolicy.from_env(env, state_weights=Q_TILDE, integral_weights=np.zeros(4))
+        lqi = LQIPolicy.from_env(env, state_weights=Q_TILDE, integral_weights=np.zeros(4),
+                                 max_tilt_deg=90.0)  # fmt: skip
         dflqr = DFLQRPolicy.from_env(env)
         obs = _random_obs(np.random.default_rng(3), 64)
         a, state = lqi.predict(obs)
@@ -242,3 +243,26 @@ def test_as_a_residual_base_a_zero_residual_flies_lqi_across_autoresets() -> Non
     finally:
         wrapped.close()
         plain.close()
+
+
+def test_the_tilt_limit_scales_the_horizontal_command_only() -> None:
+    from agents.control.dflqr import limit_tilt
+
+    tan30 = np.tan(np.radians(30.0))
+    ux, uy, uz, limited = limit_tilt(3.0, 4.0, -5.0, tan30)
+    assert limited and uz == -5.0
+    assert np.hypot(ux, uy) == pytest.approx(5.0 * tan30, rel=1e-12)
+    assert ux / uy == pytest.approx(0.75, rel=1e-12)  # the direction kept
+    assert limit_tilt(1.0, 1.0, -9.81, tan30) == (1.0, 1.0, -9.81, False)
+    assert limit_tilt(30.0, 40.0, -5.0, np.inf) == (30.0, 40.0, -5.0, False)
+    # a lane whose command is tilt-limited does not integrate
+    env = _oracle_env()
+    try:
+        policy = LQIPolicy.from_env(env)
+    finally:
+        env.close()
+    obs = np.zeros((1, 16))
+    obs[0, 0] = 5.0  # 5 m behind: a command of ~34 m/s² sideways, far beyond 30°
+    xi0 = np.zeros((1, 4))
+    _, xi = policy.predict(obs, state=xi0, episode_start=np.array([False]))
+    np.testing.assert_array_equal(xi, xi0)

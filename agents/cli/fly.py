@@ -18,6 +18,7 @@ from typing import Any
 from tqdm import tqdm
 
 from agents.cli.arg_types import positive_float, positive_int
+from agents.control.named import CONTROLLERS
 from agents.io.overrides import parse_overrides
 
 
@@ -138,8 +139,9 @@ def fly(
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    """DF-LQR episodes on a scenario: the package's main job."""
+    """Baseline-controller episodes (DF-LQR by default) on a scenario: the package's main job."""
     from agents.control.dflqr import DFLQRPolicy
+    from agents.control.named import build_controller
     from agents.io.paths import safe_name
 
     env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
@@ -153,18 +155,28 @@ def cmd_run(args: argparse.Namespace) -> int:
         plots = Path("runs") / f"run-{stamp}-{safe_name(env.unwrapped.scenario.name)}"
     check_outputs(plots, args.json, args.video)
     seeds = list(range(args.seed, args.seed + args.seeds))
-    policy = DFLQRPolicy.from_env(env, integral_gain=args.integral_gain or 0.0)
-    fly(env, policy, "dflqr", seeds, plots, args.json, args.video)
+    if args.integral_gain and args.policy != "dflqr":
+        raise SystemExit(
+            f"quadslam run: error: --integral-gain: only with --policy dflqr (got --policy "
+            f"{args.policy}, whose integral action is its own)"
+        )
+    if args.policy == "dflqr":
+        policy = DFLQRPolicy.from_env(env, integral_gain=args.integral_gain or 0.0)
+    else:
+        policy = build_controller(args.policy, env)
+    fly(env, policy, args.policy, seeds, plots, args.json, args.video)
     return 0
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    """Any policy (``dflqr`` or a trained model) through the same code path as ``run``."""
+    """Any policy (a controller by name or a trained model) through the same code path as
+    ``run``."""
     from agents.rl.policies import load_policy
     from agents.rl.run_folder import run_config
 
     # A trained model is evaluated on its training env id and scenario unless told otherwise.
-    cfg = run_config(args.policy) if args.policy != "dflqr" and Path(args.policy).exists() else None
+    named = args.policy in CONTROLLERS
+    cfg = run_config(args.policy) if not named and Path(args.policy).exists() else None
     if cfg is not None and Path(args.policy).is_dir():
         _warn_unfinished(Path(args.policy))
     env_id = args.env or (cfg["env_id"] if cfg else "QuadSLAM-v0")
@@ -238,6 +250,14 @@ def add_fly_parsers(sub: Any) -> None:
     )
     common(run)
     run.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
+    run.add_argument(
+        "--policy",
+        default="dflqr",
+        choices=sorted(CONTROLLERS),
+        help="the baseline controller: dflqr (the paper's DF-LQR, default), lqi (DF-LQR "
+        "with integral action in the Riccati design) or se3 (geometric SE(3) tracking with "
+        "integral action)",
+    )
     run.add_argument("--plots", type=Path, help="figure folder (default: a new runs/ folder)")
     run.add_argument("--no-plots", action="store_true", help="skip the figures")
     run.add_argument(
@@ -251,9 +271,13 @@ def add_fly_parsers(sub: Any) -> None:
 
     ev = sub.add_parser("evaluate", help="evaluate dflqr or a trained model on an env id")
     common(ev)
-    ev.add_argument("--policy", required=True, help="'dflqr', or a run folder / model .zip")
     ev.add_argument(
-        "--env", help="env id (default: the model's training env, or QuadSLAM-v0 for dflqr)"
+        "--policy",
+        required=True,
+        help=f"a controller ({', '.join(sorted(CONTROLLERS))}), or a run folder / model .zip",
+    )
+    ev.add_argument(
+        "--env", help="env id (default: the model's training env, or QuadSLAM-v0 for a controller)"
     )
     ev.add_argument("--episodes", type=positive_int, default=10, help="number of episodes")
     ev.add_argument("--plots", type=Path, help="write figures of the first episode here")

@@ -8,7 +8,7 @@ import argparse
 import itertools
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,12 +28,17 @@ def cmd_study_active(args: argparse.Namespace) -> int:
 
 
 def cmd_study_robustness(args: argparse.Namespace) -> int:
-    """DF-LQR and residual PPO (nominal or randomised training) on nominal, randomised and
-    windy physics."""
+    """DF-LQR, LQI, SE(3) and residual PPO on the LQI, each on the Oracle and every
+    estimator, under nominal, randomised and windy physics."""
     from agents.studies import robustness as study_robustness
 
     return _training_study(
-        args, study_robustness, "study_robustness", "robustness.png", rows=args.rows
+        args,
+        study_robustness,
+        "study_robustness",
+        "robustness.png",
+        rows=args.rows,
+        estimators=args.estimators,
     )
 
 
@@ -129,16 +134,28 @@ def _plot_to(plot: Any, result: dict[str, Any], target: Path) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def _subset(text: str, allowed: Sequence[str]) -> list[str]:
+    """Comma-separated names from ``allowed``."""
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    if not names or any(name not in allowed for name in names):
+        raise argparse.ArgumentTypeError(
+            f"got {text!r}; allowed: a comma-separated subset of {','.join(allowed)}"
+        )
+    return names
+
+
 def _robustness_rows(text: str) -> list[str]:
     """``--rows`` of the robustness study: comma-separated names from its ``ROWS``."""
     from agents.studies.robustness import ROWS
 
-    names = [name.strip() for name in text.split(",") if name.strip()]
-    if not names or any(name not in ROWS for name in names):
-        raise argparse.ArgumentTypeError(
-            f"got {text!r}; allowed: a comma-separated subset of {','.join(ROWS)}"
-        )
-    return names
+    return _subset(text, ROWS)
+
+
+def _robustness_estimators(text: str) -> list[str]:
+    """``--estimators`` of the robustness study: names from its ``ESTIMATORS``."""
+    from agents.studies.robustness import ESTIMATORS
+
+    return _subset(text, ESTIMATORS)
 
 
 def _training_study_args(
@@ -194,15 +211,21 @@ def add_study_parser(
     active.set_defaults(func=cmd_study_active)
     robust = studies.add_parser(
         "robustness",
-        help="DF-LQR and residual PPO trained with and without domain randomisation, on EKF-SLAM "
-        "under nominal, randomised and windy physics (held-out seeds)",
+        help="DF-LQR, LQI, SE(3) and residual PPO on the LQI, on the Oracle and on each "
+        "estimator, under nominal, randomised and windy physics (held-out seeds)",
     )
-    _training_study_args(robust, positive_int, 2, "write the box plot (PNG) here")
+    _training_study_args(robust, positive_int, 2, "write the figure (PNG) here")
     robust.add_argument(
         "--rows",
         type=_robustness_rows,
-        help="comma-separated rows to fly (default all: dflqr,dflqr_integral,ppo_nominal,"
-        "ppo_randomized); only the learned ones listed are trained",
+        help="comma-separated rows to fly (default all: dflqr,lqi,se3,ppo_lqi); ppo_lqi is "
+        "trained only when listed",
+    )
+    robust.add_argument(
+        "--estimators",
+        type=_robustness_estimators,
+        help="comma-separated estimators to fly on (default all that can run here: oracle,"
+        "ekf_thrust_axis,ekf_full,isam2; isam2 needs the gtsam extra)",
     )
     robust.set_defaults(func=cmd_study_robustness)
     assoc = studies.add_parser(

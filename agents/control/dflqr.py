@@ -109,6 +109,29 @@ def lqr_gain(Q: FloatArray = Q_TILDE, R: FloatArray = R_TILDE) -> FloatArray:
 
 
 @kernel
+def limit_tilt(ux: float, uy: float, uz: float, tan_max: float) -> tuple:
+    """Scale the horizontal part of a thrust acceleration so that its tilt from the vertical
+    stays at most ``atan(tan_max)``.
+
+    Args:
+        ux, uy, uz: ``u_p`` (m/s², NED-like axes: ``uz < 0`` points the thrust up).
+        tan_max: tan of the largest tilt; ``inf`` leaves every command as it is.
+
+    Returns:
+        ``(ux, uy, uz, limited)``: the command with ``√(ux² + uy²) ≤ tan_max · (−uz)`` (the
+        horizontal part scaled, the vertical kept), and whether it had to be scaled.
+    """
+    if tan_max == math.inf:
+        return ux, uy, uz, False
+    horizontal = math.sqrt(ux * ux + uy * uy)
+    allowed = tan_max * max(-uz, 0.0)
+    if horizontal <= allowed:
+        return ux, uy, uz, False
+    scale = allowed / horizontal
+    return ux * scale, uy * scale, uz, True
+
+
+@kernel
 def _command_lanes(
     obs: FloatArray,
     K: FloatArray,
@@ -117,7 +140,9 @@ def _command_lanes(
     mass: float,
     limits: FloatArray,
     u_offset: FloatArray,
+    tan_max: float,
     out: FloatArray,
+    tilted: np.ndarray,
 ) -> None:
     """DF-LQR command ``out`` (n, 4) for observations ``obs`` (n, ≥16), steps 1–4.
 
@@ -125,7 +150,9 @@ def _command_lanes(
     normalised ``thrust_torque`` action clipped to [-1, 1]; with an empty ``limits`` as
     physical thrust (N) and torque (N·m). ``u_offset`` (n, k), k ≤ 4, is added to the first k
     entries of ``u = (u_p [m/s², heading frame], u_ψ [rad/s])`` before the inverse map (the
-    integral action); an empty (0, k) array adds nothing.
+    integral action); an empty (0, k) array adds nothing. ``u_p`` is then tilt-limited
+    (:func:`limit_tilt`, ``tan_max = inf``: not at all, DF-LQR as the paper has it) and
+    ``tilted`` (n,) records the lanes whose command was.
     """
     r_err = np.empty(7)
     v = np.empty(4)
@@ -144,6 +171,7 @@ def _command_lanes(
         if u_offset.shape[0]:
             for i in range(u_offset.shape[1]):
                 v[i] += u_offset[b, i]
+        v[0], v[1], v[2], tilted[b] = limit_tilt(v[0], v[1], v[2], tan_max)
         thrust, phi_d, theta_d, r_d = inverse_map(v[0], v[1], v[2], v[3], mass)
         out[b, 0] = thrust
         out[b, 1] = -kp[0] * (o[6] - phi_d) - kd[0] * o[9]
@@ -279,7 +307,8 @@ class DFLQRPolicy:
         """
         out = np.empty((obs.shape[0], 4))
         _command_lanes(np.asarray(obs, dtype=float), self.K, self.kp, self.kd,
-                       float(self.vehicle.mass), np.empty(0), _NO_OFFSET, out)  # fmt: skip
+                       float(self.vehicle.mass), np.empty(0), _NO_OFFSET, math.inf, out,
+                       np.empty(obs.shape[0], dtype=np.bool_))  # fmt: skip
         return out[:, 0], out[:, 1:]
 
     def predict(
@@ -300,7 +329,7 @@ class DFLQRPolicy:
             state = self._integral_state(state, episode_start, batch.shape[0])
             offset = -self.integral_gain * state[:, :3]
         _command_lanes(batch, self.K, self.kp, self.kd, float(self.vehicle.mass), self._limits,
-                       offset, act)  # fmt: skip
+                       offset, math.inf, act, np.empty(batch.shape[0], dtype=np.bool_))  # fmt: skip
         if self.integral_gain > 0.0:
             state = self._integrate(state, batch, np.abs(act[:, 0]) >= 1.0)
         act = act.astype(np.float32)

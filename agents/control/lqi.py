@@ -20,9 +20,11 @@ integrals are kept in the reference-heading frame (:func:`~agents.control.dflqr.
 and carried in ``predict``'s ``state`` (n, 4): ``(∫x̃, ∫ỹ, ∫z̃ [m·s], ∫ψ̃ [rad·s])``, zeroed on a
 lane whose ``episode_start`` is set.
 
-**Anti-windup: conditional integration.** A lane whose thrust or roll/pitch torque command
-saturates (a normalised action at ±1) does not integrate on that step: its actuators cannot
-follow the command, and integrating then is what winds up. So the take-off climb needs no hold:
+**Tilt limit and anti-windup.** The commanded tilt is limited (:data:`MAX_TILT_DEG`, the
+horizontal part of ``u_p`` scaled down). A lane whose thrust or roll/pitch torque command
+saturates (a normalised action at ±1) or whose tilt is limited does not integrate on that step
+(conditional integration): its actuators cannot follow the command, and integrating then is
+what winds up. So the take-off climb needs no hold:
 the climb's large error saturates the thrust at the start, and the integral the designed loop
 accumulates after it is the one its Riccati gain accounts for.
 
@@ -40,6 +42,7 @@ these were chosen from (Oracle, wind and randomised conditions, seeds 0–7, not
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -65,6 +68,13 @@ STATE_WEIGHTS = np.diag([16 * 0.2, 16 * 0.2, 16 * 0.32, 0.0, 0.0, 0.0, 0.04])
 """Default ``Q̃`` (7×7) over ``r̃``: ``q/r = 16`` on the positions (module docstring)."""
 INTEGRAL_WEIGHTS = np.array([16 * 0.2, 16 * 0.2, 16 * 0.32, 0.01])
 """Default ``Q_ξ`` diagonal (4,) over ``(∫x̃, ∫ỹ, ∫z̃, ∫ψ̃)``; an entry 0 adds no state."""
+MAX_TILT_DEG = 30.0
+"""Default limit of the commanded tilt, degrees. A stiff outer loop asks for large tilts when
+far from the reference (the take-off climb behind a moving reference); a saturating attitude
+loop then tumbles on a vehicle with less torque than nominal (randomised inertia +19%: seed
+1001 of the robustness study left the tilt limit in 3 s without it). Flight stacks limit it
+too (PX4's ``MPC_TILTMAX_AIR``, 45° by default); the figure-8 needs 3°, the 2.2 m/s wind's drag
+another 4°."""
 SEPARATION = 0.25
 """Largest outer-loop pole magnitude as a share of the slowest attitude-loop natural frequency
 (roll/pitch): the cascade assumes the attitude follows its command instantly, which holds for
@@ -166,6 +176,12 @@ def check_separation(poles: FloatArray, natural_freq: FloatArray) -> None:
         )
 
 
+def saturated(act: FloatArray, tilted: np.ndarray) -> np.ndarray:
+    """(n,) lanes that must not integrate this step: their normalised thrust or roll/pitch
+    torque ``act`` (n, ≥3) at ±1, or their command tilt-limited (``tilted`` (n,))."""
+    return tilted | np.any(np.abs(act[:, :3]) >= 1.0, axis=1)
+
+
 class LQIPolicy(DFLQRPolicy):
     """DF-LQR with integral action in the Riccati design, with SB3's ``predict`` (module
     docstring).
@@ -178,6 +194,8 @@ class LQIPolicy(DFLQRPolicy):
         state_weights: (7, 7) or (7,) ``Q̃`` over ``r̃``.
         integral_weights: (4,) ``Q_ξ`` over the integrals; all 0 is DF-LQR.
         input_weights: (4, 4) or (4,) ``R̃``.
+        max_tilt_deg: Largest commanded tilt in degrees (:func:`~agents.control.dflqr.limit_tilt`;
+            90: no limit).
         control_dt: Control period in s (the integration step).
 
     Attributes:
@@ -197,8 +215,12 @@ class LQIPolicy(DFLQRPolicy):
         state_weights: FloatArray = STATE_WEIGHTS,
         integral_weights: FloatArray = INTEGRAL_WEIGHTS,
         input_weights: FloatArray = R_TILDE,
+        max_tilt_deg: float = MAX_TILT_DEG,
         control_dt: float = 0.01,
     ) -> None:
+        if not (math.isfinite(max_tilt_deg) and 0.0 < max_tilt_deg <= 90.0):
+            raise ConfigError(f"lqi.max_tilt_deg: got {max_tilt_deg!r}; allowed: (0, 90]")
+        self._tan_max = math.inf if max_tilt_deg == 90.0 else math.tan(math.radians(max_tilt_deg))
         extra = {} if natural_freq is None else {"natural_freq": natural_freq}
         super().__init__(vehicle, damping=damping, action_dim=action_dim,
                          control_dt=control_dt, **extra)  # fmt: skip
@@ -221,24 +243,26 @@ class LQIPolicy(DFLQRPolicy):
         batch = obs[None, :] if single else obs
         act = np.zeros((batch.shape[0], self.action_dim))
         mass = float(self.vehicle.mass)
+        tilted = np.empty(batch.shape[0], dtype=np.bool_)
         if not self._integrates:
             _command_lanes(batch, self.K, self.kp, self.kd, mass, self._limits,
-                           np.empty((0, 4)), act)  # fmt: skip
+                           np.empty((0, 4)), self._tan_max, act, tilted)  # fmt: skip
         else:
             xi = self._integral_state(state, episode_start, batch.shape[0])
             offset = -xi @ self.K_xi.T
-            _command_lanes(batch, self.K, self.kp, self.kd, mass, self._limits, offset, act)
-            state = self._step_integrals(xi, batch, act)
+            _command_lanes(batch, self.K, self.kp, self.kd, mass, self._limits, offset,
+                           self._tan_max, act, tilted)  # fmt: skip
+            state = self._step_integrals(xi, batch, saturated(act, tilted))
         act = act.astype(np.float32)
         return (act[0] if single else act), state
 
-    def _step_integrals(self, xi: FloatArray, obs: FloatArray, act: FloatArray) -> FloatArray:
+    def _step_integrals(self, xi: FloatArray, obs: FloatArray, held: np.ndarray) -> FloatArray:
         """The (n, 4) integrals after one control period: the position integral turned with the
-        heading frame, this step's errors added on the lanes whose thrust and roll/pitch torque
-        are not saturated (conditional integration)."""
+        heading frame, this step's errors added on the lanes not ``held`` (n,) (conditional
+        integration, :func:`saturated`)."""
         turned, grown = heading_frame_step(xi[:, :3], obs, self.control_dt)
         grown_psi = xi[:, 3] + obs[:, 8] * self.control_dt
-        free = np.all(np.abs(act[:, :3]) < 1.0, axis=1)
+        free = ~held
         out = np.empty_like(xi)
         out[:, :3] = np.where(free[:, None], grown, turned)
         out[:, 3] = np.where(free, grown_psi, xi[:, 3])

@@ -24,9 +24,10 @@ Riccati design (:mod:`agents.control.lqi`: ``k_x = 6.7 s⁻²``, ``k_v = 3.7 s�
 and differ in the attitude law; ``k_R = J ω_n²`` and ``k_Ω = 2ζω_n J`` per axis with DF-LQR's
 natural frequencies and their caps for the IMU rate and the torque at hover
 (:func:`~agents.control.dflqr.attitude_natural_freq`), so the same defaults suit the paper
-vehicle and the Crazyflie. The integral is the LQI's: in the heading frame, not integrated on
-a lane whose thrust or roll/pitch torque saturates (conditional integration, no take-off hold),
-carried in ``predict``'s ``state`` (n, 3) m·s.
+vehicle and the Crazyflie. The tilt limit and the integral are the LQI's: the commanded tilt at
+most 30°, the integral in the heading frame, not integrated on a lane whose thrust or roll/pitch
+torque saturates or whose tilt is limited (conditional integration, no take-off hold), carried
+in ``predict``'s ``state`` (n, 3) m·s.
 """
 
 from __future__ import annotations
@@ -39,10 +40,12 @@ import numpy as np
 from agents.control.dflqr import (
     ATTITUDE_DAMPING,
     ATTITUDE_NATURAL_FREQ,
+    BRAKING_RATE,
     attitude_natural_freq,
     heading_frame_step,
+    limit_tilt,
 )
-from agents.control.lqi import check_separation, lqi_gain
+from agents.control.lqi import MAX_TILT_DEG, check_separation, lqi_gain, saturated
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.frames import dcm_from_trig
 from quadslam_env.models.jit import kernel
@@ -69,11 +72,16 @@ def _se3_lanes(
     mass: float,
     limits: FloatArray,
     integral: FloatArray,
+    tan_max: float,
+    rate_limit: float,
     out: FloatArray,
+    tilted: np.ndarray,
 ) -> None:
     """Normalised ``thrust_torque`` actions ``out`` (n, 4) for observations ``obs`` (n, ≥16),
     steps 1–3 of the module docstring; ``gains = (k_x, k_v, k_I)``, ``integral`` (n, 3) m·s,
-    ``limits = (max thrust N, max torques (3) N·m)``, ``inertia`` (3, 3) kg·m²."""
+    ``limits = (max thrust N, max torques (3) N·m)``, ``inertia`` (3, 3) kg·m²; ``A`` is
+    tilt-limited (:func:`~agents.control.dflqr.limit_tilt`), the lanes so limited marked in
+    ``tilted`` (n,)."""
     A = np.empty(3)
     Rd = np.empty((3, 3))
     E = np.empty((3, 3))
@@ -82,6 +90,7 @@ def _se3_lanes(
         for i in range(3):
             A[i] = o[12 + i] - gains[0] * o[i] - gains[1] * o[3 + i] - gains[2] * integral[b, i]
         A[2] -= GRAVITY
+        A[0], A[1], A[2], tilted[b] = limit_tilt(A[0], A[1], A[2], tan_max)
         c = dcm_from_trig(math.cos(o[6]), math.sin(o[6]), math.cos(o[7]), math.sin(o[7]),
                           math.cos(o[8]), math.sin(o[8]))  # fmt: skip
         # f = −m A · R e3 (R e3 is the third column of C_NB)
@@ -109,7 +118,11 @@ def _se3_lanes(
         out[b, 0] = min(1.0, max(-1.0, 2.0 * thrust / limits[0] - 1.0))
         for i in range(3):
             eW = w[i] - E[2, i] * o[15]
-            torque = -kR[i] * eR[i] - kW[i] * eW + gyro[i]
+            # −k_R e_R − k_Ω e_Ω as a rate loop on a bounded rate set-point: the same law while
+            # |k_R e_R / k_Ω| ≤ the braking rate, and a loop that can stop its torque-limited
+            # swing beyond it (agents.control.dflqr.BRAKING_RATE)
+            rate_sp = min(rate_limit, max(-rate_limit, -kR[i] * eR[i] / kW[i]))
+            torque = -kW[i] * (eW - rate_sp) + gyro[i]
             out[b, 1 + i] = min(1.0, max(-1.0, torque / limits[1 + i]))
 
 
@@ -123,6 +136,7 @@ class SE3Policy:
         action_dim: 4, or 5 with the heading channel (its component is 0).
         position_gains: ``(k_x s⁻², k_v s⁻¹, k_I s⁻³)`` per unit mass; ``k_I = 0`` is Lee et
             al.'s controller without the integral.
+        max_tilt_deg: Largest commanded tilt in degrees (the LQI's default; 90: no limit).
         control_dt: Control period in s (the integration step).
 
     Raises:
@@ -138,8 +152,12 @@ class SE3Policy:
         damping: float = ATTITUDE_DAMPING,
         action_dim: int = 4,
         position_gains: tuple[float, float, float] = POSITION_GAINS,
+        max_tilt_deg: float = MAX_TILT_DEG,
         control_dt: float = 0.01,
     ) -> None:
+        if not (math.isfinite(max_tilt_deg) and 0.0 < max_tilt_deg <= 90.0):
+            raise ConfigError(f"se3.max_tilt_deg: got {max_tilt_deg!r}; allowed: (0, 90]")
+        self._tan_max = math.inf if max_tilt_deg == 90.0 else math.tan(math.radians(max_tilt_deg))
         gains = np.asarray(position_gains, dtype=float)
         if gains.shape != (3,) or not np.all(np.isfinite(gains)) or np.any(gains < 0.0):
             raise ConfigError(
@@ -198,10 +216,11 @@ class SE3Policy:
         if state is not None and episode_start is not None:
             xi[np.asarray(episode_start, dtype=bool).reshape(n)] = 0.0
         act = np.zeros((n, self.action_dim))
+        tilted = np.empty(n, dtype=np.bool_)
         _se3_lanes(batch, self.gains, self.kR, self.kW, np.asarray(self.vehicle.inertia),
-                   float(self.vehicle.mass), self._limits, xi, act)  # fmt: skip
+                   float(self.vehicle.mass), self._limits, xi, self._tan_max, BRAKING_RATE, act,
+                   tilted)  # fmt: skip
         turned, grown = heading_frame_step(xi, batch, self.control_dt)
-        free = np.all(np.abs(act[:, :3]) < 1.0, axis=1)
-        state = np.where(free[:, None], grown, turned)
+        state = np.where(saturated(act, tilted)[:, None], turned, grown)
         act = act.astype(np.float32)
         return (act[0] if single else act), state

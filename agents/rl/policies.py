@@ -1,18 +1,20 @@
-"""Load a policy by name or path for evaluation: ``dflqr`` or a saved stable-baselines3 model."""
+"""Load a policy by name or path for evaluation: a baseline controller by name
+(:data:`agents.control.named.CONTROLLERS`) or a saved stable-baselines3 model."""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
-from agents.control.dflqr import DFLQRPolicy
+from agents.control.named import CONTROLLERS, build_controller
 
 
 def load_policy(spec: str, env: Any, *, trust_pickle: bool = False) -> tuple[Any, str]:
     """Return ``(policy, name)`` for ``spec``.
 
     Args:
-        spec: ``"dflqr"``, a run folder written by ``quadslam train`` or a model ``.zip``.
+        spec: A controller name (``"dflqr"``, ``"lqi"``, ``"se3"``), a run folder written by
+            ``quadslam train`` or a model ``.zip``.
         env: The evaluation env (its spaces must match the model's).
         trust_pickle: Let a model without its arrays be read from SB3's pickles
             (:func:`agents.rl.loading.load_model`).
@@ -21,11 +23,14 @@ def load_policy(spec: str, env: Any, *, trust_pickle: bool = False) -> tuple[Any
         FileNotFoundError: The path does not exist.
         ValueError: The file is not a model for this env.
     """
-    if spec == "dflqr":
-        return DFLQRPolicy.from_env(env), "dflqr"
+    if spec in CONTROLLERS:
+        return build_controller(spec, env), spec
     from agents.rl.loading import load_model
 
     path = Path(spec)
     if not path.exists():
-        raise FileNotFoundError(f"--policy: {spec!r} is neither 'dflqr' nor an existing path")
+        raise FileNotFoundError(
+            f"--policy: {spec!r} is neither a controller name ({', '.join(sorted(CONTROLLERS))}) "
+            "nor an existing path"
+        )
     return load_model(path, env, trust_pickle=trust_pickle), str(path)

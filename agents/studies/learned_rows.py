@@ -29,7 +29,13 @@ EKF = "QuadSLAM-EKF-v0"
 # Tracking RMSE columns (steady state first: the headline), spread over training seeds for the
 # learned rows; estimation columns, over episodes.
 TRACK_KEYS = ("track_pos_rmse_steady_m", "track_pos_rmse_transient_m", "track_pos_rmse_m")
-EST_KEYS = ("est_pos_rmse_steady_m", "est_pos_rmse_m", "anees_pose_steady", "anees_pose")
+EST_KEYS = (
+    "est_pos_rmse_steady_m",
+    "est_pos_rmse_m",
+    "est_att_rmse_steady_deg",
+    "anees_pose_steady",
+    "anees_pose",
+)
 
 
 @dataclass
@@ -40,6 +46,7 @@ class Row:
     policy: str
     train_on: str
     eval_on: str
+    estimator: str = ""  # the estimator flown on, where a study sets it apart from eval_on
     episodes: list[dict[str, Any]] = field(default_factory=list)
     per_seed: list[list[dict[str, Any]]] = field(default_factory=list)  # learned rows
     train_wall_s: list[float] = field(default_factory=list)
@@ -57,6 +64,7 @@ class Row:
             "policy": self.policy,
             "train_on": self.train_on,
             "eval_on": self.eval_on,
+            **({"estimator": self.estimator} if self.estimator else {}),
             "spread_over": "training seeds" if self.per_seed else "episodes",
         }
         for key in TRACK_KEYS:

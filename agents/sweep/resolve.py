@@ -16,6 +16,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from agents.control.named import CONTROLLERS
+
 DEFAULT_EVAL_SEED = 1000  # held-out seeds of train jobs start here (as in the study)
 DEFAULT_EPISODES = 10  # held-out episodes per train job (quadslam evaluate's default)
 
@@ -130,13 +132,14 @@ class Resolver:
         """run / evaluate: the env the job flies on, resolved as ``quadslam run`` would."""
         policy = point.get("policy", "dflqr")
         env_id = point.get("env")
-        if kind == "evaluate" and policy != "dflqr":
+        if kind == "evaluate" and policy not in CONTROLLERS:
             from agents.rl.run_folder import run_config
 
             path = Path(policy)
             if not path.exists():
                 raise SweepSpecError(
-                    f"policy: got {policy!r}; allowed: 'dflqr', a run folder or a model .zip"
+                    f"policy: got {policy!r}; allowed: a controller ({', '.join(CONTROLLERS)}), "
+                    "a run folder or a model .zip"
                 )
             policy = str(path.resolve())
             cfg = run_config(path)

@@ -21,7 +21,7 @@ kind          one job is
 ``run``       ``quadslam run --seed S --seeds 1``: one DF-LQR episode (``plots: true`` also
               writes the figures of its first episode)
 ``evaluate``  ``quadslam evaluate --policy P --seed S --episodes 1``: one episode of
-              ``policy`` (``dflqr``, a run folder or a model ``.zip``) on ``env``
+              ``policy`` (a controller name, a run folder or a model ``.zip``) on ``env``
 ``train``     ``quadslam train --algo A --env E --seed S`` (the agent YAML entry, merged with
               ``hyperparams``; ``scenario``/``estimator``/``set`` go into its ``env_kwargs``),
               then ``episodes`` held-out evaluation episodes from seed ``eval_seed``
@@ -56,6 +56,7 @@ from typing import Any
 
 import yaml
 
+from agents.control.named import CONTROLLERS
 from agents.sweep.resolve import Resolver, SweepSpecError, is_int
 
 __all__ = ["KINDS", "Job", "SweepSpecError", "load_spec", "parse_spec", "shipped_specs"]
@@ -228,7 +229,8 @@ def _expand_block(
             )
     if kind == "evaluate" and "policy" not in block:
         raise SweepSpecError(
-            f"{where}.policy: missing; allowed: 'dflqr', a run folder or a model .zip"
+            f"{where}.policy: missing; allowed: a controller ({', '.join(CONTROLLERS)}), a run "
+            "folder or a model .zip"
         )
     if kind == "train" and "algo" not in block:
         raise SweepSpecError(f"{where}.algo: missing; allowed: ppo, sac, td3 or a2c")
