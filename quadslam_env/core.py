@@ -61,7 +61,7 @@ from quadslam_env.reward import REWARD_KEYS, Reward, tracking_errors
 from quadslam_env.scan_delay import copies_for
 from quadslam_env.scans import Scans
 from quadslam_env.sensors import ImuBatch, LidarBatch
-from quadslam_env.termination import Termination
+from quadslam_env.termination import OutputGuard, Termination
 from quadslam_env.trajectories import FlatOutputs, Trajectory
 from quadslam_env.types import EUL, POS, RATE, STATE_DIM, FloatArray
 from quadslam_env.vehicle import VehicleBatch
@@ -159,8 +159,8 @@ class SimCore:
         """End of the transient, s: the episode's ``*_steady`` summaries cover t > settle_s."""
         self.episode = EpisodeMetrics(b, association=unlabeled, settle_s=self.settle_s)
         self.termination = Termination(cfg.episode, self.dt, b, self.max_steps)
-        trace = cfg.episode.max_cov_trace
-        self._max_cov_trace = math.inf if trace is None else trace
+        self._guard = OutputGuard(_ROWS, cfg.reward.termination_penalty)  # the last defence
+        self._max_cov_trace = cfg.episode.max_cov_trace or math.inf  # null (> 0 otherwise)
         self._cov0 = np.diag(cfg.estimator.initial_cov_diag)
         self.last_scan: Scans | None = None
         self.last_rates: FloatArray = np.zeros((b, 3))
@@ -307,8 +307,9 @@ class SimCore:
         )  # fmt: skip
         std = position_std(est) if self.scenario.reward.pos_std_weight > 0.0 else None
         self.reward.terms(state, ref, act, terminated, values[_REWARD0 : _REWARD + 1], std)
-        for key, row in _REWARD_ROWS:
-            info[key] = values[row]
+        obs = self.observer.build(est, ref, self.t, self.n_visible)
+        ended = self._guard.check(obs, values, active, terminated, truncated, reasons) or ended
+        info.update({key: values[row] for key, row in _REWARD_ROWS})
         self.episode.add_columns(values, _EPISODE_ROWS, active)
         self.episode.add_association(info, active)
         if ended:
@@ -316,7 +317,6 @@ class SimCore:
             for key, value in self.episode.summary().items():
                 info[key] = np.where(done, value, math.nan)
         info["termination_reason"] = reasons
-        obs = self.observer.build(est, ref, self.t, self.n_visible)
         self.wind.advance(active)  # info holds the wind of this step; now the next one's
         return obs, values[_REWARD], terminated, truncated, info
 

@@ -9,17 +9,25 @@ covariance that is asymmetric, has a negative variance or a correlation beyond �
 ``max_cov_trace``), a pose covariance that is not positive semi-definite (infinite NEES), or
 pose NEES above ``nees_threshold`` for ``nees_window_s``.
 The first failed check, in that order, names the reason.
+
+The last line of defence (:class:`OutputGuard`), after the reward and the observation: an
+active lane whose observation or reward is not finite, or whose step terms hold ±inf (NaN
+there means "does not apply"), ends with ``non_finite_output: <which>`` unless a check above
+ended it already; its non-finite observation entries are returned as 0 (as the observation's
+own rule for a non-finite estimate) and its reward as the termination penalty alone.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
 from quadslam_env.config_episode import EpisodeConfig
 from quadslam_env.estimation import HEALTH_PROBLEMS
 from quadslam_env.models.jit import kernel
+from quadslam_env.reward import REWARD_KEYS
 from quadslam_env.types import FloatArray
 
 REASONS = (
@@ -152,3 +160,106 @@ class Termination:
             for lane in np.flatnonzero(codes).tolist():  # only the (rare) failing lanes
                 reasons[lane] = REASONS[codes[lane]].format(health=HEALTH_PROBLEMS[health[lane]])
         return terminated, truncated, reasons, ended > 0
+
+
+NON_FINITE = "non_finite_output: {which}"
+"""The reason of a lane ended by :class:`OutputGuard`; ``which`` is ``observation``,
+``reward`` or the ``info`` key of the first step term that is ±inf."""
+
+
+@kernel
+def _guard_lanes(
+    obs: np.ndarray,
+    values: FloatArray,
+    rows: np.ndarray,
+    penalty: float,
+    active: np.ndarray,
+    terminated: np.ndarray,
+    truncated: np.ndarray,
+    out: np.ndarray,
+) -> int:
+    """Fill ``out`` (B,) with what is not finite in each active lane (0: all finite, 1: the
+    observation (B, n), 2: the reward, 3 + k: row k of ``values`` (K, B) is ±inf) and make the
+    lane's outputs finite; ``rows`` = (first reward term, termination term, reward) rows of
+    ``values``. A lane with such an output, or already terminated with a non-finite reward,
+    gets the reward −``penalty`` (that term alone, the other terms 0) and non-finite
+    observation entries 0; a lane that went on is terminated (not truncated). Returns the
+    number of lanes that went on and end here."""
+    first, term, reward = rows[0], rows[1], rows[2]
+    ended = 0
+    for b in range(out.shape[0]):
+        out[b] = 0
+        if not active[b]:
+            continue
+        code = 0
+        for j in range(obs.shape[1]):
+            if not math.isfinite(obs[b, j]):
+                obs[b, j] = 0.0
+                code = 1
+        finite_reward = math.isfinite(values[reward, b])
+        if code == 0 and not finite_reward:
+            code = 2
+        k = 0
+        while code == 0 and k < values.shape[0]:
+            if math.isinf(values[k, b]):
+                code = 3 + k
+            k += 1
+        if code == 0 or (terminated[b] and finite_reward):
+            continue  # finite, or ended already with a finite reward: left as it is
+        for k in range(first, reward):
+            values[k, b] = 0.0
+        values[term, b] = -penalty
+        values[reward, b] = -penalty
+        if terminated[b]:
+            continue  # an earlier check ended it: its reason stands
+        out[b] = code
+        terminated[b] = True
+        truncated[b] = False
+        ended += 1
+    return ended
+
+
+class OutputGuard:
+    """The last line of defence (module docstring): no active lane returns a non-finite
+    observation or reward, and one whose outputs are not finite ends.
+
+    Args:
+        rows: The row of each term's ``info`` key in the step's terms (K, B), in row order:
+            the reward terms (:data:`~quadslam_env.reward.REWARD_KEYS`) in a block, then
+            ``reward``.
+        penalty: ``reward.termination_penalty``.
+    """
+
+    def __init__(self, rows: Mapping[str, int], penalty: float) -> None:
+        self._names = ("", "observation", "reward", *rows)
+        reward_rows = (REWARD_KEYS[0], "reward_termination", "reward")
+        self._rows = np.array([rows[key] for key in reward_rows], dtype=np.int64)
+        self._penalty = float(penalty)
+
+    def check(
+        self,
+        obs: np.ndarray,
+        values: FloatArray,
+        active: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        reasons: list[str],
+    ) -> bool:
+        """Make the step's outputs finite in place and end the lanes whose were not.
+
+        Args:
+            obs: (B, n) observations. values: (K, B) the step's terms, the reward's included.
+            active: (B,) bool, lanes stepped now. terminated, truncated: (B,) bool, updated.
+            reasons: B termination reasons, updated.
+
+        Returns:
+            Whether a lane that went on ends here.
+        """
+        codes = np.empty(obs.shape[0], dtype=np.int64)
+        ended = _guard_lanes(
+            obs, values, self._rows, self._penalty, active, terminated, truncated, codes
+        )
+        if ended:
+            for lane in np.flatnonzero(codes).tolist():
+                reasons[lane] = NON_FINITE.format(which=self._names[codes[lane]])
+        return ended > 0
