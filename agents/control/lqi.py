@@ -50,6 +50,7 @@ from scipy.linalg import solve_continuous_are
 
 from agents.control.dflqr import (
     ATTITUDE_DAMPING,
+    ATTITUDE_NATURAL_FREQ,
     R_TILDE,
     DFLQRPolicy,
     _command_lanes,
@@ -85,7 +86,7 @@ def lqi_gain(
     state_weights: FloatArray = STATE_WEIGHTS,
     integral_weights: FloatArray = INTEGRAL_WEIGHTS,
     input_weights: FloatArray = R_TILDE,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
+) -> tuple[FloatArray, FloatArray, np.ndarray]:
     """The LQI gains of the augmented Riccati equation (module docstring).
 
     Args:
@@ -159,7 +160,7 @@ def _weights(key: str, value: Any, shape: tuple[int, ...]) -> FloatArray:
     return arr
 
 
-def check_separation(poles: FloatArray, natural_freq: FloatArray) -> None:
+def check_separation(poles: np.ndarray, natural_freq: FloatArray) -> None:
     """Refuse an outer loop too fast for the attitude loop under it.
 
     Raises:
@@ -221,9 +222,9 @@ class LQIPolicy(DFLQRPolicy):
         if not (math.isfinite(max_tilt_deg) and 0.0 < max_tilt_deg <= 90.0):
             raise ConfigError(f"lqi.max_tilt_deg: got {max_tilt_deg!r}; allowed: (0, 90]")
         self._tan_max = math.inf if max_tilt_deg == 90.0 else math.tan(math.radians(max_tilt_deg))
-        extra = {} if natural_freq is None else {"natural_freq": natural_freq}
-        super().__init__(vehicle, damping=damping, action_dim=action_dim,
-                         control_dt=control_dt, **extra)  # fmt: skip
+        wn = ATTITUDE_NATURAL_FREQ if natural_freq is None else natural_freq
+        super().__init__(vehicle, wn, damping=damping, action_dim=action_dim,
+                         control_dt=control_dt)  # fmt: skip
         self.K, self.K_xi, self.poles = lqi_gain(state_weights, integral_weights, input_weights)
         wn = np.sqrt(self.kp / np.diag(vehicle.inertia))
         check_separation(self.poles, wn)

@@ -303,7 +303,9 @@ def plot_study(result: dict[str, Any], out_dir: Path) -> Path:
         here = [r for r in rows if r["eval_on"] == condition]
         groups = list(dict.fromkeys(r["estimator"] for r in here))
         for k, config in enumerate(configs):
-            xs, mid, err = [], [], [[], []]
+            xs: list[float] = []
+            mid: list[float] = []
+            err: list[list[float]] = [[], []]
             for g, estimator in enumerate(groups):
                 r = next((r for r in here if (r["config"], r["estimator"]) == (config, estimator)),
                          None)  # fmt: skip
