@@ -12,6 +12,13 @@ from typing import ClassVar
 
 from quadslam_env.config_schema import Section, spec
 
+GYRO_BIAS_MAX = 1.0
+"""Largest gyro-bias std or walk density, rad/s (/√s): the bound of ``imu.gyro_bias``."""
+
+ACCEL_BIAS_MAX = 10.0
+"""Largest accelerometer-bias std or walk density, m/s² (/√s): about 1 g, twice the bound of
+``imu.accel_bias``."""
+
 
 @dataclass(frozen=True)
 class ImuBiasFields(Section):
@@ -21,9 +28,30 @@ class ImuBiasFields(Section):
     estimate_imu_bias: bool = spec(
         False, kind="bool", doc="estimate the IMU biases as states with a random walk"
     )
-    gyro_bias_sigma0: float = spec(0.01, lo=0.0, doc="prior std per axis of the gyro bias, rad/s")
-    accel_bias_sigma0: float = spec(0.05, lo=0.0, doc="prior std of the accelerometer bias, m/s²")
-    gyro_bias_walk: float = spec(1e-4, lo=0.0, doc="random-walk density of the gyro bias, rad/s/√s")
+    gyro_bias_sigma0: float = spec(
+        0.01,
+        lo=0.0,
+        hi=GYRO_BIAS_MAX,
+        doc="prior std per axis of the gyro bias, rad/s (at most 1 rad/s, the largest "
+        "imu.gyro_bias)",
+    )
+    accel_bias_sigma0: float = spec(
+        0.05,
+        lo=0.0,
+        hi=ACCEL_BIAS_MAX,
+        doc="prior std of the accelerometer bias, m/s² (at most 10 m/s², about 1 g)",
+    )
+    gyro_bias_walk: float = spec(
+        1e-4,
+        lo=0.0,
+        hi=GYRO_BIAS_MAX,
+        doc="random-walk density of the gyro bias, rad/s/√s (at most 1: the largest bias "
+        "reached in a second)",
+    )
     accel_bias_walk: float = spec(
-        1e-3, lo=0.0, doc="random-walk density of the accelerometer bias, m/s²/√s"
+        1e-3,
+        lo=0.0,
+        hi=ACCEL_BIAS_MAX,
+        doc="random-walk density of the accelerometer bias, m/s²/√s (at most 10: the largest "
+        "bias reached in a second)",
     )

@@ -131,7 +131,9 @@ class ActionConfig(Section):
         length=3,
         lo=0.0,
         lo_open=True,
-        doc="thrust_rates: body-rate command at |a| = 1 per axis, deg/s",
+        hi=1e5,
+        doc="thrust_rates: body-rate command at |a| = 1 per axis, deg/s (at most the widest "
+        "gyro range, imu.gyro_range_dps)",
     )
     rate_gain_per_s: tuple[float, ...] = _spec(
         [20.0, 20.0, 10.0],
@@ -139,7 +141,9 @@ class ActionConfig(Section):
         length=3,
         lo=0.0,
         lo_open=True,
-        doc="thrust_rates: inner-loop gain K in τ = J K (ω_cmd − ω̂), 1/s",
+        hi=1e4,
+        doc="thrust_rates: inner-loop gain K in τ = J K (ω_cmd − ω̂), 1/s (at most 1e4: faster "
+        "than any control rate)",
     )
     heading: bool = _spec(
         False,
@@ -273,7 +277,11 @@ class ScenarioConfig:
         check_copyable(scenario)
         check_heading(scenario)
         check_rotor_action(scenario.action.mode, scenario.vehicle)
-        scenario.wind.check_drag(scenario.vehicle.drag_per_s, scenario.vehicle.drag_quadratic_per_m)
+        vehicle = scenario.vehicle
+        scenario.wind.check_drag(
+            vehicle.drag_per_s, vehicle.drag_quadratic_per_m, vehicle.physics_dt_s,
+            scenario.randomize.wind_scale[1],
+        )  # fmt: skip
         scenario.wind.check_inform(
             scenario.estimator.name, scenario.steps_per_imu, scenario.lidar.delay_steps
         )

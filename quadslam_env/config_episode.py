@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from quadslam_env.config_schema import ConfigError, Section
 from quadslam_env.config_schema import spec as _spec
@@ -17,26 +17,36 @@ from quadslam_env.config_schema import spec as _spec
 SUBSTEP_TOLERANCE = 1e-9
 """Relative rounding allowed in ``control period / vehicle.physics_dt_s`` being whole."""
 
+_WEIGHT_MAX = 1e6
+"""Largest magnitude of a reward weight: a term stays inside the floating-point range for any
+error below 1e300."""
+
+
+def _weight(default: float, doc: str) -> Any:
+    """A reward weight's field: a number in [0, :data:`_WEIGHT_MAX`]."""
+    return _spec(default, lo=0.0, hi=_WEIGHT_MAX, doc=doc)
+
 
 @dataclass(frozen=True)
 class RewardConfig(Section):
     """Reward weights; reward = alive - Σ w·term (+ termination penalty on failure)."""
 
     SECTION: ClassVar[str] = "reward"
-    alive: float = _spec(1.0, doc="reward per step for staying in the air")
-    pos_weight: float = _spec(1.0, lo=0.0, doc="w_p on the true position error ‖ρ − ρ_d‖ (m)")
-    vel_weight: float = _spec(0.1, lo=0.0, doc="w_v on the true velocity error ‖ρ̇ − ρ̇_d‖ (m/s)")
-    yaw_weight: float = _spec(0.1, lo=0.0, doc="w_ψ on the true yaw error |wrap(ψ − ψ_d)| (rad)")
-    effort_weight: float = _spec(
-        0.01, lo=0.0, doc="w_u on the effort ‖a − a_hover‖²/4 (normalised action)"
+    alive: float = _spec(
+        1.0, lo=-_WEIGHT_MAX, hi=_WEIGHT_MAX, doc="reward per step for staying in the air"
     )
-    termination_penalty: float = _spec(
-        100.0, lo=0.0, doc="subtracted on the step that terminates the episode"
+    pos_weight: float = _weight(1.0, "w_p on the true position error ‖ρ − ρ_d‖ (m)")
+    vel_weight: float = _weight(0.1, "w_v on the true velocity error ‖ρ̇ − ρ̇_d‖ (m/s)")
+    yaw_weight: float = _weight(0.1, "w_ψ on the true yaw error |wrap(ψ − ψ_d)| (rad)")
+    effort_weight: float = _weight(0.01, "w_u on the effort ‖a − a_hover‖²/4 (normalised action)")
+    termination_penalty: float = _weight(
+        100.0,
+        "subtracted on the step that terminates the episode; a step whose outputs are not "
+        "finite gets −termination_penalty alone (docs/env.md, Termination and truncation)",
     )
-    pos_std_weight: float = _spec(
+    pos_std_weight: float = _weight(
         0.0,
-        lo=0.0,
-        doc="w_σ on the estimator's own position uncertainty √trace(P_ρ) (m; 0 without a "
+        "w_σ on the estimator's own position uncertainty √trace(P_ρ) (m; 0 without a "
         "covariance): rewards looking where the filter learns",
     )
 
@@ -118,7 +128,10 @@ class EpisodeConfig(Section):
         1000.0, lo=0.0, lo_open=True, optional=True, doc="null disables the NEES divergence check"
     )
     nees_window_s: float = _spec(
-        2.0, lo=0.0, doc="terminate when the pose NEES stays above nees_threshold this long, s"
+        2.0,
+        lo=0.0,
+        hi=1e6,
+        doc="terminate when the pose NEES stays above nees_threshold this long, s",
     )
     max_cov_trace: float | None = _spec(
         1e6,

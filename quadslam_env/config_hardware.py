@@ -27,23 +27,26 @@ class VehicleConfig(Section):
         doc="vehicle parameters to start from (mass, inertia, limits); see the presets table",
     )
     mass_kg: float | None = _spec(
-        None, lo=0.0, lo_open=True, optional=True, doc="mass m in kg; null = the preset's"
+        None, lo=1e-3, hi=1e3, optional=True, doc="mass m in kg (1 g to 1 t); null = the preset's"
     )
     inertia_diag: tuple[float, ...] | None = _spec(
         None,
         kind="vec",
         length=3,
-        lo=0.0,
-        lo_open=True,
+        lo=1e-8,
+        hi=1e3,
         optional=True,
-        doc="principal moments of inertia (J_xx, J_yy, J_zz) in kg·m²; null = the preset's",
+        doc="principal moments of inertia (J_xx, J_yy, J_zz) in kg·m², the range of the masses' "
+        "bodies (a 1 g body of 1 cm to a 1 t one of 1 m); null = the preset's",
     )
     max_thrust_n: float | None = _spec(
         None,
         lo=0.0,
         lo_open=True,
+        hi=1e5,
         optional=True,
-        doc="collective thrust limit in N (must exceed m g); null = the preset's",
+        doc="collective thrust limit in N (must exceed m g; up to ten times the weight of the "
+        "heaviest mass); null = the preset's",
     )
     max_torque_nm: tuple[float, ...] | None = _spec(
         None,
@@ -51,8 +54,10 @@ class VehicleConfig(Section):
         length=3,
         lo=0.0,
         lo_open=True,
+        hi=1e4,
         optional=True,
-        doc="body torque limits (τ_x, τ_y, τ_z) in N·m; null = the preset's",
+        doc="body torque limits (τ_x, τ_y, τ_z) in N·m (at most the largest thrust on a 0.1 m "
+        "arm); null = the preset's",
     )
     drag_per_s: float = _spec(
         0.0,
@@ -82,21 +87,24 @@ class VehicleConfig(Section):
         'mixer and motor lag of docs/env.md "Rotors"); null = the preset\'s (crazyflie2: x)',
     )
     rotor_arm_m: float | None = _spec(
-        None, lo=0.0, lo_open=True, optional=True, doc="rotors: centre-to-rotor distance L, m"
+        None, lo=0.0, lo_open=True, hi=10.0, optional=True, doc="rotors: centre-to-rotor arm L, m"
     )
     rotor_k_f: float | None = _spec(
         None,
         lo=0.0,
         lo_open=True,
+        hi=1e-3,
         optional=True,
-        doc="rotors: thrust k_f in T = k_f ω², N/(rad/s)²",
+        doc="rotors: thrust k_f in T = k_f ω², N/(rad/s)² (the Crazyflie's 2.9e-8; large "
+        "rotors 1e-5)",
     )
     rotor_k_m: float | None = _spec(
         None,
         lo=0.0,
         lo_open=True,
+        hi=1e-4,
         optional=True,
-        doc="rotors: drag torque k_m in |τ| = k_m ω², N·m/(rad/s)²",
+        doc="rotors: drag torque k_m in |τ| = k_m ω², N·m/(rad/s)² (the Crazyflie's 7.2e-10)",
     )
     rotor_motor_tau_s: float | None = _spec(
         None,
@@ -106,14 +114,16 @@ class VehicleConfig(Section):
         doc="rotors: motor time constant of the rotor speed, s (0 = instantaneous)",
     )
     rotor_omega_min_rad_s: float | None = _spec(
-        None, lo=0.0, optional=True, doc="rotors: lowest rotor speed, rad/s"
+        None, lo=0.0, hi=1e4, optional=True, doc="rotors: lowest rotor speed, rad/s"
     )
     rotor_omega_max_rad_s: float | None = _spec(
         None,
         lo=0.0,
         lo_open=True,
+        hi=1e4,
         optional=True,
-        doc="rotors: highest rotor speed, rad/s (4 k_f ω_max² must exceed m g)",
+        doc="rotors: highest rotor speed, rad/s (4 k_f ω_max² must exceed m g; the "
+        "Crazyflie's 2274, 1e4 ≈ 95,000 rpm at most)",
     )
     physics_dt_s: float = _spec(
         0.002,
@@ -348,7 +358,7 @@ class ImuConfig(Section):
         False, kind="bool", doc="flip each bias component's sign at random per episode"
     )
     drift_tau_s: float = _spec(
-        100.0, lo=0.0, lo_open=True, doc="correlation time τ of the Gauss–Markov drift b1, s"
+        100.0, lo=1e-3, hi=1e6, doc="correlation time τ of the Gauss–Markov drift b1, s"
     )
     accel_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_a, m/s²")
     gyro_drift_sigma: float = _spec(0.0, lo=0.0, hi=1.0, doc="stationary std of b1_ω, rad/s")
@@ -426,8 +436,10 @@ class LidarConfig(Section):
     elevation_fov_deg: float = _spec(
         30.0, lo=0.0, hi=90.0, lo_open=True, doc="half-width of the elevation field of view, deg"
     )
-    range_min_m: float = _spec(0.0, lo=0.0, doc="minimum range of a return, m")
-    range_max_m: float = _spec(100.0, lo=0.0, lo_open=True, doc="maximum range of a return, m")
+    range_min_m: float = _spec(0.0, lo=0.0, hi=1e4, doc="minimum range of a return, m")
+    range_max_m: float = _spec(
+        100.0, lo=0.0, lo_open=True, hi=1e4, doc="maximum range of a return, m (at most 10 km)"
+    )
     sigma_azimuth_deg: float = _spec(
         0.33, lo=0.0, hi=30.0, doc="azimuth noise standard deviation, deg"
     )

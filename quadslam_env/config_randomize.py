@@ -38,6 +38,11 @@ AXIS_KEYS = ("inertia_scale_x", "inertia_scale_y", "inertia_scale_z")
 SCALE_MAX = 10.0
 """Largest scale a range or a pinned value may reach."""
 
+BODY_SCALE_MIN = 0.1
+"""Smallest scale on the mass or the inertia (a range's lower bound or a pinned value): a
+tenth of the nominal body, still inside ``vehicle.mass_kg`` and ``vehicle.inertia_diag``'s
+ranges for every preset; a scale near 0 would divide the dynamics by ~0."""
+
 
 def _range(doc: str) -> Any:
     return _spec([1.0, 1.0], kind="vec", length=2, lo=0.0, hi=SCALE_MAX, doc=doc)
@@ -50,10 +55,12 @@ class RandomizeConfig(Section):
     draw on that interval multiplies the nominal parameter; ``lo == hi`` fixes it."""
 
     SECTION: ClassVar[str] = "randomize"
-    mass_scale: tuple[float, ...] = _range("range of the scale on the vehicle's mass")
+    mass_scale: tuple[float, ...] = _range(
+        "range of the scale on the vehicle's mass (from 0.1: a body needs a mass)"
+    )
     inertia_scale: tuple[float, ...] = _range(
         "range of the scale on the inertia matrix (all axes together, or each body axis on "
-        "its own with inertia_scale_per_axis)"
+        "its own with inertia_scale_per_axis; from 0.1: a body needs an inertia)"
     )
     thrust_scale: tuple[float, ...] = _range(
         "range of the scale on the actuators' effect: thrust and torque produced for a command "
@@ -97,7 +104,7 @@ class RandomizeConfig(Section):
         return any(getattr(self, key) != (1.0, 1.0) for key in SCALE_KEYS)
 
     def validate(self) -> None:
-        """Inverted ranges and mass or inertia scales of 0 are errors.
+        """Inverted ranges and mass or inertia scales below :data:`BODY_SCALE_MIN` are errors.
 
         Raises:
             ConfigError: Naming the key, the value and what is allowed.
@@ -110,10 +117,11 @@ class RandomizeConfig(Section):
                     f"{SCALE_MAX} (a range of scales, lower bound first)"
                 )
         for key in ("mass_scale", "inertia_scale"):
-            if getattr(self, key)[0] <= 0.0:
+            if getattr(self, key)[0] < BODY_SCALE_MIN:
                 raise ConfigError(
                     f"randomize.{key}: got {list(getattr(self, key))}; allowed: [lo, hi] with "
-                    f"0 < lo <= hi <= {SCALE_MAX} (a body needs a mass and an inertia)"
+                    f"{BODY_SCALE_MIN} <= lo <= hi <= {SCALE_MAX} (a body needs a mass and an "
+                    "inertia)"
                 )
 
     def check_feasible(self, vehicle: VehicleParams) -> None:
@@ -182,7 +190,7 @@ def parse_pins(value: Any) -> dict[str, float]:
 
     Raises:
         ConfigError: Not a mapping, an unknown key, or a value that is not a finite number in
-            [0, 10] (mass and inertia scales > 0).
+            [0, 10] (mass and inertia scales in [0.1, 10], :data:`BODY_SCALE_MIN`).
     """
     allowed = [*SCALE_KEYS, *AXIS_KEYS]
     if not isinstance(value, dict):
@@ -194,11 +202,12 @@ def parse_pins(value: Any) -> dict[str, float]:
     for key, v in value.items():
         if key not in allowed:
             raise ConfigError(f"reset options.randomized.{key}: unknown key; allowed: {allowed}")
-        positive = key.startswith(("mass_scale", "inertia_scale"))
+        body = key.startswith(("mass_scale", "inertia_scale"))
         ok = isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool)
         num = float(v) if ok else math.nan
-        if not (math.isfinite(num) and (num > 0.0 if positive else num >= 0.0)) or num > SCALE_MAX:
-            low = "> 0" if positive else ">= 0"
+        least = BODY_SCALE_MIN if body else 0.0
+        if not (math.isfinite(num) and num >= least) or num > SCALE_MAX:
+            low = f">= {least:g}"
             raise ConfigError(
                 f"reset options.randomized.{key}: got {v!r}; allowed: a number {low} and "
                 f"<= {SCALE_MAX} (a scale on the nominal parameter)"

@@ -42,7 +42,8 @@ def spec(
         default: Default value (lists and mappings are copied per instance).
         kind: ``float``, ``int``, ``bool``, ``str``, ``vec`` (list of numbers), ``vecs`` (list of
             ``[x, y, z]``) or ``dict``.
-        lo: Lower bound (inclusive unless ``lo_open``), also per element of a ``vec``.
+        lo: Lower bound (inclusive unless ``lo_open``), also per element of a ``vec`` and per
+            coordinate of a ``vecs`` point (``hi`` alike).
         hi: Upper bound (inclusive).
         lo_open: Make ``lo`` exclusive.
         length: Required length of a ``vec``, or the allowed lengths; when 1 is allowed, a bare
@@ -197,7 +198,7 @@ def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
     if kind == "vecs":
         if not isinstance(value, list | tuple):
             raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
-        point_meta = {**meta, "length": 3, "lo": None, "hi": None}
+        point_meta = {**meta, "length": 3}  # lo and hi bound each coordinate
         return tuple(
             coerce(f"{key}[{i}]", p, {**point_meta, "kind": "vec"}) for i, p in enumerate(value)
         )

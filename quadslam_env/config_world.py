@@ -9,7 +9,17 @@ from typing import Any, ClassVar
 
 from quadslam_env.config_schema import ConfigError, Section
 from quadslam_env.config_schema import spec as _spec
-from quadslam_env.models.wind import W20_MPS
+from quadslam_env.models.wind import W20_MPS, dryden_low_altitude
+
+MIN_AIRSPEED_MPS = 0.1
+"""Slowest speed V at which Dryden turbulence may pass the vehicle, m/s: its time scales L/V
+grow without bound as V → 0 (the frozen field stands still), and below ~1e-100 m/s their
+powers leave the floating-point range."""
+
+DRAG_STEP_MAX = 1.0
+"""Largest product of the drag's relaxation rate and the RK4 substep (``vehicle.physics_dt_s``)
+in the steady wind and 3σ gusts; RK4 itself turns unstable at 2.79, and at 1 it follows the
+decay e^{−λ dt} to 2% per substep."""
 
 
 @dataclass(frozen=True)
@@ -58,19 +68,34 @@ class LandmarksConfig(Section):
         kind="vec",
         length=2,
         lo=0.0,
-        doc="[min, max] distance of random landmarks from the centre, m",
+        hi=1e6,
+        doc="[min, max] distance of random landmarks from the centre, m (at most 1000 km)",
     )
     center: tuple[float, ...] | None = _spec(
-        None, kind="vec", length=3, optional=True, doc="NED m; null = trajectory centre"
+        None,
+        kind="vec",
+        length=3,
+        lo=-1e6,
+        hi=1e6,
+        optional=True,
+        doc="NED m, within 1000 km of the origin; null = trajectory centre",
     )
     pole_spacing_m: float = _spec(
-        2.0, lo=0.0, lo_open=True, doc="poles4: the poles stand at (±spacing, ±spacing), m"
+        2.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1e4,
+        doc="poles4: the poles stand at (±spacing, ±spacing), m",
     )
     pole_altitude_m: float = _spec(
-        1.0, doc="poles4: altitude of each pole's landmark above the origin, m"
+        1.0, lo=-1e4, hi=1e4, doc="poles4: altitude of each pole's landmark above the origin, m"
     )
     positions: tuple[tuple[float, ...], ...] = _spec(
-        [], kind="vecs", doc="explicit: landmark positions [x, y, z] in NED, m"
+        [],
+        kind="vecs",
+        lo=-1e6,
+        hi=1e6,
+        doc="explicit: landmark positions [x, y, z] in NED, m, each within 1000 km of the origin",
     )
 
     def validate(self) -> None:
@@ -119,7 +144,7 @@ class TrajectoryConfig(Section):
         2.0, lo=0.0, hi=1e4, doc="figure8: y amplitude B in y = B sin 2ωt, m"
     )
     radius_m: float = _spec(1.0, lo=0.0, hi=1e4, doc="circle and helix: radius, m")
-    period_s: float = _spec(25.0, lo=0.1, doc="time of one lap, s (ω = 2π/period)")
+    period_s: float = _spec(25.0, lo=0.1, hi=1e6, doc="time of one lap, s (ω = 2π/period)")
     climb_rate_mps: float = _spec(
         0.0, lo=-10.0, hi=10.0, doc="helix: climb rate (altitude gained per second), m/s"
     )
@@ -197,12 +222,11 @@ class WindConfig(Section):
     )
     airspeed_mps: float | None = _spec(
         None,
-        lo=0.0,
-        lo_open=True,
+        lo=MIN_AIRSPEED_MPS,
         hi=200.0,
         optional=True,
         doc="speed V at which the frozen turbulence passes the vehicle (time scales L/V), "
-        "m/s; null = the steady wind's speed",
+        "m/s; null = the steady wind's speed (which must then be at least the same 0.1 m/s)",
     )
 
     inform_estimator: bool = _spec(
@@ -226,27 +250,58 @@ class WindConfig(Section):
         return math.sqrt(sum(w * w for w in self.steady_mps))
 
     def validate(self) -> None:
-        if self.turbulence == "dryden" and self.speed_mps <= 0.0:
+        if self.turbulence == "dryden" and self.speed_mps < MIN_AIRSPEED_MPS:
             raise ConfigError(
-                f"wind.airspeed_mps: got null with wind.steady_mps = {list(self.steady_mps)}; "
-                "allowed: a speed > 0 m/s, or a non-zero wind.steady_mps (Dryden turbulence "
+                f"wind.airspeed_mps: got null with wind.steady_mps = {list(self.steady_mps)} "
+                f"(speed {self.speed_mps:g} m/s); allowed: a speed >= {MIN_AIRSPEED_MPS} m/s, "
+                f"or a wind.steady_mps of at least {MIN_AIRSPEED_MPS} m/s (Dryden turbulence "
                 "is a frozen field carried past the vehicle at that speed)"
             )
 
-    def check_drag(self, drag_per_s: float, drag_quadratic_per_m: tuple[float, ...]) -> None:
+    def check_drag(
+        self,
+        drag_per_s: float,
+        drag_quadratic_per_m: tuple[float, ...],
+        physics_dt_s: float,
+        wind_scale: float,
+    ) -> None:
         """A wind acts through the drag: with none (``vehicle.drag_per_s`` and
-        ``vehicle.drag_quadratic_per_m`` zero) it would be silently ignored.
+        ``vehicle.drag_quadratic_per_m`` zero) it would be silently ignored; and the drag must
+        relax slower than the RK4 substep resolves (:data:`DRAG_STEP_MAX`).
+
+        The relaxation rate on the air-relative velocity v_a is ``λ = d + 2 max(c_q) ‖v_a‖``
+        (the largest eigenvalue of the drag's Jacobian), taken at the vehicle at rest in the
+        steady wind plus 3σ of its gusts, both scaled by the largest ``randomize.wind_scale``.
+
+        Args:
+            drag_per_s: d, 1/s. drag_quadratic_per_m: (3,) c_q, 1/m.
+            physics_dt_s: The RK4 substep, s. wind_scale: The largest scale on the wind.
 
         Raises:
             ConfigError: Naming the keys, their values and what is allowed.
         """
-        if self.enabled and drag_per_s == 0.0 and not any(drag_quadratic_per_m):
+        if not self.enabled:
+            return
+        if drag_per_s == 0.0 and not any(drag_quadratic_per_m):
             raise ConfigError(
                 f"wind: got steady_mps {list(self.steady_mps)} and turbulence "
                 f"{self.turbulence!r} with vehicle.drag_per_s = 0 and "
                 f"vehicle.drag_quadratic_per_m = {list(drag_quadratic_per_m)}, so the wind "
                 "would push on nothing; allowed: a drag with a wind (vehicle.drag_per_s > 0 "
                 "or a vehicle.drag_quadratic_per_m > 0), or no wind"
+            )
+        speed = math.sqrt(sum(w * w for w in self.steady_mps))
+        if self.turbulence == "dryden":
+            speed += 3.0 * float(max(dryden_low_altitude(self.altitude_m, self.w20_mps)[0]))
+        rate = drag_per_s + 2.0 * max(drag_quadratic_per_m) * wind_scale * speed
+        if rate * physics_dt_s > DRAG_STEP_MAX:
+            raise ConfigError(
+                f"vehicle.drag_quadratic_per_m: got {list(drag_quadratic_per_m)} with "
+                f"vehicle.drag_per_s = {drag_per_s:g} in a wind of up to "
+                f"{wind_scale * speed:.4g} m/s, so the drag relaxes at {rate:.4g} /s and "
+                f"vehicle.physics_dt_s = {physics_dt_s:g} s cannot resolve it (rate × substep "
+                f"{rate * physics_dt_s:.3g}); allowed: rate × substep <= {DRAG_STEP_MAX:g} "
+                "(a smaller drag, a weaker wind or a shorter vehicle.physics_dt_s)"
             )
 
     def check_inform(self, estimator: str, steps_per_imu: int, scan_delay_steps: int) -> None:

@@ -10,9 +10,25 @@ import numpy as np
 
 from quadslam_env.config import ConfigError
 from quadslam_env.config_randomize import parse_pins
-from quadslam_env.types import STATE_DIM, FloatArray
+from quadslam_env.types import EUL, POS, RATE, STATE_DIM, VEL, FloatArray
 
 RESET_OPTIONS = ("initial_state", "landmarks", "randomized")
+POSITION_MAX_M = 1e6
+"""Largest |coordinate| of a given start position or landmark, m (as ``episode.initial_position``
+and ``trajectory.center``)."""
+SPEED_MAX_MPS = 1e3
+"""Largest |component| of a given start velocity, m/s (as ``episode.initial_velocity``)."""
+RATE_MAX_RAD_S = 100.0
+"""Largest |component| of a given start body rate, rad/s (16 turns per second, beyond every
+gyro preset's full scale of 2000 deg/s = 35 rad/s)."""
+_STATE_BOUNDS = (
+    (POS, "position ρ", POSITION_MAX_M, "m"),
+    (VEL, "velocity v_B", SPEED_MAX_MPS, "m/s"),
+    (EUL, "attitude Λ", math.pi, "rad"),
+    (RATE, "rate ω", RATE_MAX_RAD_S, "rad/s"),
+)
+"""``(entries, name, largest magnitude, unit)`` of the ``initial_state`` option; the pitch is
+bounded tighter (|θ| < 89°)."""
 RESET_MASK = "reset_mask"
 _SEED_ALLOWED = "None or an integer >= 0"
 
@@ -122,23 +138,39 @@ def parse_reset_options(options: dict[str, Any] | None) -> dict[str, Any]:
                     f"reset options.initial_state: got {value!r}; allowed: 12 "
                     "finite numbers (ρ [m], v_B [m/s], Λ [rad], ω [rad/s])"
                 )
-            if abs(arr[7]) >= math.radians(89.0):
-                raise ConfigError(
-                    f"reset options.initial_state[7] (pitch): got {arr[7]}; allowed: |θ| < 89°"
-                )
+            _check_state(arr)
         if key == "landmarks" and (
             arr is None
             or arr.ndim != 2
             or arr.shape[1] != 3
             or arr.shape[0] == 0
-            or not np.all(np.isfinite(arr))
+            or not np.all(np.abs(arr) <= POSITION_MAX_M)  # also False at NaN
         ):
             raise ConfigError(
                 f"reset options.landmarks: got {value!r}; allowed: a non-empty "
-                "(L, 3) list of finite NED positions in m"
+                f"(L, 3) list of NED positions in m, each coordinate in ±{POSITION_MAX_M:g}"
             )
         out[key] = arr
     return out
+
+
+def _check_state(state: FloatArray) -> None:
+    """Each entry of a finite (12,) ``initial_state`` within its bound (:data:`_STATE_BOUNDS`).
+
+    Raises:
+        ConfigError: Naming the first entry out of range, its value and what is allowed.
+    """
+    for entries, name, bound, unit in _STATE_BOUNDS:
+        for i in range(STATE_DIM)[entries]:
+            if abs(state[i]) > bound:
+                raise ConfigError(
+                    f"reset options.initial_state[{i}] ({name}): got {float(state[i])}; allowed: a "
+                    f"number in ±{bound:g} {unit}"
+                )
+    if abs(state[7]) >= math.radians(89.0):
+        raise ConfigError(
+            f"reset options.initial_state[7] (pitch): got {float(state[7])}; allowed: |θ| < 89°"
+        )
 
 
 def _as_float_array(value: Any) -> FloatArray | None:

@@ -1,6 +1,7 @@
-"""The last line of defence (``termination.OutputGuard``) ends a lane whose outputs are not
-finite with a finite observation and reward, in the scalar env and in every lane of the vector
-env (docs/design.md §7, docs/env.md "Termination and truncation")."""
+"""Settings and reset options that used to overflow or divide by ~0 are refused in one line, and
+the last line of defence (``termination.OutputGuard``) ends a lane whose outputs are not finite
+with a finite observation and reward, in the scalar env and in every lane of the vector env
+(docs/design.md §7, docs/env.md "Termination and truncation")."""
 
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
+from agents.cli.reference import estimator_settings
+from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.vector_env import QuadSLAMVectorEnv
 
@@ -156,3 +159,122 @@ def _vector_and_scalars(
 
 def test_a_vector_lane_ended_by_the_guard_equals_the_scalar_env() -> None:
     _vector_and_scalars(3, lambda core, lanes: _inject(core, "t", -math.inf, lanes, 5), 11, 12)
+
+
+# ============================================================================ refused settings
+@pytest.mark.parametrize(
+    ("overrides", "key", "value"),
+    [
+        # Dryden turbulence passing at ~0 m/s: its time scales L/V overflow.
+        (
+            {
+                "wind": {"turbulence": "dryden", "airspeed_mps": 1e-110},
+                "vehicle": {"drag_per_s": 0.3},
+            },
+            "wind.airspeed_mps",
+            "1e-110",
+        ),
+        (
+            {
+                "wind": {"turbulence": "dryden", "steady_mps": [1e-110, 0.0, 0.0]},
+                "vehicle": {"drag_per_s": 0.3},
+            },
+            "wind.airspeed_mps",
+            "1e-110",
+        ),
+        # Every value in range, but the quadratic drag in a 173 m/s wind relaxes at 3474 /s,
+        # which a 2 ms RK4 substep cannot follow.
+        (
+            {
+                "wind": {"steady_mps": [100.0, 100.0, 100.0]},
+                "vehicle": {"drag_per_s": 10.0, "drag_quadratic_per_m": [10.0, 10.0, 10.0]},
+            },
+            "vehicle.drag_quadratic_per_m",
+            "[10.0, 10.0, 10.0]",
+        ),
+        ({"vehicle": {"mass_kg": 1e-300}}, "vehicle.mass_kg", "1e-300"),
+        ({"vehicle": {"max_torque_nm": [1e300, 1.0, 1.0]}}, "vehicle.max_torque_nm[0]", "1e+300"),
+        ({"vehicle": {"inertia_diag": [1e-300, 0.1, 0.1]}}, "vehicle.inertia_diag[0]", "1e-300"),
+        (
+            {"vehicle": {"preset": "crazyflie2", "rotor_omega_max_rad_s": 1e200}},
+            "vehicle.rotor_omega_max_rad_s",
+            "1e+200",
+        ),
+        ({"randomize": {"mass_scale": [1e-300, 1.0]}}, "randomize.mass_scale", "1e-300"),
+        ({"randomize": {"inertia_scale": [1e-300, 1.0]}}, "randomize.inertia_scale", "1e-300"),
+        ({"episode": {"nees_window_s": 1e300}}, "episode.nees_window_s", "1e+300"),
+        ({"reward": {"pos_weight": 1e308}}, "reward.pos_weight", "1e+308"),
+        (
+            {"landmarks": {"layout": "explicit", "positions": [[1e300, 0.0, 0.0]]}},
+            "landmarks.positions[0][0]",
+            "1e+300",
+        ),
+    ],
+)
+def test_settings_that_would_overflow_are_refused_naming_key_value_and_range(
+    overrides: dict[str, Any], key: str, value: str
+) -> None:
+    with pytest.raises(ConfigError) as err:
+        load_scenario("paper_ekf_figure8", overrides)
+    message = str(err.value)
+    assert message.startswith(f"{key}: got ") and value in message and "allowed: " in message
+    assert "\n" not in message
+
+
+@pytest.mark.parametrize(
+    ("name", "key"),
+    [
+        ("isam2", "integration_sigma"),
+        ("ekf_slam", "accel_bias_walk"),
+        ("ekf_slam", "gyro_bias_sigma0"),
+        ("isam2", "accel_bias_walk"),
+        ("fastslam", "accel_drift_sigma"),
+        ("fastslam", "gyro_bias_sigma"),
+    ],
+)
+def test_estimator_sigmas_that_would_overflow_are_refused(name: str, key: str) -> None:
+    # Each is squared into a covariance: 1e300² is beyond the floating-point range.
+    assert not math.isfinite(1e300 * 1e300)
+    with pytest.raises(ConfigError) as err:
+        estimator_settings()[name].from_dict({key: 1e300})
+    message = str(err.value)
+    assert message.startswith(f"estimator.params.{key}: got 1e+300; allowed: ")
+
+
+@pytest.mark.parametrize(
+    ("options", "key"),
+    [
+        ({"initial_state": [0.0, 0.0, -1e300] + [0.0] * 9}, "initial_state[2]"),
+        ({"initial_state": [0.0] * 3 + [1e300] + [0.0] * 8}, "initial_state[3]"),
+        ({"initial_state": [0.0] * 6 + [1e300] + [0.0] * 5}, "initial_state[6]"),
+        ({"initial_state": [0.0] * 8 + [-7.0] + [0.0] * 3}, "initial_state[8]"),
+        ({"initial_state": [0.0] * 9 + [1e300, 0.0, 0.0]}, "initial_state[9]"),
+        ({"initial_state": [0.0] * 11 + [1e3]}, "initial_state[11]"),
+        ({"landmarks": [[0.0, 0.0, 1e300]]}, "landmarks"),
+        ({"randomized": {"mass_scale": 1e-300}}, "randomized.mass_scale"),
+        ({"randomized": {"inertia_scale": 1e-300}}, "randomized.inertia_scale"),
+    ],
+)
+def test_reset_options_out_of_range_are_refused_and_change_nothing(
+    options: dict[str, Any], key: str
+) -> None:
+    env = gym.make(ORACLE, randomize={"mass_scale": [0.9, 1.1]}, **SHORT)
+    env.reset(seed=0)
+    state = env.unwrapped.true_state
+    with pytest.raises(ConfigError) as err:
+        env.reset(seed=1, options=options)
+    message = str(err.value)
+    assert message.startswith(f"reset options.{key}") and "allowed: " in message
+    np.testing.assert_array_equal(env.unwrapped.true_state, state)
+
+
+def test_the_bounds_admit_the_states_a_flight_reaches() -> None:
+    """Any state the vehicle flies through (roll and yaw wrapped to ±π) is a valid start."""
+    env = gym.make(ORACLE, **SHORT)
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(env.unwrapped.hover_action)
+    x0 = env.unwrapped.true_state
+    x0[8] = math.pi  # the wrap's edge
+    env.reset(seed=0, options={"initial_state": x0})
+    np.testing.assert_array_equal(env.unwrapped.true_state, x0)

@@ -19,6 +19,7 @@ import numpy as np
 
 from estimators.association import chi2_threshold
 from estimators.association_settings import GatedFields
+from estimators.imu_bias_settings import ACCEL_BIAS_MAX, GYRO_BIAS_MAX
 from quadslam_env.config_schema import spec
 from quadslam_env.types import MEAS_DIM, STATE_DIM, FloatArray
 
@@ -39,8 +40,9 @@ def _noise_spec(default: tuple[float, ...]) -> Any:
         kind="vec",
         length=(1, 4, STATE_DIM),
         lo=0.0,
+        hi=100.0,
         doc="white-noise density per state added to each particle: one value for all, 4 "
-        "groups (ρ m/√s, v m/s/√s, Λ rad/√s, ω rad/s/√s) or 12 values",
+        "groups (ρ m/√s, v m/s/√s, Λ rad/√s, ω rad/s/√s) or 12 values, each at most 100",
     )
 
 
@@ -49,6 +51,7 @@ def _inflation_spec(default: float) -> Any:
     return spec(
         default,
         lo=1.0,
+        hi=1e6,
         doc="λ: the LiDAR weights use p(z|x)^(1/λ) (≈ S·λ in the weights only; the landmark "
         "EKFs use the true R)",
     )
@@ -70,17 +73,19 @@ class FastSlamSettings(GatedFields):
         doc="the particles' integration scheme (one step per period)",
     )
     known_map_sigma: float = spec(
-        1e-3, lo=0.0, lo_open=True, doc="landmark std in known-map mode, m"
+        1e-3, lo=0.0, lo_open=True, hi=1e3, doc="landmark std in known-map mode, m"
     )
     likelihood_inflation: float = _inflation_spec(1.0)
     roughening: float = spec(
         0.0,
         lo=0.0,
+        hi=100.0,
         doc="K of Gordon et al. roughening after resampling (σ_j = K·std_j·N^(−1/12)); 0: off",
     )
     regularisation: float = spec(
         1.0,
         lo=0.0,
+        hi=1e3,
         doc="c: after resampling, move the copies' poses (ρ, v, Λ) by the regularised-PF "
         "kernel with Liu-West shrinkage, bandwidth min(1, c·h_opt) (Musso et al. 2001); 0: off",
     )
@@ -133,20 +138,43 @@ class DynamicFastSlamSettings(FastSlamSettings):
     process_noise: tuple[float, ...] = _noise_spec((0.02, 0.1, 0.003, 2e-5))
     likelihood_inflation: float = _inflation_spec(30.0)
     bias_tau_s: float = spec(
-        100.0, lo=0.0, lo_open=True, doc="drift time constant τ, s (seed 000 eq. 8, 10)"
+        100.0,
+        lo=1e-3,
+        hi=1e6,
+        doc="drift time constant τ, s (seed 000 eq. 8, 10), from 1 ms to 1e6 s as imu.drift_tau_s",
     )
-    accel_drift_sigma: float = spec(0.001, lo=0.0, doc="stationary std of b1_a, m/s²")
-    gyro_drift_sigma: float = spec(0.001, lo=0.0, doc="stationary std of b1_ω, rad/s")
-    accel_bias_sigma: float = spec(0.01, lo=0.0, lo_open=True, doc="prior std of b0_a, m/s²")
-    gyro_bias_sigma: float = spec(0.01, lo=0.0, lo_open=True, doc="prior std of b0_ω, rad/s")
+    accel_drift_sigma: float = spec(
+        0.001, lo=0.0, hi=ACCEL_BIAS_MAX, doc="stationary std of b1_a, m/s² (at most 10)"
+    )
+    gyro_drift_sigma: float = spec(
+        0.001, lo=0.0, hi=GYRO_BIAS_MAX, doc="stationary std of b1_ω, rad/s (at most 1)"
+    )
+    accel_bias_sigma: float = spec(
+        0.01,
+        lo=0.0,
+        lo_open=True,
+        hi=ACCEL_BIAS_MAX,
+        doc="prior std of b0_a, m/s² (at most 10)",
+    )
+    gyro_bias_sigma: float = spec(
+        0.01,
+        lo=0.0,
+        lo_open=True,
+        hi=GYRO_BIAS_MAX,
+        doc="prior std of b0_ω, rad/s (at most 1)",
+    )
     mass_scale: float = spec(
-        1.0, lo=0.0, lo_open=True, doc="the filter's mass = this × the nominal mass"
+        1.0,
+        lo=0.1,
+        hi=10.0,
+        doc="the filter's mass = this × the nominal mass (0.1 to 10, as randomize.mass_scale)",
     )
     inertia_scale: float = spec(
         1.0,
-        lo=0.0,
-        lo_open=True,
-        doc="the filter's inertia = this × the nominal inertia (seed 000 Fig. 14: 2.5)",
+        lo=0.1,
+        hi=10.0,
+        doc="the filter's inertia = this × the nominal inertia (seed 000 Fig. 14: 2.5; 0.1 to "
+        "10, as randomize.inertia_scale)",
     )
     estimate_inertia: bool | None = spec(
         None,
@@ -156,7 +184,11 @@ class DynamicFastSlamSettings(FastSlamSettings):
         "gyro and the applied torque; null: when the inertia is diagonal",
     )
     inertia_prior_rel_sigma: float = spec(
-        1.0, lo=0.0, lo_open=True, doc="prior std of 1/J relative to the nominal model"
+        1.0,
+        lo=0.0,
+        lo_open=True,
+        hi=100.0,
+        doc="prior std of 1/J relative to the nominal model (at most 100)",
     )
     use_imu_likelihood: bool = spec(
         True, kind="bool", doc="multiply the weights by p(z^I | x^D, x̂^B)"
@@ -179,7 +211,10 @@ class KinematicFastSlamSettings(FastSlamSettings):
 
     process_noise: tuple[float, ...] = _noise_spec((0.02, 0.05, 0.005, 0.0))
     imu_noise_scale: float = spec(
-        1.0, lo=0.0, doc="factor on the IMU sample's σ used as the particles' input noise"
+        1.0,
+        lo=0.0,
+        hi=100.0,
+        doc="factor on the IMU sample's σ used as the particles' input noise (at most 100)",
     )
 
 

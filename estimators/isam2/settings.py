@@ -97,14 +97,16 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
         kind="vec",
         length=POSE_DIM,
         lo=0.0,
+        hi=1e3,
         doc="the EKF's continuous process noise Q over (ρ, v_B, Λ), m²/s, m²/s³, rad²/s, "
-        "added to the preintegration's inputs",
+        "each at most 1e3, added to the preintegration's inputs",
     )
     integration_sigma: float = spec(
         1e-4,
         lo=0.0,
-        doc="GTSAM's integration noise, m/√s: the position error of integrating a held IMU "
-        "sample (added to the ρ block of process_noise)",
+        hi=1.0,
+        doc="GTSAM's integration noise, m/√s, at most 1: the position error of integrating a "
+        "held IMU sample (added to the ρ block of process_noise)",
     )
     relinearize_threshold: float = spec(
         0.01,
