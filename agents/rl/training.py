@@ -36,7 +36,7 @@ from agents.rl.building import (
     torch_settings,
     training_callbacks,
 )
-from agents.rl.checkpoints import Checkpoint, checkpoint_problem, saved_points
+from agents.rl.checkpoints import Checkpoint, checkpoint_problem, ended_short, saved_points
 from agents.rl.curves import plot_learning_curve
 from agents.rl.hyperparams import (
     DEFAULTS,
@@ -151,14 +151,6 @@ def _write_run_config(run_dir: Path, config: dict[str, Any]) -> None:
         ) from None
 
 
-def _timing_steps(run_dir: Path) -> str:
-    """The step count a finished run's ``timing.json`` records (``?`` if unreadable)."""
-    try:
-        return f"{int(json.loads((run_dir / 'timing.json').read_text())['timesteps'])}"
-    except (OSError, ValueError, KeyError, TypeError):
-        return "?"
-
-
 def resume(
     run_dir: str | Path,
     progress: bool = True,
@@ -178,13 +170,16 @@ def resume(
     are replaced. A saved point that does not load (a truncated checkpoint) is skipped for the
     newest one that does; ``INTERRUPTED`` stays until the new session's final save is in
     place. A run stopped after its last step was saved is only finished (model, curve,
-    ``timing.json``). Before anything is loaded the folder is checked against its
-    ``manifest.json`` (:func:`agents.rl.manifest.verify_run`; a folder without one is accepted
-    with a warning); the manifest is removed when the new session starts and written again
-    when it has saved.
+    ``timing.json``). A run whose last session ended short of its budget without leaving
+    ``INTERRUPTED`` (a marker removed by hand) continues from its ``model.zip``, at the steps
+    its ``timing.json`` records (:func:`agents.rl.checkpoints.ended_short`). Before anything
+    is loaded the folder is checked against its ``manifest.json``
+    (:func:`agents.rl.manifest.verify_run`; a folder without one is accepted with a warning);
+    the manifest is removed when the new session starts and written again when it has saved.
 
     Raises:
-        ValueError: Not a run folder, nothing saved to resume from, or already finished.
+        ValueError: Not a run folder, nothing saved to resume from, finished (its model
+            reached ``n_timesteps``), or a ``timing.json`` without the model's step count.
         agents.rl.manifest.ManifestError: A file differs from the manifest or is not listed.
     """
     tic = time.perf_counter()
@@ -194,13 +189,13 @@ def resume(
         raise ValueError(f"--resume {str(run_dir)!r}: not a run folder (no readable config.yaml)")
     algo, env_id, seed = config["algo"], config["env_id"], int(config["seed"])
     settings = resolve_settings(algo, config["hyperparams"])
-    # Finished: timing.json (written last) and no INTERRUPTED marker.
-    if (run_dir / "timing.json").is_file() and not (run_dir / "INTERRUPTED").exists():
-        raise ValueError(
-            f"--resume {str(run_dir)!r}: already at {_timing_steps(run_dir)} of its "
-            f"{settings['n_timesteps']} steps (finished)"
-        )
-    points = saved_points(run_dir)
+    # A session that ended (timing.json, no INTERRUPTED): finished at its budget, else its
+    # model.zip continues (a run stopped early whose marker is gone).
+    try:
+        ended_at = ended_short(run_dir, int(settings["n_timesteps"]))
+    except ValueError as exc:
+        raise ValueError(f"--resume {str(run_dir)!r}: {exc}") from None
+    points = saved_points(run_dir, ended_at)
     # Before anything is unpickled: the folder's files as its last session saved them.
     saved = [p for point in points for p in (point.model, point.vecnormalize) if p]
     verify_run(run_dir, [run_dir / "config.yaml", *saved])
@@ -221,10 +216,12 @@ def resume(
         problems.append(problem)
     if start is None:
         raise ValueError(f"--resume {str(run_dir)!r}: no saved point loads ({'; '.join(problems)})")
-    if problems:
+    if problems or ended_at is not None:
+        skipped = f"skipped {'; '.join(problems)}; " if problems else ""
+        short = "" if ended_at is None else f" (the last session ended at {ended_at:,} steps)"
         print(
-            f"resume: skipped {'; '.join(problems)}; continuing from "
-            f"{start.model.relative_to(run_dir)} ({start.steps:,} steps)",
+            f"resume: {skipped}continuing from {start.model.relative_to(run_dir)} "
+            f"({start.steps:,} of {settings['n_timesteps']:,} steps){short}",
             file=sys.stderr,
         )
     for folder in (run_dir, run_dir / "checkpoints", run_dir / "eval"):
