@@ -170,16 +170,15 @@ def resume(
     are replaced. A saved point that does not load (a truncated checkpoint) is skipped for the
     newest one that does; ``INTERRUPTED`` stays until the new session's final save is in
     place. A run stopped after its last step was saved is only finished (model, curve,
-    ``timing.json``). A run whose last session ended short of its budget without leaving
-    ``INTERRUPTED`` (a marker removed by hand) continues from its ``model.zip``, at the steps
-    its ``timing.json`` records (:func:`agents.rl.checkpoints.ended_short`). Before anything
+    ``timing.json``). A run stopped short of its budget whose ``INTERRUPTED`` is gone continues
+    from its ``model.zip`` (:func:`agents.rl.checkpoints.ended_short`). Before anything
     is loaded the folder is checked against its ``manifest.json``
     (:func:`agents.rl.manifest.verify_run`; a folder without one is accepted with a warning);
     the manifest is removed when the new session starts and written again when it has saved.
 
     Raises:
-        ValueError: Not a run folder, nothing saved to resume from, finished (its model
-            reached ``n_timesteps``), or a ``timing.json`` without the model's step count.
+        ValueError: Not a run folder, nothing saved to resume from, finished, or a timing.json
+            without the step count.
         agents.rl.manifest.ManifestError: A file differs from the manifest or is not listed.
     """
     tic = time.perf_counter()
@@ -189,8 +188,7 @@ def resume(
         raise ValueError(f"--resume {str(run_dir)!r}: not a run folder (no readable config.yaml)")
     algo, env_id, seed = config["algo"], config["env_id"], int(config["seed"])
     settings = resolve_settings(algo, config["hyperparams"])
-    # A session that ended (timing.json, no INTERRUPTED): finished at its budget, else its
-    # model.zip continues (a run stopped early whose marker is gone).
+    # A session ended (timing.json, no INTERRUPTED): finished, or short of the budget.
     try:
         ended_at = ended_short(run_dir, int(settings["n_timesteps"]))
     except ValueError as exc:
@@ -218,10 +216,9 @@ def resume(
         raise ValueError(f"--resume {str(run_dir)!r}: no saved point loads ({'; '.join(problems)})")
     if problems or ended_at is not None:
         skipped = f"skipped {'; '.join(problems)}; " if problems else ""
-        short = "" if ended_at is None else f" (the last session ended at {ended_at:,} steps)"
         print(
             f"resume: {skipped}continuing from {start.model.relative_to(run_dir)} "
-            f"({start.steps:,} of {settings['n_timesteps']:,} steps){short}",
+            f"({start.steps:,} of {settings['n_timesteps']:,} steps)",
             file=sys.stderr,
         )
     for folder in (run_dir, run_dir / "checkpoints", run_dir / "eval"):
