@@ -103,7 +103,7 @@ def test_the_controller_rows_alone_train_nothing(tmp_path: Path) -> None:
     flown: list[tuple[str, str]] = []
 
     def fly(policy: Any, env_id: str, kwargs: dict[str, Any], seeds: list[int]) -> list:
-        flown.append((env_id, kwargs.get("estimator_name", "")))
+        flown.append((env_id, kwargs.get("estimator", {}).get("name", "")))
         return [{"seed": s, "terminated": False} for s in seeds]
 
     with pytest.MonkeyPatch.context() as patch:
@@ -152,7 +152,10 @@ def test_each_estimator_cell_flies_its_estimator() -> None:
         # Table 7's Q in wind only: without it the thrust-axis model diverges there
         assert q == (list(PAPER_Q_UNKNOWN) if condition in robustness.WINDY else None)
     env_id, isam2 = cell_kwargs("nominal", "isam2")
-    assert env_id == "QuadSLAM-v0" and isam2["estimator_name"] == "isam2"
+    assert env_id == "QuadSLAM-v0" and isam2["estimator"]["name"] == "isam2"
+    # the smoother keeps the scenario's estimator settings: bias states, no extra Q
+    params = load_scenario(SCENARIO, {"estimator": isam2["estimator"]}).estimator.params
+    assert params == {"process_noise": [0.0] * 9, "estimate_imu_bias": True}
     with pytest.raises(ValueError, match="estimator"):
         cell_kwargs("nominal", "ukf")
 
