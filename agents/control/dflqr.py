@@ -183,6 +183,31 @@ def _command_lanes(
                 out[b, i] = min(1.0, max(-1.0, out[b, i] / limits[i]))
 
 
+def env_controller_kwargs(
+    env: Any, name: str, kwargs: dict[str, Any]
+) -> tuple[VehicleParams, dict[str, Any]]:
+    """What a baseline controller takes from a (possibly wrapped) scalar or vector env: the
+    nominal vehicle, and ``kwargs`` completed with the attitude natural frequencies capped for
+    the IMU rate and the torque at hover (:func:`attitude_natural_freq`, unless given), the
+    action layout and the control period.
+
+    Raises:
+        ValueError: The env's action mode is not ``thrust_torque`` (naming ``name``).
+    """
+    base = env.unwrapped
+    mode = base.scenario.action.mode
+    if mode != "thrust_torque":
+        raise ValueError(f"action.mode: got {mode!r}; {name} needs 'thrust_torque'")
+    kwargs = dict(kwargs)
+    if "natural_freq" not in kwargs:
+        damping = kwargs.get("damping", ATTITUDE_DAMPING)
+        imu_hz = base.scenario.imu_rate_hz
+        kwargs["natural_freq"] = attitude_natural_freq(imu_hz, base.vehicle_params, damping)
+    kwargs.setdefault("action_dim", base.scenario.action.dim)
+    kwargs.setdefault("control_dt", 1.0 / base.scenario.episode.control_hz)
+    return base.vehicle_params, kwargs
+
+
 def heading_frame_step(
     integral: FloatArray, obs: FloatArray, dt: float
 ) -> tuple[FloatArray, FloatArray]:
@@ -283,17 +308,8 @@ class DFLQRPolicy:
         the default 100 Hz on the presets without rotors). ``kwargs`` go to the constructor
         (e.g. ``integral_gain``); ``control_dt`` is the scenario's control period.
         """
-        base = env.unwrapped
-        mode = base.scenario.action.mode
-        if mode != "thrust_torque":
-            raise ValueError(f"action.mode: got {mode!r}; DFLQRPolicy needs 'thrust_torque'")
-        if "natural_freq" not in kwargs:
-            damping = kwargs.get("damping", ATTITUDE_DAMPING)
-            imu_hz = base.scenario.imu_rate_hz
-            kwargs["natural_freq"] = attitude_natural_freq(imu_hz, base.vehicle_params, damping)
-        kwargs.setdefault("action_dim", base.scenario.action.dim)
-        kwargs.setdefault("control_dt", 1.0 / base.scenario.episode.control_hz)
-        return cls(base.vehicle_params, **kwargs)
+        vehicle, kwargs = env_controller_kwargs(env, cls.__name__, kwargs)
+        return cls(vehicle, **kwargs)
 
     def command(self, obs: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Physical command for observations, without the integral (it lives in

@@ -41,7 +41,7 @@ from agents.control.dflqr import (
     ATTITUDE_DAMPING,
     ATTITUDE_NATURAL_FREQ,
     BRAKING_RATE,
-    attitude_natural_freq,
+    env_controller_kwargs,
     heading_frame_step,
     limit_tilt,
 )
@@ -186,17 +186,8 @@ class SE3Policy:
     def from_env(cls, env: Any, **kwargs: Any) -> SE3Policy:
         """Build from a (possibly wrapped) env in ``thrust_torque`` mode; the attitude gains
         capped as DF-LQR's (:func:`~agents.control.dflqr.attitude_natural_freq`)."""
-        base = env.unwrapped
-        mode = base.scenario.action.mode
-        if mode != "thrust_torque":
-            raise ValueError(f"action.mode: got {mode!r}; SE3Policy needs 'thrust_torque'")
-        if "natural_freq" not in kwargs:
-            damping = kwargs.get("damping", ATTITUDE_DAMPING)
-            imu_hz = base.scenario.imu_rate_hz
-            kwargs["natural_freq"] = attitude_natural_freq(imu_hz, base.vehicle_params, damping)
-        kwargs.setdefault("action_dim", base.scenario.action.dim)
-        kwargs.setdefault("control_dt", 1.0 / base.scenario.episode.control_hz)
-        return cls(base.vehicle_params, **kwargs)
+        vehicle, kwargs = env_controller_kwargs(env, cls.__name__, kwargs)
+        return cls(vehicle, **kwargs)
 
     def predict(
         self,
