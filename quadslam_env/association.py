@@ -91,9 +91,10 @@ class Association(Protocol):
         landmarks: FloatArray,
         bias: FloatArray,
         values: FloatArray,
+        wind: FloatArray | None = None,
     ) -> tuple[tuple[str, int], ...]:
         """:func:`~quadslam_env.metrics.metric_columns` with the map scored as this
-        association names it (arguments and return as there)."""
+        association names it (arguments, the true wind included, and return as there)."""
 
     def info(self) -> dict[str, Any]:
         """The association terms of the last :meth:`update` (each (B,)), for ``info``."""
@@ -133,8 +134,9 @@ class KnownAssociation:
         landmarks: FloatArray,
         bias: FloatArray,
         values: FloatArray,
+        wind: FloatArray | None = None,
     ) -> tuple[tuple[str, int], ...]:
-        return metric_columns(state, est, landmarks, bias, values)
+        return metric_columns(state, est, landmarks, bias, values, wind)
 
     def info(self) -> dict[str, Any]:
         return {}
@@ -211,11 +213,12 @@ class UnknownAssociation:
         landmarks: FloatArray,
         bias: FloatArray,
         values: FloatArray,
+        wind: FloatArray | None = None,
     ) -> tuple[tuple[str, int], ...]:
         """The map RMSE over the entries matched to a true landmark (each against it); the
         mapped count over every entry."""
         matched = dataclasses.replace(est, landmark_mapped=self._matched)
-        keys = metric_columns(state, matched, self._match_truth, bias, values)
+        keys = metric_columns(state, matched, self._match_truth, bias, values, wind)
         values[_N_MAPPED] = est.landmark_mapped.sum(axis=1)
         return keys
 

@@ -482,7 +482,7 @@ class SimCore:
         state = self.vehicle.state
         values = np.empty((len(_ROWS), self.num_lanes))
         keys = self.association.metric_columns(
-            state, est, self.landmarks, self.imu.total_bias, values
+            state, est, self.landmarks, self.imu.total_bias, values, self.wind.velocity
         )
         diagnostics = est.diagnostics
         values[_NIS] = diagnostics.get("nis", math.nan)

@@ -63,9 +63,11 @@ def _info_keys(env_id: str, **kwargs: object) -> set[str]:
 
 def test_every_info_key_is_documented_with_a_unit() -> None:
     keys = _info_keys("QuadSLAM-EKF-v0", scenario="ekf_figure8_biased_imu")
+    keys |= _info_keys("QuadSLAM-EKF-v0", scenario="ekf_figure8_wind_states")
     keys |= _info_keys("QuadSLAM-FastSLAM-v0", estimator={"params": {"n_particles": 20}})
     keys |= _info_keys("QuadSLAM-Oracle-v0")
     assert {"est_ess", "est_gyro_bias_rel_err", "episode_anees_pose", "est_step_time_ms"} <= keys
+    assert {"est_wind_err_mps", "episode_est_wind_rmse_mps"} <= keys
     page = (DOCS / "env.md").read_text()
     rows = [line for line in page.splitlines() if line.startswith("| `")]
     for key in keys:

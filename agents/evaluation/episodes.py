@@ -82,6 +82,16 @@ _ASSOCIATION_FROM_INFO = {
     "assoc_missed_rate": "episode_assoc_missed_rate",
     "spurious_landmarks": "episode_spurious_landmarks",
 }
+# An estimator with wind states (EKF-SLAM's ``wind: estimate``) adds these.
+_WIND_FROM_INFO = {
+    key: phase_key("episode_est_wind_rmse_mps", phase) if phase else "episode_est_wind_rmse_mps"
+    for phase, key in (
+        ("", "est_wind_rmse_mps"),
+        ("steady", "est_wind_rmse_steady_mps"),
+        ("transient", "est_wind_rmse_transient_mps"),
+    )
+}
+_OPTIONAL_FROM_INFO = {**_ASSOCIATION_FROM_INFO, **_WIND_FROM_INFO}
 MAX_LANES = 64  # episodes flown at once by run_episodes
 Observer = Callable[[Any, np.ndarray, dict[str, Any]], None]
 """``observer(core, stepped, info)`` of :func:`run_episodes`."""
@@ -207,7 +217,7 @@ def episode_record(
             record[key] = value
     for key, src in _WHOLE_FROM_INFO.items():
         record[key] = json_float(info.get(src, math.nan))
-    for key, src in _ASSOCIATION_FROM_INFO.items():
+    for key, src in _OPTIONAL_FROM_INFO.items():
         if src in info:
             record[key] = json_float(info[src])
     record["steps_per_s"] = steps / wall_s if wall_s > 0 else math.nan
@@ -345,7 +355,7 @@ def _run_lanes(
 def summarize(episodes: Sequence[dict[str, Any]]) -> dict[str, dict[str, float | None]]:
     """Median, min and max over episodes of each numeric key, and ``n``, the number of
     episodes they cover (absent, None and NaN values left out; None when none is left)."""
-    extra = [k for k in _ASSOCIATION_FROM_INFO if episodes and k in episodes[0]]
+    extra = [k for k in _OPTIONAL_FROM_INFO if episodes and k in episodes[0]]
     return {key: stats([e.get(key) for e in episodes]) for key in (*SUMMARY_KEYS, *extra)}
 
 
@@ -396,6 +406,8 @@ def format_table(episodes: Sequence[dict[str, Any]], summary: dict[str, Any]) ->
             ("missed", "assoc_missed_rate", "{:.3f}"),
             ("spurious", "spurious_landmarks", "{:.0f}"),
         ]
+    if episodes and "est_wind_rmse_steady_mps" in episodes[0]:
+        cols[7:7] = [("wind steady m/s", "est_wind_rmse_steady_mps", "{:.3f}")]
 
     def cell(fmt: str, value: Any) -> str:
         if value is None or (isinstance(value, float) and not math.isfinite(value)):

@@ -6,16 +6,21 @@ State of lane b (seed 001 eq. 21–23), in fixed-capacity arrays::
     s = (ρ [m, N], v_B [m/s, B], Λ = (φ, θ, ψ) [rad])         9 vehicle states (eq. 21)
     b_imu = (b_ω [rad/s, B], b_az [m/s²][, b_ax, b_ay])       4 IMU biases (only with
                                                               ``estimate_imu_bias``), 6 with
-                                                              ``specific_force: full``
+                                                              ``specific_force: full`` or
+                                                              ``wind: estimate``
+    w = (w_N, w_E) [m/s, N]                                   2 wind states (only with
+                                                              ``wind: estimate``)
     m = (l_slot0, l_slot1, …) [m, N]                          3 per mapped landmark
     P[b]                                                      (nmax, nmax), eq. 23
 
-with ``nmax = nv + 3 Lmax`` (nv = 9, 13 or 15). Landmarks are identified by their id
-``0 … Lmax-1``; ``slot_of_id`` / ``id_of_slot`` map ids to map slots, which are filled in
-registration order (ascending id within a scan). Known-map mode is chosen per lane at reset.
+with ``nmax = nv + 3 Lmax`` (nv = 9, 13 or 15; 11 or 17 with the wind). Landmarks are
+identified by their id ``0 … Lmax-1``; ``slot_of_id`` / ``id_of_slot`` map ids to map slots,
+which are filled in registration order (ascending id within a scan). Known-map mode is
+chosen per lane at reset.
 
 The numerical work runs in numba kernels that loop over lanes (:mod:`estimators.ekf.kernels`
-for the prediction, :mod:`estimators.ekf.update` for the correction); this class validates,
+for the prediction, :mod:`estimators.ekf.wind` for the prediction with the wind states and the
+accelerometer update, :mod:`estimators.ekf.update` for the correction); this class validates,
 allocates, grows and hands out results.
 """
 
@@ -37,9 +42,16 @@ from estimators.ekf.kernels import (
     fill_outputs,
     predict_lanes,
 )
-from estimators.ekf.settings import ACCEL_BIAS_XY, ACCEL_BIAS_Z, GYRO_BIAS, EkfSlamSettings
+from estimators.ekf.settings import (
+    ACCEL_BIAS_XY,
+    ACCEL_BIAS_Z,
+    BIAS_DIM,
+    GYRO_BIAS,
+    EkfSlamSettings,
+)
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
+from estimators.ekf.wind import predict_wind
 from estimators.memory import check_ekf_map
 from quadslam_env.estimation import BatchEstimate, IntArray, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
@@ -60,14 +72,16 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         num_lanes: B ≥ 1.
         landmark_capacity: Lmax, the number of landmark ids (and map slots) allocated; grows
             (by reallocation) when a known map or a scan brings larger ids.
-        vehicle: Nominal vehicle parameters (unused: the process model is driven by the IMU).
+        vehicle: Nominal vehicle parameters: their drag with ``wind: estimate`` (otherwise
+            unused: the process model is driven by the IMU).
         **params: ``estimator.params``, see :class:`~estimators.ekf.settings.EkfSlamSettings`.
             Known-map mode (localisation only) is chosen per lane by passing a known map to
             :meth:`reset_lanes`.
 
     Raises:
-        ValueError: Unknown key, wrong type or out-of-range value (the message names the key,
-            the value and what is allowed).
+        ValueError: Unknown key, wrong type or out-of-range value, or ``wind: estimate``
+            without a vehicle with drag (a ``ConfigError`` naming the key, the value and what
+            is allowed).
     """
 
     uses_truth = False
@@ -80,6 +94,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         if int(num_lanes) < 1:
             raise ValueError(f"num_lanes: got {num_lanes!r}; allowed: an integer >= 1")
         self.vehicle = vehicle
+        self._drag = settings.drag_model(vehicle) if settings.estimates_wind else None
         self.estimate_imu_bias = settings.estimate_imu_bias
         self.gate_threshold = settings.gate
         self.nv = settings.nv
@@ -216,8 +231,8 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             x[8] = wrap_pi(float(x[8]))
             P0 = cov0[j, :POSE_DIM, :POSE_DIM]
             P[:POSE_DIM, :POSE_DIM] = 0.5 * (P0 + P0.T)
-            if self.estimate_imu_bias:
-                P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(self.settings.initial_bias_variances())
+            if nv > POSE_DIM:  # the biases, then the wind, start at zero with their priors
+                P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(self.settings.initial_extra_variances())
             self.state.n[lane] = nv
             self.state.stale[lane] = False
             self.state.rates[lane] = mean0[j, RATE]
@@ -268,12 +283,15 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         Covariance: ``Φ = I + A + ½A²`` with ``A = F dt`` (eq. 27–28),
         ``P_vv ← Φ P_vv Φᵀ + Q_d`` and ``P_vm ← Φ P_vm`` (eq. 29), ``P_mm`` untouched, with
         ``Q_d = Q dt + Γ R_λ Γᵀ``, ``Γ = (I dt + ½F dt²) ∂f/∂λ``: the IMU white noise
-        (per-sample std held over the sample period) mapped into the state.
+        (per-sample std held over the sample period) mapped into the state. With
+        ``wind: estimate`` the model has the drag and the wind states, and the sample's
+        horizontal accelerometer axes then update the lane (:mod:`estimators.ekf.wind`).
 
         Args:
             t: (B,) sample times in s (unused).
             accel: (B, 3) measured specific force [m/s², B]; only the z column is used (eq. 25)
-                unless ``specific_force: full``.
+                unless ``specific_force: full`` (the input) or ``wind: estimate`` (x and y
+                are the wind's measurement).
             gyro: (B, 3) measured body rates [rad/s, B].
             accel_sigma: Accelerometer white-noise std per step of ``dt`` (ND/√dt) in m/s².
             gyro_sigma: Gyro white-noise std per step of ``dt`` in rad/s.
@@ -290,6 +308,11 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             raise ValueError(f"predict: dt must be a positive finite number of seconds, got {dt}")
         sa = accel_sigma * dt if self.settings.imu_noise_in_q else 0.0
         sg = gyro_sigma * dt if self.settings.imu_noise_in_q else 0.0
+        if self._drag is not None:
+            noise = (float(sa), float(sg), float(dt))
+            predict_wind(self.state, self.nv, active, accel, gyro, self._drag, noise,
+                         float(accel_sigma) ** 2, self._qc)  # fmt: skip
+            return
         predict_lanes(
             self.state.x,
             self.state.P,
@@ -386,10 +409,10 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         Returns:
             :class:`BatchEstimate` with ``pose_cov`` (B, 9, 9), ``landmark_means``
             (B, Lmax, 3) by id, ``landmark_mapped`` (B, Lmax) (mapped, or known in known-map
-            lanes), the biases when estimated (``accel_bias = (0, 0, b̂_az)``) and the
-            diagnostics ``nis`` (NaN before a lane's first update), ``nis_dof``,
-            ``n_rejected``, ``n_rejected_last``, ``n_updates``, ``n_mapped``, ``diverged``
-            as (B,) float arrays.
+            lanes), the biases when estimated (``accel_bias = (0, 0, b̂_az)``), the wind
+            ``(ŵ_N, ŵ_E)`` (B, 2) with ``wind: estimate`` and the diagnostics ``nis`` (NaN
+            before a lane's first update), ``nis_dof``, ``n_rejected``, ``n_rejected_last``,
+            ``n_updates``, ``n_mapped``, ``diverged`` as (B,) float arrays.
         """
         x = self.state.x
         fill_outputs(
@@ -420,11 +443,12 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
                 accel_bias=accel_bias,
                 gyro_bias=gyro_bias,
                 diagnostics={k: self.state.diag[i] for i, k in enumerate(DIAGNOSTIC_NAMES)},
+                wind=x[:, self.settings.wind_slice] if self._drag is not None else None,
             )
             self._batch_estimate = out
         if self.estimate_imu_bias:
             self._accel_bias[:, 2] = x[:, ACCEL_BIAS_Z]
-            if self.settings.full_specific_force:
+            if self.settings.bias_dim > BIAS_DIM:
                 self._accel_bias[:, :2] = x[:, ACCEL_BIAS_XY]
         np.logical_and(self.state.mapped, ~self.state.tentative, out=self._reported)
         return out
@@ -451,7 +475,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
         if self.estimate_imu_bias:
             gyro_bias = x[GYRO_BIAS].copy()
             accel_bias = np.array([0.0, 0.0, x[ACCEL_BIAS_Z]])
-            if self.settings.full_specific_force:
+            if self.settings.bias_dim > BIAS_DIM:
                 accel_bias[:2] = x[ACCEL_BIAS_XY]
         return BatchEstimate.one_lane(
             position=x[POS].copy(),
@@ -468,4 +492,5 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection):
             diagnostics={
                 k: float(self.state.diag[i, lane]) for i, k in enumerate(DIAGNOSTIC_NAMES)
             },
+            wind=x[self.settings.wind_slice].copy() if self._drag is not None else None,
         )

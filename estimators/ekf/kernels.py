@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from quadslam_env.models.frames import dcm_and_partials, wrap_pi
-from quadslam_env.models.jit import kernel
+from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.strapdown import strapdown_jacobians, strapdown_rk4
 from quadslam_env.types import POSE_DIM, FloatArray
 
@@ -34,6 +34,44 @@ DIAGNOSTIC_NAMES = (
 
 MAX_PITCH = math.radians(89.0)
 """|θ̂| beyond which D(Λ) (1/cos θ) is treated as singular and the lane flagged diverged."""
+
+
+@inline_kernel
+def discretise(
+    A: FloatArray,
+    nv: int,
+    G: FloatArray,
+    sa: float,
+    sg: float,
+    M: FloatArray,
+    Phi: FloatArray,
+    Gam: FloatArray,
+) -> None:
+    """``M = I + ½A``, ``Φ = I + A M`` and ``Γ = M G diag(σ_a, σ_ω, σ_ω, σ_ω[, σ_a, σ_a]) dt``
+    from ``A = F dt`` (nv, nv) and ``G`` (9, nλ) (seed 001 eq. 27; :func:`transition_matrices`,
+    whose ``sa``, ``sg`` carry the dt); the bias and wind rows of G are zero."""
+    # The products run with the output index innermost (independent sums, same k order) and
+    # skip the many exact zeros of A.
+    for i in range(nv):
+        for j in range(nv):
+            M[i, j] = 0.5 * A[i, j] + (1.0 if i == j else 0.0)
+    for i in range(nv):
+        Phi[i, :] = 0.0
+        Gam[i, :] = 0.0
+        for k in range(nv):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(nv):
+                    Phi[i, j] += a * M[k, j]
+        Phi[i, i] += 1.0
+        for k in range(POSE_DIM):  # the bias rows of σG are zero
+            a = M[i, k]
+            if a != 0.0:
+                Gam[i, 0] += a * (G[k, 0] * sa)
+                for j in range(1, 4):
+                    Gam[i, j] += a * (G[k, j] * sg)
+                for j in range(4, G.shape[1]):
+                    Gam[i, j] += a * (G[k, j] * sa)
 
 
 @kernel
@@ -92,28 +130,7 @@ def transition_matrices(
             )
         if full and nv > POSE_DIM + 4:
             A[i, 13], A[i, 14] = -G[i, 4] * dt, -G[i, 5] * dt
-    # The products run with the output index innermost (independent sums, same k order) and
-    # skip the many exact zeros of A.
-    for i in range(nv):
-        for j in range(nv):
-            M[i, j] = 0.5 * A[i, j] + (1.0 if i == j else 0.0)
-    for i in range(nv):
-        Phi[i, :] = 0.0
-        Gam[i, :] = 0.0
-        for k in range(nv):
-            a = A[i, k]
-            if a != 0.0:
-                for j in range(nv):
-                    Phi[i, j] += a * M[k, j]
-        Phi[i, i] += 1.0
-        for k in range(POSE_DIM):  # the bias rows of σG are zero
-            a = M[i, k]
-            if a != 0.0:
-                Gam[i, 0] += a * (G[k, 0] * sa)
-                for j in range(1, 4):
-                    Gam[i, j] += a * (G[k, j] * sg)
-                for j in range(4, G.shape[1]):
-                    Gam[i, j] += a * (G[k, j] * sa)
+    discretise(A, nv, G, sa, sg, M, Phi, Gam)
 
 
 @kernel

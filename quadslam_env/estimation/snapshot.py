@@ -100,6 +100,8 @@ class BatchEstimate:
         gyro_bias: (B, 3) estimated gyro bias in rad/s, or ``None``.
         diagnostics: name → (B,) float array (``nis``, ``nis_dof``, ``n_rejected``, ``ess``,
             ``diverged``, …; NaN where a lane has no value).
+        wind: (B, 2) estimated horizontal wind (w_N, w_E) in N, m/s, or ``None`` (an estimator
+            without wind states).
     """
 
     position: FloatArray
@@ -114,6 +116,7 @@ class BatchEstimate:
     accel_bias: FloatArray | None = None
     gyro_bias: FloatArray | None = None
     diagnostics: dict[str, FloatArray] = field(default_factory=dict)
+    wind: FloatArray | None = None
 
     @classmethod
     def one_lane(
@@ -130,6 +133,7 @@ class BatchEstimate:
         accel_bias: FloatArray | None = None,
         gyro_bias: FloatArray | None = None,
         diagnostics: Mapping[str, float] | None = None,
+        wind: FloatArray | None = None,
     ) -> BatchEstimate:
         """The snapshot (B = 1) of one vehicle's belief, its map given by id.
 
@@ -152,6 +156,7 @@ class BatchEstimate:
             accel_bias: (3,) estimated accelerometer bias in m/s², or ``None``.
             gyro_bias: (3,) estimated gyro bias in rad/s, or ``None``.
             diagnostics: name → float.
+            wind: (2,) estimated horizontal wind (w_N, w_E) in m/s, or ``None``.
 
         Returns:
             A :class:`BatchEstimate` of width ``Lmax = max(landmark_ids) + 1`` (0 without
@@ -168,6 +173,7 @@ class BatchEstimate:
             accel_bias,
             gyro_bias,
             diagnostics,
+            wind,
         )
 
     @classmethod
@@ -183,6 +189,7 @@ class BatchEstimate:
         accel_bias: FloatArray | None = None,
         gyro_bias: FloatArray | None = None,
         diagnostics: Mapping[str, float] | None = None,
+        wind: FloatArray | None = None,
     ) -> BatchEstimate:
         """:meth:`one_lane` with the map already in the snapshot's layout (an estimator whose
         map changes less often than its state keeps one :class:`LaneMap` between steps).
@@ -198,6 +205,7 @@ class BatchEstimate:
             accel_bias: (3,) estimated accelerometer bias in m/s², or ``None``.
             gyro_bias: (3,) estimated gyro bias in rad/s, or ``None``.
             diagnostics: name → float.
+            wind: (2,) estimated horizontal wind (w_N, w_E) in m/s, or ``None``.
 
         Returns:
             A :class:`BatchEstimate` of the map's width.
@@ -218,6 +226,7 @@ class BatchEstimate:
             accel_bias=None if accel_bias is None else _lane_axis(accel_bias),
             gyro_bias=None if gyro_bias is None else _lane_axis(gyro_bias),
             diagnostics=dict(zip(diag, values, strict=True)),
+            wind=None if wind is None else _lane_axis(wind),
         )
 
     def landmark_ids(self, lane: int = 0) -> np.ndarray:
@@ -274,9 +283,9 @@ def stack_lanes(out: BatchEstimate, snaps: Sequence[BatchEstimate]) -> None:
     """Write the one-lane snapshots ``snaps`` (lane 0 of each, in lane order) into ``out``.
 
     ``out`` must be at least :func:`id_width` wide. The landmark covariances are left out
-    (``out.landmark_covs`` is ``None``). Optional parts (covariance, biases, diagnostics)
-    follow the snapshots: ``pose_cov`` and the biases become ``None`` when the first lane has
-    none; a diagnostic missing in a lane is NaN there.
+    (``out.landmark_covs`` is ``None``). Optional parts (covariance, biases, wind,
+    diagnostics) follow the snapshots: ``pose_cov``, the biases and the wind become ``None``
+    when the first lane has none; a diagnostic missing in a lane is NaN there.
     """
     b = len(snaps)
     if snaps[0].pose_cov is None:
@@ -285,11 +294,11 @@ def stack_lanes(out: BatchEstimate, snaps: Sequence[BatchEstimate]) -> None:
         out.pose_cov = np.zeros((b, POSE_DIM, POSE_DIM))
     out.landmark_covs = None
     # Reused between calls (the batch is a view: read, don't keep); zeroed like new arrays.
-    for name in ("accel_bias", "gyro_bias"):
+    for name, width in (("accel_bias", 3), ("gyro_bias", 3), ("wind", 2)):
         if getattr(snaps[0], name) is None:
             setattr(out, name, None)
         elif getattr(out, name) is None:
-            setattr(out, name, np.zeros((b, 3)))
+            setattr(out, name, np.zeros((b, width)))
         else:
             getattr(out, name)[:] = 0.0
     keys = list(snaps[0].diagnostics)
@@ -315,6 +324,8 @@ def stack_lanes(out: BatchEstimate, snaps: Sequence[BatchEstimate]) -> None:
             out.accel_bias[lane] = s.accel_bias
         if out.gyro_bias is not None and s.gyro_bias is not None:
             out.gyro_bias[lane] = s.gyro_bias
+        if out.wind is not None and s.wind is not None:
+            out.wind[lane] = s.wind
         width = s.landmark_mapped.shape[1]
         if width:
             out.landmark_means[lane, :width] = s.landmark_means

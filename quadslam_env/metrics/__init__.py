@@ -20,10 +20,12 @@ from quadslam_env.metrics.episode import (
 from quadslam_env.metrics.step import (
     METRIC_KEYS,
     NEES_POSE_BOUNDS_95,
+    WIND_METRIC_KEYS,
     anees_bounds,
     cholesky_nees,
     metric_columns,
     step_metrics,
+    wind_columns,
 )
 
 __all__ = [
@@ -33,6 +35,7 @@ __all__ = [
     "NEES_POSE_BOUNDS_95",
     "PHASES",
     "SETTLE_TOL_S",
+    "WIND_METRIC_KEYS",
     "EpisodeMetrics",
     "anees_bounds",
     "association_counts",
@@ -42,4 +45,5 @@ __all__ = [
     "metric_columns",
     "phase_key",
     "step_metrics",
+    "wind_columns",
 ]

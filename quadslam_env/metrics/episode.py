@@ -24,6 +24,7 @@ _RMS = (
     ("episode_est_vel_rmse_mps", "est_vel_err_mps"),
     ("episode_est_att_rmse_deg", "est_att_err_deg"),
     ("episode_track_pos_rmse_m", "track_pos_err_m"),
+    ("episode_est_wind_rmse_mps", "est_wind_err_mps"),
 )
 _LAST = (
     ("episode_map_rmse_m", "est_map_rmse_m"),

@@ -1,8 +1,9 @@
 """Per-step accuracy and consistency metrics of the estimate against the truth.
 
 Per step (docs/design.md §5): position, inertial-velocity and attitude errors, NEES of the
-9-DOF pose (ρ, v_B, Λ) and of the position, map RMSE over mapped landmarks, bias errors. NEES
-is NaN when the estimator reports no covariance (the oracle).
+9-DOF pose (ρ, v_B, Λ) and of the position, map RMSE over mapped landmarks, bias errors, and
+for an estimator with wind states its horizontal wind and that wind's error
+(:func:`wind_columns`). NEES is NaN when the estimator reports no covariance (the oracle).
 
 Everything works on B lanes at once (a leading batch axis); a term that does not apply to a
 lane (no covariance, nothing mapped, no bias estimate) is NaN there.
@@ -78,7 +79,10 @@ def cholesky_nees(cov: FloatArray, err: FloatArray, L: FloatArray, y: FloatArray
     return nees, nees3
 
 
-# Columns of the metrics kernel's output, in order.
+WIND_METRIC_KEYS = ("est_wind_n_mps", "est_wind_e_mps", "est_wind_err_mps")
+"""The wind terms of :func:`wind_columns`, in row order."""
+
+# Columns of the metrics kernel's output, in order, then the wind terms (wind_columns).
 METRIC_KEYS = (
     "est_pos_err_m",
     "est_vel_err_mps",
@@ -91,7 +95,9 @@ METRIC_KEYS = (
     "est_accel_bias_rel_err",
     "est_gyro_bias_err",
     "est_gyro_bias_rel_err",
+    *WIND_METRIC_KEYS,
 )
+_WIND = slice(len(METRIC_KEYS) - len(WIND_METRIC_KEYS), len(METRIC_KEYS))
 
 
 @kernel
@@ -173,14 +179,46 @@ def _metrics_lanes(
             out[col + 1, b] = math.sqrt(e2) / math.sqrt(t2) if t2 > 0.0 else nan
 
 
-def _metric_keys(has_bias: tuple[bool, bool]) -> tuple[tuple[str, int], ...]:
-    """(key, row) of the :data:`METRIC_KEYS` that apply given which biases are estimated."""
+def _metric_keys(has_bias: tuple[bool, bool], has_wind: bool) -> tuple[tuple[str, int], ...]:
+    """(key, row) of the :data:`METRIC_KEYS` that apply given which biases are estimated and
+    whether the wind is."""
     skip = {f"est_{name}_{kind}" for name, has in zip(("accel", "gyro"), has_bias, strict=True)
             if not has for kind in ("bias_err", "bias_rel_err")}  # fmt: skip
+    if not has_wind:
+        skip.update(WIND_METRIC_KEYS)
     return tuple((key, j) for j, key in enumerate(METRIC_KEYS) if key not in skip)
 
 
-_KEYS_BY_BIAS = {(a, g): _metric_keys((a, g)) for a in (False, True) for g in (False, True)}
+def wind_columns(est: BatchEstimate, true_wind: FloatArray | None, out: FloatArray) -> bool:
+    """Write the estimated horizontal wind and its error into the rows of ``out``.
+
+    Args:
+        est: The estimator's belief of B lanes (``est.wind`` (B, 2) or ``None``).
+        true_wind: (B, 3) the wind the lanes flew in over the step (steady plus gust, N, m/s),
+            or ``None`` in still air.
+        out: (3, B) receives :data:`WIND_METRIC_KEYS`: ŵ_N, ŵ_E (m/s) and
+            ``‖(ŵ_N, ŵ_E) − (w_N, w_E)‖`` (m/s); NaN when the estimator has no wind states.
+
+    Returns:
+        Whether the terms apply (the estimator reports a wind).
+    """
+    wind = est.wind
+    if wind is None:
+        out[:] = math.nan
+        return False
+    out[0] = wind[:, 0]
+    out[1] = wind[:, 1]
+    if true_wind is None:
+        np.hypot(wind[:, 0], wind[:, 1], out=out[2])
+    else:
+        np.hypot(wind[:, 0] - true_wind[:, 0], wind[:, 1] - true_wind[:, 1], out=out[2])
+    return True
+
+
+_KEYS_BY_TERMS = {
+    (a, g, w): _metric_keys((a, g), w) for a in (False, True) for g in (False, True)
+    for w in (False, True)
+}  # fmt: skip
 _NO_COV = np.zeros((1, POSE_DIM, POSE_DIM))
 
 
@@ -190,6 +228,7 @@ def metric_columns(
     true_landmarks: FloatArray,
     true_bias: FloatArray,
     out: FloatArray,
+    true_wind: FloatArray | None = None,
 ) -> tuple[tuple[str, int], ...]:
     """Write the ``est_*`` terms of one step of B lanes into the rows of ``out``.
 
@@ -197,7 +236,8 @@ def metric_columns(
     receive the terms in :data:`METRIC_KEYS` order (the leading rows of a larger array).
 
     Returns:
-        ``(key, row)`` of the terms that apply (the bias terms only where estimated).
+        ``(key, row)`` of the terms that apply (the bias terms only where estimated, the wind
+        terms only where the estimator has wind states).
     """
     b = true_state.shape[0]
     accel_bias, gyro_bias = est.accel_bias, est.gyro_bias
@@ -224,7 +264,8 @@ def metric_columns(
         has_bias,
         out,
     )
-    return _KEYS_BY_BIAS[has_bias]
+    has_wind = wind_columns(est, true_wind, out[_WIND])
+    return _KEYS_BY_TERMS[has_bias[0], has_bias[1], has_wind]
 
 
 def step_metrics(
@@ -232,6 +273,7 @@ def step_metrics(
     est: BatchEstimate,
     true_landmarks: FloatArray,
     true_bias: FloatArray,
+    true_wind: FloatArray | None = None,
 ) -> dict[str, FloatArray]:
     """The ``est_*`` terms of one step of B lanes (docs/design.md §4 ``info``), each (B,).
 
@@ -240,15 +282,17 @@ def step_metrics(
         est: The estimator's belief of the lanes.
         true_landmarks: (B, L, 3) true landmark positions by id (NED, m).
         true_bias: (B, 6) true total IMU bias (accel m/s², gyro rad/s).
+        true_wind: (B, 3) the wind the lanes flew in (N, m/s), or ``None`` (still air).
 
     Returns:
         The terms of :data:`METRIC_KEYS`: position, inertial-velocity and attitude error, the
-        number of mapped landmarks, pose and position NEES, map RMSE over the mapped landmarks
-        and, where biases are estimated, ``est_{accel,gyro}_bias_err`` and ``…_rel_err``
-        (‖b̂ - b‖ / ‖b‖). NaN marks a term that does not apply to a lane (no covariance,
-        nothing mapped, no bias estimate, zero true bias); bias terms are left out entirely
-        when the estimator estimates no biases.
+        number of mapped landmarks, pose and position NEES, map RMSE over the mapped landmarks,
+        where biases are estimated, ``est_{accel,gyro}_bias_err`` and ``…_rel_err``
+        (‖b̂ - b‖ / ‖b‖), and where the wind is, :data:`WIND_METRIC_KEYS`. NaN marks a term
+        that does not apply to a lane (no covariance, nothing mapped, no bias estimate, zero
+        true bias); bias and wind terms are left out entirely when the estimator does not
+        estimate them.
     """
     out = np.empty((len(METRIC_KEYS), true_state.shape[0]))
-    keys = metric_columns(true_state, est, true_landmarks, true_bias, out)
+    keys = metric_columns(true_state, est, true_landmarks, true_bias, out, true_wind)
     return {key: out[j] for key, j in keys}

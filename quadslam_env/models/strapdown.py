@@ -23,6 +23,21 @@ the body, i.e. as an attitude error. The textbook strapdown mechanisation in bod
 the same rigid-body rows with the full measured specific force as the input. ``F`` does not
 change; ``G`` gains the columns ``∂v̇/∂a_x = b1`` and ``∂v̇/∂a_y = b2``. The column order keeps
 eq. 25's four first, so the thrust-axis model is the first four columns of the full one.
+
+**Drag and wind** (EKF-SLAM's ``wind: estimate``; Leishman, Macdonald, Beard & McLain 2014,
+"Quadrotors and accelerometers: state estimation with an improved dynamic model", IEEE Control
+Systems 34(1), the rotor-drag model). The thrust-axis model keeps ``a_z`` as the input and adds
+the vehicle's drag on the body's horizontal axes, on the velocity relative to a horizontal wind
+``w = (w_N, w_E, 0)``:
+
+    v̇ = -ω×v + C_NBᵀ g n3 + a_z b3 + P_xy d(v_a),    v_a = v − C_NBᵀ w,
+
+with ``d(v_a) = −μ v_a − c_q ∘ (‖v_a‖ v_a)`` the drag of
+:func:`~quadslam_env.models.rigid_body.aero_specific_force` (the truth's drag kernel; with
+``c_q = 0``, ``−μ v_a``) and ``P_xy`` the selection of b1, b2. The same term is what the
+accelerometer's horizontal axes read, ``(a_x, a_y) = P_xy d(v_a)`` (+ bias, noise): the
+measurement of :func:`drag_measurement`. :func:`drag_jacobians` gives its Jacobian over
+``(v, Λ, w_N, w_E)``, which is both the drag rows of ``F`` and the measurement's ``H``.
 """
 
 from __future__ import annotations
@@ -31,14 +46,25 @@ import math
 
 import numpy as np
 
-from quadslam_env.models.frames import dcm_from_trig
-from quadslam_env.models.jit import kernel
-from quadslam_env.models.rigid_body import NO_AIR, kinematics, pack_bodies, rk4_step
+from quadslam_env.models.frames import dcm_and_partials, dcm_from_trig
+from quadslam_env.models.jit import inline_kernel, kernel
+from quadslam_env.models.rigid_body import (
+    NO_AIR,
+    Vec3,
+    Vec9,
+    aero_specific_force,
+    air_velocity_body,
+    kinematics,
+    kinematics_dcm,
+    pack_bodies,
+    rk4_step,
+)
 from quadslam_env.types import GRAVITY, POSE_DIM, FloatArray
 
 _EYE = np.eye(3)[None]
 _BODY = pack_bodies(1.0, 0.0, _EYE, _EYE)[0]
 """Unit mass, no drag: with zero thrust the rigid body's specific force is the input alone."""
+_NO_CQ = np.zeros(3)
 
 
 @kernel
@@ -118,6 +144,116 @@ def strapdown_jacobians(
         G[3, 4], G[4, 5] = 1.0, 1.0
 
 
+@inline_kernel
+def horizontal_drag(
+    y: FloatArray, c: Vec9, wn: float, we: float, mu: float, cq: Vec3
+) -> tuple[float, float]:
+    """``P_xy d(v_a)``: the drag along b1 and b2 in m/s² of the state ``y`` (≥6,; v from
+    ``y[VEL]``) with ``C_NB`` ``c`` (row-major) in the horizontal wind ``(wn, we)`` (m/s, N),
+    for the linear drag ``mu`` (1/s) and the quadratic ``cq`` (3,) (1/m)
+    (:func:`~quadslam_env.models.rigid_body.aero_specific_force` on ``v − C_NBᵀ w``)."""
+    va = air_velocity_body(y, c, wn, we, 0.0)
+    f = aero_specific_force(va[0], va[1], va[2], 0.0, 1.0, mu, cq)
+    return f[0], f[1]
+
+
+@inline_kernel
+def _drag_derivative(
+    y: FloatArray, accel_z: float, wn: float, we: float, mu: float, cq: Vec3, out: FloatArray
+) -> None:
+    """Rows ρ̇, v̇, Λ̇ of the drag model (module docstring) for ``y = (s, ω)`` into ``out[:9]``."""
+    cf, sf = math.cos(y[6]), math.sin(y[6])
+    ct, st = math.cos(y[7]), math.sin(y[7])
+    c = dcm_from_trig(cf, sf, ct, st, math.cos(y[8]), math.sin(y[8]))
+    d = horizontal_drag(y, c, wn, we, mu, cq)
+    kinematics_dcm(y, c, (cf, sf, ct, st), (d[0], d[1], accel_z), out)
+
+
+@kernel
+def strapdown_drag_rk4(
+    y: FloatArray,
+    accel_z: float,
+    wn: float,
+    we: float,
+    mu: float,
+    cq: Vec3,
+    dt: float,
+    work: FloatArray,
+) -> None:
+    """One classical RK4 step of the drag model with λ = (a_z, ω) and the wind held over ``dt``.
+
+    The stages of :func:`~quadslam_env.models.rigid_body.rk4_step` on
+    ``ṡ = f_s(s, λ) + P_xy d(v_a)`` (module docstring).
+
+    Args:
+        y: (12,) ``(s, ω)``: s (9,) is advanced in place, ω (rad/s) is the held input.
+        accel_z: Specific force along b3 in m/s².
+        wn, we: Wind north and east in m/s (N); w_D = 0.
+        mu: Linear drag in 1/s. cq: (3,) quadratic drag per body axis in 1/m.
+        dt: Step in s.
+        work: (≥5, 12) scratch.
+    """
+    k1, k2, k3, k4, tmp = work[0], work[1], work[2], work[3], work[4]
+    half = 0.5 * dt
+    for j in range(POSE_DIM, 12):
+        tmp[j] = y[j]
+    _drag_derivative(y, accel_z, wn, we, mu, cq, k1)
+    for j in range(POSE_DIM):
+        tmp[j] = y[j] + half * k1[j]
+    _drag_derivative(tmp, accel_z, wn, we, mu, cq, k2)
+    for j in range(POSE_DIM):
+        tmp[j] = y[j] + half * k2[j]
+    _drag_derivative(tmp, accel_z, wn, we, mu, cq, k3)
+    for j in range(POSE_DIM):
+        tmp[j] = y[j] + dt * k3[j]
+    _drag_derivative(tmp, accel_z, wn, we, mu, cq, k4)
+    sixth = dt / 6.0
+    for j in range(POSE_DIM):
+        y[j] = y[j] + sixth * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+
+
+@kernel
+def drag_jacobians(
+    s: FloatArray,
+    wn: float,
+    we: float,
+    mu: float,
+    cq: Vec3,
+    C: FloatArray,
+    dC: FloatArray,
+    D: FloatArray,
+) -> None:
+    """``D = ∂(P_xy d(v_a))/∂(v, Λ, w_N, w_E)`` (2, 8): the drag rows of F and the H of the
+    horizontal accelerometer axes (module docstring).
+
+    With ``J = ∂d/∂v_a`` (rows b1, b2): ``J_ij = −μ δ_ij − c_q,i (‖v_a‖ δ_ij + v_a,i v_a,j /
+    ‖v_a‖)``; ``∂v_a/∂v = I``, ``∂v_a/∂Λ_k = −(∂C_NB/∂Λ_k)ᵀ w``, ``∂v_a,j/∂w_m = −C_NB[m, j]``.
+
+    Args:
+        s: (≥9,) state (ρ [m, N], v_B [m/s, B], Λ [rad]) in its first 9 entries.
+        wn, we: Wind north and east in m/s (N).
+        mu: Linear drag in 1/s. cq: (3,) quadratic drag per body axis in 1/m.
+        C: (3, 3) and dC: (3, 3, 3) scratch (receive C_NB and its partials).
+        D: (2, 8) receives the Jacobian (columns v (3), Λ (3), w_N, w_E; m/s² per unit).
+    """
+    dcm_and_partials(s[6], s[7], s[8], C, dC)
+    c = (C[0, 0], C[0, 1], C[0, 2], C[1, 0], C[1, 1], C[1, 2], C[2, 0], C[2, 1], C[2, 2])
+    va = air_velocity_body(s, c, wn, we, 0.0)
+    speed = math.sqrt(va[0] * va[0] + va[1] * va[1] + va[2] * va[2])
+    inv = 1.0 / speed if speed > 0.0 else 0.0
+    for i in range(2):
+        for j in range(3):
+            D[i, j] = -cq[i] * va[i] * va[j] * inv
+        D[i, i] -= mu + cq[i] * speed
+        for k in range(3):
+            acc = 0.0
+            for j in range(3):
+                acc -= D[i, j] * (dC[k, 0, j] * wn + dC[k, 1, j] * we)
+            D[i, 3 + k] = acc
+        for m in range(2):
+            D[i, 6 + m] = -(D[i, 0] * C[m, 0] + D[i, 1] * C[m, 1] + D[i, 2] * C[m, 2])
+
+
 def process_derivative(
     s: FloatArray, accel_z: float, gyro: FloatArray, accel_xy: tuple[float, float] = (0.0, 0.0)
 ) -> FloatArray:
@@ -164,3 +300,51 @@ def process_jacobians(
     p, q, r = (float(c) for c in gyro)
     strapdown_jacobians(np.ascontiguousarray(s, dtype=float), p, q, r, F, G)
     return F, G
+
+
+def _wind_args(wind_ne: FloatArray, cq: FloatArray) -> tuple[float, float, Vec3]:
+    """(w_N, w_E) and c_q as the kernels take them."""
+    wn, we = (float(v) for v in np.asarray(wind_ne, dtype=float).reshape(2))
+    q0, q1, q2 = (float(v) for v in np.asarray(cq, dtype=float).reshape(3))
+    return wn, we, (q0, q1, q2)
+
+
+def drag_process_derivative(
+    s: FloatArray,
+    accel_z: float,
+    gyro: FloatArray,
+    wind_ne: FloatArray,
+    mu: float,
+    cq: FloatArray = _NO_CQ,
+) -> FloatArray:
+    """``ṡ`` of the drag model (module docstring; noise-free, bias-corrected inputs).
+
+    Args:
+        s: (9,) vehicle state. accel_z: Specific force along b3 in m/s².
+        gyro: (3,) body rates in rad/s. wind_ne: (2,) wind (w_N, w_E) in m/s.
+        mu: Linear drag in 1/s. cq: (3,) quadratic drag per body axis in 1/m.
+
+    Returns:
+        (9,) time derivative of s.
+    """
+    y = np.concatenate((np.asarray(s, dtype=float), np.asarray(gyro, dtype=float)))
+    out = np.empty(12)
+    wn, we, q = _wind_args(wind_ne, cq)
+    _drag_derivative(y, float(accel_z), wn, we, float(mu), q, out)
+    return out[:POSE_DIM]
+
+
+def drag_measurement(
+    s: FloatArray, wind_ne: FloatArray, mu: float, cq: FloatArray = _NO_CQ
+) -> tuple[FloatArray, FloatArray]:
+    """The horizontal accelerometer axes' model ``P_xy d(v_a)`` (2,) in m/s² and its Jacobian
+    (2, 8) over (v, Λ, w_N, w_E) (:func:`drag_jacobians`), for a (9,) state and (2,) wind."""
+    s = np.ascontiguousarray(s, dtype=float)
+    wn, we, q = _wind_args(wind_ne, cq)
+    D = np.empty((2, 8))
+    drag_jacobians(s, wn, we, float(mu), q, np.empty((3, 3)), np.empty((3, 3, 3)), D)
+    c = dcm_from_trig(
+        math.cos(s[6]), math.sin(s[6]), math.cos(s[7]), math.sin(s[7]),
+        math.cos(s[8]), math.sin(s[8]),
+    )  # fmt: skip
+    return np.array(horizontal_drag(s, c, wn, we, float(mu), q)), D
