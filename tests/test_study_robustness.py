@@ -151,6 +151,13 @@ def test_each_estimator_cell_flies_its_estimator() -> None:
         q = thrust["estimator"]["params"].get("process_noise")
         # Table 7's Q in wind only: without it the thrust-axis model diverges there
         assert q == (list(PAPER_Q_UNKNOWN) if condition in robustness.WINDY else None)
+    _, wind = cell_kwargs("wind", "ekf_wind")
+    flown = load_scenario(SCENARIO, {"estimator": wind["estimator"]}).estimator.params
+    states = load_scenario(robustness.WIND_STATES).estimator.params
+    assert flown["wind"] == "estimate" and flown["estimate_imu_bias"] is True  # the scenario's
+    assert all(flown[k] == v for k, v in states.items())
+    with pytest.raises(ValueError, match="windy"):
+        cell_kwargs("nominal", "ekf_wind")  # no drag there: the wind is unobservable
     env_id, isam2 = cell_kwargs("nominal", "isam2")
     assert env_id == "QuadSLAM-v0" and isam2["estimator"]["name"] == "isam2"
     # the smoother keeps the scenario's estimator settings: bias states, no extra Q

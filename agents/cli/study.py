@@ -225,7 +225,8 @@ def add_study_parser(
         "--estimators",
         type=_robustness_estimators,
         help="comma-separated estimators to fly on (default all that can run here: oracle,"
-        "ekf_thrust_axis,ekf_full,isam2; isam2 needs the gtsam extra)",
+        "ekf_thrust_axis,ekf_full,ekf_wind,isam2; ekf_wind flies the windy conditions only, "
+        "isam2 needs the gtsam extra)",
     )
     robust.set_defaults(func=cmd_study_robustness)
     assoc = studies.add_parser(

@@ -33,6 +33,7 @@ EST_KEYS = (
     "est_pos_rmse_steady_m",
     "est_pos_rmse_m",
     "est_att_rmse_steady_deg",
+    "est_wind_rmse_steady_mps",
     "anees_pose_steady",
     "anees_pose",
 )

@@ -23,8 +23,11 @@ The sections are read from those scenario files when the study runs (one source)
 (:data:`ESTIMATORS`): ``oracle`` (the true state), ``ekf_thrust_axis`` (EKF-SLAM with seed 001
 eq. 25's thrust-axis model; in the windy conditions with the paper's Table 7 Q, without which
 its NEES leaves the divergence bound within 4 s), ``ekf_full`` (EKF-SLAM with the whole
-specific force, no extra Q) and ``isam2`` (the smoother with the scenario's bias states and no
-extra Q, extra ``gtsam``; left out without it; it flies the LQI only, :data:`ISAM2_ROWS`).
+specific force, no extra Q), ``ekf_wind`` (EKF-SLAM estimating the horizontal wind with the
+vehicle's drag model, the settings of ``ekf_figure8_wind_states``; in the windy conditions
+only, since without drag the wind is unobservable and the model refused) and ``isam2`` (the
+smoother with the scenario's bias states and no extra Q, extra ``gtsam``; left out without it;
+it flies the LQI only, :data:`ISAM2_ROWS`).
 Controllers (:data:`CONTROLLER_ROWS`): DF-LQR with the paper's gains, the LQI and the SE(3)
 controller with integral action (:mod:`agents.control`). The learned row ``ppo_lqi`` is
 residual PPO on the LQI (the ``QuadSLAM-EKF-v0`` entry of ``ppo.yaml`` with ``wrapper.base:
@@ -73,7 +76,9 @@ DRAG_KEYS = ("drag_per_s", "drag_quadratic_per_m")
 acts through)."""
 CONDITIONS = ("nominal", "randomized", "wind", "wind_moderate")
 WINDY = ("wind", "wind_moderate")
-ESTIMATORS = ("oracle", "ekf_thrust_axis", "ekf_full", "isam2")
+ESTIMATORS = ("oracle", "ekf_thrust_axis", "ekf_full", "ekf_wind", "isam2")
+WIND_STATES = "ekf_figure8_wind_states"
+"""The scenario whose ``estimator.params`` the ``ekf_wind`` cell takes (wind states)."""
 CONTROLLER_ROWS = {"dflqr": "DF-LQR (paper gains)", "lqi": "LQI", "se3": "SE(3) + integral"}
 ISAM2_ROWS = ("lqi",)
 """The rows flown on ``isam2``: the best baseline only (a smoother's step costs ~10 EKF-SLAM
@@ -126,12 +131,17 @@ def cell_kwargs(
     kwargs = condition_kwargs(condition, duration_s)
     if estimator == "oracle":
         return ORACLE, kwargs
+    params: dict[str, Any]
     if estimator == "isam2":  # with the scenario's settings (bias states, no extra Q), which
         # another estimator's name would otherwise drop
         params = _scenario_sections(SCENARIO)["estimator"]["params"]
         return ANY, {**kwargs, "estimator": {"name": "isam2", "params": params}}
-    if estimator == "ekf_full":
-        params: dict[str, Any] = {"specific_force": "full"}
+    if estimator == "ekf_wind":
+        if condition not in WINDY:
+            raise ValueError(f"estimator: ekf_wind needs a windy condition, got {condition!r}")
+        params = dict(_scenario_sections(WIND_STATES)["estimator"]["params"])
+    elif estimator == "ekf_full":
+        params = {"specific_force": "full"}
     elif estimator == "ekf_thrust_axis":
         params = {"specific_force": "thrust_axis"}
         if condition in WINDY:
@@ -190,6 +200,8 @@ def _fly_condition(
     scales = drawn_scales(condition_kwargs(condition, duration_s), seeds)
     rows: list[Row] = []
     for estimator in estimators:
+        if estimator == "ekf_wind" and condition not in WINDY:
+            continue  # no drag in the truth or the model there: the wind is unobservable
         env_id, kwargs = cell_kwargs(condition, estimator, duration_s)
         names = ISAM2_ROWS if estimator == "isam2" else tuple(CONTROLLER_ROWS)
         for name in (n for n in names if n in chosen):
