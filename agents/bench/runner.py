@@ -16,6 +16,11 @@ unit, as one JSON entry. The sections (``--only``):
 * ``render`` (:mod:`agents.bench.render`): ``rgb_array`` frames/s and the time to record a
   video of an episode (``gymnasium.wrappers.RecordVideo``).
 
+Two sections need an extra (:data:`SECTION_EXTRAS`): ``workers`` stable-baselines3 (``[rl]``)
+and ``render`` matplotlib (``[plots]``). Without it, a run of all sections skips that one with
+a line on stderr naming the extra, and ``--only`` naming it stops before anything is measured
+with that line as its error.
+
 The old ``AsyncVectorEnv``/``SubprocVecEnv`` scaling section (about 2,000 steps/s for 1–4
 workers of the scalar env) was dropped: the native vector env does 5,000 steps/s with one lane
 and about 100,000 with a few hundred, so it no longer said anything useful.
@@ -23,9 +28,12 @@ and about 100,000 with a few hundred, so it no longer said anything useful.
 
 from __future__ import annotations
 
+import importlib.metadata
+import importlib.util
 import math
 import os
 import platform
+import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -38,15 +46,38 @@ SECTION_NAMES = (
     "compile", "render",
 )  # fmt: skip
 
+SECTION_EXTRAS = {"workers": ("stable_baselines3", "rl"), "render": ("matplotlib", "plots")}
+"""Section → (the module it needs, the ``quadslam[...]`` extra that brings it)."""
+
+VERSIONED = ("numpy", "numba", "gymnasium", "stable_baselines3", "matplotlib", "gtsam")
+"""The packages whose versions :func:`machine_info` records (those installed)."""
+
+
+def missing_extra(name: str) -> str | None:
+    """Why section ``name`` cannot run here (one line naming the extra), or ``None``."""
+    if name not in SECTION_EXTRAS:
+        return None
+    module, extra = SECTION_EXTRAS[name]
+    if importlib.util.find_spec(module) is not None:
+        return None
+    return (
+        f"bench section {name} needs {module}, which is not installed; install it with: "
+        f"pip install 'quadslam[{extra}]'"
+    )
+
+
+def installed_version(package: str) -> str | None:
+    """The installed distribution's version of ``package``, or ``None`` if it is absent."""
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
 
 # ---------------------------------------------------------------- report
 def machine_info() -> dict[str, Any]:
-    """What the numbers were measured on (CPU model, cores, load, versions)."""
-    import gymnasium
-    import numba
-    import numpy as np
-    import stable_baselines3
-
+    """What the numbers were measured on (CPU model, cores, load, the installed packages'
+    versions: those of :data:`VERSIONED` that are installed, no key for the others)."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -60,10 +91,11 @@ def machine_info() -> dict[str, Any]:
         "cores": os.cpu_count(),
         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "gymnasium": gymnasium.__version__,
-        "stable_baselines3": stable_baselines3.__version__,
+        **{
+            package: version
+            for package in VERSIONED
+            if (version := installed_version(package)) is not None
+        },
         "platform": platform.platform(),
     }
 
@@ -182,14 +214,28 @@ def run_bench(
         plan: Explicit plan (e.g. :data:`agents.bench.plan.TINY` for tests).
 
     Returns:
-        ``{"machine", "plan", "quick", "sections", "wall_time_s", "best_batch", "results"}``.
+        ``{"machine", "plan", "quick", "sections", "skipped", "wall_time_s", "best_batch",
+        "results"}``: ``sections`` those that ran, ``skipped`` section → why (a missing extra).
+
+    Raises:
+        quadslam_env.extras.MissingExtraError: A section named in ``only`` needs an extra that
+            is not installed (before anything is measured).
     """
     from tqdm import tqdm
+
+    from quadslam_env.extras import MissingExtraError
 
     plan = plan or (QUICK if quick else FULL)
     table = sections()
     results = Results()
-    names = only or list(SECTION_NAMES)
+    skipped = {
+        name: why for name in only or SECTION_NAMES if (why := missing_extra(name)) is not None
+    }
+    if only and skipped:
+        raise MissingExtraError(next(iter(skipped.values())))
+    for why in skipped.values():
+        print(f"quadslam bench: skipped: {why}", file=sys.stderr)
+    names = [name for name in only or SECTION_NAMES if name not in skipped]
     machine = machine_info()
     tic = time.perf_counter()
     for name in tqdm(names, desc="bench", unit="section", disable=not progress):
@@ -199,6 +245,7 @@ def run_bench(
         "plan": plan.name,
         "quick": quick,
         "sections": names,
+        "skipped": skipped,
         "wall_time_s": time.perf_counter() - tic,
         "best_batch": best_batches(results.entries),
         "results": results.entries,
@@ -217,17 +264,21 @@ def main_bench(
     Raises:
         agents.io.outputs.OutputPathError: ``--json`` or ``--plots`` cannot be written (before
             anything is measured).
+        quadslam_env.extras.MissingExtraError: ``--plots`` without matplotlib, or a section of
+            ``only`` without its extra (before anything is measured).
         agents.io.outputs.OutputWriteError: A file could not be written at the end; it was saved
             elsewhere and the message says where.
     """
     from agents.bench.plots import write_plots
     from agents.io.outputs import Saver
     from agents.io.paths import check_output_dir, check_output_file
+    from quadslam_env.extras import require
 
     if json_path is not None:
         check_output_file(json_path, "--json")
     if plots is not None:
         check_output_dir(plots, "--plots")
+        require("matplotlib", "plots", "--plots")
     doc = run_bench(quick, only, plan=plan)
     print(format_results(doc["results"]))
     print(
