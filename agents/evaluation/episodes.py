@@ -9,7 +9,6 @@ the per-episode records of :func:`run_episode` on the scalar env, seed for seed.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -18,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
 
+from agents.evaluation.step_clock import StepClock
 from quadslam_env.actions import validate_actions
 from quadslam_env.env import lane_info
 from quadslam_env.metrics import phase_key
@@ -178,13 +178,13 @@ def run_episode(
         base: Any = env.unwrapped  # a QuadSLAMEnv
         video.attach(base.core, 0, info)
     state, start = None, np.array([True])
-    steps, info = 0, {}
-    tic = time.perf_counter()
+    info = {}
+    clock = StepClock()
     while True:
+        clock.start()
         action, state = policy.predict(obs, state=state, episode_start=start, deterministic=True)
         start = np.array([False])
         obs, _, terminated, truncated, info = env.step(action)
-        steps += 1
         if observer is not None:
             observer(env.unwrapped.core, lane0, info)  # type: ignore[attr-defined]
         if trace is not None:
@@ -193,18 +193,19 @@ def run_episode(
             video.record(info)
         if on_step is not None:
             on_step()
+        clock.stop()
         if terminated or truncated:
             break
-    wall = time.perf_counter() - tic
     if trace is not None:
         trace.finish(env)
-    return episode_record(seed, info, bool(terminated), steps, wall)
+    return episode_record(seed, info, bool(terminated), clock.rate)
 
 
 def episode_record(
-    seed: int, info: dict[str, Any], terminated: bool, steps: int, wall_s: float
+    seed: int, info: dict[str, Any], terminated: bool, steps_per_s: float
 ) -> dict[str, Any]:
-    """The JSON record (keys :data:`EPISODE_KEYS`) of an episode from its last ``info``."""
+    """The JSON record (keys :data:`EPISODE_KEYS`) of an episode from its last ``info`` and
+    its rate ``steps_per_s`` (:attr:`agents.evaluation.step_clock.StepClock.rate`)."""
     record: dict[str, Any] = {
         "seed": int(seed),
         "duration_s": float(info["t"]),
@@ -220,7 +221,7 @@ def episode_record(
     for key, src in _OPTIONAL_FROM_INFO.items():
         if src in info:
             record[key] = json_float(info[src])
-    record["steps_per_s"] = steps / wall_s if wall_s > 0 else math.nan
+    record["steps_per_s"] = json_float(steps_per_s)
     return record
 
 
@@ -238,10 +239,11 @@ def run_episodes(
 
     Up to ``max_lanes`` episodes run at once (lane i seeded ``seeds[i]``, stopped after its
     first episode); the records equal :func:`run_episode`'s on ``env`` for the same seeds,
-    except ``steps_per_s``, which is the episode's steps over the wall time of its batch until
-    it ended (so it sums to the throughput over a batch's episodes). An env whose spec has no
-    vector entry point, or that carries wrappers beyond ``gymnasium.make``'s own, is flown one
-    episode after another with :func:`run_episode`.
+    except ``steps_per_s``, which is the rate of its batch's steps until it ended (so it sums
+    to the throughput over a batch's episodes), both without the first step and the steps that
+    compiled or loaded a kernel (:class:`~agents.evaluation.step_clock.StepClock`). An env
+    whose spec has no vector entry point, or that carries wrappers beyond ``gymnasium.make``'s
+    own, is flown one episode after another with :func:`run_episode`.
 
     Args:
         env: The scalar env (from ``gymnasium.make``).
@@ -326,8 +328,9 @@ def _run_lanes(
     active = np.ones(n, dtype=bool)
     state, start = None, np.ones(n, dtype=bool)
     steps = 0
-    tic = time.perf_counter()
+    clock = StepClock()
     while active.any():
+        clock.start()
         action, state = policy.predict(obs, state=state, episode_start=start, deterministic=True)
         start = np.zeros(n, dtype=bool)
         checked = validate_actions(action, n, core.action_map.dim)
@@ -339,11 +342,11 @@ def _run_lanes(
             trace.record_lane(core, 0)
         if video is not None and active[0]:
             video.record(info)
+        clock.stop()
         ended = np.flatnonzero(active & (terminated | truncated)).tolist()
-        wall = time.perf_counter() - tic
         for lane in ended:
             lane_dict = lane_info(info, lane)
-            records[lane] = episode_record(seeds[lane], lane_dict, terminated[lane], steps, wall)
+            records[lane] = episode_record(seeds[lane], lane_dict, terminated[lane], clock.rate)
         if trace is not None and 0 in ended:
             trace.finish_lane(core, 0)
         if on_step is not None:
