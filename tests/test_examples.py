@@ -86,6 +86,25 @@ def _readme_block(heading: str) -> str:
     return match.group(1)
 
 
+def test_readme_first_episode_prints_the_steady_state(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    block = _readme_block("## A first episode")
+    scope: dict[str, object] = {}
+    exec(compile(block, "README.md", "exec"), scope)  # the README's own code
+    info = scope["info"]
+    assert isinstance(info, dict)
+    line = capsys.readouterr().out.strip()
+    match = re.fullmatch(r"tracking (\S+) m, estimate (\S+) m, ANEES (\S+)", line)
+    assert match is not None, line
+    tracking = float(match.group(1))
+    # The steady state is t > 10 s of the 20 s flight at 100 Hz: 1,000 of its 2,000 steps,
+    # and its tracking RMSE is the one without the take-off climb, below the whole flight's.
+    assert info["episode_steps_steady"] == 1000 and info["episode_steps"] == 2000
+    assert tracking == pytest.approx(info["episode_track_pos_rmse_steady_m"], abs=5e-4)
+    assert tracking < info["episode_track_pos_rmse_m"]
+
+
 def test_sb3_with_two_workers_trains_with_lanes_ending_on_different_steps(
     tmp_path: Path,
 ) -> None:
