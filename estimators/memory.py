@@ -1,67 +1,31 @@
-"""Memory a filter's arrays will need, checked before they are allocated.
+"""Memory the estimators' arrays will need, checked before they are allocated.
 
 A map that cannot fit is rejected when the estimator is built (at env construction) with the
 size it would need, instead of a numpy ``MemoryError`` deep in the first scan (or, worse, the
-kernel's out-of-memory killer once the zero-filled pages are touched).
+kernel's out-of-memory killer once the zero-filled pages are touched). The ``*_terms``
+functions size an estimator's state for a
+:class:`~quadslam_env.estimation.memory.Workload` before any estimator exists: the classes'
+``memory_terms`` return them, and the env adds its own buffers
+(:mod:`quadslam_env.memory`, docs/reliability.md "Memory").
 """
 
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
-from pathlib import Path
 
-_CGROUP_LIMITS = (
-    Path("/sys/fs/cgroup/memory.max"),  # cgroup v2
-    Path("/sys/fs/cgroup/memory/memory.limit_in_bytes"),  # cgroup v1
+from quadslam_env.estimation.memory import (
+    LANES,
+    MemoryLimitError,
+    MemoryTerm,
+    Workload,
+    available_memory_bytes,
+    format_bytes,
 )
-
 
 MEMORY_SHARE = 0.5
 """Share of the available memory one filter's big buffer may take: a growing map holds the
 old and the new buffer at once, and the process needs memory for everything else."""
-
-
-def format_bytes(n: float) -> str:
-    """``n`` bytes in binary units, e.g. ``"15.2 GiB"``."""
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if abs(n) < 1024.0 or unit == "TiB":
-            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
-        n /= 1024.0
-    raise AssertionError("unreachable")  # pragma: no cover
-
-
-def available_memory_bytes() -> int:
-    """Memory this process can still allocate, in bytes.
-
-    ``MemAvailable`` of ``/proc/meminfo`` (else the physical memory), capped by a cgroup
-    memory limit when one is set; ``QUADSLAM_MEMORY_LIMIT_BYTES`` overrides all of them.
-    """
-    override = os.environ.get("QUADSLAM_MEMORY_LIMIT_BYTES")
-    if override:
-        return int(float(override))
-    avail = None
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                avail = int(line.split()[1]) * 1024
-                break
-    except (OSError, ValueError, IndexError):
-        pass
-    if avail is None:
-        try:
-            avail = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-        except (AttributeError, ValueError, OSError):
-            avail = 1 << 62  # unknown: do not reject anything
-    for path in _CGROUP_LIMITS:
-        try:
-            text = path.read_text().strip()
-        except OSError:
-            continue
-        if text.isdigit():
-            avail = min(avail, int(text))
-    return avail
 
 
 def check_fits(need: int, what: str, formula: str, allowed: Callable[[int], str]) -> None:
@@ -75,12 +39,12 @@ def check_fits(need: int, what: str, formula: str, allowed: Callable[[int], str]
             landmarks"``).
 
     Raises:
-        ValueError: One line naming ``what``, the size, the formula, the available memory and
-            ``allowed``.
+        MemoryLimitError: One line naming ``what``, the size, the formula, the available
+            memory and ``allowed`` (a ``ValueError``).
     """
     avail = int(MEMORY_SHARE * available_memory_bytes())
     if need > avail:
-        raise ValueError(
+        raise MemoryLimitError(
             f"{what} would need {format_bytes(need)} for {formula}, more than the "
             f"{format_bytes(avail)} a filter may use (half the available memory); "
             f"allowed: {allowed(avail)}"
@@ -109,9 +73,11 @@ def check_ekf_map(num_lanes: int, nv: int, slots: int) -> None:
 
     def allowed(avail: int) -> str:
         most = max(0, int((math.sqrt(avail / (8 * num_lanes)) - nv) // 3))
+        lanes = avail // (8 * n * n)
+        fewer = f"at most {lanes} lane(s)" if 1 <= lanes < num_lanes else "fewer lanes"
         return (
             f"at most {most} landmarks per lane with {num_lanes} lane(s) (landmarks.count, "
-            "the layout's positions or a reset's landmarks), or fewer lanes"
+            f"the layout's positions or a reset's landmarks), or {fewer}"
         )
 
     check_fits(
@@ -182,3 +148,131 @@ def check_fastslam_map(num_lanes: int, n_particles: int, landmarks: int) -> None
         f"{b} × {n} × (512 + 96 × {landmarks}))",
         allowed,
     )
+
+
+# ---------------------------------------------------------------- the estimators' terms
+EKF_BYTES_PER_ID = 128
+"""Bytes per landmark id and lane of EKF-SLAM besides its covariance, rounded up: the id/slot
+maps, the M-of-N counters (4 × int64), the known-map position and the snapshot's mean by id
+(2 × 3 float64), the mapped, tentative and reported flags, and an unlabeled scan's row."""
+
+EKF_LANE_BYTES = 256
+"""Bytes per lane of EKF-SLAM besides its mean, covariance and map: rates, diagnostics, the
+snapshot's pose arrays, the lane's counters (rounded up)."""
+
+
+def ekf_terms(load: Workload, nv: int) -> list[MemoryTerm]:
+    """EKF-SLAM's buffers for ``load``: the covariance (checked against its own share first,
+    :func:`check_ekf_map`) and the mean with the map's bookkeeping.
+
+    Args:
+        load: The lanes and their map (no landmark states with a known map).
+        nv: Vehicle states (9, 13 or 15; more with the wind states).
+
+    Raises:
+        MemoryLimitError: The covariance alone exceeds :data:`MEMORY_SHARE`.
+    """
+    b, lmax = load.num_lanes, load.landmark_capacity
+    slots = 0 if load.known_map else lmax
+    check_ekf_map(b, nv, slots)
+    n = nv + 3 * slots
+
+    def most(room: int) -> str | None:
+        fit = int((math.sqrt(room / (8 * b)) - nv) // 3)
+        return f"at most {fit} landmarks per lane (landmarks.count)" if fit >= 0 else None
+
+    the_map = f"a map of {lmax} landmarks"
+    cov = f"EKF-SLAM's covariance P (8 B × B × (nv + 3 L)² = 8 × {b} × {n}²)"
+    rest = (
+        f"EKF-SLAM's mean and map bookkeeping (B × ({EKF_LANE_BYTES} + 8 (nv + 3 L) + "
+        f"{EKF_BYTES_PER_ID} Lmax) bytes = {b} × ({EKF_LANE_BYTES} + 8 × {n} + "
+        f"{EKF_BYTES_PER_ID} × {lmax}))"
+    )
+    return [
+        MemoryTerm(ekf_covariance_bytes(b, nv, slots), "landmarks", the_map, cov, most),
+        MemoryTerm(b * (EKF_LANE_BYTES + 8 * n + EKF_BYTES_PER_ID * lmax), "landmarks",
+                   the_map, rest),
+    ]  # fmt: skip
+
+
+def fastslam_terms(load: Workload, n_particles: int) -> list[MemoryTerm]:
+    """FastSLAM's particles and landmark filters for ``load`` (checked against a filter's
+    share first, :func:`check_fastslam_map`).
+
+    Raises:
+        MemoryLimitError: They exceed :data:`MEMORY_SHARE`.
+    """
+    b, n, lmax = load.num_lanes, n_particles, load.landmark_capacity
+    check_fastslam_map(b, n, lmax)
+
+    def most(room: int) -> str | None:
+        fit = room // (b * (FASTSLAM_BYTES_PER_PARTICLE + FASTSLAM_BYTES_PER_LANDMARK * lmax))
+        return f"at most {fit} particles (estimator.params.n_particles)" if fit >= 1 else None
+
+    what = (
+        f"FastSLAM's particles and landmark filters (B × N × (512 + 96 × L) bytes = {b} × {n} "
+        f"× (512 + 96 × {lmax}))"
+    )
+    return [MemoryTerm(fastslam_bytes(b, n, lmax), "estimator.params.n_particles", n, what, most)]
+
+
+ISAM2_LANE_BYTES = 32 * 1024
+"""Bytes per lane of GTSAM's smoother before its first keyframe (its parameters, the
+preintegration, the priors), besides the lane's Python objects."""
+
+ISAM2_KEYFRAME_BYTES = 16 * 1024
+"""Bytes per keyframe of the window besides its dense blocks: three variables, the IMU factor
+with its preintegrated covariance, the bias prior and the LiDAR factor (rounded up)."""
+
+ISAM2_MARGIN_KEYFRAMES = 5
+"""Keyframes a window holds beyond ``window_s`` (it is marginalised every fifth keyframe)."""
+
+
+def isam2_keyframes(load: Workload, window_s: float | None) -> int:
+    """Keyframes a lane's smoother holds at most: ``window_s`` of scans and the margin, or the
+    whole episode's scans (``window_s: null``, or a window longer than the episode)."""
+    episode = math.ceil(load.duration_s * load.scan_hz) + 1
+    if window_s is None:
+        return episode
+    return min(episode, math.ceil(window_s * load.scan_hz) + ISAM2_MARGIN_KEYFRAMES)
+
+
+def isam2_terms(load: Workload, window_s: float | None) -> list[MemoryTerm]:
+    """iSAM2's graph for ``load``: per lane, the smoother's set-up and, per keyframe of its
+    window, the variables and factors and two dense blocks over the keyframe's clique (its
+    conditional and iSAM2's cached marginal), 15 vehicle states of this keyframe and the next
+    and 3 per landmark state: ``16 (30 + 3 L)²`` bytes. Against the growth of the resident
+    memory per lane on ``paper_ekf_figure8``: 3 s windows, 13.2 MB estimated for 13.0 MB with
+    40 landmarks and 1.1 MB for 1.4 MB on the known map; full iSAM2 after 12 s, 45 MB for
+    21 MB (the estimate 0.8 to 2.2 times what was measured).
+    """
+    b, kf = load.num_lanes, isam2_keyframes(load, window_s)
+    slots = 0 if load.known_map else load.landmark_capacity
+    per_kf = ISAM2_KEYFRAME_BYTES + 16 * (30 + 3 * slots) ** 2
+    need = b * (ISAM2_LANE_BYTES + kf * per_kf)
+    key = "estimator.params.window_s" if window_s is not None else "episode.duration_s"
+    value = f"{window_s:g} s" if window_s is not None else f"{load.duration_s:g} s (window_s null)"
+
+    def most(room: int) -> str | None:
+        keyframes = (room // b - ISAM2_LANE_BYTES) // per_kf
+        if window_s is not None:
+            longest = (keyframes - ISAM2_MARGIN_KEYFRAMES) / load.scan_hz
+            return f"{key} at most {longest:.3g} s" if longest > 0 else None
+        longest = (keyframes - 1) / load.scan_hz
+        return f"{key} at most {longest:.3g} s, or a window_s" if longest > 0 else None
+
+    what = (
+        f"iSAM2's window of {kf} keyframes per lane (B × ({ISAM2_LANE_BYTES // 1024} KiB + K × "
+        f"({ISAM2_KEYFRAME_BYTES // 1024} KiB + 16 (30 + 3 L)²)) bytes = {b} × "
+        f"({ISAM2_LANE_BYTES // 1024} KiB + {kf} × ({ISAM2_KEYFRAME_BYTES // 1024} KiB + "
+        f"16 × {30 + 3 * slots}²)))"
+    )
+    return [MemoryTerm(need, key, value, what, most)]
+
+
+def oracle_terms(load: Workload) -> list[MemoryTerm]:
+    """The oracle's snapshot of B lanes: five (B, 3) pose arrays and the map by id
+    (``B × (120 + 25 Lmax)`` bytes)."""
+    b, lmax = load.num_lanes, load.landmark_capacity
+    what = f"the oracle's snapshot (B × (120 + 25 Lmax) bytes = {b} × (120 + 25 × {lmax}))"
+    return [MemoryTerm(b * (120 + 25 * lmax), LANES, f"{b} lane(s)", what)]

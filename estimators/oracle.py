@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from estimators.memory import MemoryTerm, Workload, oracle_terms
 from quadslam_env.config_schema import Section
 from quadslam_env.estimation import BatchEstimate, KnownMaps, register
 from quadslam_env.models.frames import dcm_from_euler_batch
@@ -37,6 +38,16 @@ class OracleBatch:
     """
 
     uses_truth = True
+
+    @classmethod
+    def memory_terms(cls, load: Workload, params: dict[str, Any]) -> list[MemoryTerm]:
+        """The snapshot of ``load``'s lanes (:func:`estimators.memory.oracle_terms`).
+
+        Raises:
+            ConfigError: Any ``estimator.params`` key (the oracle has none).
+        """
+        OracleSettings.from_dict(params)
+        return oracle_terms(load)
 
     def __init__(
         self, num_lanes: int, landmark_capacity: int, vehicle: Any = None, **params: Any

@@ -17,6 +17,10 @@ from quadslam_env.config_schema import spec as _spec
 SUBSTEP_TOLERANCE = 1e-9
 """Relative rounding allowed in ``control period / vehicle.physics_dt_s`` being whole."""
 
+MAX_LOOKAHEAD = 64
+"""Most entries of ``observation.lookahead_s``: 64 look-ahead times, 192 observation values
+(the nearest-landmark block holds at most 256)."""
+
 _WEIGHT_MAX = 1e6
 """Largest magnitude of a reward weight: a term stays inside the floating-point range for any
 error below 1e300."""
@@ -67,6 +71,7 @@ class ObservationConfig(Section):
         kind="vec",
         lo=0.0,
         hi=10.0,
+        max_length=MAX_LOOKAHEAD,
         doc="append the reference displacement Δ seconds ahead (3 values each, m)",
     )
     landmarks_nearest: int = _spec(

@@ -31,6 +31,7 @@ def spec(
     hi: float | None = None,
     lo_open: bool = False,
     length: int | tuple[int, ...] | None = None,
+    max_length: int | None = None,
     choices: tuple[str, ...] | None = None,
     optional: bool = False,
     allow_inf: bool = False,
@@ -48,6 +49,7 @@ def spec(
         lo_open: Make ``lo`` exclusive.
         length: Required length of a ``vec``, or the allowed lengths; when 1 is allowed, a bare
             number stands for a list of one.
+        max_length: Most entries of a ``vec`` (checked before its entries).
         choices: Allowed strings of a ``str`` field.
         optional: Accept ``null`` (``None``).
         allow_inf: Accept ``+inf`` above ``lo`` (a number that turns a threshold off).
@@ -62,6 +64,7 @@ def spec(
         "hi": hi,
         "lo_open": lo_open,
         "length": length,
+        "max_length": max_length,
         "choices": choices,
         "optional": optional,
         "allow_inf": allow_inf,
@@ -87,7 +90,7 @@ def describe(meta: dict[str, Any]) -> str:
         "int": "an integer",
         "bool": "true or false",
         "str": "a string",
-        "vec": _describe_vec(meta["length"]),
+        "vec": _describe_vec(meta["length"], meta.get("max_length")),
         "vecs": "a list of [x, y, z] lists",
         "dict": "a mapping",
     }[kind]
@@ -105,10 +108,10 @@ def _lengths(length: int | tuple[int, ...] | None) -> tuple[int, ...] | None:
     return (length,) if isinstance(length, int) else length
 
 
-def _describe_vec(length: int | tuple[int, ...] | None) -> str:
+def _describe_vec(length: int | tuple[int, ...] | None, most: int | None = None) -> str:
     lengths = _lengths(length)
     if not lengths:
-        return "a list of numbers"
+        return "a list of numbers" if most is None else f"a list of at most {most} numbers"
     lists = [n for n in lengths if n != 1]
     text = f"a list of {' or '.join(map(str, lists))} numbers" if lists else ""
     return "a number or " + text if 1 in lengths and text else text or "a number"
@@ -194,6 +197,9 @@ def coerce(key: str, value: Any, meta: dict[str, Any]) -> Any:
             value = [value]
         if not isinstance(value, list | tuple) or (lengths and len(value) not in lengths):
             raise ConfigError(f"{key}: got {shown_value(value)}; allowed: {describe(meta)}")
+        most = meta.get("max_length")
+        if most is not None and len(value) > most:
+            raise ConfigError(f"{key}: got {len(value)} entries; allowed: {describe(meta)}")
         return tuple(_check_number(f"{key}[{i}]", v, meta) for i, v in enumerate(value))
     if kind == "vecs":
         if not isinstance(value, list | tuple):

@@ -18,6 +18,7 @@ from quadslam_env.actions import ActionError, validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.estimation import BatchEstimate, BatchEstimator
+from quadslam_env.memory import check_env_memory
 from quadslam_env.reset_options import parse_reset_options, parse_seed
 from quadslam_env.trajectories import FlatOutputs
 from quadslam_env.types import FloatArray
@@ -105,6 +106,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ConfigError(f"render_mode: got {render_mode!r}; allowed: None or 'rgb_array'")
         self.scenario: ScenarioConfig = load_scenario(scenario, overrides, estimator_name)
         self.render_mode = render_mode
+        check_env_memory(self.scenario, 1)  # before anything is allocated
         self._core = SimCore(self.scenario, 1)
         core = self._core
         self.dt = core.dt

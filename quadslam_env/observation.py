@@ -119,6 +119,25 @@ def nearest_landmarks(est: BatchEstimate, k: int) -> FloatArray:
     return out
 
 
+def observation_layout(cfg: ObservationConfig) -> list[tuple[str, int]]:
+    """The blocks of the observation, ``(name, entries)`` in order (:class:`ObservationBuilder`)."""
+    layout = list(BASE_LAYOUT)
+    if cfg.pos_uncertainty:
+        layout.append(("pos_std", 3))
+    if cfg.landmark_counts:
+        layout.append(("landmark_counts", 2))
+    for dt in cfg.lookahead_s:
+        layout.append((f"lookahead_{dt:g}s", 3))
+    if cfg.landmarks_nearest:
+        layout.append(("landmarks_nearest", 4 * cfg.landmarks_nearest))
+    return layout
+
+
+def observation_size(cfg: ObservationConfig) -> int:
+    """Entries of one lane's observation under ``cfg`` (before any env is built)."""
+    return sum(n for _, n in observation_layout(cfg))
+
+
 class ObservationBuilder:
     """Builds the float32 observations of B lanes and the single-lane ``Box`` space.
 
@@ -132,15 +151,7 @@ class ObservationBuilder:
     def __init__(self, cfg: ObservationConfig, trajectory: Trajectory) -> None:
         self.cfg = cfg
         self.trajectory = trajectory
-        self.layout: list[tuple[str, int]] = list(BASE_LAYOUT)
-        if cfg.pos_uncertainty:
-            self.layout.append(("pos_std", 3))
-        if cfg.landmark_counts:
-            self.layout.append(("landmark_counts", 2))
-        for dt in cfg.lookahead_s:
-            self.layout.append((f"lookahead_{dt:g}s", 3))
-        if cfg.landmarks_nearest:
-            self.layout.append(("landmarks_nearest", 4 * cfg.landmarks_nearest))
+        self.layout = observation_layout(cfg)
         self.size = sum(n for _, n in self.layout)
         self.space = spaces.Box(-cfg.clip, cfg.clip, shape=(self.size,), dtype=np.float32)
 

@@ -38,6 +38,7 @@ from quadslam_env.actions import validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import step_rate
+from quadslam_env.memory import check_env_memory
 from quadslam_env.reset_options import (
     parse_lane_seeds,
     parse_reset_options,
@@ -65,6 +66,8 @@ class QuadSLAMVectorEnv(VectorEnv):
 
     Raises:
         ConfigError: A bad ``num_envs``, ``render_mode``, ``autoreset_mode`` or scenario.
+        MemoryLimitError: Lanes whose buffers would not fit in memory (a ``ConfigError``
+            naming the setting that dominates and what fits, :mod:`quadslam_env.memory`).
     """
 
     metadata = {
@@ -96,6 +99,7 @@ class QuadSLAMVectorEnv(VectorEnv):
         self.scenario: ScenarioConfig = load_scenario(scenario, overrides, estimator_name)
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
+        check_env_memory(self.scenario, self.num_envs)  # before anything is allocated
         self._core = SimCore(self.scenario, self.num_envs)
         core = self._core
         self.dt = core.dt

@@ -23,9 +23,11 @@ import quadslam_env  # noqa: F401  (registers the ids)
 def test_fastslam_lanes_that_cannot_fit_fail_before_the_lanes_are_built(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """``num_envs=100000`` FastSLAM lanes fail in one line once the first lane is built,
-    instead of allocating the particles of lane after lane first."""
+    """``num_envs=100000`` FastSLAM lanes fail in one line before any lane is built (the env
+    asks the class for its particles' size first), instead of allocating the particles of
+    lane after lane; a filter built directly still checks its own particles."""
     from estimators.fastslam import DynamicFastSLAM
+    from quadslam_env.config import load_scenario
     from quadslam_env.estimation import registry
 
     built: list[int] = []
@@ -43,7 +45,7 @@ def test_fastslam_lanes_that_cannot_fit_fail_before_the_lanes_are_built(
     with pytest.raises(ValueError) as info:
         gym.make_vec("QuadSLAM-FastSLAM-v0", num_envs=100_000,
                      vectorization_mode="vector_entry_point", **kwargs)  # fmt: skip
-    assert built == [1]  # the first lane only
+    assert built == []  # no lane: the env asked the class first
     message = str(info.value)
     assert "\n" not in message
     assert "200 particles (estimator.params.n_particles)" in message
@@ -52,7 +54,11 @@ def test_fastslam_lanes_that_cannot_fit_fail_before_the_lanes_are_built(
     assert f"would need {need / 2**30:.1f} GiB" in message and "more than the 4.0 GiB" in message
     with pytest.raises(ValueError, match=r"FastSLAM with 10000000000 particles .* on one lane"):
         gym.make("QuadSLAM-FastSLAM-v0", estimator={"params": {"n_particles": 10**10}})
-    assert len(built) == 2  # the filter checked its own particles before allocating them
+    assert built == []
+    vehicle = load_scenario("paper_fastslam_helix").vehicle.params()
+    with pytest.raises(ValueError, match=r"\(estimator.params.n_particles\) on one lane"):
+        registry.make("fastslam", vehicle=vehicle, n_particles=10**10)
+    assert built == [1]  # the filter checked its own particles before allocating them
 
 
 # --------------------------------------------------------- the analyses' --json, atomically

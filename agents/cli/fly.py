@@ -142,9 +142,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     """Baseline-controller episodes (DF-LQR by default) on a scenario: the package's main job."""
     from agents.control.dflqr import DFLQRPolicy
     from agents.control.named import build_controller
+    from agents.evaluation.episodes import check_episodes_memory
     from agents.io.paths import safe_name
 
     env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
+    check_episodes_memory(env.unwrapped.scenario, args.seeds, "--seeds")  # before the seeds
     plots = args.plots
     if plots is None and not args.no_plots and importlib.util.find_spec("matplotlib") is None:
         print("quadslam run: no figures (matplotlib is not installed: pip install "
@@ -194,6 +196,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     env = make_env(env_id, scenario, args.estimator, args.duration, args.set)
+    if hasattr(env.unwrapped, "scenario"):  # a QuadSLAM env (another id has no scenario)
+        from agents.evaluation.episodes import check_episodes_memory
+
+        check_episodes_memory(env.unwrapped.scenario, args.episodes, "--episodes")
     check_outputs(args.plots, args.json, args.video)  # before loading and flying
     policy, name = load_policy(args.policy, env, trust_pickle=args.trust_pickle)
     seeds = list(range(args.seed, args.seed + args.episodes))

@@ -19,7 +19,10 @@ from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
 
 from agents.evaluation.step_clock import StepClock
 from quadslam_env.actions import validate_actions
+from quadslam_env.config import ScenarioConfig
 from quadslam_env.env import lane_info
+from quadslam_env.estimation import MemoryTerm
+from quadslam_env.memory import check_env_memory
 from quadslam_env.metrics import phase_key
 
 # Record keys reported over the whole episode and, with the phase in the name
@@ -303,6 +306,35 @@ def run_episodes(
         finally:
             vec.close()
     return records
+
+
+RECORD_BYTES = 8 * 1024
+"""Bytes an episode keeps until its command ends, rounded up from 6.4 KiB measured: its seed,
+its record (0.9 KiB), its row of the table (1.2 KiB) and its JSON text while it is written."""
+
+
+def check_episodes_memory(scenario: ScenarioConfig, count: int, key: str = "--seeds") -> None:
+    """Refuse ``count`` episodes of ``scenario`` that would not fit in memory, before any is
+    flown: the vector env of one chunk (at most :data:`MAX_LANES` lanes: :func:`run_episodes`
+    flies the seeds in chunks) and every episode's record (:data:`RECORD_BYTES`).
+
+    Args:
+        scenario: The scenario of the env the episodes fly on.
+        count: Episodes (seeds).
+        key: The option that sets ``count`` (``--seeds``, ``--episodes``, ``seeds_per_job``).
+
+    Raises:
+        quadslam_env.estimation.MemoryLimitError: One line naming ``key`` (or the setting
+            that dominates), the size and the count that fits.
+    """
+    n = int(count)
+
+    def most(room: int) -> str:
+        return f"{key} at most {room // RECORD_BYTES}"
+
+    what = f"the episode records (N × {RECORD_BYTES // 1024} KiB = {n} × 8 KiB)"
+    records = MemoryTerm(n * RECORD_BYTES, key, n, what, most, per_lane=False)
+    check_env_memory(scenario, min(n, MAX_LANES), key, [records])
 
 
 def _run_lanes(

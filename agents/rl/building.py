@@ -98,9 +98,91 @@ def build_model(algo: str, settings: dict[str, Any], venv: Any, seed: int, verbo
     )
 
 
+ON_POLICY_BYTES_PER_VALUE = 8
+"""Bytes per stored value of an on-policy rollout (PPO, A2C): SB3's float32 buffer and the
+flattened copy its ``get()`` hands the minibatches."""
+
+OFF_POLICY_BYTES_PER_VALUE = 4
+"""Bytes per stored value of an off-policy replay buffer (SAC, TD3): float32."""
+
+
+def registered_scenario(env_id: str, env_kwargs: dict[str, Any]) -> Any:
+    """The :class:`~quadslam_env.config.ScenarioConfig` that ``gymnasium.make(env_id,
+    **env_kwargs)`` builds for a QuadSLAM id (no env is built), or ``None`` for another id.
+
+    Raises:
+        ConfigError: Bad ``env_kwargs`` (as the env would say).
+    """
+    import gymnasium as gym
+
+    import quadslam_env  # noqa: F401  (registers the ids)
+    from quadslam_env.config import load_scenario
+
+    spec = gym.spec(env_id)
+    if spec.entry_point != "quadslam_env.env:QuadSLAMEnv":
+        return None
+    kwargs = {**spec.kwargs, **env_kwargs}
+    for key in ("render_mode", "autoreset_mode", "max_episode_steps"):
+        kwargs.pop(key, None)
+    name, swap = kwargs.pop("scenario", None), kwargs.pop("estimator_name", None)
+    return load_scenario(name, kwargs, swap)
+
+
+def learner_terms(algo: str, settings: dict[str, Any], obs_dim: int, act_dim: int) -> list[Any]:
+    """The learner's buffers as memory terms: an on-policy rollout of ``n_steps`` per lane
+    (observation, action and six scalars per transition), or an off-policy replay buffer of
+    ``buffer_size`` transitions (two observations, the action and three scalars)."""
+    import inspect
+
+    from quadslam_env.estimation import MemoryTerm
+
+    cls = algorithms()[algo]
+    key = "n_steps" if algo in ("ppo", "a2c") else "buffer_size"
+    if key not in inspect.signature(cls).parameters:
+        return []
+    count = int(settings["algo_kwargs"].get(key, inspect.signature(cls).parameters[key].default))
+    if key == "n_steps":
+        per = ON_POLICY_BYTES_PER_VALUE * (obs_dim + act_dim + 6) * settings["n_envs"]
+        what = f"the rollout buffer (n_steps × n_envs × 8 B × {obs_dim + act_dim + 6} values)"
+    else:
+        per = OFF_POLICY_BYTES_PER_VALUE * (2 * obs_dim + act_dim + 3)
+        what = f"the replay buffer (buffer_size × 4 B × {2 * obs_dim + act_dim + 3} values)"
+
+    def most(room: int) -> str | None:
+        return f"{key} at most {room // per}" if room >= per else None
+
+    return [MemoryTerm(count * per, key, count, what, most, per_lane=key == "n_steps")]
+
+
+def check_training_memory(algo: str, settings: dict[str, Any], env_id: str) -> None:
+    """Refuse a training whose lanes, evaluation lanes and learner's buffers would not fit in
+    memory, before any of them is built (``n_envs`` from ``--n-envs`` or the config).
+
+    Raises:
+        quadslam_env.estimation.MemoryLimitError: One line naming the setting that
+            dominates, its size and what fits.
+    """
+    from quadslam_env.estimation import MemoryTerm
+    from quadslam_env.memory import check_env_memory, env_memory_terms
+    from quadslam_env.observation import observation_size
+
+    scenario = registered_scenario(env_id, settings["env_kwargs"])
+    if scenario is None:
+        return
+    dim = observation_size(scenario.observation) * (2 if settings["policy"] == ASYMMETRIC else 1)
+    extra = learner_terms(algo, settings, dim, scenario.action.dim)
+    if settings["eval_freq"] > 0:
+        n_eval = settings["n_eval_episodes"]
+        lanes = sum(t.nbytes for t in env_memory_terms(scenario, n_eval))
+        what = f"the evaluation env's {n_eval} lane(s)"
+        extra.append(MemoryTerm(lanes, "n_eval_episodes", n_eval, what, per_lane=False))
+    check_env_memory(scenario, settings["n_envs"], "--n-envs", extra)
+
+
 def check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, Any]:
     """Build the lanes and the model once, on a throwaway vector env, before any folder exists.
 
+    First the memory the training will hold is checked (:func:`check_training_memory`).
     Building the lanes validates ``env_kwargs`` and the wrapper (their errors propagate as
     they are). SB3 validates many values only when the model is built (``n_steps=0`` is an
     ``AssertionError``, ``learning_rate: fast`` a ``TypeError`` from the optimizer); those
@@ -110,8 +192,10 @@ def check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, A
         The env's full resolved scenario (for the run's ``config.yaml``).
 
     Raises:
-        ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason).
+        ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason),
+            or the training would not fit in memory (a ``MemoryLimitError``).
     """
+    check_training_memory(algo, settings, env_id)
     venv = make_vec_env(env_id, settings, settings["n_envs"], 0, None)
     try:
         scenario: dict[str, Any] = venv.get_attr("scenario", [0])[0].to_dict()

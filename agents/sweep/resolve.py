@@ -6,7 +6,10 @@ parameters and table columns, checking on the way everything ``quadslam run``, `
 overrides and the estimator, through :func:`quadslam_env.config.load_scenario` (the same
 ``ScenarioConfig`` that ``gymnasium.make`` would build, without building an env); env ids;
 ``evaluate`` policies; and for ``train`` the algorithm, the agent YAML entry merged with the
-hyperparameters (:func:`agents.rl.hyperparams.resolve_settings`) and its ``env_kwargs``.
+hyperparameters (:func:`agents.rl.hyperparams.resolve_settings`) and its ``env_kwargs``; and
+the memory a job will hold (:func:`agents.evaluation.episodes.check_episodes_memory` for the
+lanes of ``run`` and ``evaluate``, :func:`agents.rl.building.check_training_memory` for
+``train``).
 """
 
 from __future__ import annotations
@@ -50,7 +53,12 @@ class Resolver:
         self._scenarios: dict[str, Any] = {}
 
     def resolve(
-        self, kind: str, point: dict[str, Any], fixed: dict[str, Any], where: str
+        self,
+        kind: str,
+        point: dict[str, Any],
+        fixed: dict[str, Any],
+        where: str,
+        lanes: int = 1,
     ) -> tuple[dict[str, Any], dict[str, Any]]:
         """Job parameters and table columns of one grid point.
 
@@ -61,6 +69,7 @@ class Resolver:
             fixed: The block's non-axis settings (``plots``, ``episodes``, ``eval_seed``,
                 ``trust_pickle``).
             where: How error messages name the point (spec, block, axis values).
+            lanes: The seeds a ``run`` or ``evaluate`` job flies at once (``seeds_per_job``).
 
         Returns:
             ``(params, columns)``: :attr:`agents.sweep.spec.Job.params` without the seeds, and
@@ -68,10 +77,11 @@ class Resolver:
             policy, one column per ``set``/``hyperparams`` key).
 
         Raises:
-            SweepSpecError: The point names something that does not exist or is invalid.
+            SweepSpecError: The point names something that does not exist or is invalid, or
+                a job that would not fit in memory.
         """
         try:
-            return self._resolve(kind, point, fixed, where)
+            return self._resolve(kind, point, fixed, where, lanes)
         except SweepSpecError:
             raise
         except (ValueError, TypeError, KeyError, FileNotFoundError) as exc:
@@ -79,7 +89,7 @@ class Resolver:
             raise SweepSpecError(f"{where}: {message}") from None
 
     def _resolve(
-        self, kind: str, point: dict[str, Any], fixed: dict[str, Any], where: str
+        self, kind: str, point: dict[str, Any], fixed: dict[str, Any], where: str, lanes: int
     ) -> tuple[dict[str, Any], dict[str, Any]]:
         for key in ("scenario", "estimator", "env", "algo", "policy", "config"):
             value = point.get(key)
@@ -95,7 +105,10 @@ class Resolver:
         if kind == "train":
             params, resolved = self._train(point, fixed, scenario, sets, hps)
         else:
+            from agents.evaluation.episodes import check_episodes_memory
+
             params, resolved = self._fly(kind, point, fixed, scenario, sets)
+            check_episodes_memory(resolved, lanes, "seeds_per_job")
         columns.update(
             scenario=resolved.name,
             estimator=resolved.estimator.name,
@@ -208,6 +221,9 @@ class Resolver:
         resolved = _resolve_env(
             env_id, kwargs.pop("scenario", None), kwargs.pop("estimator_name", None), kwargs
         )
+        from agents.rl.building import check_training_memory
+
+        check_training_memory(algo, settings, env_id)
         params = {
             "algo": algo,
             "env": env_id,

@@ -50,6 +50,7 @@ import itertools
 import json
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -273,7 +274,7 @@ def _expand_block(
         point = dict(zip((key for key, _ in axes), values, strict=True))
         label = ", ".join(f"{k.split(':')[-1]}={v!r}" for k, v in point.items()) or "no axes"
         point_where = f"{where} ({label})"
-        params, columns = validator.resolve(kind, point, fixed, point_where)
+        params, columns = validator.resolve(kind, point, fixed, point_where, min(per_job, n_seeds))
         columns = {"name": name, **columns}
         for group in groups:
             job_params = {**copy.deepcopy(params), "seeds": [int(s) for s in group]}
@@ -301,8 +302,9 @@ def _seed_count(block: dict[str, Any], where: str) -> int:
     return int(seeds) if is_int(seeds) and seeds >= 1 else 1
 
 
-def _seeds(block: dict[str, Any], where: str) -> list[int]:
-    """``seeds`` (a count from ``seed``, or a list) as a list of seeds."""
+def _seeds(block: dict[str, Any], where: str) -> Sequence[int]:
+    """``seeds`` (a count from ``seed``, or a list) as a sequence of seeds: a count as a
+    ``range``, so that no list of them exists before the jobs' checks (their memory)."""
     seeds = block.get("seeds", 1)
     first = block.get("seed", 0)
     if not is_int(first) or first < 0:
@@ -328,7 +330,7 @@ def _seeds(block: dict[str, Any], where: str) -> list[int]:
             f"{where}.seeds: got {seeds!r}; allowed: a positive number of seeds or a "
             "non-empty list of seeds"
         )
-    return list(range(int(first), int(first) + int(seeds)))
+    return range(int(first), int(first) + int(seeds))
 
 
 def _check_scalars(fixed: dict[str, Any], where: str) -> None:

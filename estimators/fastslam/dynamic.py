@@ -105,6 +105,7 @@ class DynamicFastSLAM(FastSLAMBase):
     """
 
     models_drag: ClassVar[bool] = True
+    settings_class = DynamicFastSlamSettings
 
     def __init__(self, vehicle: VehicleParams | None = None, **params: Any) -> None:
         if vehicle is None:

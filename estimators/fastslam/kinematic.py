@@ -33,6 +33,8 @@ class KinematicFastSLAM(FastSLAMBase):
         **params: ``estimator.params`` (:class:`~.settings.KinematicFastSlamSettings`).
     """
 
+    settings_class = KinematicFastSlamSettings
+
     def __init__(self, vehicle: VehicleParams | None = None, **params: Any) -> None:
         settings = KinematicFastSlamSettings.from_dict(params)
         super().__init__(settings)

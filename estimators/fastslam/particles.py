@@ -10,7 +10,7 @@ per change.
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from estimators.fastslam.resampling import (
 )
 from estimators.fastslam.settings import AssociationSettings, FastSlamSettings, scan_noise
 from estimators.fastslam.state import ParticleState
-from estimators.memory import check_fastslam_map
+from estimators.memory import MemoryTerm, Workload, check_fastslam_map, fastslam_terms
 from quadslam_env.estimation import BatchEstimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
@@ -53,6 +53,8 @@ class FastSLAMBase:
     """
 
     associates_unlabeled: ClassVar[bool] = True
+    settings_class: ClassVar[type[FastSlamSettings]] = FastSlamSettings
+    """The subclass's ``estimator.params`` (:meth:`memory_terms` validates them)."""
 
     def __init__(self, settings: FastSlamSettings) -> None:
         self.settings = settings
@@ -73,6 +75,17 @@ class FastSLAMBase:
         self.association = AssociationSettings.of(settings)
         self._rng = np.random.default_rng(0)
         self._alloc()
+
+    @classmethod
+    def memory_terms(cls, load: Workload, params: dict[str, Any]) -> list[MemoryTerm]:
+        """The particles and landmark filters of ``load``'s lanes before any is built
+        (:func:`estimators.memory.fastslam_terms`), with the particles of ``params``.
+
+        Raises:
+            ConfigError: Invalid ``estimator.params``.
+            MemoryLimitError: They would not fit in a filter's share.
+        """
+        return fastslam_terms(load, cls.settings_class.from_dict(params).n_particles)
 
     # ---------------------------------------------------------------- state
     def check_memory(self, num_lanes: int, landmark_capacity: int) -> None:

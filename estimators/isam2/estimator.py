@@ -59,6 +59,7 @@ from estimators.isam2.history import ImuHistory, KeptSample
 from estimators.isam2.output import Isam2Output
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.transition import NAV_DIM, ImuTransition
+from estimators.memory import MemoryTerm, Workload, isam2_terms
 from quadslam_env.estimation import BatchEstimate, register
 from quadslam_env.estimation.snapshot import LaneMap
 from quadslam_env.measurements import Control, ImuSample, LidarScan
@@ -92,6 +93,15 @@ class Isam2Slam(Isam2Output, ImuHistory):
     # GTSAM's smoother is native state with no copy: the scenario check refuses a slow IMU,
     # which runs a copy of the estimator (quadslam_env.estimation.copyable).
     copyable = False
+
+    @classmethod
+    def memory_terms(cls, load: Workload, params: dict[str, Any]) -> list[MemoryTerm]:
+        """The graph of ``load``'s lanes over their window (:func:`estimators.memory.isam2_terms`).
+
+        Raises:
+            ConfigError: Invalid ``estimator.params``.
+        """
+        return isam2_terms(load, Isam2Settings.from_dict(params).window_s)
 
     def __init__(self, vehicle: Any = None, **params: Any) -> None:
         self.settings = Isam2Settings.from_dict(params)

@@ -8,6 +8,7 @@ never an estimator or the env, so estimators and the env both build on it.
 
 from quadslam_env.estimation.health import HEALTH_PROBLEMS, health_codes, position_std
 from quadslam_env.estimation.lane_loop import LaneLoop, ParticleLaneLoop
+from quadslam_env.estimation.memory import MemoryLimitError, MemoryTerm, Workload
 from quadslam_env.estimation.protocol import (
     AssociatesUnlabeled,
     BatchEstimator,
@@ -35,6 +36,7 @@ from quadslam_env.estimation.registry import (
     copyable,
     estimator_flag,
     make,
+    memory_terms,
     models_drag,
     register,
     takes_late_scans,
@@ -56,6 +58,8 @@ __all__ = [
     "KnownMaps",
     "LabelsReturns",
     "LaneLoop",
+    "MemoryLimitError",
+    "MemoryTerm",
     "ModelsDrag",
     "ParticleLaneLoop",
     "ReservesLandmarks",
@@ -65,12 +69,14 @@ __all__ = [
     "TakesWind",
     "UsesTruth",
     "UsesVehicle",
+    "Workload",
     "associates_unlabeled",
     "available",
     "copyable",
     "estimator_flag",
     "health_codes",
     "make",
+    "memory_terms",
     "models_drag",
     "position_std",
     "register",

@@ -19,6 +19,7 @@ from typing import Any
 
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation.lane_loop import LaneLoop
+from quadslam_env.estimation.memory import LANE_OBJECT_BYTES, LANES, MemoryTerm, Workload
 from quadslam_env.estimation.protocol import BatchEstimator, UsesTruth
 
 Factory = Callable[..., Any]
@@ -175,6 +176,28 @@ def models_drag(name: str) -> bool:
         ValueError: Unknown name or a plug-in that cannot be loaded.
     """
     return bool(getattr(_load(name), "models_drag", False))
+
+
+def memory_terms(name: str, load: Workload, params: dict[str, Any]) -> list[MemoryTerm]:
+    """The buffers the estimator ``name`` will hold for ``load``, asked of its class before
+    any estimator is built: ``cls.memory_terms(load, params)`` (a class method; ``params``
+    are ``estimator.params``, validated by it as its constructor would). The class may raise
+    its own :class:`~quadslam_env.estimation.memory.MemoryLimitError` (a filter's one big
+    buffer above its share); one without the method is counted as nothing beyond, for a
+    one-vehicle class, the :class:`LaneLoop`'s objects per lane.
+
+    Raises:
+        ValueError: Unknown name, a plug-in that cannot be loaded, invalid ``params`` or the
+            class's own refusal.
+    """
+    cls = _load(name)
+    sizing = getattr(cls, "memory_terms", None)
+    terms = [] if sizing is None else list(sizing(load, dict(params)))
+    if not is_batched(cls):
+        b = load.num_lanes
+        what = f"one {name} object per lane ({LANE_OBJECT_BYTES // 1024} KiB each)"
+        terms.append(MemoryTerm(b * LANE_OBJECT_BYTES, LANES, f"{b} lane(s)", what))
+    return terms
 
 
 def estimator_flag(name: str, flag: Callable[[str], bool]) -> bool:

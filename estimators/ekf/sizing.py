@@ -1,0 +1,25 @@
+"""EKF-SLAM's buffers for a workload, sized from its settings before any lane is built
+(docs/reliability.md "Memory")."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from estimators.ekf.settings import EkfSlamSettings
+from estimators.memory import MemoryTerm, Workload, ekf_terms
+
+
+class MemorySizing:
+    """Mixin of :class:`~estimators.ekf.filter.EkfSlamBatch`: the class method the env asks
+    (:func:`quadslam_env.estimation.registry.memory_terms`)."""
+
+    @classmethod
+    def memory_terms(cls, load: Workload, params: dict[str, Any]) -> list[MemoryTerm]:
+        """The covariance, the mean and the map's bookkeeping of ``load``'s lanes
+        (:func:`estimators.memory.ekf_terms`), with the vehicle states of ``params``.
+
+        Raises:
+            ConfigError: Invalid ``estimator.params`` (as the constructor says it).
+            MemoryLimitError: The covariance alone would not fit in its share.
+        """
+        return ekf_terms(load, EkfSlamSettings.from_dict(params).nv)
