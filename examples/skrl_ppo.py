@@ -5,7 +5,8 @@ returned with ``terminated``/``truncated`` is the next episode's first), so the 
 ``autoreset_mode=AutoresetMode.SAME_STEP``; with the default next-step mode skrl would store one
 transition per episode from the reset step. skrl is not a dependency of quadslam
 (``pip install skrl``). This trains PPO from scratch on thrust and torques: a demonstration of
-the integration, not a recipe. Run it::
+the integration, not a recipe. skrl writes its checkpoints into a run folder under ``--out``
+(``runs/`` in the working directory by default). Run it::
 
     python examples/skrl_ppo.py --timesteps 2000 --envs 8
 """
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -23,7 +25,12 @@ import quadslam_env  # noqa: F401  (registers the ids)
 
 
 def train(
-    timesteps: int, num_envs: int = 8, duration_s: float = 5.0, rollouts: int = 64, seed: int = 0
+    timesteps: int,
+    num_envs: int = 8,
+    duration_s: float = 5.0,
+    rollouts: int = 64,
+    seed: int = 0,
+    directory: str | Path = "runs",
 ) -> Any:
     """Train skrl's PPO for ``timesteps`` vector steps; the trained agent.
 
@@ -33,6 +40,7 @@ def train(
         duration_s: Episode length (``episode.duration_s``).
         rollouts: Vector steps per PPO update.
         seed: Seeds skrl (networks) and the env (lane i: ``seed + i``).
+        directory: Where skrl makes the run folder of its checkpoints.
 
     Returns:
         The :class:`skrl.agents.torch.ppo.PPO` agent.
@@ -64,12 +72,23 @@ def train(
         memory=RandomMemory(memory_size=rollouts, num_envs=env.num_envs, device=env.device),
         **spaces,
         device=env.device,
-        cfg={"rollouts": rollouts, "learning_epochs": 4, "mini_batches": 2},
+        cfg={
+            "rollouts": rollouts,
+            "learning_epochs": 4,
+            "mini_batches": 2,
+            "experiment": {"directory": str(directory)},
+        },
     )
     trainer = SequentialTrainer(
         env=env,
         agents=agent,
-        cfg={"timesteps": timesteps, "headless": True, "disable_progressbar": True},
+        # The env is closed below: no second close (and log line) when the interpreter exits.
+        cfg={
+            "timesteps": timesteps,
+            "headless": True,
+            "disable_progressbar": True,
+            "close_environment_at_exit": False,
+        },
     )
     trainer.train()
     env.close()
@@ -82,8 +101,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--timesteps", type=int, default=2000, help="vector steps")
     parser.add_argument("--envs", type=int, default=8, help="lanes")
     parser.add_argument("--duration", type=float, default=5.0, help="episode length, s")
+    parser.add_argument("--out", type=Path, default=Path("runs"), help="skrl's run folders")
     args = parser.parse_args(argv)
-    train(args.timesteps, args.envs, args.duration)
+    train(args.timesteps, args.envs, args.duration, directory=args.out)
     print("trained")
     return 0
 

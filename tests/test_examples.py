@@ -9,11 +9,13 @@ The counts are checked against facts the examples do not compute: the episode le
 from __future__ import annotations
 
 import importlib.util
+import logging
 import math
 import os
 import re
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -162,12 +164,32 @@ def test_reward_figure_terms_sum_to_the_reward(tmp_path: Path) -> None:
     assert (tmp_path / "r.png").stat().st_size > 0
 
 
-def test_skrl_ppo_stores_one_transition_per_step_and_no_reset_step() -> None:
+def _files_under(folder: Path) -> set[Path]:
+    return {p for p in folder.rglob("*") if p.is_file()} if folder.is_dir() else set()
+
+
+@pytest.fixture
+def skrl_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """skrl's run folder under ``tmp_path``, from a ``tmp_path`` working directory; at the end
+    skrl's log handler is removed and closed (it holds the stream pytest captured, closed after
+    the test: a later line from skrl would go to a closed file)."""
     pytest.importorskip("skrl")
+    monkeypatch.chdir(tmp_path)
+    yield tmp_path / "skrl_runs"
+    log = logging.getLogger("skrl")
+    for handler in list(log.handlers):
+        log.removeHandler(handler)
+        handler.close()
+
+
+def test_skrl_ppo_stores_one_transition_per_step_and_no_reset_step(skrl_run: Path) -> None:
     import torch
 
+    before = _files_under(ROOT / "runs")
     example = _load("skrl_ppo")
-    agent = example.train(40, num_envs=2, duration_s=0.2, rollouts=40)
+    agent = example.train(40, num_envs=2, duration_s=0.2, rollouts=40, directory=skrl_run)
+    assert _files_under(ROOT / "runs") == before  # nothing written into the checkout
+    assert any(p.suffix == ".pt" for p in _files_under(skrl_run))  # the checkpoints went here
     memory = agent.memory
     ended = memory.get_tensor_by_name("terminated") | memory.get_tensor_by_name("truncated")
     # 0.2 s at 100 Hz = 20 steps: with same-step autoreset every lane's episodes end on the
