@@ -79,8 +79,8 @@ def fly(
     json_path: Path | None,
     video: Path | None = None,
 ) -> dict[str, Any]:
-    """Fly ``policy`` for each seed with a progress bar, print the table, write JSON/plots
-    (and a video of the first seed's episode).
+    """Fly ``policy`` for each seed with a progress bar, print the table, write JSON and the
+    figures and video of the first seed's episode (the figures' line names that seed).
 
     The output paths are checked before the flight (:func:`check_outputs`); the files are
     written atomically, and one that cannot be written at the end is saved elsewhere
@@ -130,7 +130,8 @@ def fly(
             f"{base.scenario.name} / {base.scenario.estimator.name} / seed {seeds[0]}",
             saver,
         )
-        print(f"figures: {files[0].parent if files else plots} ({len(files)} PNG)")
+        of = f"seed {seeds[0]}" + (f" only, of {len(seeds)} seeds" if len(seeds) > 1 else "")
+        print(f"figures: {files[0].parent if files else plots} ({len(files)} PNG, {of})")
     if recorder is not None:
         where = recorder.close(saver)
         print(f"video: {where} (seed {seeds[0]}, {recorder.frames} frames)")
@@ -255,7 +256,12 @@ def add_fly_parsers(sub: Any) -> None:
         "EKF-SLAM) and write paper-style figures",
     )
     common(run)
-    run.add_argument("--seeds", type=positive_int, default=1, help="number of seeds")
+    run.add_argument(
+        "--seeds",
+        type=positive_int,
+        default=1,
+        help="number of seeds (the figures and --video show the first seed's episode)",
+    )
     run.add_argument(
         "--policy",
         default="dflqr",

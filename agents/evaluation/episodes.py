@@ -109,7 +109,7 @@ class Trace:
     est_pos: list[np.ndarray] = field(default_factory=list)
     est_vel_body: list[np.ndarray] = field(default_factory=list)
     est_euler: list[np.ndarray] = field(default_factory=list)
-    pose_std: list[np.ndarray] = field(default_factory=list)
+    pose_cov: list[np.ndarray] = field(default_factory=list)
     ref_pos: list[np.ndarray] = field(default_factory=list)
     landmarks: np.ndarray | None = None
     est_landmark_ids: np.ndarray | None = None
@@ -133,13 +133,15 @@ class Trace:
         self.est_pos.append(est.position[0])
         self.est_vel_body.append(est.vel_body[0])
         self.est_euler.append(est.euler[0])
-        std = (
-            np.full(9, np.nan)
-            if est.pose_cov is None
-            else np.sqrt(np.clip(np.diag(est.pose_cov[0]), 0.0, None))
-        )
-        self.pose_std.append(std)
+        cov = np.full((9, 9), np.nan) if est.pose_cov is None else np.array(est.pose_cov[0])
+        self.pose_cov.append(cov)
         self.ref_pos.append(ref_pos)
+
+    @property
+    def pose_std(self) -> np.ndarray:
+        """(N, 9) 1σ of the pose (ρ, v_B, Λ) at each recorded step (NaN without covariance)."""
+        cov = np.array(self.pose_cov).reshape(-1, 9, 9)
+        return np.sqrt(np.clip(np.diagonal(cov, axis1=1, axis2=2), 0.0, None))
 
     def finish(self, env: Any) -> None:
         """Store the final map (true and estimated, with 1σ per axis)."""
