@@ -3,6 +3,8 @@ bands, and a 3D view framed on the flown path (read from the matplotlib figures)
 
 from __future__ import annotations
 
+import contextlib
+import io
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -143,12 +145,31 @@ def test_path_view_draws_only_the_landmarks_inside_it(figs: dict[str, Any], trac
         assert limits[1, 0] <= y <= limits[1, 1]
 
 
-def test_run_says_which_seed_its_figures_show(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    folder = tmp_path / "figs"
+@pytest.fixture(scope="module")
+def cli_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """``quadslam run`` of seeds 3 and 4 with ``--plots``: the folder and what it printed."""
+    folder = tmp_path_factory.mktemp("run") / "figs"
     args = ["run", "--duration", "0.3", "--seed", "3", "--seeds", "2", "--plots", str(folder)]
-    assert main(args) == 0
-    lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("figures: ")]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(args) == 0
+    return folder, out.getvalue()
+
+
+def test_run_says_which_seed_its_figures_show(cli_run: tuple[Path, str]) -> None:
+    folder, out = cli_run
+    lines = [x for x in out.splitlines() if x.startswith("figures: ")]
     pngs = len(list(folder.glob("*.png")))
     assert lines == [f"figures: {folder} ({pngs} PNG, seed 3 only, of 2 seeds)"]
+
+
+def test_run_writes_the_printed_table_beside_the_figures(cli_run: tuple[Path, str]) -> None:
+    folder, out = cli_run
+    saved = (folder / "results.txt").read_text(encoding="utf-8").splitlines()
+    assert saved[0] == "paper_ekf_figure8 / ekf_slam / dflqr, seeds 3-4"
+    printed = out.splitlines()
+    first = next(i for i, x in enumerate(printed) if x.lstrip().startswith("seed "))
+    table = printed[first : first + len(saved) - 1]
+    assert saved[1:] == table and table[-1].startswith("median")
+    assert [int(x.split()[0]) for x in table[2:4]] == [3, 4]  # one row per seed
+    assert f"table: {folder / 'results.txt'}" in printed

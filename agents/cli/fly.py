@@ -21,6 +21,9 @@ from agents.cli.arg_types import positive_float, positive_int
 from agents.control.named import CONTROLLERS
 from agents.io.overrides import parse_overrides
 
+RESULTS_FILE = "results.txt"
+"""The results table, written into the figures' folder with the figures."""
+
 
 def make_env(
     env_id: str,
@@ -80,7 +83,8 @@ def fly(
     video: Path | None = None,
 ) -> dict[str, Any]:
     """Fly ``policy`` for each seed with a progress bar, print the table, write JSON and the
-    figures and video of the first seed's episode (the figures' line names that seed).
+    figures and video of the first seed's episode (the figures' line names that seed); with
+    the figures, the table goes into their folder too (:data:`RESULTS_FILE`).
 
     The output paths are checked before the flight (:func:`check_outputs`); the files are
     written atomically, and one that cannot be written at the end is saved elsewhere
@@ -117,13 +121,18 @@ def fly(
         "episodes": episodes,
         "summary": summary,
     }
-    print(format_table(episodes, summary))
+    table = format_table(episodes, summary)
+    print(table)
     saver = Saver()
     if json_path is not None:  # the smallest and most precious file first
         print(f"json: {saver.write_json(json_path, result, '--json')}")
     if plots is not None and trace is not None:
         from agents.evaluation.plots import write_figures
 
+        span = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}-{seeds[-1]}"
+        head = f"{base.scenario.name} / {base.scenario.estimator.name} / {policy_name}, {span}"
+        text = "\n".join((head, table, ""))
+        print(f"table: {saver.write_text(plots / RESULTS_FILE, text, '--plots')}")
         files = write_figures(
             trace,
             plots,
