@@ -66,8 +66,7 @@ def check_outputs(plots: Path | None, json_path: Path | None, video: Path | None
     if json_path is not None:
         check_output_file(json_path, "--json")
     if video is not None:
-        require("matplotlib", "plots", "--video")
-        check_video_path(video)
+        check_video_path(video)  # what its file type needs, in one line
     if plots is not None:
         require("matplotlib", "plots", "--plots")
         check_output_dir(plots, "--plots")
@@ -158,14 +157,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     env = make_env("QuadSLAM-v0", args.scenario, args.estimator, args.duration, args.set)
     check_episodes_memory(env.unwrapped.scenario, args.seeds, "--seeds")  # before the seeds
     plots = args.plots
-    if plots is None and not args.no_plots and importlib.util.find_spec("matplotlib") is None:
-        print("quadslam run: no figures (matplotlib is not installed: pip install "
-              "'quadslam[plots]')", file=sys.stderr)  # fmt: skip
-    elif plots is None and not args.no_plots:
+    if plots is None and not args.no_plots and importlib.util.find_spec("matplotlib") is not None:
         stamp = time.strftime("%Y%m%d-%H%M%S")
         # The scenario's name comes from its file: one safe folder name inside runs/.
         plots = Path("runs") / f"run-{stamp}-{safe_name(env.unwrapped.scenario.name)}"
     check_outputs(plots, args.json, args.video)
+    if plots is None and not args.no_plots:  # after the checks: a refused output is one line
+        print("quadslam run: no figures (matplotlib is not installed: pip install "
+              "'quadslam[plots]')", file=sys.stderr)  # fmt: skip
     seeds = list(range(args.seed, args.seed + args.seeds))
     if args.integral_gain and args.policy != "dflqr":
         raise SystemExit(

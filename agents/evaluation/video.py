@@ -22,6 +22,13 @@ from agents.io.outputs import Saver
 from agents.io.paths import check_output_file
 
 FORMATS = (".gif", ".mp4")
+NEEDS = {
+    ".gif": (("matplotlib", "matplotlib", "plots"),),
+    ".mp4": (("matplotlib", "matplotlib", "plots"), ("imageio_ffmpeg", "imageio-ffmpeg", "video")),
+}
+"""What each file type needs, as (module, package, the ``quadslam[...]`` extra that brings it):
+the frames are the renderer's (matplotlib; a GIF is written with its Pillow), an MP4 is encoded
+by the ffmpeg of imageio-ffmpeg."""
 
 
 def check_video_path(path: Path) -> None:
@@ -32,20 +39,38 @@ def check_video_path(path: Path) -> None:
 
     Raises:
         ValueError: One-line message: an extension other than :data:`FORMATS`, a folder at
-            ``path``, a folder that cannot be created or written, or ``.mp4`` without
-            ``imageio-ffmpeg``.
+            ``path``, a folder that cannot be created or written.
+        quadslam_env.extras.MissingExtraError: What the file type needs is not installed
+            (:data:`NEEDS`); the one line names the extras that bring it.
     """
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(
             f"--video: got {str(path)!r}; allowed: a file name ending in {' or '.join(FORMATS)}"
         )
+    missing = [(name, extra) for module, name, extra in NEEDS[suffix] if not _installed(module)]
+    if missing:
+        from quadslam_env.extras import MissingExtraError
+
+        raise MissingExtraError(_missing_line(suffix, missing))
     check_output_file(path, "--video")
-    if suffix == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
-        raise ValueError(
-            "--video: writing .mp4 needs imageio-ffmpeg (pip install 'quadslam[video]'); "
-            "or give a .gif file name"
-        )
+
+
+def _installed(module: str) -> bool:
+    return importlib.util.find_spec(module) is not None
+
+
+def _missing_line(suffix: str, missing: list[tuple[str, str]]) -> str:
+    """The one line naming what a ``suffix`` video needs and is ``missing`` (package, extra)."""
+    names = " and ".join(name for name, _ in missing)
+    extras = ",".join(extra for _, extra in missing)
+    are, them = ("is", "it") if len(missing) == 1 else ("are", "them")
+    line = (
+        f"--video: writing {suffix} needs {names}, which {are} not installed; install {them} "
+        f"with: pip install 'quadslam[{extras}]'"
+    )
+    gif_works = all(name != "matplotlib" for name, _ in missing)
+    return line + ("; or give a .gif file name" if suffix != ".gif" and gif_works else "")
 
 
 class VideoWriter:
