@@ -17,13 +17,19 @@ def hide(monkeypatch: pytest.MonkeyPatch, *modules: str) -> None:
         monkeypatch.setitem(sys.modules, module, None)
 
 
+@pytest.fixture(autouse=True)
+def in_tmp_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Run from ``tmp_path``: a default figures folder would go to its ``runs/``."""
+    monkeypatch.chdir(tmp_path)
+
+
 def run_video(tmp_path: Path, name: str, capsys: pytest.CaptureFixture[str]) -> list[str]:
     """``quadslam run --video NAME`` (no ``--plots``): the stderr lines; it must fail."""
     code = main(["run", "--duration", "0.2", "--video", str(tmp_path / "out" / name)])
     captured = capsys.readouterr()
     assert code == 2
     assert captured.out == ""  # no table: nothing was flown
-    assert not (tmp_path / "out").exists()  # nor a folder made for the refused file
+    assert list(tmp_path.iterdir()) == []  # no folder made: neither for the video nor figures
     return captured.err.strip().splitlines()
 
 
