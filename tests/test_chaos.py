@@ -268,12 +268,14 @@ def test_plots_and_video_on_a_full_disk_go_to_one_temp_folder(
     argv += ["--json", str(tmp_path / "r.json")]
     code, _, line = cli(capsys, argv)
     assert code == 2
-    assert line.count("could not write") == 7  # six figures and the video, one line
+    # six figures, the results table (results.txt) and the video, one line
+    assert line.count("could not write") == 8
     assert json.loads((tmp_path / "r.json").read_text())["policy"] == "dflqr"
     fallback = [p for p in temp_root.iterdir() if p.is_dir()]
     assert len(fallback) == 1
     names = sorted(p.name for p in fallback[0].iterdir())
     assert "v.gif" in names and len([n for n in names if n.endswith(".png")]) == 6
+    assert "results.txt" in names
     assert (fallback[0] / "v.gif").read_bytes()[:6] == b"GIF89a"
 
 
