@@ -240,6 +240,24 @@ def _predict_lane(
     # Covariance: Jacobians at the prior mean, P_vv ← Φ P_vv Φᵀ + Q_d, P_vm ← Φ P_vm.
     transition_matrices(xb, nv, p, q, r, sa, sg, dt, F, G, A, M, Phi, Gam)
     finite = propagate_covariance(Pb, nb, nv, Phi, Gam, qc, dt, T, Pvv)
+    return commit_prediction(xb, Pb, nb, nv, s_new, T, Pvv, finite)
+
+
+@inline_kernel
+def commit_prediction(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    nv: int,
+    s_new: FloatArray,
+    T: FloatArray,
+    Pvv: FloatArray,
+    finite: bool,
+) -> bool:
+    """Write one lane's predicted mean ``s_new`` (9,) and covariance rows (``T``, ``P_vv`` of
+    :func:`propagate_covariance`) into ``xb``, ``Pb``, angles wrapped; returns False and changes
+    nothing when the result is not ``finite`` or the pitch reaches :data:`MAX_PITCH` (every
+    process model's prediction ends here)."""
     for i in range(POSE_DIM):
         finite &= s_new[i] * 0.0 == 0.0
     if not (finite and abs(s_new[7]) < MAX_PITCH):

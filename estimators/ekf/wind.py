@@ -40,10 +40,9 @@ import numpy as np
 from estimators.ekf.correction import correction, stacked_gain
 from estimators.ekf.kernels import (
     D_DIVERGED,
-    MAX_PITCH,
+    commit_prediction,
     discretise,
     propagate_covariance,
-    store_rows,
     sync_lane,
 )
 from estimators.ekf.settings import WIND_DIM
@@ -155,16 +154,7 @@ def _predict_drag_lane(
     s_new = y[:POSE_DIM]
     drag_transition(xb, nv, gyro, drag, sa, sg, dt, work)
     finite = propagate_covariance(Pb, nb, nv, Phi, Gam, qc, dt, T, Pvv)
-    for i in range(POSE_DIM):
-        finite &= s_new[i] * 0.0 == 0.0
-    if not (finite and abs(s_new[7]) < MAX_PITCH):
-        return False
-    store_rows(Pb, nb, nv, T, Pvv)
-    s_new[6] = wrap_pi(s_new[6])
-    s_new[8] = wrap_pi(s_new[8])
-    for i in range(POSE_DIM):
-        xb[i] = s_new[i]
-    return True
+    return commit_prediction(xb, Pb, nb, nv, s_new, T, Pvv, finite)
 
 
 @inline_kernel
