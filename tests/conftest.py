@@ -94,3 +94,16 @@ def lane_update(est: Any, scan: LidarScan) -> np.ndarray | None:
     by_id[0, ids] = meas
     est.update(t, lane, visible, by_id, scan.sigma)
     return None
+
+
+def fd_jacobian(f: Any, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """Central-difference Jacobian ``∂f/∂x`` (m, n) of ``f`` (n,) → (m,) at ``x``."""
+    cols = [(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in np.eye(x.size)]
+    return np.column_stack(cols)
+
+
+def random_spd(rng: np.random.Generator, n: int, lo: float = 1e-3, hi: float = 5e-2) -> np.ndarray:
+    """A random symmetric positive definite (n, n) matrix, eigenvalues uniform in [lo, hi]."""
+    q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    a = (q * rng.uniform(lo, hi, n)) @ q.T
+    return 0.5 * (a + a.T)

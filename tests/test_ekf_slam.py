@@ -10,7 +10,7 @@ import copy
 
 import numpy as np
 import pytest
-from conftest import lane_predict, lane_reset, lane_update
+from conftest import fd_jacobian, lane_predict, lane_reset, lane_update, random_spd
 from scipy.stats import chi2
 
 import estimators
@@ -58,12 +58,6 @@ def _imu(accel, gyro, sig_a=SIG_ACC, sig_g=SIG_GYR) -> ImuSample:
     return ImuSample(0.0, np.asarray(accel, float), np.asarray(gyro, float), sig_a, sig_g)
 
 
-def _random_spd(rng: np.random.Generator, n: int, lo: float = 1e-3, hi: float = 5e-2):
-    q, _ = np.linalg.qr(rng.normal(size=(n, n)))
-    a = (q * rng.uniform(lo, hi, n)) @ q.T
-    return 0.5 * (a + a.T)
-
-
 def _one_lane(**params) -> EkfSlamBatch:
     """The batch filter with one lane (room for 32 landmark ids before it grows)."""
     return EkfSlamBatch(1, 32, **params)
@@ -84,16 +78,6 @@ def _stacked_h_full(x: np.ndarray, cols_lm: list[np.ndarray]) -> np.ndarray:
     """Stacked measurement of landmarks stored at ``cols_lm`` of the full state x (eq. 34)."""
     C = dcm_from_euler(x[6:9])
     return np.concatenate([lidar_measure(x[0:3], C, x[c]) for c in cols_lm])
-
-
-def _fd_jacobian(fun, x0: np.ndarray, eps: float = 1e-6) -> np.ndarray:
-    cols = []
-    for i in range(x0.size):
-        d = np.zeros_like(x0)
-        d[i] = eps
-        diff = fun(x0 + d) - fun(x0 - d)
-        cols.append(diff / (2 * eps))
-    return np.stack(cols, axis=1)
 
 
 # ----------------------------------------------------------------------------- construction
@@ -137,10 +121,8 @@ def test_process_jacobians_match_finite_differences():
         s = np.r_[rng.normal(size=3), rng.normal(size=3), rng.uniform(-0.6, 0.6, 3)]
         az, gyro = -GRAVITY + rng.normal(), rng.normal(size=3)
         F, G = process_jacobians(s, az, gyro)
-        F_fd = _fd_jacobian(lambda z, az=az, g=gyro: process_derivative(z, az, g), s)
-        G_fd = _fd_jacobian(
-            lambda lam, s=s: process_derivative(s, lam[0], lam[1:]), np.r_[az, gyro]
-        )
+        F_fd = fd_jacobian(lambda z, az=az, g=gyro: process_derivative(z, az, g), s)
+        G_fd = fd_jacobian(lambda lam, s=s: process_derivative(s, lam[0], lam[1:]), np.r_[az, gyro])
         np.testing.assert_allclose(F, F_fd, atol=1e-7)
         np.testing.assert_allclose(G, G_fd, atol=1e-7)
 
@@ -181,7 +163,7 @@ def test_predict_equals_dense_first_order_propagation(bias):
     x0[6:9] = [0.2, -0.3, 1.0]
     if bias:
         x0[9:13] = [0.01, -0.02, 0.03, 0.1]
-    P0 = _random_spd(rng, n)
+    P0 = random_spd(rng, n)
     f.set_full_state(x0, P0)
     accel, gyro = np.array([0.3, -0.2, -9.0]), np.array([0.2, -0.4, 0.3])
     dt, sa, sg = 0.01, 0.05, 0.004
@@ -199,10 +181,10 @@ def test_predict_equals_dense_first_order_propagation(bias):
 
     b0 = x0[9:13] if bias else np.zeros(4)
     lam0 = np.r_[accel[2] - b0[3], gyro - b0[:3]]
-    A = _fd_jacobian(f_aug, x0[:nv]) * dt
+    A = fd_jacobian(f_aug, x0[:nv]) * dt
     Phi_v = np.eye(nv) + A + 0.5 * A @ A
     G = np.zeros((nv, 4))
-    G[:9] = _fd_jacobian(f_in, lam0)
+    G[:9] = fd_jacobian(f_in, lam0)
     Gam = (np.eye(nv) * dt + 0.5 * A * dt) @ G @ np.diag([sa, sg, sg, sg])
     Qc = np.r_[qc, [1e-4**2] * 3 + [1e-3**2]] if bias else qc
     Phi = np.eye(n)
@@ -265,7 +247,7 @@ def test_stacked_h_matches_finite_differences_of_full_state(bias):
     cols_lm = [nv + 3 * slot_of[int(i)] + np.arange(3) for i in ids]
     H_full = np.zeros((9, x.size))
     H_full[:, cols] = H
-    H_fd = _fd_jacobian(lambda z: _stacked_h_full(z, cols_lm), x)
+    H_fd = fd_jacobian(lambda z: _stacked_h_full(z, cols_lm), x)
     np.testing.assert_allclose(h, _stacked_h_full(x, cols_lm), atol=1e-12)
     np.testing.assert_allclose(H_full, H_fd, atol=1e-6)
     assert np.all(H_full[:, 3:6] == 0.0) and np.all(H_full[:, 9:nv] == 0.0)
@@ -284,7 +266,7 @@ def test_known_map_h_is_over_pose_only():
         return np.concatenate([lidar_measure(s[:3], dcm_from_euler(s[6:9]), lms[[2, 0]])]).ravel()
 
     np.testing.assert_allclose(h, hx(mean0[:9]), atol=1e-12)
-    np.testing.assert_allclose(H, _fd_jacobian(hx, mean0[:9]), atol=1e-6)
+    np.testing.assert_allclose(H, fd_jacobian(hx, mean0[:9]), atol=1e-6)
 
 
 # ----------------------------------------------------------------------------- 3. textbook KF
@@ -294,7 +276,7 @@ def test_update_equals_dense_textbook_kalman_filter(bias):
     f, lms = _mapped_filter(rng, 6, estimate_imu_bias=bias, gate_probability=1.0)
     x0, _, _ = f.full_state()
     n = x0.size
-    P0 = _random_spd(rng, n)
+    P0 = random_spd(rng, n)
     f.set_full_state(x0, P0)
     ids = np.array([0, 2, 3, 5])
     scan = _scan([0.2, -0.1, 0.1], [0.07, -0.05, 0.28], lms, ids, rng)
@@ -341,7 +323,7 @@ def test_registration_equals_dense_first_order_covariance(bias):
     x0, _, _ = f.full_state()
     n = x0.size
     x0[6:9] = [0.2, -0.1, 0.9]
-    P0 = _random_spd(rng, n)
+    P0 = random_spd(rng, n)
     f.set_full_state(x0, P0)
     new_lms = _landmarks(rng, 3)
     all_lms = np.vstack([lms, new_lms])
@@ -357,7 +339,7 @@ def test_registration_equals_dense_first_order_covariance(bias):
     xy0 = np.r_[x0, y]
     J = np.zeros((n + 9, n + 9))
     J[:n, :n] = np.eye(n)
-    J[n:, :] = _fd_jacobian(g, xy0, eps=1e-7)  # [G_x, G_y]
+    J[n:, :] = fd_jacobian(g, xy0, eps=1e-7)  # [G_x, G_y]
     P_xy = np.zeros((n + 9, n + 9))
     P_xy[:n, :n] = P0
     P_xy[n:, n:] = np.diag(np.tile(SIG_LIDAR**2, 3))

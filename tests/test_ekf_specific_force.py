@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import lane_predict, lane_reset
+from conftest import fd_jacobian, lane_predict, lane_reset, random_spd
 
 import quadslam_env  # noqa: F401
 from estimators.ekf import EkfSlamBatch
@@ -20,23 +20,18 @@ from quadslam_env.models.strapdown import process_derivative, process_jacobians
 NO_CONTROL = Control(0.0, np.zeros(3))
 
 
-def _fd_jacobian(f, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
-    cols = [(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in np.eye(x.size)]
-    return np.column_stack(cols)
-
-
 def test_full_jacobians_match_finite_differences() -> None:
     rng = np.random.default_rng(7)
     for _ in range(5):
         s = np.r_[rng.normal(size=3), rng.normal(size=3), rng.uniform(-0.6, 0.6, 3)]
         az, gyro, axy = -GRAVITY + rng.normal(), rng.normal(size=3), rng.normal(size=2)
         F, G = process_jacobians(s, az, gyro, full=True)
-        F_fd = _fd_jacobian(lambda z, az=az, g=gyro, a=axy: process_derivative(z, az, g, a), s)
+        F_fd = fd_jacobian(lambda z, az=az, g=gyro, a=axy: process_derivative(z, az, g, a), s)
 
         def by_input(lam: np.ndarray, s: np.ndarray = s) -> np.ndarray:  # λ = (a_z, ω, a_x, a_y)
             return process_derivative(s, lam[0], lam[1:4], (lam[4], lam[5]))
 
-        G_fd = _fd_jacobian(by_input, np.r_[az, gyro, axy])
+        G_fd = fd_jacobian(by_input, np.r_[az, gyro, axy])
         np.testing.assert_allclose(F, F_fd, atol=1e-7)
         np.testing.assert_allclose(G, G_fd, atol=1e-7)
         # the thrust-axis model is the first four columns
@@ -56,9 +51,7 @@ def test_full_prediction_equals_dense_first_order_propagation() -> None:
     x0[3:6] = [1.0, 0.5, -0.2]
     x0[6:9] = [0.2, -0.3, 1.0]
     x0[9:15] = [0.01, -0.02, 0.03, 0.1, -0.05, 0.07]
-    q, _ = np.linalg.qr(rng.normal(size=(nv, nv)))
-    P0 = (q * rng.uniform(1e-3, 5e-2, nv)) @ q.T
-    P0 = 0.5 * (P0 + P0.T)
+    P0 = random_spd(rng, nv)
     f.set_full_state(x0, P0)
     accel, gyro = np.array([0.3, -0.2, -9.0]), np.array([0.2, -0.4, 0.3])
     dt, sa, sg = 0.01, 0.05, 0.004
@@ -74,10 +67,10 @@ def test_full_prediction_equals_dense_first_order_propagation() -> None:
 
     b0 = x0[9:15]
     lam0 = np.r_[accel[2] - b0[3], gyro - b0[:3], accel[:2] - b0[4:6]]
-    A = _fd_jacobian(f_aug, x0) * dt
+    A = fd_jacobian(f_aug, x0) * dt
     Phi = np.eye(nv) + A + 0.5 * A @ A
     G = np.zeros((nv, 6))
-    G[:9] = _fd_jacobian(
+    G[:9] = fd_jacobian(
         lambda lam: process_derivative(x0[:9], lam[0], lam[1:4], (lam[4], lam[5])), lam0
     )
     Gam = (np.eye(nv) * dt + 0.5 * A * dt) @ G @ np.diag([sa, sg, sg, sg, sa, sa])

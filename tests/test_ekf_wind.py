@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
 
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import lane_predict, lane_reset, lane_update
+from conftest import fd_jacobian, lane_predict, lane_reset, lane_update, random_spd
 
 import quadslam_env  # noqa: F401
 from agents.control.named import build_controller
@@ -31,13 +30,6 @@ NO_CONTROL = Control(0.0, np.zeros(3))
 MU, CQ = 0.3, np.array([0.02, 0.02, 0.04])
 VEHICLE = dataclasses.replace(vehicle_preset("rauniyar2023"), drag=MU, drag_quadratic=CQ)
 SIG_LIDAR = np.array([np.deg2rad(0.33), np.deg2rad(0.30), 0.1])
-
-
-def _fd_jacobian(
-    f: Callable[[np.ndarray], np.ndarray], x: np.ndarray, eps: float = 1e-6
-) -> np.ndarray:
-    cols = [(f(x + eps * e) - f(x - eps * e)) / (2 * eps) for e in np.eye(x.size)]
-    return np.column_stack(cols)
 
 
 def _drag(s: np.ndarray, wind_ne: np.ndarray, cq: np.ndarray = CQ) -> np.ndarray:
@@ -59,7 +51,7 @@ def test_drag_model_and_jacobian_match_finite_differences(cq: np.ndarray) -> Non
         def by_state(z: np.ndarray, s: np.ndarray = s) -> np.ndarray:  # z = (v, Λ, w_N, w_E)
             return _drag(np.r_[s[:3], z[:6]], z[6:], cq)
 
-        np.testing.assert_allclose(D, _fd_jacobian(by_state, np.r_[s[3:9], wind]), atol=1e-8)
+        np.testing.assert_allclose(D, fd_jacobian(by_state, np.r_[s[3:9], wind]), atol=1e-8)
         # the process is eq. 24 plus the drag on the body's horizontal axes
         gyro = rng.normal(size=3)
         extra = drag_process_derivative(s, -GRAVITY, gyro, wind, MU, cq) - process_derivative(
@@ -97,9 +89,7 @@ def test_prediction_and_accel_update_equal_a_dense_ekf(bias: bool) -> None:
     x0[w] = [2.0, -1.0]
     if bias:
         x0[9:15] = [0.01, -0.02, 0.03, 0.1, -0.05, 0.07]
-    q, _ = np.linalg.qr(rng.normal(size=(n, n)))
-    P0 = (q * rng.uniform(1e-3, 5e-2, n)) @ q.T
-    P0 = 0.5 * (P0 + P0.T)
+    P0 = random_spd(rng, n)
     f.set_full_state(x0, P0)
     accel, gyro = np.array([0.4, -0.3, -9.6]), np.array([0.2, -0.3, 0.25])
     dt, sa, sg = 0.01, 0.03, 0.002
@@ -119,11 +109,11 @@ def test_prediction_and_accel_update_equal_a_dense_ekf(bias: bool) -> None:
     def h_aug(z: np.ndarray) -> np.ndarray:
         return _drag(z[:9], z[w]) + b_of(z)[4:6]
 
-    A = _fd_jacobian(f_aug, x0) * dt
+    A = fd_jacobian(f_aug, x0) * dt
     Phi = np.eye(n) + A + 0.5 * A @ A
     G = np.zeros((n, 4))  # λ = (a_z, ω)
     b0 = b_of(x0)
-    G[:9] = _fd_jacobian(
+    G[:9] = fd_jacobian(
         lambda lam: process_derivative(x0[:9], lam[0], lam[1:4]),
         np.r_[accel[2] - b0[3], gyro - b0[:3]],
     )
@@ -139,7 +129,7 @@ def test_prediction_and_accel_update_equal_a_dense_ekf(bias: bool) -> None:
     k4 = f_aug(x0 + dt * k3)
     x_pred = x0 + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
     P_pred = Phi @ P0 @ Phi.T + Gam @ Gam.T + np.diag(qc) * dt
-    H = _fd_jacobian(h_aug, x_pred)
+    H = fd_jacobian(h_aug, x_pred)
     S = H @ P_pred @ H.T + sa**2 * np.eye(2)
     K = P_pred @ H.T @ np.linalg.inv(S)
     x_post = x_pred + K @ (accel[:2] - h_aug(x_pred))
@@ -242,7 +232,7 @@ def test_thrust_axis_jacobians_are_left_as_they_were() -> None:
     s = np.r_[rng.normal(size=3), rng.normal(size=3), rng.uniform(-0.6, 0.6, 3)]
     wind, gyro = np.array([1.0, -2.0]), rng.normal(size=3)
     F, _ = process_jacobians(s, -GRAVITY, gyro)
-    F_fd = _fd_jacobian(lambda z: drag_process_derivative(z, -GRAVITY, gyro, wind, MU, CQ), s)
+    F_fd = fd_jacobian(lambda z: drag_process_derivative(z, -GRAVITY, gyro, wind, MU, CQ), s)
     _, D = drag_measurement(s, wind, MU, CQ)
     F[3:5, 3:9] += D[:, :6]
     np.testing.assert_allclose(F, F_fd, atol=1e-7)
