@@ -285,6 +285,7 @@ class ScenarioConfig:
         scenario.wind.check_inform(
             scenario.estimator.name, scenario.steps_per_imu, scenario.lidar.delay_steps
         )
+        scenario.observation.check_estimator(scenario.estimator.name, scenario.estimator.params)
         scenario.randomize.check_feasible(scenario.vehicle.params())
         return scenario
 

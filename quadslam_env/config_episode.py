@@ -83,9 +83,48 @@ class ObservationConfig(Section):
         "elevation (rad) and range (m) from the estimated pose, and 1 (0 and zeros: padding), "
         "nearest first (4 values each)",
     )
+    estimated_wind: bool = _spec(
+        False,
+        kind="bool",
+        doc="append the estimated horizontal wind (ŵ_N, ŵ_E), world frame (2 values, m/s); "
+        "needs an estimator that estimates it (ekf_slam with wind: estimate)",
+    )
+    air_velocity: bool = _spec(
+        False,
+        kind="bool",
+        doc="append the estimated velocity relative to the estimated wind, C_NBᵀ(C_NB v̂ − ŵ), "
+        "body frame (3 values, m/s; what the drag feed-forward of lqi and se3 reads); needs "
+        "an estimator that estimates the wind",
+    )
     clip: float = _spec(
         100.0, lo=1e-6, hi=1e30, doc="observations are clipped to ±clip (the Box bounds)"
     )
+
+    def check_estimator(self, name: str, params: dict[str, Any]) -> None:
+        """The wind blocks need an estimator that reports the wind
+        (:func:`quadslam_env.estimation.estimates_wind`). The oracle is refused: the truth it
+        is fed has no wind (docs/env.md "Observation").
+
+        Args:
+            name: ``estimator.name``. params: ``estimator.params``.
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        wanted = [key for key in ("estimated_wind", "air_velocity") if getattr(self, key)]
+        if not wanted:
+            return
+        from quadslam_env.estimation import estimates_wind, estimator_flag
+
+        if not estimator_flag(name, lambda n: estimates_wind(n, params)):
+            wind = f" and estimator.params.wind = {params.get('wind', 'none')!r}"
+            raise ConfigError(
+                f"{self.SECTION}.{wanted[0]}: got true with estimator.name = {name!r}"
+                f"{wind if name == 'ekf_slam' else ''}, which estimates no wind; allowed: "
+                "false, or an estimator that estimates it (ekf_slam with "
+                "estimator.params.wind: estimate, or a plug-in whose class method "
+                "estimates_wind(params) is true)"
+            )
 
 
 @dataclass(frozen=True)

@@ -456,13 +456,13 @@ class SimCore:
         """Observations (B, n) float32 built from the *true* state (the layout of the env's).
 
         Privileged information for training critics only (``agents.rl.asymmetric``); the env's
-        own observations come from the estimate. With ``pos_uncertainty`` its entries are 0.
-        """
+        own observations come from the estimate. With ``pos_uncertainty`` its entries are 0,
+        the wind blocks hold the true wind (steady plus gust) the simulator holds then."""
         if self._truth is None:
             self._truth = make("oracle", self.num_lanes, self.landmarks.shape[1])
         cast(UsesTruth, self._truth).set_truth(self.vehicle.state, self.landmarks, self.n_landmarks)
-        truth = self._truth.estimate()
-        return self.observer.build(truth, self.reference(), self.t, self.n_visible)
+        truth, ref = self._truth.estimate(), self.reference()
+        return self.observer.build(truth, ref, self.t, self.n_visible, wind=self.wind.current)
 
     def reference(self, lanes: Sequence[int] | None = None) -> FlatOutputs:
         """Reference of every lane (or of ``lanes``) at its current time; with a free heading

@@ -17,8 +17,9 @@ from quadslam_env.estimation import BatchEstimate
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.rigid_body import air_velocity_lanes
 from quadslam_env.trajectories import FlatOutputs, Trajectory
-from quadslam_env.types import FloatArray
+from quadslam_env.types import EUL, VEL, FloatArray
 
 BASE_LAYOUT: tuple[tuple[str, int], ...] = (
     ("pos_err", 3),  # C3(ψ_d)ᵀ (ρ̂ - ρ_d), m
@@ -119,6 +120,45 @@ def nearest_landmarks(est: BatchEstimate, k: int) -> FloatArray:
     return out
 
 
+def _wind_ne(est: BatchEstimate, wind: FloatArray | None) -> FloatArray:
+    """(B, 2) horizontal wind (w_N, w_E) in m/s: ``wind``'s if given, else the estimate's.
+
+    Raises:
+        ValueError: Neither is there (the scenario check refuses such an estimator first).
+    """
+    if wind is not None:
+        return np.asarray(wind, dtype=float)[:, :2]
+    if est.wind is None:
+        raise ValueError(
+            "observation.estimated_wind/air_velocity: the estimate has no wind; allowed: an "
+            "estimator that estimates it (ekf_slam with estimator.params.wind: estimate)"
+        )
+    return est.wind
+
+
+def air_velocity(est: BatchEstimate, wind_ne: FloatArray) -> FloatArray:
+    """The estimated velocity relative to the air, ``v̂_a = v̂ − C_NBᵀ(Λ̂) (ŵ_N, ŵ_E, 0)``.
+
+    The simulator's air velocity (:func:`~quadslam_env.models.rigid_body.air_velocity_lanes`,
+    what its drag acts on) of the estimated state in the estimated wind.
+
+    Args:
+        est: Belief of B lanes (``vel_body`` (B, 3) m/s in B, ``euler`` (B, 3) rad).
+        wind_ne: (B, 2) horizontal wind (w_N, w_E) in N, m/s.
+
+    Returns:
+        (B, 3) air-relative velocity in B (FRD), m/s.
+    """
+    b = est.vel_body.shape[0]
+    states = np.zeros((b, 12))
+    states[:, VEL], states[:, EUL] = est.vel_body, est.euler
+    wind = np.zeros((b, 3))
+    wind[:, :2] = wind_ne
+    out = np.empty((b, 3))
+    air_velocity_lanes(states, wind, out)
+    return out
+
+
 def observation_layout(cfg: ObservationConfig) -> list[tuple[str, int]]:
     """The blocks of the observation, ``(name, entries)`` in order (:class:`ObservationBuilder`)."""
     layout = list(BASE_LAYOUT)
@@ -130,6 +170,10 @@ def observation_layout(cfg: ObservationConfig) -> list[tuple[str, int]]:
         layout.append((f"lookahead_{dt:g}s", 3))
     if cfg.landmarks_nearest:
         layout.append(("landmarks_nearest", 4 * cfg.landmarks_nearest))
+    if cfg.estimated_wind:
+        layout.append(("est_wind", 2))
+    if cfg.air_velocity:
+        layout.append(("air_velocity", 3))
     return layout
 
 
@@ -145,7 +189,9 @@ class ObservationBuilder:
     covariance in the heading frame, m; 0 without a covariance), landmark counts (2: visible
     in the last scan, mapped), reference look-ahead (3 per entry of ``lookahead_s``:
     ``C3(ψ_d)ᵀ(ρ_d(t+Δ) - ρ_d(t))``, m), the nearest mapped landmarks (4 per landmark of
-    ``landmarks_nearest``: :func:`nearest_landmarks`).
+    ``landmarks_nearest``: :func:`nearest_landmarks`), the estimated horizontal wind (2,
+    ``estimated_wind``: ``(ŵ_N, ŵ_E)``, N frame, m/s) and the estimated air-relative velocity (3,
+    ``air_velocity``: :func:`air_velocity`).
     """
 
     def __init__(self, cfg: ObservationConfig, trajectory: Trajectory) -> None:
@@ -156,7 +202,12 @@ class ObservationBuilder:
         self.space = spaces.Box(-cfg.clip, cfg.clip, shape=(self.size,), dtype=np.float32)
 
     def build(
-        self, est: BatchEstimate, ref: FlatOutputs, t: FloatArray, n_visible: np.ndarray
+        self,
+        est: BatchEstimate,
+        ref: FlatOutputs,
+        t: FloatArray,
+        n_visible: np.ndarray,
+        wind: FloatArray | None = None,
     ) -> np.ndarray:
         """Observations (B, size) float32 of the lanes at times ``t`` (B,).
 
@@ -165,6 +216,8 @@ class ObservationBuilder:
             ref: Reference of the B lanes at ``t``.
             t: (B,) lane times in s.
             n_visible: (B,) landmarks returned by each lane's last scan.
+            wind: (B, ≥2) wind in N, m/s for the wind blocks instead of ``est.wind`` (the true
+                wind of a privileged observation); ``None``: the estimate's.
         """
         b = t.shape[0]
         obs = np.empty((b, self.size))
@@ -205,6 +258,14 @@ class ObservationBuilder:
             k = self.cfg.landmarks_nearest
             obs[:, i : i + 4 * k] = nearest_landmarks(est, k).reshape(b, 4 * k)
             i += 4 * k
+        if self.cfg.estimated_wind or self.cfg.air_velocity:
+            ne = _wind_ne(est, wind)
+            if self.cfg.estimated_wind:
+                obs[:, i : i + 2] = ne
+                i += 2
+            if self.cfg.air_velocity:
+                obs[:, i : i + 3] = air_velocity(est, ne)
+                i += 3
         out = np.empty((b, self.size), dtype=np.float32)
         _finish(obs, float(self.cfg.clip), out)
         return out

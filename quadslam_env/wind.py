@@ -127,6 +127,11 @@ class WindBatch:
             self.steady, self.scale, self.velocity,
         )  # fmt: skip
 
+    @property
+    def current(self) -> FloatArray:
+        """(B, 3) the wind in N (m/s) held now: :attr:`velocity`, or zeros in still air."""
+        return self._still_air if self.velocity is None else self.velocity
+
     def inform(self, estimator: object) -> None:
         """With ``wind.inform_estimator``, give ``estimator`` (which then
         :class:`~quadslam_env.estimation.protocol.TakesWind`) the wind of the step it is about
@@ -136,7 +141,7 @@ class WindBatch:
             return
         if not isinstance(estimator, TakesWind):  # its class said models_drag = True
             raise TypeError(f"{type(estimator).__name__} says models_drag but has no set_wind")
-        estimator.set_wind(self._still_air if self.velocity is None else self.velocity)
+        estimator.set_wind(self.current)
 
     def info(self) -> dict[str, FloatArray]:
         """The ``info`` terms :data:`WIND_KEYS` of the current wind, (B,) copies each; none in

@@ -18,7 +18,7 @@ from typing import Any
 from tqdm import tqdm
 
 from agents.cli.arg_types import positive_float, positive_int
-from agents.control.named import CONTROLLERS
+from agents.control.named import CONTROLLERS, FEEDFORWARD
 from agents.io.overrides import parse_overrides
 
 RESULTS_FILE = "results.txt"
@@ -171,10 +171,15 @@ def cmd_run(args: argparse.Namespace) -> int:
             f"quadslam run: error: --integral-gain: only with --policy dflqr (got --policy "
             f"{args.policy}, whose integral action is its own)"
         )
+    if args.drag_feedforward and args.policy not in FEEDFORWARD:
+        raise SystemExit(
+            f"quadslam run: error: --drag-feedforward: only with --policy "
+            f"{' or '.join(FEEDFORWARD)} (got --policy {args.policy})"
+        )
     if args.policy == "dflqr":
         policy = DFLQRPolicy.from_env(env, integral_gain=args.integral_gain or 0.0)
     else:
-        policy = build_controller(args.policy, env)
+        policy = build_controller(args.policy, env, drag_feedforward=args.drag_feedforward)
     fly(env, policy, args.policy, seeds, plots, args.json, args.video)
     return 0
 
@@ -280,13 +285,7 @@ def add_fly_parsers(sub: Any) -> None:
     )
     run.add_argument("--plots", type=Path, help="figure folder (default: a new runs/ folder)")
     run.add_argument("--no-plots", action="store_true", help="skip the figures")
-    run.add_argument(
-        "--integral-gain",
-        type=positive_float,
-        metavar="K_I",
-        help="DF-LQR integral action on the position error, k_i in s^-3 (default off; "
-        "e.g. 0.02; must stay below the loop's stability bound, 0.11 with the shipped weights)",
-    )
+    _controller_options(run)
     run.set_defaults(func=cmd_run)
 
     ev = sub.add_parser("evaluate", help="evaluate dflqr or a trained model on an env id")
@@ -309,3 +308,22 @@ def add_fly_parsers(sub: Any) -> None:
         "for files you trust (quadslam convert-run converts a run once)",
     )
     ev.set_defaults(func=cmd_evaluate)
+
+
+def _controller_options(run: argparse.ArgumentParser) -> None:
+    """``quadslam run``'s options of the named controllers."""
+    run.add_argument(
+        "--integral-gain",
+        type=positive_float,
+        metavar="K_I",
+        help="DF-LQR integral action on the position error, k_i in s^-3 (default off; "
+        "e.g. 0.02; must stay below the loop's stability bound, 0.11 with the shipped weights)",
+    )
+    run.add_argument(
+        "--drag-feedforward",
+        action="store_true",
+        help="lqi and se3: add the drag the vehicle's model predicts on the estimated "
+        "air-relative velocity to the commanded acceleration (default off); needs --set "
+        "observation.air_velocity=true and an estimator that estimates the wind (ekf_slam "
+        "with estimator.params.wind: estimate, as in ekf_figure8_wind_states)",
+    )

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from agents.control.drag import feedforward_kwargs
 from quadslam_env.models.flatness import inverse_map
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
@@ -189,7 +190,8 @@ def env_controller_kwargs(
     """What a baseline controller takes from a (possibly wrapped) scalar or vector env: the
     nominal vehicle, and ``kwargs`` completed with the attitude natural frequencies capped for
     the IMU rate and the torque at hover (:func:`attitude_natural_freq`, unless given), the
-    action layout and the control period.
+    action layout, the control period and, with ``drag_feedforward=True``, the observation
+    column of the estimated air velocity (:func:`~agents.control.drag.feedforward_kwargs`).
 
     Raises:
         ValueError: The env's action mode is not ``thrust_torque`` (naming ``name``).
@@ -205,7 +207,7 @@ def env_controller_kwargs(
         kwargs["natural_freq"] = attitude_natural_freq(imu_hz, base.vehicle_params, damping)
     kwargs.setdefault("action_dim", base.scenario.action.dim)
     kwargs.setdefault("control_dt", 1.0 / base.scenario.episode.control_hz)
-    return base.vehicle_params, kwargs
+    return base.vehicle_params, feedforward_kwargs(env, kwargs)
 
 
 def heading_frame_step(

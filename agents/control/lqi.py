@@ -40,6 +40,10 @@ which alone would give ``K_p = 4 s⁻²``), the velocity error 0 and the positio
 (``q_ξ = 0.01``; poles at 0.56 rad/s). The weights were set once from that bandwidth, not
 tuned, and checked on the truth in the nominal, wind and randomised conditions of the
 robustness study on seeds 0–3, not its held-out seeds (docs/robustness.md has the results).
+
+**Drag feed-forward** (``drag_feedforward=True``, off by default): ``u_p`` gains the
+compensation of the drag the vehicle's model predicts on the estimated air-relative velocity
+(:mod:`agents.control.drag`), so the integral need not carry it.
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ import numpy as np
 from scipy.linalg import solve_continuous_are
 
 from agents.control.dflqr import (
+    _NO_OFFSET,
     ATTITUDE_DAMPING,
     ATTITUDE_NATURAL_FREQ,
     R_TILDE,
@@ -60,6 +65,7 @@ from agents.control.dflqr import (
     heading_frame_step,
     lqr_gain,
 )
+from agents.control.drag import DragFeedforward, check_flag
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import FloatArray
@@ -200,13 +206,19 @@ class LQIPolicy(DFLQRPolicy):
         max_tilt_deg: Largest commanded tilt in degrees (:func:`~agents.control.dflqr.limit_tilt`;
             90: no limit).
         control_dt: Control period in s (the integration step).
+        drag_feedforward: Add the compensation of the estimated drag to ``u_p``
+            (:mod:`agents.control.drag`); False: the LQI as before, bit for bit.
+        air_velocity_index: First observation entry of the estimated air velocity (the
+            ``air_velocity`` block; ``from_env`` finds it), needed with ``drag_feedforward``.
 
     Attributes:
         K: (4, 7) gain on ``r̃``; K_xi: (4, 4) gain on the integrals; poles: closed-loop
-        eigenvalues of the outer loop, 1/s.
+        eigenvalues of the outer loop, 1/s; feedforward: the
+        :class:`~agents.control.drag.DragFeedforward`, or ``None``.
 
     Raises:
-        ConfigError: Bad weights, or an outer loop too fast for the attitude loop.
+        ConfigError: Bad weights, an outer loop too fast for the attitude loop, a
+            ``drag_feedforward`` that is not a bool, or one without the air velocity.
     """
 
     def __init__(
@@ -220,9 +232,16 @@ class LQIPolicy(DFLQRPolicy):
         input_weights: FloatArray = R_TILDE,
         max_tilt_deg: float = MAX_TILT_DEG,
         control_dt: float = 0.01,
+        drag_feedforward: bool = False,
+        air_velocity_index: int | None = None,
     ) -> None:
         if not (math.isfinite(max_tilt_deg) and 0.0 < max_tilt_deg <= 90.0):
             raise ConfigError(f"lqi.max_tilt_deg: got {max_tilt_deg!r}; allowed: (0, 90]")
+        self.feedforward = (
+            DragFeedforward(vehicle, air_velocity_index, "lqi")
+            if check_flag("lqi", drag_feedforward)
+            else None
+        )
         self._tan_max = math.inf if max_tilt_deg == 90.0 else math.tan(math.radians(max_tilt_deg))
         wn = ATTITUDE_NATURAL_FREQ if natural_freq is None else natural_freq
         super().__init__(vehicle, wn, damping=damping, action_dim=action_dim,
@@ -247,12 +266,16 @@ class LQIPolicy(DFLQRPolicy):
         act = np.zeros((batch.shape[0], self.action_dim))
         mass = float(self.vehicle.mass)
         tilted = np.empty(batch.shape[0], dtype=np.bool_)
+        drag = None if self.feedforward is None else self.feedforward.compensation(batch)
         if not self._integrates:
-            _command_lanes(batch, self.K, self.kp, self.kd, mass, self._limits,
-                           np.empty((0, 4)), self._tan_max, act, tilted)  # fmt: skip
+            offset = _NO_OFFSET if drag is None else drag
+            _command_lanes(batch, self.K, self.kp, self.kd, mass, self._limits, offset,
+                           self._tan_max, act, tilted)  # fmt: skip
         else:
             xi = self._integral_state(state, episode_start, batch.shape[0])
             offset = -xi @ self.K_xi.T
+            if drag is not None:
+                offset[:, :3] += drag
             _command_lanes(batch, self.K, self.kp, self.kd, mass, self._limits, offset,
                            self._tan_max, act, tilted)  # fmt: skip
             state = self._step_integrals(xi, batch, saturated(act, tilted))

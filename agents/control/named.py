@@ -11,41 +11,57 @@ from collections.abc import Callable
 from typing import Any
 
 
-def _dflqr(env: Any) -> Any:
+def _dflqr(env: Any, **options: Any) -> Any:
     from agents.control.dflqr import DFLQRPolicy
 
-    return DFLQRPolicy.from_env(env)
+    return DFLQRPolicy.from_env(env, **options)
 
 
-def _lqi(env: Any) -> Any:
+def _lqi(env: Any, **options: Any) -> Any:
     from agents.control.lqi import LQIPolicy
 
-    return LQIPolicy.from_env(env)
+    return LQIPolicy.from_env(env, **options)
 
 
-def _se3(env: Any) -> Any:
+def _se3(env: Any, **options: Any) -> Any:
     from agents.control.se3 import SE3Policy
 
-    return SE3Policy.from_env(env)
+    return SE3Policy.from_env(env, **options)
 
 
-CONTROLLERS: dict[str, Callable[[Any], Any]] = {"dflqr": _dflqr, "lqi": _lqi, "se3": _se3}
+CONTROLLERS: dict[str, Callable[..., Any]] = {"dflqr": _dflqr, "lqi": _lqi, "se3": _se3}
 """Name → builder from an env: ``dflqr`` (seed 001 §2.2, the paper's gains), ``lqi`` (DF-LQR
 with integral action in the Riccati design, :mod:`agents.control.lqi`) and ``se3`` (geometric
 tracking on SE(3) with integral action, :mod:`agents.control.se3`)."""
 
+FEEDFORWARD = ("lqi", "se3")
+"""The controllers that take ``drag_feedforward`` (:mod:`agents.control.drag`)."""
 
-def build_controller(name: str, env: Any, key: str = "--policy") -> Any:
+
+def build_controller(
+    name: str, env: Any, key: str = "--policy", drag_feedforward: bool = False
+) -> Any:
     """The controller ``name`` (one of :data:`CONTROLLERS`) for ``env``.
 
     Args:
         name: Controller name.
-        env: The env it flies (its vehicle, control period and action layout).
+        env: The env it flies (its vehicle, control period, action and observation layout).
         key: The setting that named it, for the error.
+        drag_feedforward: Turn on the drag feed-forward (:data:`FEEDFORWARD` controllers only;
+            the env must observe the estimated air velocity, ``observation.air_velocity``).
 
     Raises:
-        ValueError: ``name`` is not in :data:`CONTROLLERS` (naming ``key``).
+        ValueError: ``name`` is not in :data:`CONTROLLERS` (naming ``key``), or
+            ``drag_feedforward`` with a controller without it.
+        ConfigError: ``drag_feedforward`` not a bool, or on an env without the air velocity.
     """
     if name not in CONTROLLERS:
         raise ValueError(f"{key}: got {name!r}; allowed: one of {sorted(CONTROLLERS)}")
-    return CONTROLLERS[name](env)
+    if drag_feedforward is False:
+        return CONTROLLERS[name](env)
+    if name not in FEEDFORWARD:
+        raise ValueError(
+            f"drag_feedforward: got {drag_feedforward!r} with {key} {name}; allowed: false, or "
+            f"a controller with the drag feed-forward ({', '.join(FEEDFORWARD)})"
+        )
+    return CONTROLLERS[name](env, drag_feedforward=drag_feedforward)

@@ -27,7 +27,8 @@ natural frequencies and their caps for the IMU rate and the torque at hover
 vehicle and the Crazyflie. The tilt limit and the integral are the LQI's: the commanded tilt at
 most 30°, the integral in the heading frame, not integrated on a lane whose thrust or roll/pitch
 torque saturates or whose tilt is limited (conditional integration, no take-off hold), carried
-in ``predict``'s ``state`` (n, 3) m·s.
+in ``predict``'s ``state`` (n, 3) m·s. The drag feed-forward is the LQI's
+(``drag_feedforward=True``: ``A`` gains the compensation of :mod:`agents.control.drag`).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from agents.control.dflqr import (
     heading_frame_step,
     limit_tilt,
 )
+from agents.control.drag import DragFeedforward, check_flag
 from agents.control.lqi import MAX_TILT_DEG, check_separation, lqi_gain, saturated
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.frames import dcm_from_trig
@@ -60,6 +62,7 @@ def _lqi_position_gains() -> tuple[float, float, float]:
 
 POSITION_GAINS = _lqi_position_gains()
 """Default ``(k_x [s⁻²], k_v [s⁻¹], k_I [s⁻³])`` per unit mass: the LQI's horizontal gains."""
+_NO_OFFSET = np.empty((0, 3))
 
 
 @kernel
@@ -72,6 +75,7 @@ def _se3_lanes(
     mass: float,
     limits: FloatArray,
     integral: FloatArray,
+    offset: FloatArray,
     tan_max: float,
     rate_limit: float,
     out: FloatArray,
@@ -79,9 +83,10 @@ def _se3_lanes(
 ) -> None:
     """Normalised ``thrust_torque`` actions ``out`` (n, 4) for observations ``obs`` (n, ≥16),
     steps 1–3 of the module docstring; ``gains = (k_x, k_v, k_I)``, ``integral`` (n, 3) m·s,
-    ``limits = (max thrust N, max torques (3) N·m)``, ``inertia`` (3, 3) kg·m²; ``A`` is
-    tilt-limited (:func:`~agents.control.dflqr.limit_tilt`), the lanes so limited marked in
-    ``tilted`` (n,)."""
+    ``offset`` (n, 3) m/s² added to ``A`` (the drag compensation; an empty (0, 3) adds
+    nothing), ``limits = (max thrust N, max torques (3) N·m)``, ``inertia`` (3, 3) kg·m²;
+    ``A`` is tilt-limited (:func:`~agents.control.dflqr.limit_tilt`), the lanes so limited
+    marked in ``tilted`` (n,)."""
     A = np.empty(3)
     Rd = np.empty((3, 3))
     E = np.empty((3, 3))
@@ -90,6 +95,9 @@ def _se3_lanes(
         for i in range(3):
             A[i] = o[12 + i] - gains[0] * o[i] - gains[1] * o[3 + i] - gains[2] * integral[b, i]
         A[2] -= GRAVITY
+        if offset.shape[0]:
+            for i in range(3):
+                A[i] += offset[b, i]
         A[0], A[1], A[2], tilted[b] = limit_tilt(A[0], A[1], A[2], tan_max)
         c = dcm_from_trig(math.cos(o[6]), math.sin(o[6]), math.cos(o[7]), math.sin(o[7]),
                           math.cos(o[8]), math.sin(o[8]))  # fmt: skip
@@ -138,11 +146,16 @@ class SE3Policy:
             al.'s controller without the integral.
         max_tilt_deg: Largest commanded tilt in degrees (the LQI's default; 90: no limit).
         control_dt: Control period in s (the integration step).
+        drag_feedforward: Add the compensation of the estimated drag to ``A``
+            (:mod:`agents.control.drag`); False: the controller as before, bit for bit.
+        air_velocity_index: First observation entry of the estimated air velocity (the
+            ``air_velocity`` block; ``from_env`` finds it), needed with ``drag_feedforward``.
 
     Raises:
         ConfigError: Negative or non-finite gains, an unstable outer loop (the linearised
-            per-axis loop ``s³ + k_v s² + k_x s + k_I`` must be Hurwitz: ``k_I < k_x k_v``), or
-            one too fast for the attitude loop.
+            per-axis loop ``s³ + k_v s² + k_x s + k_I`` must be Hurwitz: ``k_I < k_x k_v``),
+            one too fast for the attitude loop, a ``drag_feedforward`` that is not a bool, or
+            one without the air velocity.
     """
 
     def __init__(
@@ -154,9 +167,16 @@ class SE3Policy:
         position_gains: tuple[float, float, float] = POSITION_GAINS,
         max_tilt_deg: float = MAX_TILT_DEG,
         control_dt: float = 0.01,
+        drag_feedforward: bool = False,
+        air_velocity_index: int | None = None,
     ) -> None:
         if not (math.isfinite(max_tilt_deg) and 0.0 < max_tilt_deg <= 90.0):
             raise ConfigError(f"se3.max_tilt_deg: got {max_tilt_deg!r}; allowed: (0, 90]")
+        self.feedforward = (
+            DragFeedforward(vehicle, air_velocity_index, "se3")
+            if check_flag("se3", drag_feedforward)
+            else None
+        )
         self._tan_max = math.inf if max_tilt_deg == 90.0 else math.tan(math.radians(max_tilt_deg))
         gains = np.asarray(position_gains, dtype=float)
         if gains.shape != (3,) or not np.all(np.isfinite(gains)) or np.any(gains < 0.0):
@@ -208,9 +228,10 @@ class SE3Policy:
             xi[np.asarray(episode_start, dtype=bool).reshape(n)] = 0.0
         act = np.zeros((n, self.action_dim))
         tilted = np.empty(n, dtype=np.bool_)
+        drag = _NO_OFFSET if self.feedforward is None else self.feedforward.compensation(batch)
         _se3_lanes(batch, self.gains, self.kR, self.kW, np.asarray(self.vehicle.inertia),
-                   float(self.vehicle.mass), self._limits, xi, self._tan_max, BRAKING_RATE, act,
-                   tilted)  # fmt: skip
+                   float(self.vehicle.mass), self._limits, xi, drag, self._tan_max, BRAKING_RATE,
+                   act, tilted)  # fmt: skip
         turned, grown = heading_frame_step(xi, batch, self.control_dt)
         state = np.where(saturated(act, tilted)[:, None], turned, grown)
         act = act.astype(np.float32)

@@ -40,7 +40,7 @@ import numpy as np
 
 from agents.control.dflqr import DFLQRPolicy
 from agents.control.lookat import LookAtPolicy
-from agents.control.named import CONTROLLERS, build_controller
+from agents.control.named import CONTROLLERS, FEEDFORWARD, build_controller
 
 RESIDUAL_DFLQR = "residual_dflqr"
 WRAPPERS = (RESIDUAL_DFLQR,)
@@ -86,17 +86,24 @@ BASES = (*CONTROLLERS, "lookat")
 (:mod:`agents.control.lookat`, for scenarios with the heading channel)."""
 
 
-def base_controller(env: Any, base: str) -> Any:
-    """The controller named ``base`` (one of :data:`BASES`) for ``env``.
+def base_controller(env: Any, base: str, drag_feedforward: bool = False) -> Any:
+    """The controller named ``base`` (one of :data:`BASES`) for ``env``, with the drag
+    feed-forward if asked (``lqi`` and ``se3``, :func:`agents.control.named.build_controller`).
 
     Raises:
-        ValueError: Unknown name, or ``lookat`` on a scenario without the heading channel.
+        ValueError: Unknown name, ``lookat`` on a scenario without the heading channel, or
+            ``drag_feedforward`` on a base without it or an env without the air velocity.
     """
+    if base not in BASES:
+        raise ValueError(f"wrapper.base: got {base!r}; allowed: {list(BASES)}")
+    if drag_feedforward is not False and base not in FEEDFORWARD:
+        raise ValueError(
+            f"wrapper.drag_feedforward: got {drag_feedforward!r} with wrapper.base {base!r}; "
+            f"allowed: false, or true with a base that has it ({', '.join(FEEDFORWARD)})"
+        )
     if base == "lookat":
         return LookAtPolicy(env)
-    if base not in CONTROLLERS:
-        raise ValueError(f"wrapper.base: got {base!r}; allowed: {list(BASES)}")
-    return build_controller(base, env, "wrapper.base")
+    return build_controller(base, env, "wrapper.base", drag_feedforward=drag_feedforward)
 
 
 class ResidualDFLQR:
@@ -107,6 +114,8 @@ class ResidualDFLQR:
         scale: Residual scale, a number or (4,) per component, in normalised action units.
         controller: Controller to use; default the one named by ``base``.
         base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`), when no ``controller`` is given.
+        drag_feedforward: The base's drag feed-forward (``lqi``, ``se3``), when no
+            ``controller`` is given.
 
     Attributes:
         controller: The base policy (DF-LQR, LQI, or DF-LQR with the look-at heading).
@@ -126,9 +135,10 @@ class ResidualDFLQR:
         scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
         controller: DFLQRPolicy | LookAtPolicy | None = None,
         base: str = "dflqr",
+        drag_feedforward: bool = False,
     ) -> None:
         if controller is None:
-            controller = base_controller(env, base)
+            controller = base_controller(env, base, drag_feedforward)
         self.controller = controller
         self.dim = self.controller.action_dim
         # A heading channel (fifth component) is the agent's own command, not a residual:
@@ -205,6 +215,7 @@ class ResidualDFLQRWrapper(_ResidualSteps, gym.Wrapper):
         scale: Residual scale, a number or (4,) per component, in normalised action units.
         controller: Base controller to use; default the one named by ``base``.
         base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`).
+        drag_feedforward: The base's drag feed-forward (``lqi``, ``se3``).
 
     Attributes:
         residual: The :class:`ResidualDFLQR` composer (``controller``, ``scale``).
@@ -220,9 +231,10 @@ class ResidualDFLQRWrapper(_ResidualSteps, gym.Wrapper):
         scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
         controller: DFLQRPolicy | LookAtPolicy | None = None,
         base: str = "dflqr",
+        drag_feedforward: bool = False,
     ) -> None:
         super().__init__(env)
-        self.residual = ResidualDFLQR(env, scale, controller, base)
+        self.residual = ResidualDFLQR(env, scale, controller, base, drag_feedforward)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.residual.dim,), dtype=np.float32)
         self._obs = None
         self.last_action: np.ndarray | None = None
@@ -259,6 +271,7 @@ class ResidualDFLQRVectorWrapper(_ResidualSteps, gym.vector.VectorWrapper):
         scale: Residual scale, a number or (4,) per component, in normalised action units.
         controller: Base controller to use; default the one named by ``base``.
         base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`).
+        drag_feedforward: The base's drag feed-forward (``lqi``, ``se3``).
 
     Raises:
         ValueError: Bad ``scale`` or an env not in ``thrust_torque`` mode.
@@ -270,9 +283,10 @@ class ResidualDFLQRVectorWrapper(_ResidualSteps, gym.vector.VectorWrapper):
         scale: float | Sequence[float] = DEFAULT_RESIDUAL_SCALE,
         controller: DFLQRPolicy | LookAtPolicy | None = None,
         base: str = "dflqr",
+        drag_feedforward: bool = False,
     ) -> None:
         super().__init__(env)
-        self.residual = ResidualDFLQR(env, scale, controller, base)
+        self.residual = ResidualDFLQR(env, scale, controller, base, drag_feedforward)
         self.single_action_space = gym.spaces.Box(
             -1.0, 1.0, shape=(self.residual.dim,), dtype=np.float32
         )
@@ -319,15 +333,23 @@ def parse_wrapper_spec(spec: Any) -> tuple[str, dict[str, Any]] | None:
         return None
     if name not in WRAPPERS:
         raise ValueError(f"wrapper: got {name!r}; allowed: {['none', *WRAPPERS]}")
-    unknown = set(kwargs) - {"scale", "base"}
+    unknown = set(kwargs) - {"scale", "base", "drag_feedforward"}
     if unknown:
         raise ValueError(
-            f"wrapper.{sorted(unknown)[0]}: unknown key for {name}; allowed: ['base', 'scale']"
+            f"wrapper.{sorted(unknown)[0]}: unknown key for {name}; allowed: ['base', "
+            "'drag_feedforward', 'scale']"
         )
     if "scale" in kwargs:
         as_residual_scale(kwargs["scale"])  # validate early, with the config's wording
-    if kwargs.get("base", "dflqr") not in BASES:
+    base = kwargs.get("base", "dflqr")
+    if base not in BASES:
         raise ValueError(f"wrapper.base: got {kwargs['base']!r}; allowed: {list(BASES)}")
+    ff = kwargs.get("drag_feedforward", False)
+    if not isinstance(ff, bool) or (ff and base not in FEEDFORWARD):
+        raise ValueError(
+            f"wrapper.drag_feedforward: got {ff!r} with wrapper.base {base!r}; allowed: false, "
+            f"or true with a base that has it ({', '.join(FEEDFORWARD)})"
+        )
     return name, kwargs
 
 

@@ -49,7 +49,7 @@ from estimators.ekf.settings import (
     GYRO_BIAS,
     EkfSlamSettings,
 )
-from estimators.ekf.sizing import MemorySizing
+from estimators.ekf.sizing import MemorySizing, WindStates
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.ekf.wind import predict_wind
@@ -62,7 +62,7 @@ _AR3 = np.arange(3)
 
 
 @register("ekf_slam")
-class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing):
+class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
     Implements :class:`~quadslam_env.estimation.protocol.BatchEstimator`. Lanes are

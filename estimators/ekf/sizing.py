@@ -1,5 +1,5 @@
-"""EKF-SLAM's buffers for a workload, sized from its settings before any lane is built
-(docs/reliability.md "Memory")."""
+"""What the env asks of EKF-SLAM's class before any lane is built, from its settings: its
+buffers for a workload (docs/reliability.md "Memory") and whether it estimates the wind."""
 
 from __future__ import annotations
 
@@ -23,3 +23,18 @@ class MemorySizing:
             MemoryLimitError: The covariance alone would not fit in its share.
         """
         return ekf_terms(load, EkfSlamSettings.from_dict(params).nv)
+
+
+class WindStates:
+    """Mixin of :class:`~estimators.ekf.filter.EkfSlamBatch`: whether its settings estimate the
+    wind, asked before any filter is built
+    (:func:`quadslam_env.estimation.registry.estimates_wind`)."""
+
+    @classmethod
+    def estimates_wind(cls, params: dict[str, Any]) -> bool:
+        """True with ``estimator.params.wind: estimate`` (the snapshot then has ``wind``).
+
+        Raises:
+            ConfigError: Invalid ``estimator.params`` (as the constructor says it).
+        """
+        return EkfSlamSettings.from_dict(params).estimates_wind

@@ -178,6 +178,20 @@ def models_drag(name: str) -> bool:
     return bool(getattr(_load(name), "models_drag", False))
 
 
+def estimates_wind(name: str, params: dict[str, Any]) -> bool:
+    """Whether the estimator ``name`` with the settings ``params`` reports the horizontal wind
+    (:attr:`~quadslam_env.estimation.snapshot.BatchEstimate.wind` not ``None``), asked of its
+    class before any estimator is built: ``cls.estimates_wind(params)`` (a class method; the
+    built-in with it is EKF-SLAM, with ``wind: estimate``). A class without the method reports
+    none (the oracle, whose truth the env feeds has no wind, and FastSLAM, which is told it).
+
+    Raises:
+        ValueError: Unknown name, a plug-in that cannot be loaded, or invalid ``params``.
+    """
+    query = getattr(_load(name), "estimates_wind", None)
+    return bool(query(dict(params))) if callable(query) else False
+
+
 def memory_terms(name: str, load: Workload, params: dict[str, Any]) -> list[MemoryTerm]:
     """The buffers the estimator ``name`` will hold for ``load``, asked of its class before
     any estimator is built: ``cls.memory_terms(load, params)`` (a class method; ``params``
