@@ -367,3 +367,18 @@ def test_integral_gain_beyond_the_stability_bound(capsys: pytest.CaptureFixture[
     line = _one_line_error(capsys, [*RUN, "--integral-gain", "0.5"])
     assert "integral_gain" in line and "0.5" in line and "0.1097" in line
     assert "positive number" in _argparse_error(capsys, [*RUN, "--integral-gain", "-1"])
+
+
+def test_drag_feedforward_needs_lqi_or_se3_and_the_air_velocity(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(
+        SystemExit,
+        match=r"--drag-feedforward: only with --policy lqi or se3 "
+        r"\(got --policy dflqr\)",
+    ):
+        main([*RUN, "--drag-feedforward"])
+    argv = [*RUN, "--scenario", "ekf_figure8_wind_states", "--policy", "se3", "--drag-feedforward"]
+    line = _one_line_error(capsys, argv)
+    assert "se3.drag_feedforward: got true with air_velocity_index = None" in line
+    assert "observation.air_velocity: true" in line

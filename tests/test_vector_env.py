@@ -42,6 +42,12 @@ CASES = {
         "episode": {"duration_s": 0.35, "settle_s": 0.2},
         "reward": {"pos_std_weight": 0.5},
     },
+    # The wind states with the estimated wind and air velocity appended to the observation.
+    "QuadSLAM-EKF-v0-wind-observation": {
+        **SHORT,
+        "scenario": "ekf_figure8_wind_states",
+        "observation": {"estimated_wind": True, "air_velocity": True},
+    },
     "QuadSLAM-EKF-v0-crazyflie-rotors": {
         **SHORT,
         "vehicle": {"preset": "crazyflie2"},
