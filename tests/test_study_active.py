@@ -11,8 +11,17 @@ import pytest
 import quadslam_env  # noqa: F401
 from agents.control.lookat import LookAtPolicy
 from agents.evaluation.episodes import Trace
+from agents.rl.run_folder import run_config
 from agents.rl.wrappers import ResidualDFLQRWrapper
-from agents.studies.active import ENV_ID, fly, format_study, plot_study, row_result
+from agents.studies.active import (
+    CLAIMS,
+    ENV_ID,
+    fly,
+    format_study,
+    plot_study,
+    row_result,
+    run_study,
+)
 
 SHORT = {"episode": {"duration_s": 6.0}}  # the study's 5 s transient, then 1 s steady
 
@@ -65,3 +74,40 @@ def test_residual_on_the_look_at_heuristic_with_zero_residual_is_the_heuristic()
         np.testing.assert_array_equal(obs_w, obs)
     env.close()
     wrapped.close()
+
+
+TINY_PPO = {"n_envs": 2, "n_steps": 32, "batch_size": 64, "n_epochs": 1}
+"""One rollout of 64 steps and one epoch: what the study does with a training (save, reload,
+fly, aggregate) does not depend on its size."""
+
+
+def test_the_study_reports_the_learned_row_over_its_training_seeds(tmp_path: Path) -> None:
+    """Two tiny trainings and 6 s flights (1 s of steady state): the learned row's per-seed
+    scores are its seeds' medians over their episodes, and each claim is counted against the
+    baseline row's median."""
+    result = run_study(tmp_path, training_seeds=2, episodes=2, timesteps=64, jobs=1,
+                       duration_s=6.0, hyperparams=TINY_PPO)  # fmt: skip
+    assert result["settings"]["training_seeds"] == [0, 1]
+    rows = {r["config"]: r for r in result["rows"]}
+    assert list(rows) == ["dflqr_fixed", "dflqr_tangent", "lookat", "ppo"]
+    assert all("seed_stats" not in r for c, r in rows.items() if c != "ppo")
+    ppo = rows["ppo"]
+    key = "track_pos_rmse_steady_m"
+    medians = [np.median([e[key] for e in ppo["episodes"][2 * i : 2 * i + 2]]) for i in range(2)]
+    stats = ppo["seed_stats"][key]
+    assert stats["per_seed"] == pytest.approx(medians) and stats["undefined"] is None
+    assert stats["iqm"] == pytest.approx(np.mean(medians))  # two seeds: the plain mean
+    assert stats["iqm_ci"] == pytest.approx(sorted(medians))
+    claims = {c["claim"]: c for c in ppo["claims"]}
+    assert list(claims) == ["<= 0.8 x dflqr_tangent", "<= 1 x lookat"]
+    for (base, factor), c in zip(CLAIMS, ppo["claims"], strict=True):
+        baseline = rows[base][key]["median"]
+        assert c["baseline"] == baseline
+        assert c["per_seed"] == [bool(m <= factor * baseline) for m in medians]
+        assert c["holds"] == f"{sum(c['per_seed'])}/2 seeds"
+    text = format_study(result)
+    assert "<= 0.8 x dflqr_tangent" in text and "<= 1 x lookat" in text
+    (run,) = (tmp_path / "train" / "s1").iterdir()
+    saved = run_config(run)
+    assert saved is not None and saved["hyperparams"]["n_steps"] == 32
+    assert saved["hyperparams"]["env_kwargs"]["episode"]["duration_s"] == 6.0

@@ -222,3 +222,58 @@ def test_cli_parses_the_study_command() -> None:
     assert args.func is cli_study.cmd_study_robustness and args.timesteps == 300_000
     assert not args.quick and args.jobs is None and args.training_seeds is None
     assert args.rows is None and args.estimators is None
+
+
+def test_the_quick_run_reports_the_learned_row_over_its_one_seed(
+    quick_run: tuple[dict, Path, Path],
+) -> None:
+    """One training seed: the median, no IQM or CI (they need two), and the claim against the
+    LQI on ``ekf_full`` undefined where the 0.3 s episodes have no steady state."""
+    result, _, _ = quick_run
+    learned = [r for r in result["rows"] if r["config"] == "ppo_lqi"]
+    assert len(learned) == len(CONDITIONS)
+    for row in learned:
+        stats = row["seed_stats"]["track_pos_rmse_transient_m"]
+        assert stats["n_seeds"] == 1 and stats["iqm"] is None and "need 2" in stats["undefined"]
+        assert stats["median"] == row["track_pos_rmse_transient_m"]["median"]
+        (claim,) = row["claims"]
+        assert claim["claim"] == "<= 0.9 x lqi on ekf_full" and claim["holds"] is None
+    assert "claim" in robustness.format_study(result)
+
+
+def test_the_claim_counts_the_training_seeds_at_most_0_9_of_the_lqi(tmp_path: Path) -> None:
+    """Trainings and flights replaced by known numbers: every controller flies at 0.1 m in
+    steady state; training seed k of ``ppo_lqi`` at ``per_seed[k]``, so the claim holds on
+    seeds 0 and 3 of the five (the default), on every condition."""
+    from agents.studies.training_pool import Trained
+
+    per_seed = [0.05, 0.095, 0.2, 0.08, 0.1]
+
+    def train(training: list[int], *args: Any) -> list[Trained]:
+        return [Trained(tmp_path / f"s{seed}", 1.0) for seed in training]
+
+    def fly(policy: Any, env_id: str, kwargs: dict[str, Any], seeds: list[int]) -> list:
+        steady = per_seed[int(policy.name[1:])] if isinstance(policy, Path) else 0.1
+        return [{"seed": s, "terminated": False, "track_pos_rmse_steady_m": steady} for s in seeds]
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(robustness, "_train", train)
+        patch.setattr(robustness, "fly", fly)
+        result = robustness.run_study(tmp_path, episodes=1, duration_s=0.3,
+                                      estimators=["oracle", "ekf_full"])  # fmt: skip
+        no_lqi = robustness.run_study(tmp_path, episodes=1, duration_s=0.3,
+                                      rows=["se3", "ppo_lqi"], estimators=["ekf_full"])  # fmt: skip
+    assert result["settings"]["training_seeds"] == [0, 1, 2, 3, 4]
+    learned = [r for r in result["rows"] if r["config"] == "ppo_lqi"]
+    assert [r["eval_on"] for r in learned] == list(CONDITIONS)
+    for row in learned:
+        stats = row["seed_stats"]["track_pos_rmse_steady_m"]
+        assert stats["per_seed"] == per_seed and stats["median"] == pytest.approx(0.095)
+        assert stats["iqm"] == pytest.approx((0.08 + 0.095 + 0.1) / 3)
+        (claim,) = row["claims"]
+        assert claim["baseline"] == pytest.approx(0.1)
+        assert claim["per_seed"] == [True, False, False, True, False]
+        assert claim["holds"] == "2/5 seeds"
+    assert robustness.format_study(result).count("2/5 seeds") == len(CONDITIONS)
+    for row in (r for r in no_lqi["rows"] if r["config"] == "ppo_lqi"):
+        assert row["claims"][0]["holds"] is None and row["claims"][0]["baseline"] is None

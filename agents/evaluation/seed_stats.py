@@ -190,18 +190,18 @@ def _shown(value: Any) -> str:
 def summary(per_seed: Sequence[float | None], rng: int | None = None) -> dict[str, Any]:
     """:meth:`SeedStats.as_dict` of a study row's per-seed scores, or, where they allow no
     statistics (fewer than 2 seeds, a seed without a value), the same keys with ``None``
-    and ``undefined`` saying why."""
+    (the median kept for a single seed) and ``undefined`` saying why."""
     values = [math.nan if v is None else float(v) for v in per_seed]
     missing = [i for i, v in enumerate(values) if not math.isfinite(v)]
     reason = None
-    if len(values) < 2:
-        reason = f"{len(values)} training seed(s); the statistics need 2 or more"
-    elif missing:
-        reason = f"no value on training seed(s) at {missing} of {len(values)}"
+    if missing:
+        reason = f"no value on the training seed(s) at positions {missing} of {len(values)}"
+    elif len(values) < 2:
+        reason = f"{len(values)} training seed; the IQM and its CI need 2 or more"
     if reason is None:
         return seed_stats(values, rng).as_dict()
     return {
-        "median": None,
+        "median": float(np.median(values)) if values and not missing else None,
         "iqm": None,
         "iqm_ci": None,
         "confidence": CONFIDENCE,

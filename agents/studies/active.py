@@ -18,8 +18,11 @@ config             controller
 =================  ==================================================================
 
 A learned row's median/min/max are over its training seeds (each seed's median over the
-episodes); the other rows' over the episodes. ``--quick`` trains one seed on a small budget and
-flies 5 episodes (a smoke run, not a result).
+episodes); the other rows' over the episodes. The learned row also carries the IQM and its 95%
+bootstrap CI over the training seeds (:mod:`agents.evaluation.seed_stats`) and the study's two
+claims (:data:`CLAIMS`: a steady-state tracking RMSE at most 0.8 × the tangent heading's, and
+at most the look-at heuristic's) with the number of training seeds each holds on.
+``--quick`` trains one seed on a small budget and flies 5 episodes (a smoke run, not a result).
 """
 
 from __future__ import annotations
@@ -33,7 +36,9 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.episodes import Trace, json_float, run_episodes, spread_cell, stats
+from agents.evaluation.seed_stats import summary
 from agents.io.outputs import atomic_produce, write_text_atomic
+from agents.studies.learned_rows import claim, seed_table, training_seed_list
 from agents.studies.training_pool import TrainJob, train_all
 
 ENV_ID = "QuadSLAM-ActivePerception-v0"
@@ -42,6 +47,11 @@ SETTLE_S = 5.0
 EPISODE = {"episode": {"settle_s": SETTLE_S}}
 TANGENT = {"trajectory": {"yaw_mode": "tangent"}, "action": {"heading": False}}
 KEYS = ("track_pos_rmse_steady_m", "track_pos_rmse_transient_m", "est_pos_rmse_steady_m")
+TRAINING_SEEDS = 5
+"""Training seeds of the learned row by default."""
+CLAIMS = (("dflqr_tangent", 0.8), ("lookat", 1.0))
+"""The learned row's claims: its steady-state tracking RMSE at most the factor × that baseline
+row's, on each training seed."""
 
 
 class ViewCounter:
@@ -107,8 +117,25 @@ def row_result(config: str, label: str, per_seed: list[list[dict[str, Any]]]) ->
     out["crash_rate"] = float(np.mean([e["terminated"] for e in episodes]))
     out["spread_over"] = "training seeds" if len(per_seed) > 1 else "episodes"
     out["n_training_seeds"] = len(per_seed) if config == "ppo" else 0
+    if config == "ppo":  # each training seed's median over its episodes
+        out["seed_stats"] = {
+            key: summary([stats([e.get(key) for e in group])["median"] for group in per_seed])
+            for key in KEYS[:2]
+        }
     out["episodes"] = episodes
     return out
+
+
+def with_claims(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` with the learned row's :data:`CLAIMS` against the baseline rows."""
+    by_config = {r["config"]: r for r in rows}
+    for r in rows:
+        if r.get("seed_stats"):
+            r["claims"] = [
+                claim(r, by_config.get(base), factor, f"<= {factor:g} x {base}")
+                for base, factor in CLAIMS
+            ]
+    return rows
 
 
 def run_study(
@@ -118,55 +145,58 @@ def run_study(
     episodes: int | None = None,
     timesteps: int | None = None,
     jobs: int | None = None,
+    duration_s: float | None = None,
+    hyperparams: dict[str, Any] | None = None,
+    first_training_seed: int = 0,
 ) -> dict[str, Any]:
     """Fly the baselines, train and fly the learned agent; ``{"rows", "settings", "traces"}``.
 
     Args:
         out: Folder for the training runs (reused when the study is repeated).
         quick: One training seed, 100,000 steps, 5 episodes (unless set below).
-        training_seeds: Training seeds of the learned row (default 3, quick 1).
+        training_seeds: Training seeds of the learned row (default :data:`TRAINING_SEEDS`, 5;
+            quick 1).
         episodes: Held-out episodes (default 20, quick 5).
         timesteps: Training budget (default: the ``ppo.yaml`` entry's; quick 100,000).
         jobs: Trainings at a time, each in a worker process (default: the CPU cores available,
             :func:`agents.io.cpus.available_cpus`; 1 trains in this process, one after the
             other). The trained policies do not depend on it
             (:mod:`agents.studies.training_pool`).
+        duration_s: Episode length in s for training and flights (default the scenario's).
+        hyperparams: Merged into the ``ppo.yaml`` entry (before ``duration_s``).
+        first_training_seed: The training seeds are ``first_training_seed`` on (default 0).
+
+    Raises:
+        ValueError: ``first_training_seed`` below 0.
     """
-    from agents.control.dflqr import DFLQRPolicy
-    from agents.control.lookat import LookAtPolicy
     from agents.io.cpus import available_cpus
     from agents.rl.policies import load_policy
+    from quadslam_env.config import deep_merge
 
     tic = time.perf_counter()
     jobs = jobs or available_cpus()
-    n_seeds = training_seeds or (1 if quick else 3)
+    n_seeds = training_seeds or (1 if quick else TRAINING_SEEDS)
+    training = training_seed_list(n_seeds, first_training_seed)
     n_eps = episodes or (5 if quick else 20)
     timesteps = timesteps or (100_000 if quick else None)
     seeds = list(range(EVAL_SEED0, EVAL_SEED0 + n_eps))
+    length = {} if duration_s is None else {"episode": {"duration_s": float(duration_s)}}
+    entry = deep_merge(hyperparams or {}, {"env_kwargs": length}) if length else hyperparams
     # Every training first: they run side by side; the flights follow in this process.
     runs = train_all(
         [
-            TrainJob(f"ppo seed {seed}", out / "train" / f"s{seed}", ENV_ID, seed, timesteps)
-            for seed in range(n_seeds)
+            TrainJob(f"ppo seed {s}", out / "train" / f"s{s}", ENV_ID, s, timesteps, entry)
+            for s in training
         ],
         jobs,
     )
-    rows, traces = [], {}
-    baselines: tuple[tuple[str, str, Any, dict[str, Any]], ...] = (
-        ("dflqr_fixed", "DF-LQR, fixed heading", DFLQRPolicy.from_env, {}),
-        ("dflqr_tangent", "DF-LQR, tangent heading", DFLQRPolicy.from_env, TANGENT),
-        ("lookat", "DF-LQR + look-at heuristic", LookAtPolicy, {}),
-    )
-    for config, label, policy_of, overrides in baselines:
-        print(f"{label} ...", file=sys.stderr)
-        traces[config] = Trace()
-        rows.append(row_result(config, label, [fly(policy_of, overrides, seeds, traces[config])]))
+    rows, traces = _fly_baselines(seeds, length)
     per_seed = []
-    for seed, trained in enumerate(runs):
+    for seed, trained in zip(training, runs, strict=True):
         print(f"ppo seed {seed}: flying ...", file=sys.stderr)
-        trace = Trace() if seed == 0 else None
+        trace = Trace() if seed == training[0] else None
         run = trained.run
-        per_seed.append(fly(lambda env, r=run: load_policy(str(r), env)[0], {}, seeds, trace))
+        per_seed.append(fly(lambda env, r=run: load_policy(str(r), env)[0], length, seeds, trace))
         if trace is not None:
             traces["ppo"] = trace
     ppo = row_result("ppo", "residual PPO, heading channel", per_seed)
@@ -176,13 +206,37 @@ def run_study(
         "env_id": ENV_ID,
         "settle_s": SETTLE_S,
         "eval_seeds": seeds,
-        "training_seeds": list(range(n_seeds)),
+        "training_seeds": training,
         "timesteps": timesteps if timesteps is not None else "the ppo.yaml budget",
+        "duration_s": duration_s,
         "quick": quick,
         "jobs": jobs,
         "wall_s": round(time.perf_counter() - tic, 1),  # the whole study: train and fly
     }
-    return {"settings": settings, "rows": rows, "traces": traces}
+    return {"settings": settings, "rows": with_claims(rows), "traces": traces}
+
+
+def _fly_baselines(
+    seeds: list[int], length: dict[str, Any]
+) -> tuple[list[dict[str, Any]], dict[str, Trace]]:
+    """The baseline rows (module docstring) on ``seeds``, episodes with the ``length``
+    overrides, and each row's first-seed trace."""
+    from agents.control.dflqr import DFLQRPolicy
+    from agents.control.lookat import LookAtPolicy
+    from quadslam_env.config import deep_merge
+
+    rows, traces = [], {}
+    baselines: tuple[tuple[str, str, Any, dict[str, Any]], ...] = (
+        ("dflqr_fixed", "DF-LQR, fixed heading", DFLQRPolicy.from_env, {}),
+        ("dflqr_tangent", "DF-LQR, tangent heading", DFLQRPolicy.from_env, TANGENT),
+        ("lookat", "DF-LQR + look-at heuristic", LookAtPolicy, {}),
+    )
+    for config, label, policy_of, overrides in baselines:
+        print(f"{label} ...", file=sys.stderr)
+        traces[config] = Trace()
+        flown = fly(policy_of, deep_merge(overrides, length), seeds, traces[config])
+        rows.append(row_result(config, label, [flown]))
+    return rows, traces
 
 
 def format_study(result: dict[str, Any]) -> str:
@@ -201,6 +255,7 @@ def format_study(result: dict[str, Any]) -> str:
             f"{cell(r['est_pos_rmse_steady_m']):<22} "
             f"{cell(r['landmarks_per_scan'], '{:.1f}'):<18} {r['crash_rate']:>5.2f}"
         )
+    lines += seed_table(result["rows"], lambda r: r["config"])
     return "\n".join(lines)
 
 

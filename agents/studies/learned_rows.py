@@ -2,11 +2,16 @@
 held-out seeds and their table rows.
 
 A learned row is residual PPO with the ``QuadSLAM-EKF-v0`` entry of ``configs/agents/ppo.yaml``
-(:func:`ppo_job`: the entry with a configuration's overrides, trained with seeds ``0 … n-1``,
+(:func:`ppo_job`: the entry with a configuration's overrides, trained with seeds ``0 … n-1``
+or from another first seed (:func:`training_seed_list`),
 each run in a folder of its own where a finished run is reused); a row's median/min/max are over
 its training seeds, each seed's value being its median over the episodes, and a DF-LQR row's over
-the episodes (:class:`Row`). Used by :mod:`agents.studies.cost` and
-:mod:`agents.studies.robustness`.
+the episodes (:class:`Row`). A learned row also reports, per tracking column, the median, the
+interquartile mean and its 95% bootstrap confidence interval over the training seeds
+(``seed_stats``, :mod:`agents.evaluation.seed_stats`), and on how many seeds the study's claim
+holds (``claims``, :func:`claim`; :func:`seed_table` prints both). Used by
+:mod:`agents.studies.cost`, :mod:`agents.studies.robustness` and
+:mod:`agents.studies.active`.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.episodes import json_float, run_episodes
+from agents.evaluation.seed_stats import ci_cell, claim_at_most, summary
 from agents.io.outputs import atomic_produce, write_text_atomic
 from agents.studies.training_pool import TrainJob
 
@@ -29,6 +35,8 @@ EKF = "QuadSLAM-EKF-v0"
 # Tracking RMSE columns (steady state first: the headline), spread over training seeds for the
 # learned rows; estimation columns, over episodes.
 TRACK_KEYS = ("track_pos_rmse_steady_m", "track_pos_rmse_transient_m", "track_pos_rmse_m")
+HEADLINE = TRACK_KEYS[0]
+"""The column the studies' claims are about: the true tracking RMSE in the steady state."""
 EST_KEYS = (
     "est_pos_rmse_steady_m",
     "est_pos_rmse_m",
@@ -78,19 +86,58 @@ class Row:
         out["n_steady_episodes"] = sum(
             e.get("track_pos_rmse_steady_m") is not None for e in self.episodes
         )
-        out.update(
-            n_training_seeds=len(self.per_seed),
-            n_episodes=len(self.episodes),
-            train_wall_s=self.train_wall_s,
-            episodes=self.episodes,
-        )
+        out.update(n_training_seeds=len(self.per_seed), n_episodes=len(self.episodes))
+        if self.per_seed:
+            out["seed_stats"] = {key: summary(self.seed_values(key)) for key in TRACK_KEYS}
+        out.update(train_wall_s=self.train_wall_s, episodes=self.episodes)
         return out
+
+    def seed_values(self, key: str) -> list[float | None]:
+        """Each training seed's median of ``key`` over its episodes (``None``: no episode of
+        that seed has a value)."""
+        return [json_float(_nanmedian([e.get(key) for e in eps])) for eps in self.per_seed]
 
     def _spread(self, key: str) -> dict[str, float | None]:
         """Stats of ``key`` over the training seeds' medians (learned) or the episodes."""
         if self.per_seed:
-            return _stats([_nanmedian([e.get(key) for e in eps]) for eps in self.per_seed])
+            return _stats(self.seed_values(key))
         return _stats([e.get(key) for e in self.episodes])
+
+
+def claim(
+    row: dict[str, Any], baseline: dict[str, Any] | None, factor: float, text: str
+) -> dict[str, Any]:
+    """The claim that learned ``row``'s :data:`HEADLINE` score (a training seed's median over
+    the episodes) is at most ``factor`` × ``baseline``'s (its median over the same episodes),
+    on each training seed (:func:`agents.evaluation.seed_stats.claim_at_most`); undefined
+    without a baseline row (``None``: not flown) or value."""
+    base = baseline[HEADLINE]["median"] if baseline is not None else None
+    per_seed = row["seed_stats"][HEADLINE]["per_seed"]
+    return {"metric": HEADLINE} | claim_at_most(text, per_seed, base, factor)
+
+
+def seed_table(rows: list[dict[str, Any]], name: Any) -> list[str]:
+    """Text lines of the learned ``rows`` over their training seeds: the :data:`HEADLINE`'s
+    median and IQM [95% CI], and each claim's ``k/n seeds`` (``name(row)`` labels a row)."""
+    learned = [r for r in rows if r.get("seed_stats")]
+    if not learned:
+        return []
+    head = (
+        f"{'learned row':<34} {'seeds':>5} {'median':>7}  {'IQM [95% CI]':<26} "
+        f"{'claim':<34} {'holds'}"
+    )
+    lines = ["", f"over training seeds, {HEADLINE} (a seed: its median over the episodes)"]
+    lines += [head, "-" * len(head)]
+    for r in learned:
+        stats = r["seed_stats"][HEADLINE]
+        median = "–" if stats["median"] is None else f"{stats['median']:.3f}"
+        cells = f"{name(r):<34} {stats['n_seeds']:>5} {median:>7}  {ci_cell(stats):<26}"
+        for c in r.get("claims") or [{"claim": "", "holds": None}]:
+            lines.append(f"{cells} {c['claim']:<34} {c['holds'] or '–'}")
+            cells = " " * len(cells)
+        if stats["undefined"]:
+            lines.append(f"{'':<34} ({stats['undefined']})")
+    return lines
 
 
 def _nanmedian(values: list[Any]) -> float:
@@ -147,6 +194,17 @@ def ppo_job(
     entry["env_kwargs"] = deep_merge(entry.get("env_kwargs", {}), env_kwargs)
     folder = out / "train" / name / f"s{seed}"
     return TrainJob(f"{name} seed {seed}", folder, env_id, seed, timesteps, entry)
+
+
+def training_seed_list(n_seeds: int, first: int = 0) -> list[int]:
+    """The training seeds of a learned row: ``n_seeds`` from ``first`` on.
+
+    Raises:
+        ValueError: ``first`` below 0 (numpy, torch and the lanes take seeds from 0 on).
+    """
+    if isinstance(first, bool) or not isinstance(first, int) or first < 0:
+        raise ValueError(f"first_training_seed: got {first!r}; allowed: an integer >= 0")
+    return list(range(first, first + n_seeds))
 
 
 def evaluation_kwargs(train_kwargs: dict[str, Any]) -> dict[str, Any]:

@@ -34,7 +34,10 @@ residual PPO on the LQI (the ``QuadSLAM-EKF-v0`` entry of ``ppo.yaml`` with ``wr
 lqi``), trained on the nominal condition on ``ekf_full`` with seeds ``0 … n-1`` and flown on
 ``ekf_full`` in every condition. Evaluation seeds start at 1000 and are never used in training;
 every row is flown from the scenario's start (take-off climb included). Medians and spreads as
-in :mod:`agents.studies.learned_rows`. ``--quick`` trains one seed on a small budget and flies
+in :mod:`agents.studies.learned_rows`; the learned row also carries the IQM and its 95%
+bootstrap CI over the training seeds, and on each condition the claim (:data:`CLAIM_FACTOR`)
+that its steady-state tracking RMSE is at most 0.9 × the LQI's on ``ekf_full``, with the
+number of training seeds it holds on. ``--quick`` trains one seed on a small budget and flies
 5 episodes (a smoke run of the pipeline, not a result).
 """
 
@@ -50,7 +53,16 @@ from typing import Any
 
 from agents.evaluation.episodes import spread_cell
 from agents.studies.cost import ANY, ORACLE, SCENARIO, scenario_kwargs
-from agents.studies.learned_rows import EKF, Row, fly, ppo_job, write_json
+from agents.studies.learned_rows import (
+    EKF,
+    Row,
+    claim,
+    fly,
+    ppo_job,
+    seed_table,
+    training_seed_list,
+    write_json,
+)
 from agents.studies.training_pool import train_all
 from quadslam_env.randomize import AXIS_INFO_KEYS, RANDOMIZED_KEYS
 
@@ -69,7 +81,8 @@ __all__ = [
 ]
 
 EVAL_SEED0 = 1000
-TRAINING_SEEDS = 2
+TRAINING_SEEDS = 5
+"""Training seeds of the learned row by default (:data:`agents.studies.cost.TRAINING_SEEDS`)."""
 RANDOMIZED, WIND = "ekf_figure8_randomized", "ekf_figure8_wind"
 DRAG_KEYS = ("drag_per_s", "drag_quadratic_per_m")
 """The vehicle keys of the wind scenario that the windy conditions take (the drag the wind
@@ -87,6 +100,9 @@ LEARNED, LEARNED_BASE, LEARNED_ESTIMATOR = "ppo_lqi", "lqi", "ekf_full"
 ROWS = (*CONTROLLER_ROWS, LEARNED)
 RESIDUAL = {"wrapper": {"name": "residual_dflqr", "scale": 0.2, "base": LEARNED_BASE}}
 """The learned row's override of the entry: its residual sits on the LQI."""
+CLAIM_FACTOR = 0.9
+"""The learned row's claim on a condition: its steady-state tracking RMSE at most this × that
+of the LQI it sits on, both on ``ekf_full``, on each training seed."""
 
 
 def _scenario_sections(name: str) -> dict[str, Any]:
@@ -172,11 +188,11 @@ def available_estimators() -> tuple[str, ...]:
     return tuple(e for e in ESTIMATORS if e != "isam2" or has_gtsam)
 
 
-def _train(n_seeds: int, timesteps: int | None, out: Path, duration_s: float | None,
+def _train(training: list[int], timesteps: int | None, out: Path, duration_s: float | None,
            jobs: int) -> list[Any]:  # fmt: skip
     """The learned row's trainings (module docstring) in ``out/train/ppo_lqi/s<seed>``."""
     env_id, kwargs = cell_kwargs("nominal", LEARNED_ESTIMATOR, duration_s)
-    plan = [ppo_job(LEARNED, env_id, s, timesteps, out, RESIDUAL, kwargs) for s in range(n_seeds)]
+    plan = [ppo_job(LEARNED, env_id, s, timesteps, out, RESIDUAL, kwargs) for s in training]
     return train_all(plan, jobs) if plan else []
 
 
@@ -191,7 +207,7 @@ def _fly_condition(
     condition: str,
     chosen: list[str],
     estimators: Sequence[str],
-    trained: list[Any],
+    trained: dict[int, Any],
     seeds: list[int],
     duration_s: float | None,
 ) -> list[Row]:
@@ -213,7 +229,7 @@ def _fly_condition(
     if trained:
         env_id, kwargs = cell_kwargs(condition, LEARNED_ESTIMATOR, duration_s)
         row = Row(LEARNED, "residual PPO on LQI", "nominal", condition, LEARNED_ESTIMATOR)
-        for seed, run in enumerate(trained):
+        for seed, run in trained.items():
             print(f"{LEARNED} seed {seed} on {condition} ...", file=sys.stderr)
             flown = fly(run.run, env_id, kwargs, seeds)
             row.add_seed([rec | sc for rec, sc in zip(flown, scales, strict=True)], run.wall_s)
@@ -231,6 +247,7 @@ def run_study(
     jobs: int | None = None,
     rows: Sequence[str] | None = None,
     estimators: Sequence[str] | None = None,
+    first_training_seed: int = 0,
 ) -> dict[str, Any]:
     """Train the learned row, fly every row on every condition and estimator;
     ``{"rows", "settings"}``.
@@ -238,7 +255,8 @@ def run_study(
     Args:
         out: Folder for the training runs (reused when the study is repeated).
         quick: One training seed, 200,000 steps, 5 episodes (unless set below).
-        training_seeds: Training seeds of the learned row (default 2, quick 1).
+        training_seeds: Training seeds of the learned row (default :data:`TRAINING_SEEDS`,
+            5; quick 1).
         episodes: Held-out evaluation episodes (default 20, quick 5).
         timesteps: Training budget (default: the ``ppo.yaml`` entry's; quick 200,000).
         duration_s: Episode length in s for training and evaluation (default the scenario's).
@@ -246,9 +264,11 @@ def run_study(
         rows: The rows to fly, a subset of :data:`ROWS` (default all); the learned one is
             trained only when listed.
         estimators: A subset of :data:`ESTIMATORS` (default those that can run here).
+        first_training_seed: The learned row's training seeds are ``first_training_seed`` on
+            (default 0).
 
     Raises:
-        ValueError: A row or an estimator not allowed.
+        ValueError: A row or an estimator not allowed, or ``first_training_seed`` below 0.
     """
     from agents.io.cpus import available_cpus
 
@@ -262,10 +282,11 @@ def run_study(
         raise ValueError(f"estimators: got {flown_on!r}; allowed: a non-empty subset of {can}")
     jobs = jobs or available_cpus()
     n_seeds = training_seeds or (1 if quick else TRAINING_SEEDS)
+    training = training_seed_list(n_seeds, first_training_seed) if LEARNED in chosen else []
     n_eps = episodes or (5 if quick else 20)
     timesteps = timesteps or (200_000 if quick else None)
     seeds = list(range(EVAL_SEED0, EVAL_SEED0 + n_eps))
-    trained = _train(n_seeds, timesteps, out, duration_s, jobs) if LEARNED in chosen else []
+    trained = dict(zip(training, _train(training, timesteps, out, duration_s, jobs), strict=True))
     table: list[Row] = []
     for condition in CONDITIONS:
         table += _fly_condition(condition, chosen, flown_on, trained, seeds, duration_s)
@@ -275,14 +296,26 @@ def run_study(
         "rows": chosen,
         "learned_override": RESIDUAL,
         "eval_seeds": seeds,
-        "training_seeds": list(range(n_seeds)) if trained else [],
+        "training_seeds": training,
         "timesteps": timesteps if timesteps is not None else "the ppo.yaml budget",
         "duration_s": duration_s,
         "quick": quick,
         "jobs": jobs,
         "wall_s": round(time.perf_counter() - tic, 1),  # the whole study: train and evaluate
     }
-    return {"settings": settings, "rows": [row.result() for row in table]}
+    return {"settings": settings, "rows": _with_claims([row.result() for row in table])}
+
+
+def _with_claims(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``rows`` with the learned row's claim on each condition against the LQI on
+    ``ekf_full`` (undefined where that row was not flown)."""
+    flown = [r for r in rows if (r["config"], r["estimator"]) == (LEARNED_BASE, LEARNED_ESTIMATOR)]
+    base = {r["eval_on"]: r for r in flown}
+    text = f"<= {CLAIM_FACTOR:g} x {LEARNED_BASE} on {LEARNED_ESTIMATOR}"
+    for r in rows:
+        if r["config"] == LEARNED:
+            r["claims"] = [claim(r, base.get(r["eval_on"]), CLAIM_FACTOR, text)]
+    return rows
 
 
 def format_study(result: dict[str, Any]) -> str:
@@ -301,6 +334,7 @@ def format_study(result: dict[str, Any]) -> str:
             f"{cell(r['est_pos_rmse_steady_m']):<24} {cell(r['est_att_rmse_steady_deg']):<24} "
             f"{r['n_ended_early']:>3}/{r['n_episodes']:<2} {r['n_training_seeds']:>5}"
         )
+    lines += seed_table(result["rows"], lambda r: f"{r['config']} {r['eval_on']} {r['estimator']}")
     return "\n".join(lines)
 
 
