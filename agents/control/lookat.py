@@ -23,14 +23,56 @@ from typing import Any
 import numpy as np
 
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.models.frames import wrap_angle
+from quadslam_env.models.frames import wrap_angle, wrap_pi
+from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
 YAW_ERR = 8  # observation index of wrap(ψ̂ − ψ_d)
 
 
+@kernel
+def _aim_lanes(block: FloatArray, half_width: float, aim: FloatArray, found: np.ndarray) -> None:
+    """Step 1 of the rule over lanes: the aim ``aim`` (n,) in rad, ``found`` (n,) False where
+    nothing is mapped (``aim`` then left as it was).
+
+    Args:
+        block: (n, K, 4) nearest-landmark blocks ``(α, β, δ, mask)`` of the observation.
+        half_width: Half-width of the window that counts as in view, rad.
+        aim: (n,) output, the circular mean of the landmarks in the fullest window (ties: the
+            window whose centre needs the smallest turn).
+        found: (n,) output, whether the lane has a mapped landmark.
+    """
+    k = block.shape[1]
+    alpha = np.empty(k)
+    for b in range(block.shape[0]):
+        m = 0
+        for i in range(k):
+            if block[b, i, 3] > 0.5:
+                alpha[m] = block[b, i, 0]
+                m += 1
+        found[b] = m > 0
+        if m == 0:
+            continue
+        best, best_count = 0, -1
+        for c in range(m):  # each mapped landmark as a window's centre, in order
+            count = 0
+            for i in range(m):
+                if abs(wrap_pi(alpha[i] - alpha[c])) <= half_width:
+                    count += 1
+            if count > best_count or (count == best_count and abs(alpha[c]) < abs(alpha[best])):
+                best, best_count = c, count
+        sin_sum = cos_sum = 0.0
+        for i in range(m):
+            if abs(wrap_pi(alpha[i] - alpha[best])) <= half_width:
+                sin_sum += math.sin(alpha[i])
+                cos_sum += math.cos(alpha[i])
+        aim[b] = math.atan2(sin_sum / best_count, cos_sum / best_count)
+
+
 def aim_azimuth(azimuth: FloatArray, mask: FloatArray, half_width: float) -> float | None:
     """The body-frame azimuth (rad) to point at so that most mapped landmarks are in view.
+
+    One lane of the batched kernel the policy uses.
 
     Args:
         azimuth: (K,) azimuths α of the nearest mapped landmarks, rad.
@@ -41,15 +83,12 @@ def aim_azimuth(azimuth: FloatArray, mask: FloatArray, half_width: float) -> flo
         The circular mean of the landmarks in the fullest window (ties: the window whose
         centre needs the smallest turn), or ``None`` when nothing is mapped.
     """
-    alpha = azimuth[mask > 0.5]
-    if alpha.size == 0:
-        return None
-    inside = np.abs(wrap_angle(alpha[None, :] - alpha[:, None])) <= half_width  # (c, i)
-    counts = inside.sum(axis=1)
-    best = np.flatnonzero(counts == counts.max())
-    centre = best[np.argmin(np.abs(alpha[best]))]
-    members = alpha[inside[centre]]
-    return float(math.atan2(np.sin(members).mean(), np.cos(members).mean()))
+    block = np.zeros((1, len(azimuth), 4))
+    block[0, :, 0] = azimuth
+    block[0, :, 3] = mask
+    aim, found = np.zeros(1), np.zeros(1, dtype=np.bool_)
+    _aim_lanes(block, float(half_width), aim, found)
+    return float(aim[0]) if found[0] else None
 
 
 class LookAtPolicy:
@@ -91,16 +130,12 @@ class LookAtPolicy:
 
     def heading_command(self, obs: FloatArray) -> FloatArray:
         """The heading channel a4 (n,) in [-1, 1] for observations (n, obs_dim)."""
-        out = np.empty(obs.shape[0])
-        for i, o in enumerate(obs):
-            block = o[self._block].reshape(-1, 4)
-            theta = aim_azimuth(block[:, 0], block[:, 3], self._half_width)
-            if theta is None:
-                out[i] = self.search_rate
-                continue
-            rate = self.gain * float(wrap_angle(theta + o[YAW_ERR]))
-            out[i] = max(-1.0, min(1.0, rate / self._max_rate))
-        return out
+        n = obs.shape[0]
+        block = np.ascontiguousarray(obs[:, self._block]).reshape(n, -1, 4)
+        aim, found = np.zeros(n), np.empty(n, dtype=np.bool_)
+        _aim_lanes(block, self._half_width, aim, found)
+        rate = self.gain * np.asarray(wrap_angle(aim + obs[:, YAW_ERR]))
+        return np.where(found, np.clip(rate / self._max_rate, -1.0, 1.0), self.search_rate)
 
     def predict(
         self,
