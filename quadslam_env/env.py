@@ -68,7 +68,9 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
     12–14   acc_ref             ρ̈_d                                          m/s²
     15      yaw_rate_ref        ψ̇_d                                          rad/s
     16+     optional            position std (3), landmark counts (2),
-                                look-ahead offsets (3 each), in that order
+                                look-ahead offsets (3 each), nearest
+                                landmarks (4 each), estimated wind (2,
+                                N), air velocity (3, B), in that order
     ======  ==================  ===========================================  ======
 
     **Action** ``Box(-1, 1, (4,))``: ``thrust_torque`` maps ``a0`` to thrust in
