@@ -54,6 +54,9 @@ def test_document_is_wellformed(tiny_run) -> None:
     doc, _, _, _ = tiny_run
     assert doc["quick"] is True and doc["plan"] == "tiny"
     assert tuple(doc["sections"]) == SECTION_NAMES
+    assert tuple(doc["section_wall_s"]) == SECTION_NAMES
+    assert all(s >= 0 for s in doc["section_wall_s"].values())
+    assert sum(doc["section_wall_s"].values()) <= doc["wall_time_s"]
     assert {"cpu", "cores", "python", "numpy", "numba", "load_average"} <= set(doc["machine"])
     groups = {e["group"] for e in doc["results"]}
     assert groups == {
@@ -174,6 +177,14 @@ def test_peak_rss_is_plausible() -> None:
 def test_table_and_plots(tiny_run) -> None:
     _, out_dir, stdout, _ = tiny_run
     assert "steps_per_s" in stdout and "medians vs lanes B:" in stdout
+    # The compile stub's empty cache took 2 s (target 20 s), its warm cache 3 s (target 2 s).
+    targets = [line for line in stdout.splitlines() if line.startswith("target compile")]
+    assert targets == [
+        "target compile first_use/empty_cache: 2 s (median of 1) against <= 20 s: met",
+        "target compile first_use/warm_cache: 3 s (median of 1) against <= 2 s: NOT met",
+    ]
+    assert "wall time per section: ekf " in stdout and "load average" in stdout
+    assert "wall time " in stdout and "budget" not in stdout  # the tiny plan has none
     assert "env_steps_per_s/ekf_unknown_map" in stdout.split("medians vs lanes B:")[1]
     assert sorted(p.name for p in out_dir.glob("*.png")) == [
         "ekf_scaling.png",

@@ -55,6 +55,12 @@ def _returns_per_scan(env: Any, steps: int) -> float:
     return float(np.mean(counts)) if counts else float("nan")
 
 
+def returns_steps(plan: Plan) -> int:
+    """Zero-action steps over which the returns per scan are counted: 500 (50 scans), fewer
+    (down to 200) when the plan's scalar samples are shorter than that."""
+    return max(200, min(500, plan.env_steps))
+
+
 def bench_association(results: Results, plan: Plan) -> None:
     """Scalar env steps/s with known, NN and JCBB association; vector env NN vs known."""
     import gymnasium as gym
@@ -69,7 +75,7 @@ def bench_association(results: Results, plan: Plan) -> None:
         for label, method in METHODS:
             kwargs = _merge(WIDE, method, {"estimator": {"name": name}})
             env = gym.make("QuadSLAM-v0", scenario=SCENARIO, **kwargs)
-            per_scan = _returns_per_scan(env, 500)
+            per_scan = _returns_per_scan(env, returns_steps(plan))
             rates = _env_rate(env, DFLQRPolicy.from_env(env), plan.env_steps, plan.repeats)
             results.add(
                 "association",

@@ -35,6 +35,9 @@ class Plan:
         memory_batches: Lanes B of the peak-RSS measurement.
         memory_steps: Vector steps of the peak-RSS measurement.
         process_repeats: Samples (fresh subprocesses) of the memory and compile measurements.
+        wall_budget_s: Longest wall time of a run of all sections on a 2-core machine with
+            nothing else computing, when the plan promises one (``quick``); the CLI prints
+            whether a run stayed within it.
     """
 
     name: str
@@ -54,11 +57,12 @@ class Plan:
     memory_batches: tuple[int, ...]
     memory_steps: int
     process_repeats: int
+    wall_budget_s: float | None = None
 
 
-QUICK = Plan(
+QUICK = Plan(  # every section of FULL, smaller: within wall_budget_s (docs/performance.md)
     name="quick",
-    env_steps=300,
+    env_steps=150,
     repeats=3,
     ekf_sizes=(5, 50, 200),
     ekf_observed=(1, 10),
@@ -68,12 +72,13 @@ QUICK = Plan(
     vec_batches=(1, 64, 256),
     worker_batches=(256,),
     n_workers=2,
-    vec_lane_steps=5000,
-    vec_min_steps=100,
-    vec_warmup=200,
+    vec_lane_steps=300,
+    vec_min_steps=30,
+    vec_warmup=50,
     memory_batches=(1, 256),
-    memory_steps=1000,
+    memory_steps=300,
     process_repeats=1,
+    wall_budget_s=60.0,
 )
 FULL = Plan(
     name="full",

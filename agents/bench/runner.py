@@ -169,6 +169,36 @@ def format_results(entries: list[dict[str, Any]]) -> str:
     return f"{text}\n\nmedians vs lanes B:\n{batch}" if batch else text
 
 
+def format_targets(entries: list[dict[str, Any]]) -> str:
+    """One line per entry with a ``target_s`` (an upper bound): its median against the target
+    and whether it is met, in plain words; '' if no entry has one."""
+    lines = []
+    for e in entries:
+        target = e["params"].get("target_s")
+        if target is None:
+            continue
+        verdict = "met" if e["median"] <= target else "NOT met"
+        lines.append(
+            f"target {e['group']} {e['name']}: {_fmt(e['median'])} {e['unit']} "
+            f"(median of {e['n']}) against <= {_fmt(target)} {e['unit']}: {verdict}"
+        )
+    return "\n".join(lines)
+
+
+def format_wall_times(doc: dict[str, Any], budget: tuple[str, float] | None = None) -> str:
+    """The wall time of each section and of the whole run (from the command's start), and
+    whether it is within ``budget`` = (plan name, seconds) when given."""
+    total = f"wall time {doc['wall_time_s']:.1f} s from the command's start"
+    if budget is not None:
+        verdict = "within" if doc["wall_time_s"] <= budget[1] else "OVER"
+        total += f" ({verdict} the {budget[0]} plan's budget of {budget[1]:g} s)"
+    per_section = doc.get("section_wall_s", {})
+    if not per_section:
+        return total
+    sections_s = ", ".join(f"{name} {s:.1f} s" for name, s in per_section.items())
+    return f"wall time per section: {sections_s}\n{total}"
+
+
 def _fmt(value: float) -> str:
     if value == 0 or not math.isfinite(value):
         return str(value)
@@ -204,6 +234,7 @@ def run_bench(
     only: list[str] | None = None,
     progress: bool = True,
     plan: Plan | None = None,
+    started: float | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark sections and return the JSON document.
 
@@ -212,15 +243,21 @@ def run_bench(
         only: Section names to run (default: all, in :data:`SECTION_NAMES` order).
         progress: Show a progress bar of the sections.
         plan: Explicit plan (e.g. :data:`agents.bench.plan.TINY` for tests).
+        started: ``time.perf_counter()`` at the command's start (the CLI passes the entry of
+            its ``main``); default: the call of this function. ``wall_time_s`` counts from it,
+            so it includes importing the sections' modules (numpy, numba, gymnasium).
 
     Returns:
-        ``{"machine", "plan", "quick", "sections", "skipped", "wall_time_s", "best_batch",
-        "results"}``: ``sections`` those that ran, ``skipped`` section → why (a missing extra).
+        ``{"machine", "plan", "quick", "sections", "skipped", "wall_time_s",
+        "section_wall_s", "best_batch", "results"}``: ``sections`` those that ran, ``skipped``
+        section → why (a missing extra), ``section_wall_s`` section → its wall time in s (in
+        the order they ran).
 
     Raises:
         quadslam_env.extras.MissingExtraError: A section named in ``only`` needs an extra that
             is not installed (before anything is measured).
     """
+    started = time.perf_counter() if started is None else started
     from tqdm import tqdm
 
     from quadslam_env.extras import MissingExtraError
@@ -237,16 +274,19 @@ def run_bench(
         print(f"quadslam bench: skipped: {why}", file=sys.stderr)
     names = [name for name in only or SECTION_NAMES if name not in skipped]
     machine = machine_info()
-    tic = time.perf_counter()
+    section_wall_s: dict[str, float] = {}
     for name in tqdm(names, desc="bench", unit="section", disable=not progress):
+        tic = time.perf_counter()
         table[name](results, plan)
+        section_wall_s[name] = time.perf_counter() - tic
     return {
         "machine": machine,
         "plan": plan.name,
         "quick": quick,
         "sections": names,
         "skipped": skipped,
-        "wall_time_s": time.perf_counter() - tic,
+        "wall_time_s": time.perf_counter() - started,
+        "section_wall_s": section_wall_s,
         "best_batch": best_batches(results.entries),
         "results": results.entries,
     }
@@ -258,8 +298,13 @@ def main_bench(
     plots: Path | None,
     only: list[str] | None = None,
     plan: Plan | None = None,
+    started: float | None = None,
 ) -> dict[str, Any]:
     """CLI body: check the output paths, run, print the table, write JSON and plots.
+
+    After the table it prints each target the results carry (met or not), the machine, the
+    load average at the start and the wall times (per section and in all, from ``started``:
+    see :func:`run_bench`), against the plan's budget when it has one.
 
     Raises:
         agents.io.outputs.OutputPathError: ``--json`` or ``--plots`` cannot be written (before
@@ -279,12 +324,19 @@ def main_bench(
     if plots is not None:
         check_output_dir(plots, "--plots")
         require("matplotlib", "plots", "--plots")
-    doc = run_bench(quick, only, plan=plan)
+    doc = run_bench(quick, only, plan=plan, started=started)
     print(format_results(doc["results"]))
+    if targets := format_targets(doc["results"]):
+        print(targets)
+    machine = doc["machine"]
+    load = machine.get("load_average")
     print(
-        f"machine: {doc['machine']['cpu']} ({doc['machine']['cores']} cores); "
-        f"wall time {doc['wall_time_s']:.1f} s"
+        f"machine: {machine['cpu']} ({machine['cores']} cores); load average (1/5/15 min) at "
+        "the start " + ("unknown" if load is None else " / ".join(f"{x:.2f}" for x in load))
     )
+    chosen = plan or (QUICK if quick else FULL)
+    budget = chosen.wall_budget_s  # for a run of all sections
+    print(format_wall_times(doc, None if only or budget is None else (chosen.name, budget)))
     saver = Saver()
     if json_path is not None:
         print(f"json: {saver.write_json(json_path, doc, '--json')}")

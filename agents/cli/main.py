@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -57,7 +58,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     """Speed and scaling benchmark (the figures of docs/performance.md)."""
     from agents.bench.runner import main_bench
 
-    main_bench(args.quick, args.json, args.plots, args.only)
+    main_bench(args.quick, args.json, args.plots, args.only, started=getattr(args, "started", None))
     return 0
 
 
@@ -289,6 +290,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         The command's status; 2 after a one-line error (see :func:`_user_error`), 130 after
         Ctrl-C and 143 after SIGTERM (``train`` and ``sweep`` save their work first).
     """
+    started = time.perf_counter()  # wall times count from here (bench)
     for var in BLAS_THREAD_VARS:
         os.environ.setdefault(var, "1")
     from agents.cli.warning_lines import one_line_warnings
@@ -296,6 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.started = started
     # A command may build EKF-SLAM envs: on a cold numba cache, compile its update in a second
     # process meanwhile (a library user asks for that explicitly).
     from estimators.ekf import warmup
