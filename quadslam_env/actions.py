@@ -188,7 +188,7 @@ class ActionMap:
 
 class ActionDelay:
     """Actions applied ``action.delay_steps`` = d control steps after the agent gives them
-    (docs/env.md "Latency"): each lane's last d actions in a ring, slot (own step) % d, so a
+    (docs/timing.md "Latency"): each lane's last d actions in a ring, slot (own step) % d, so a
     lane keeps its own phase after an autoreset.
 
     A reset fills a lane's ring with the hover action (:attr:`ActionMap.hover_action`): the

@@ -303,7 +303,7 @@ class ScenarioConfig:
 def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
     """``imu.rate_hz`` must be null, an integer multiple of ``episode.control_hz`` or an
     integer fraction of it (the IMU samples on a grid that the control grid refines or is
-    refined by: docs/design.md §3, docs/env.md "IMU rate").
+    refined by: docs/design.md §3, docs/timing.md "IMU rate").
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.
@@ -322,7 +322,7 @@ def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
 
 def check_delays(scenario: ScenarioConfig) -> None:
     """``action.delay_steps`` and ``lidar.delay_steps`` must be shorter than an episode, and a
-    delayed LiDAR does not go with an IMU slower than the control (docs/env.md "Latency"; its
+    delayed LiDAR does not go with an IMU slower than the control (docs/timing.md "Latency"; its
     estimator is checked by :func:`check_copyable`). Either association is fine: the lagging
     filter applies each scan, labeled or not, at its own time (:mod:`quadslam_env.scan_delay`).
 

@@ -84,7 +84,7 @@ class VehicleConfig(Section):
         choices=("none", *LAYOUTS),
         optional=True,
         doc="rotor model: none (thrust and torque act directly), x or plus (four rotors, the "
-        'mixer and motor lag of docs/env.md "Rotors"); null = the preset\'s (crazyflie2: x)',
+        'mixer and motor lag of docs/physics.md "Rotors"); null = the preset\'s (crazyflie2: x)',
     )
     rotor_arm_m: float | None = _spec(
         None, lo=0.0, lo_open=True, hi=10.0, optional=True, doc="rotors: centre-to-rotor arm L, m"
@@ -151,7 +151,7 @@ class VehicleConfig(Section):
             if value is None:
                 raise ConfigError(
                     f"vehicle.{key}: got null with vehicle.rotor_layout = {layout!r} on preset "
-                    f"{self.preset!r}, which has no rotors; allowed: a number (see docs/env.md "
+                    f"{self.preset!r}, which has no rotors; allowed: a number (see docs/physics.md "
                     '"Rotors")'
                 )
             values[attr] = float(value)
@@ -387,7 +387,7 @@ class ImuConfig(Section):
         "multiple of the other (Rauniyar et al. 2023, Table 5: 10 Hz under a 100 Hz "
         "controller). The estimator predicts once per sample of a faster IMU; with a slower "
         "one it runs at the IMU instants and its output is carried forward at the control "
-        "rate (docs/env.md, IMU rate)",
+        "rate (docs/timing.md, IMU rate)",
     )
 
 

@@ -1,6 +1,6 @@
 """The ``randomize`` section: per-episode domain randomisation of the physics and sensors.
 
-docs/env.md "Domain randomisation". Each setting is a range ``[lo, hi]`` of a multiplicative
+docs/physics.md "Domain randomisation". Each setting is a range ``[lo, hi]`` of a multiplicative
 scale on a nominal parameter, drawn uniformly per lane and episode
 (:mod:`quadslam_env.randomize`); ``[1, 1]`` (every default) leaves the parameter nominal, and a
 section whose ranges are all ``[1, 1]`` is off (no draw at all).

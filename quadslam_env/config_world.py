@@ -168,7 +168,7 @@ class TrajectoryConfig(Section):
 
 @dataclass(frozen=True)
 class WindConfig(Section):
-    """Wind (docs/env.md "Wind"): a steady wind plus optional Dryden turbulence.
+    """Wind (docs/physics.md "Wind"): a steady wind plus optional Dryden turbulence.
 
     The Dryden gust is the MIL-F-8785C low-altitude model (:mod:`quadslam_env.models.wind`):
     intensities and scale lengths from ``w20_mps`` and ``altitude_m``, a frozen field carried

@@ -15,7 +15,7 @@ spawns its gusts' generator from the world child, and domain randomisation
 ``randomize.inform_estimator``) its generator from the initial-error child, so no other stream
 changes when either is on.
 
-IMU rate (``imu.rate_hz``, docs/env.md "IMU rate"): each IMU sample is the average of its
+IMU rate (``imu.rate_hz``, docs/timing.md "IMU rate"): each IMU sample is the average of its
 inputs over its own period, and each prediction gets the input's white-noise std per step h,
 ``σ = ND/√h`` (:attr:`SimCore.imu_input_sigma`). At the control rate (the default): one sample
 and one prediction over dt per step. An IMU m times faster: the vehicle is integrated over m
@@ -23,7 +23,7 @@ sub-periods (command held), the IMU samples after each, and the estimator predic
 dt/m. An IMU m times slower: it samples every m-th step and the estimator runs as a filter at
 the IMU instants plus an output predicted at the control rate (:mod:`quadslam_env.imu_replay`).
 
-Latency (docs/env.md "Latency"): an action is applied ``action.delay_steps`` steps after the
+Latency (docs/timing.md "Latency"): an action is applied ``action.delay_steps`` steps after the
 agent gives it (:class:`~quadslam_env.actions.ActionDelay`; the estimator is told the thrust and
 torque applied), and a scan reaches the estimator ``lidar.delay_steps`` steps after it is
 measured, which then updates the belief of the scan's time (:mod:`quadslam_env.scan_delay`).

@@ -1,5 +1,5 @@
 """An estimator fed by an IMU slower than the control: filter at the IMU's instants, output
-predicted at the control rate (docs/design.md §3; docs/env.md "IMU rate").
+predicted at the control rate (docs/design.md §3; docs/timing.md "IMU rate").
 
 An IMU m times slower than the control (``imu.rate_hz = episode.control_hz / m``) reports at
 ``t_k = k T`` the average of its inputs over ``[t_k − T, t_k]``. That sample belongs to the

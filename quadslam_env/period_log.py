@@ -1,5 +1,5 @@
 """A per-lane log of the last control periods and the estimator calls that replay it
-(docs/design.md §3; docs/env.md "IMU rate" and "Latency").
+(docs/design.md §3; docs/timing.md "IMU rate" and "Latency").
 
 Two parts of the core run an estimator over periods it has already seen once, from a copy:
 the slow-IMU filter (:mod:`quadslam_env.imu_replay`) when a sample covering the last periods

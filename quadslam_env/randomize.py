@@ -1,6 +1,6 @@
 """Domain randomisation: per-lane, per-episode scales of the true vehicle, sensors and wind.
 
-docs/env.md "Domain randomisation". The ``randomize`` section
+docs/physics.md "Domain randomisation". The ``randomize`` section
 (:class:`~quadslam_env.config_randomize.RandomizeConfig`) gives a range ``[lo, hi]`` per scale;
 at every reset of a lane (autoresets included) each scale of :data:`SCALE_KEYS` is drawn
 uniformly on its range, or pinned by ``reset(options={"randomized": {...}})``. The scales act on

@@ -1,5 +1,5 @@
 """An estimator fed by a LiDAR whose scans arrive late: the scan updates the belief of its own
-time, and the output is re-propagated from there (docs/design.md §3; docs/env.md "Latency").
+time, and the output is re-propagated from there (docs/design.md §3; docs/timing.md "Latency").
 
 A scan measured at a lane's step s reaches the estimator at step s + d (``lidar.delay_steps``
 = d). Applying it then as if it were current puts a measurement of the pose d periods ago on

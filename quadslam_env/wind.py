@@ -1,6 +1,6 @@
 """The wind of B lanes: a steady wind plus Dryden gusts, one filter state per lane.
 
-docs/design.md §2, §9 and docs/env.md "Wind". The equations (the Dryden filters, discretised
+docs/design.md §2, §9 and docs/physics.md "Wind". The equations (the Dryden filters, discretised
 exactly over the control period) are :mod:`quadslam_env.models.wind`; this class holds each
 lane's filter state and generator. The wind is held over a control step (the vehicle kernel
 reads :attr:`WindBatch.velocity`) and advanced once per step, after the step. With

@@ -29,7 +29,7 @@ def test_ekf_slam_pose_anees_inside_95_interval_for_most_of_the_flight() -> None
     # The position block (3 DOF) on its own: its pooled ANEES lies inside the 20-run interval
     # [2.02, 4.16] (2.24 here). It sits low because seeds 0-9 drew small initial position errors
     # (χ²(30) = 13.0), which SLAM cannot observe and which dominate the position NEES; seeds
-    # 10-39 give 2.5-3.3 per ten runs (docs/reproducing.md, "EKF-SLAM consistency").
+    # 10-39 give 2.5-3.3 per ten runs (docs/filter-consistency.md, "EKF-SLAM consistency").
     pooled, (lo3, hi3), inside3 = result.block_consistency("pos")
     assert lo3 <= pooled <= hi3, (pooled, lo3, hi3)
     assert inside3 >= 0.6, inside3

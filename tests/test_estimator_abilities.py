@@ -55,7 +55,7 @@ ONE_VEHICLE: dict[type, set[str]] = {
     LabelsReturns: {"fastslam", "fastslam_kinematic", "isam2"},
     HasParticles: {"fastslam", "fastslam_kinematic"},
     # Only the dynamics-based FastSLAM's model has the vehicle (mass, inertia, drag) in it; the
-    # others are driven by the IMU (docs/env.md "Domain randomisation", "Wind").
+    # others are driven by the IMU (docs/physics.md "Domain randomisation", "Wind").
     UsesVehicle: {"fastslam"},
     ModelsDrag: {"fastslam"},
 }

@@ -116,7 +116,7 @@ def _true_id_of_labels(run: Run) -> dict[int, int]:
         ("fastslam", {}),
         # Untempered (the baseline's default λ = 1), FastSLAM 1.0 resamples every scan, the
         # cloud collapses onto one lineage whose pose then drifts out of its own landmarks'
-        # gates, and a landmark may be mapped twice (docs/estimators.md); tempered it is fine.
+        # gates, and a landmark may be mapped twice (docs/fastslam.md); tempered it is fine.
         ("fastslam_kinematic", {"likelihood_inflation": 30.0}),
     ],
 )

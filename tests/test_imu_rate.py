@@ -1,4 +1,4 @@
-"""``imu.rate_hz`` apart from the control rate (docs/design.md §3; docs/env.md "IMU rate"):
+"""``imu.rate_hz`` apart from the control rate (docs/design.md §3; docs/timing.md "IMU rate"):
 the rule, the unchanged default, the noise at the IMU rate, what the estimator is fed, and
 EKF-SLAM's consistency and flight on the paper's 10 Hz IMU."""
 

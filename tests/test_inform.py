@@ -1,5 +1,5 @@
 """Telling the estimator what the world drew: ``randomize.inform_estimator`` and
-``wind.inform_estimator`` (docs/env.md "Domain randomisation", "Wind").
+``wind.inform_estimator`` (docs/physics.md "Domain randomisation", "Wind").
 
 Independent facts: an informed FastSLAM lane models the truth's own mass and inertia (the
 simulator's per-lane bodies and the ``rand_*`` of ``info``), lane by lane, through partial

@@ -1,4 +1,4 @@
-"""A delayed LiDAR with the iSAM2 smoother (docs/isam2.md "A delayed LiDAR"; docs/env.md
+"""A delayed LiDAR with the iSAM2 smoother (docs/isam2.md "A delayed LiDAR"; docs/timing.md
 "Latency"): the smoother is not copied; each scan reaches it d steps late and gets a keyframe at
 its own time (:class:`quadslam_env.scan_delay.LateScans`, :mod:`estimators.isam2.history`).
 

@@ -1,4 +1,4 @@
-"""Sensor and action latency (docs/env.md "Latency"): a delayed scan updates the belief of its
+"""Sensor and action latency (docs/timing.md "Latency"): a delayed scan updates the belief of its
 own time and the output is re-propagated (:mod:`quadslam_env.scan_delay`); a delayed action is
 applied d steps after the agent gave it (``SimCore``). Lane-versus-scalar equality with both
 delays through autoresets is in tests/test_vector_env.py (the ``-latency`` cases)."""

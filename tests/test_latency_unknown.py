@@ -1,4 +1,4 @@
-"""A delayed LiDAR with unknown data association (docs/env.md "Latency"): the lagging filter
+"""A delayed LiDAR with unknown data association (docs/timing.md "Latency"): the lagging filter
 associates and applies each unlabeled scan at its own time (:mod:`quadslam_env.scan_delay`),
 and the association's counts score the scan that arrived (``EstimatorCopies.applied``).
 Lane-versus-scalar equality through autoresets is in tests/test_vector_env.py (the

@@ -1,4 +1,4 @@
-"""Domain randomisation (docs/env.md "Domain randomisation").
+"""Domain randomisation (docs/physics.md "Domain randomisation").
 
 Independent facts: the draws lie in their ranges and are uniform (Kolmogorov–Smirnov on many
 draws); an absent or all-nominal section changes nothing, bit for bit, and randomisation leaves

@@ -1,4 +1,4 @@
-"""Per-axis inertia randomisation (``randomize.inertia_scale_per_axis``, docs/env.md "Domain
+"""Per-axis inertia randomisation (``randomize.inertia_scale_per_axis``, docs/physics.md "Domain
 randomisation").
 
 Independent facts: each body axis's scale lies in ``inertia_scale``'s range and is uniform

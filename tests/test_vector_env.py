@@ -53,7 +53,7 @@ CASES = {
         "vehicle": {"preset": "crazyflie2"},
         "action": {"mode": "rotor_thrust"},
     },
-    # A LiDAR and actions delayed by whole steps (docs/env.md "Latency"): the filter copy
+    # A LiDAR and actions delayed by whole steps (docs/timing.md "Latency"): the filter copy
     # lags each lane by its own phase; a delay longer than the scan interval and a fast IMU.
     "QuadSLAM-EKF-v0-latency": {
         **SHORT,

@@ -1,4 +1,4 @@
-"""Wind: Dryden turbulence, drag on the air-relative velocity, settings (docs/env.md "Wind").
+"""Wind: Dryden turbulence, drag on the air-relative velocity, settings (docs/physics.md "Wind").
 
 Independent facts: the standard's low-altitude formulas, the filter's transition and noise
 covariance against Van Loan's matrix exponential, the simulated gust's variance and its

@@ -1,7 +1,7 @@
 """Feed-forward of the estimated drag for the baselines with integral action (LQI, SE(3)).
 
 In the wind the drag on the air-relative velocity is a slowly varying acceleration the LQI's
-and SE(3)'s integrals otherwise have to build up (docs/agents.md "Drag feed-forward"). With
+and SE(3)'s integrals otherwise have to build up (docs/controllers.md "Drag feed-forward"). With
 ``drag_feedforward=True`` the controller adds to the acceleration it asks of the thrust
 (``u_p`` of the LQI, ``A`` of SE(3), both in the reference-heading frame H) the compensation
 

@@ -3,8 +3,8 @@
 
 Whole-flight and steady-state ratios hide where an estimator departs from the bound: on the
 known-map figure-8 the whole flight's excess sits in the first seconds (the P0 the estimator is
-told against the bound's prior, docs/isam2.md). Per phase ``(a, b]`` (s) and block, pooled over
-seeds as the bound bounds the mean-square error::
+told against the bound's prior, docs/isam2-validation.md). Per phase ``(a, b]`` (s) and block,
+pooled over seeds as the bound bounds the mean-square error::
 
     ratio = √(mean over seeds of mean_{a < t ≤ b} e²) / √(mean over seeds of mean_{a < t ≤ b} B)
 

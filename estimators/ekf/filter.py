@@ -396,7 +396,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates):
     def update_unlabeled(self, *args: Any) -> None:
         """:meth:`UnlabeledScans.update_unlabeled` with first-order updates only: when the
         pairing is itself a guess, a large linearisation error is as often a wrong pairing,
-        which the iterated update would follow all the way (docs/estimators.md)."""
+        which the iterated update would follow all the way (docs/ekf-slam.md)."""
         self._relinearise = math.inf
         try:
             super().update_unlabeled(*args)

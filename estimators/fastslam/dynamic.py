@@ -88,7 +88,7 @@ class DynamicFastSLAM(FastSLAMBase):
       in some runs); ``stage2_position=False`` keeps only the ω part. Measured on the helix
       at biases 0.005: both variants end every run early (attitude errors 6–8°), so stage 2
       is off by default.
-    * Consistency (docs/reproducing.md, "FastSLAM consistency"): resampling makes one initial
+    * Consistency (docs/filter-consistency.md, "FastSLAM consistency"): resampling makes one initial
       particle the ancestor of all within seconds, so the unobservable initial position and yaw
       (the SLAM gauge) left the particle spread while the error kept it (pose ANEES 53.9 at
       N = 500). ``anchor_gauge`` keeps the gauge out of the particles and adds it analytically

@@ -5,7 +5,7 @@ After landmarks have been out of view, the particle cloud has spread by the dead
 leaves the few particles nearest the posterior, often none of them near it: after resampling
 the whole set is copies of the least bad particle, with a spread of centimetres and an error of
 metres, and the filter never recovers (measured on ``fastslam_out_of_view_600s`` and on the
-600 s helix, docs/reproducing.md). This is the textbook failure of importance sampling from a
+600 s helix, docs/filter-consistency.md). This is the textbook failure of importance sampling from a
 prior much wider than the likelihood.
 
 The remedy is progressive correction (Musso, Oudjane and Le Gland, *Improving regularised

@@ -1,6 +1,6 @@
 """iSAM2 over a sliding window kept in the order of a sliding-window filter, so that the states
-leaving it are leaves of the Bayes tree without a batch step (docs/isam2.md, "Leaves without a
-batch step").
+leaving it are leaves of the Bayes tree without a batch step (docs/isam2.md, "A sliding window
+ordered by time").
 
 GTSAM's ``IncrementalFixedLagSmoother`` constrains only the variables it is about to marginalise
 and orders the rest by CCOLAMD. In landmark SLAM every keyframe sees part of the map, so CCOLAMD

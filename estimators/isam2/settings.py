@@ -31,9 +31,9 @@ information matrix singular. The prior at every keyframe keeps the bias's varian
 this std squared for the whole flight; a prior on the first keyframe alone would let the walk
 grow it as ``σ² (1 + t)`` — 7e-5 rad/s after 50 s — and the reported covariance would carry a
 bias the simulated IMU does not have (on ``paper_ekf_figure8_known`` it made the attitude's
-variance 25% larger; docs/isam2.md, "Consistency"). Over one 0.1 s keyframe interval a bias
-of this std moves the attitude by 1e-6 rad and the position by 5e-8 m, far below the
-sensors' noise."""
+variance 25% larger; docs/isam2-validation.md, "Consistency"). Over one 0.1 s keyframe
+interval a bias of this std moves the attitude by 1e-6 rad and the position by 5e-8 m, far
+below the sensors' noise."""
 
 HORIZONTAL_ACCEL_VARIANCE = 1e-8
 """With ``thrust_axis_accel`` the variance density of the horizontal specific force taken as
