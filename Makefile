@@ -1,5 +1,6 @@
 # Two entry points: `make demo` and `make test`. Both create .venv if missing and install the package
-# (with the `ray`, `gtsam` and `clients` extras, so the sweep, iSAM2 and client-library tests run).
+# (with the `ray`, `gtsam`, `clients` and `sbx` extras, so the sweep, iSAM2, client-library and
+# JAX-backend tests run).
 # `make test-rllib` runs the RLlib test in its own venv, .venv-rllib: ray[rllib] pins gymnasium
 # 1.2.2, and .venv keeps the newest gymnasium.
 PYTHON ?= python3
@@ -23,7 +24,7 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python pyproject.toml constraints.txt
 	$(BIN)/pip install --quiet -c constraints.txt torch==2.13.0
-	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray,gtsam,clients]"
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray,gtsam,clients,sbx]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -96,6 +96,7 @@ def cmd_train(args: argparse.Namespace) -> int:
             hyperparams=parse_hyperparam_overrides(args.hyperparams),
             verbose=args.verbose,
             torch_threads=args.torch_threads,
+            backend=args.backend,
         )
     except Terminated as exc:  # SIGTERM: the run folder was saved first
         if exc.run_dir is None:
@@ -223,6 +224,12 @@ def _add_train_parser(sub: Any) -> None:
         "--torch-threads",
         type=positive_int,
         help="torch threads while training (default 1: small networks; see agents.rl.training)",
+    )
+    tr.add_argument(
+        "--backend",
+        choices=["sb3", "sbx"],
+        help="the learner: sb3 (torch) or sbx (JAX, PPO only; the sbx extra); default the "
+        "config entry's backend, else sb3",
     )
     tr.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     tr.add_argument("--verbose", type=int, default=0, choices=[0, 1, 2], help="SB3 verbosity")

@@ -1,5 +1,6 @@
 """What a training session is built from: torch's settings, the lanes of the native vector
-env as an SB3 ``VecEnv``, the SB3 model and its callbacks (docs/design.md §6).
+env as an SB3 ``VecEnv``, the model (SB3's, or sbx's with ``backend: sbx``:
+:mod:`agents.rl.sbx_backend`) and its callbacks (docs/design.md §6).
 """
 
 from __future__ import annotations
@@ -9,8 +10,10 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from agents.rl import sbx_backend
 from agents.rl.hyperparams import algorithms
 from agents.rl.policy_kwargs import ASYMMETRIC, build_policy_kwargs
+from quadslam_env.extras import MissingExtraError
 
 
 @contextlib.contextmanager
@@ -86,7 +89,14 @@ def policy_arguments(settings: dict[str, Any]) -> tuple[Any, dict[str, Any] | No
 
 
 def build_model(algo: str, settings: dict[str, Any], venv: Any, seed: int, verbose: int = 0) -> Any:
-    """The SB3 algorithm on ``venv`` with the resolved settings."""
+    """The algorithm on ``venv`` with the resolved settings: SB3's, or sbx's for
+    ``backend: sbx`` (:func:`agents.rl.sbx_backend.build_model`).
+
+    Raises:
+        quadslam_env.extras.MissingExtraError: ``backend: sbx`` without sbx installed.
+    """
+    if settings.get("backend") == "sbx":
+        return sbx_backend.build_model(algo, settings, venv, seed, verbose)
     policy, policy_kwargs = policy_arguments(settings)
     return algorithms()[algo](
         policy,
@@ -126,6 +136,15 @@ def registered_scenario(env_id: str, env_kwargs: dict[str, Any]) -> Any:
         kwargs.pop(key, None)
     name, swap = kwargs.pop("scenario", None), kwargs.pop("estimator_name", None)
     return load_scenario(name, kwargs, swap)
+
+
+def load_saved_model(algo: str, settings: dict[str, Any], path: Path, venv: Any) -> Any:
+    """A model saved by ``model.save`` on ``venv``, by its backend's ``load`` (``--resume``:
+    this unpickles the zip's ``data``)."""
+    if settings.get("backend") == "sbx":
+        return sbx_backend.load_model(algo, path, venv)
+    cls: Any = algorithms()[algo]
+    return cls.load(path, env=venv, device="cpu")
 
 
 def learner_terms(algo: str, settings: dict[str, Any], obs_dim: int, act_dim: int) -> list[Any]:
@@ -194,7 +213,10 @@ def check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, A
     Raises:
         ValueError: The algorithm rejects the hyperparameters (the message has SB3's reason),
             or the training would not fit in memory (a ``MemoryLimitError``).
+        quadslam_env.extras.MissingExtraError: ``backend: sbx`` without sbx installed.
     """
+    if settings.get("backend") == "sbx":
+        sbx_backend.require_sbx()  # before the lanes are built
     check_training_memory(algo, settings, env_id)
     venv = make_vec_env(env_id, settings, settings["n_envs"], 0, None)
     try:
@@ -202,9 +224,12 @@ def check_setup(algo: str, settings: dict[str, Any], env_id: str) -> dict[str, A
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             build_model(algo, settings, venv, 0)
+    except MissingExtraError:
+        raise
     except (AssertionError, ValueError, TypeError, KeyError) as exc:
         reason = " ".join(str(exc).split()) or type(exc).__name__
-        raise ValueError(f"hyperparameters rejected by {algo.upper()}: {reason}") from None
+        who = f"sbx's {algo.upper()}" if settings.get("backend") == "sbx" else algo.upper()
+        raise ValueError(f"hyperparameters rejected by {who}: {reason}") from None
     finally:
         venv.close()
     return scenario

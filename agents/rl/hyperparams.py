@@ -21,6 +21,8 @@ key                 meaning
 ``eval_freq``       env steps between ``EvalCallback`` evaluations (0: off; default 50 000)
 ``n_eval_episodes`` episodes per evaluation (default 3)
 ``checkpoint_freq`` env steps between checkpoints (0: off; default 100 000)
+``backend``         the learner: ``sb3`` (torch, the default) or ``sbx`` (JAX, PPO only;
+                    :mod:`agents.rl.sbx_backend`); ``quadslam train --backend`` overrides it
 anything else       keyword arguments of the algorithm (``learning_rate``, ``n_steps``, …);
                     ``lin_<x>`` means a linear schedule from ``x`` to 0, numeric strings
                     such as ``3e-4`` (YAML reads them as strings) become numbers
@@ -38,6 +40,7 @@ from typing import Any
 
 import yaml
 
+from agents.rl import sbx_backend
 from agents.rl.policy_kwargs import ASYMMETRIC, validate_policy_kwargs
 from agents.rl.wrappers import parse_wrapper_spec
 from quadslam_env.config import parse_yaml
@@ -54,6 +57,7 @@ RESERVED_KEYS = (
     "eval_freq",
     "n_eval_episodes",
     "checkpoint_freq",
+    "backend",
 )
 DEFAULTS: dict[str, Any] = {
     "n_envs": 1,
@@ -65,6 +69,7 @@ DEFAULTS: dict[str, Any] = {
     "eval_freq": 50_000,
     "n_eval_episodes": 3,
     "checkpoint_freq": 100_000,
+    "backend": "sb3",
 }
 # Algorithm arguments that a config may not set (objects, or set by train() itself).
 _FORBIDDEN_ALGO_KWARGS = (
@@ -222,10 +227,12 @@ def resolve_settings(algo: str, entry: dict[str, Any]) -> dict[str, Any]:
         plain data; :func:`build_policy_kwargs` makes the SB3 arguments),
         ``env_kwargs``, ``wrapper`` (parsed ``(name, kwargs)`` or ``None``), ``normalize``
         (``VecNormalize`` kwargs or ``None``), ``eval_freq``, ``n_eval_episodes``,
-        ``checkpoint_freq`` and ``algo_kwargs``.
+        ``checkpoint_freq``, ``backend`` and ``algo_kwargs``.
 
     Raises:
-        ValueError: Missing ``n_timesteps``, bad values, unknown algorithm arguments.
+        ValueError: Missing ``n_timesteps``, bad values, unknown algorithm arguments, or
+            what the ``backend`` does not take (:func:`agents.rl.sbx_backend.check_settings`;
+            sbx itself is not imported).
     """
     algos = algorithms()
     if algo not in algos:
@@ -255,17 +262,22 @@ def resolve_settings(algo: str, entry: dict[str, Any]) -> dict[str, Any]:
         raise ValueError(f"policy: got {full['policy']!r}; allowed: an SB3 policy name")
     if full["policy"] == ASYMMETRIC and algo not in ("ppo", "a2c"):
         raise ValueError(f"policy: {ASYMMETRIC} is an on-policy actor-critic; algo {algo!r}")
+    backend = sbx_backend.check_backend(full["backend"])
+    policy_kwargs = validate_policy_kwargs(full["policy_kwargs"], full["policy"])
+    if backend == "sbx":
+        sbx_backend.check_settings(algo, full["policy"], algo_kwargs, policy_kwargs)
     return {
         "n_envs": _positive_int("n_envs", full["n_envs"]),
         "n_timesteps": _positive_int("n_timesteps", full["n_timesteps"]),
         "policy": full["policy"],
-        "policy_kwargs": validate_policy_kwargs(full["policy_kwargs"], full["policy"]),
+        "policy_kwargs": policy_kwargs,
         "env_kwargs": dict(env_kwargs),
         "wrapper": parse_wrapper_spec(full["wrapper"]),
         "normalize": parse_normalize(full["normalize"]),
         "eval_freq": _positive_int("eval_freq", full["eval_freq"], allow_zero=True),
         "n_eval_episodes": _positive_int("n_eval_episodes", full["n_eval_episodes"]),
         "checkpoint_freq": _positive_int("checkpoint_freq", full["checkpoint_freq"], True),
+        "backend": backend,
         "algo_kwargs": algo_kwargs,
     }
 

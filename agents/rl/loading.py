@@ -139,7 +139,10 @@ def rebuild_model(config: dict[str, Any], weights: PolicyFile, source: Path) -> 
     The algorithm is constructed as SB3's own ``load`` does, without an env
     (``_init_setup_model=False``, then the spaces, then ``_setup_model``), with the run's
     algorithm arguments (``use_sde`` among them: it shapes the policy) on the CPU; an off-policy
-    algorithm gets a replay buffer of one transition (nothing is collected).
+    algorithm gets a replay buffer of one transition (nothing is collected). A run of the sbx
+    backend (``backend: sbx``) is rebuilt as SB3's torch PPO too: its ``policy.npz`` holds the
+    weights in that policy's layout (:func:`agents.rl.sbx_backend.torch_layout`), and sbx is
+    not needed.
 
     Raises:
         agents.rl.safe_files.SafeFileError: The weights are another algorithm's or policy
@@ -153,8 +156,10 @@ def rebuild_model(config: dict[str, Any], weights: PolicyFile, source: Path) -> 
         )
     settings = resolve_settings(algo, config["hyperparams"])
     policy, policy_kwargs = policy_arguments(settings)
-    cls: Any = algorithms()[algo]
+    cls: Any = algorithms()[algo]  # SB3's torch class, for the sbx backend too (torch layout)
     kwargs = {**settings["algo_kwargs"], "device": "cpu"}
+    if settings["backend"] == "sbx":
+        kwargs["use_sde"] = False  # never with sbx (refused); its policy.npz is SB3's layout
     if "buffer_size" in inspect.signature(cls).parameters:
         kwargs["buffer_size"] = 1
     with warnings.catch_warnings():

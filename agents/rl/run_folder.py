@@ -17,6 +17,7 @@ as ``config_path`` to repeat it.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 import platform
 import time
@@ -43,6 +44,10 @@ def versions() -> dict[str, str]:
             out[key] = importlib.metadata.version(dist)
         except importlib.metadata.PackageNotFoundError:
             out[key] = "unknown"
+    # The sbx backend's (agents.rl.sbx_backend), when installed.
+    for dist in ("sbx-rl", "jax", "jaxlib", "flax", "optax"):
+        with contextlib.suppress(importlib.metadata.PackageNotFoundError):
+            out[dist.removesuffix("-rl")] = importlib.metadata.version(dist)
     return out
 
 

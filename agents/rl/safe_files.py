@@ -31,6 +31,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from agents.rl import sbx_backend
 from agents.rl.run_folder import safe_paths, vecnormalize_path
 
 POLICY_FORMAT = "quadslam-policy"
@@ -155,22 +156,28 @@ class PolicyFile:
 
 
 def write_policy(path: Path, model: Any) -> None:
-    """Write the weights and spaces of an SB3 ``model``'s policy to ``path`` (``.npz``)."""
+    """Write the weights and spaces of an SB3 ``model``'s policy to ``path`` (``.npz``).
+
+    An sbx model's flax parameters are written in the layout of SB3's torch policy
+    (:func:`agents.rl.sbx_backend.torch_layout`), so that the file reads as an SB3 run's.
+    """
     obs_spec, obs_arrays = _space_entries("observation", model.observation_space)
     act_spec, act_arrays = _space_entries("action", model.action_space)
+    if sbx_backend.is_sbx_model(model):
+        policy_class, state = sbx_backend.TORCH_POLICY_CLASS, sbx_backend.torch_layout(model)
+    else:
+        policy_class = type(model.policy).__name__
+        state = {k: v.detach().cpu().numpy() for k, v in model.policy.state_dict().items()}
     meta = {
         "format": POLICY_FORMAT,
         "version": VERSION,
         "algo": type(model).__name__.lower(),
-        "policy_class": type(model.policy).__name__,
+        "policy_class": policy_class,
         "num_timesteps": int(model.num_timesteps),
         "observation_space": obs_spec,
         "action_space": act_spec,
     }
-    tensors = {
-        f"param/{name}": value.detach().cpu().numpy()
-        for name, value in model.policy.state_dict().items()
-    }
+    tensors = {f"param/{name}": value for name, value in state.items()}
     _write_arrays(path, meta, {**obs_arrays, **act_arrays, **tensors})
 
 

@@ -1,4 +1,5 @@
-"""Train stable-baselines3 agents on the QuadSLAM envs (docs/design.md §6).
+"""Train stable-baselines3 (or sbx, ``backend: sbx``) agents on the QuadSLAM envs
+(docs/design.md §6).
 
 :func:`train` reads the zoo-style entry (:mod:`agents.rl.hyperparams`), builds ``n_envs`` lanes of
 the native vector env in this process (:class:`agents.rl.vec_adapter.QuadSLAMVecEnv`), trains,
@@ -32,6 +33,7 @@ from agents.io.signals import Terminated, signals_deferred, sigterm_as_request
 from agents.rl.building import (
     build_model,
     check_setup,
+    load_saved_model,
     make_vec_env,
     torch_settings,
     training_callbacks,
@@ -40,7 +42,6 @@ from agents.rl.checkpoints import Checkpoint, checkpoint_problem, ended_short, s
 from agents.rl.curves import plot_learning_curve
 from agents.rl.hyperparams import (
     DEFAULTS,
-    algorithms,
     default_config_path,
     load_hyperparams,
     resolve_settings,
@@ -64,6 +65,7 @@ def train(
     hyperparams: dict[str, Any] | None = None,
     verbose: int = 0,
     torch_threads: int | None = 1,
+    backend: str | None = None,
 ) -> Path:
     """Train ``algo`` on ``env_id`` with the zoo-style config and write a run folder.
 
@@ -74,8 +76,8 @@ def train(
             ``config.yaml``.
         timesteps: Override ``n_timesteps``.
         n_envs: Override ``n_envs``.
-        seed: Seeds Python, NumPy, torch (SB3 ``seed=``), the envs (``seed + rank``) and the
-            evaluation env (``seed + 10_000``); torch runs with deterministic algorithms.
+        seed: Seeds Python, NumPy, torch (SB3 ``seed=``; sbx's JAX key), the envs (``seed +
+            rank``), the evaluation env (``seed + 10_000``); torch is deterministic.
         out_dir: Parent folder of the run folder (default ``runs``).
         progress: Show a tqdm progress bar on stderr.
         hyperparams: Entries merged into the config entry (mappings merge recursively), e.g.
@@ -85,6 +87,8 @@ def train(
             default). Default 1: the networks are small, and with 2 threads a busy second
             core made each PPO minibatch update ~2x slower (131k steps of the EKF residual
             config: 71 s with torch's 2 threads vs 37 s with 1, another job running).
+        backend: The learner, overriding the entry's ``backend``: ``"sb3"`` (torch) or
+            ``"sbx"`` (JAX, PPO only; :mod:`agents.rl.sbx_backend`); ``None``: the entry's.
 
     Returns:
         The run folder.
@@ -113,6 +117,8 @@ def train(
         entry["n_timesteps"] = int(timesteps)
     if n_envs is not None:
         entry["n_envs"] = int(n_envs)
+    if backend is not None:
+        entry["backend"] = backend
     settings = resolve_settings(algo, entry)
 
     scenario_dict = check_setup(algo, settings, env_id)  # before any folder is written
@@ -370,8 +376,7 @@ def _model_on(
     if start is None:
         model = build_model(algo, settings, venv, seed, verbose)
     else:
-        cls: Any = algorithms()[algo]
-        model = cls.load(start.model, env=venv, device="cpu")
+        model = load_saved_model(algo, settings, start.model, venv)
     formats = ["csv", "tensorboard"] + (["stdout"] if verbose else [])
     log_dir = run_dir / "logs" / f"from_{start.steps}" if start else run_dir / "logs"
     model.set_logger(configure(str(log_dir), formats))
