@@ -62,7 +62,7 @@ class Plan:
 
 QUICK = Plan(  # every section of FULL, smaller: within wall_budget_s (docs/performance.md)
     name="quick",
-    env_steps=150,
+    env_steps=100,
     repeats=3,
     ekf_sizes=(5, 50, 200),
     ekf_observed=(1, 10),

@@ -5,7 +5,7 @@
   640×480 frame), DF-LQR flying; between two timed frames the env steps 0.1 s (untimed), so
   every call draws a new frame. Frames/s = frames / time spent in ``render()``; the map has
   been filling for ``warmup_s``.
-* ``episode_render_s``: a whole episode (paper EKF-SLAM, 50 s in the full plan, 5 s in the
+* ``episode_render_s``: a whole episode (paper EKF-SLAM, 50 s in the full plan, 3 s in the
   quick one) with ``render()`` called after every step, as ``gymnasium.wrappers.RecordVideo``
   does: the seconds spent in ``render()`` (frames are drawn ``render.fps`` = 10 times per
   simulated second, the calls in between return the last frame).
@@ -27,7 +27,7 @@ import gymnasium as gym
 from agents.bench.plan import Plan, Results
 
 # Per plan: (timed frames per sample, warm-up s, episode s, episode repeats).
-SIZES = {"tiny": (4, 0.5, 2.0, 1), "quick": (10, 3.0, 5.0, 1), "full": (100, 10.0, 50.0, 3)}
+SIZES = {"tiny": (4, 0.5, 2.0, 1), "quick": (5, 2.0, 3.0, 1), "full": (100, 10.0, 50.0, 3)}
 FRAME_CASES: tuple[tuple[str, str, dict[str, Any]], ...] = (
     ("ekf_slam", "QuadSLAM-EKF-v0", {}),
     ("fastslam", "QuadSLAM-FastSLAM-v0", {}),

@@ -241,7 +241,13 @@ def _add_bench_parser(sub: Any) -> None:
     from agents.bench.runner import SECTION_NAMES as BENCH_SECTIONS  # light: no numpy
 
     bench = sub.add_parser("bench", help="measure env and estimator speed and scaling")
-    bench.add_argument("--quick", action="store_true", help="small sizes, about a minute")
+    bench.add_argument(
+        "--quick",
+        action="store_true",
+        help="every section on fewer, smaller samples: budget <= 60 s on 2 idle cores, about "
+        "half of it the first-use compile (the run ends with its wall times against it; more "
+        "on a loaded machine)",
+    )
     bench.add_argument("--json", type=Path, help="write the measurements as JSON")
     bench.add_argument("--plots", type=Path, help="write scaling plots (PNG) here")
     bench.add_argument(
