@@ -18,7 +18,7 @@ from typing import Any
 from tqdm import tqdm
 
 from agents.cli.arg_types import positive_float, positive_int
-from agents.control.named import CONTROLLERS, FEEDFORWARD
+from agents.control.named import ADAPTATION, CONTROLLERS, FEEDFORWARD
 from agents.io.overrides import parse_overrides
 
 RESULTS_FILE = "results.txt"
@@ -176,10 +176,16 @@ def cmd_run(args: argparse.Namespace) -> int:
             f"quadslam run: error: --drag-feedforward: only with --policy "
             f"{' or '.join(FEEDFORWARD)} (got --policy {args.policy})"
         )
+    if args.thrust_adaptation and args.policy not in ADAPTATION:
+        raise SystemExit(
+            f"quadslam run: error: --thrust-adaptation: only with --policy "
+            f"{' or '.join(ADAPTATION)} (got --policy {args.policy})"
+        )
     if args.policy == "dflqr":
         policy = DFLQRPolicy.from_env(env, integral_gain=args.integral_gain or 0.0)
     else:
-        policy = build_controller(args.policy, env, drag_feedforward=args.drag_feedforward)
+        policy = build_controller(args.policy, env, drag_feedforward=args.drag_feedforward,
+                                  thrust_adaptation=args.thrust_adaptation)  # fmt: skip
     fly(env, policy, args.policy, seeds, plots, args.json, args.video)
     return 0
 
@@ -326,4 +332,11 @@ def _controller_options(run: argparse.ArgumentParser) -> None:
         "air-relative velocity to the commanded acceleration (default off); needs --set "
         "observation.air_velocity=true and an estimator that estimates the wind (ekf_slam "
         "with estimator.params.wind: estimate, as in ekf_figure8_wind_states)",
+    )
+    run.add_argument(
+        "--thrust-adaptation",
+        action="store_true",
+        help="lqi and se3: scale the reference acceleration (the feed-forward) by the thrust "
+        "ratio (true over nominal mass, per unit thrust) that the vertical integral measures "
+        "(default off)",
     )

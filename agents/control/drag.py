@@ -112,16 +112,15 @@ class DragFeedforward:
         return out
 
 
-def check_flag(name: str, value: Any) -> bool:
-    """``value`` of ``{name}.drag_feedforward`` as a bool.
+def check_flag(name: str, value: Any, option: str = "drag_feedforward") -> bool:
+    """``value`` of the controller option ``{name}.{option}`` (``drag_feedforward``,
+    ``thrust_adaptation``) as a bool.
 
     Raises:
         ConfigError: ``value`` is not a bool.
     """
     if not isinstance(value, bool | np.bool_):
-        raise ConfigError(
-            f"{name}.drag_feedforward: got {value!r}; allowed: true or false (a bool)"
-        )
+        raise ConfigError(f"{name}.{option}: got {value!r}; allowed: true or false (a bool)")
     return bool(value)
 
 

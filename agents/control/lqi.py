@@ -44,6 +44,12 @@ robustness study on seeds 0–3, not its held-out seeds (docs/robustness.md has 
 **Drag feed-forward** (``drag_feedforward=True``, off by default): ``u_p`` gains the
 compensation of the drag the vehicle's model predicts on the estimated air-relative velocity
 (:mod:`agents.control.drag`), so the integral need not carry it.
+
+**Thrust adaptation** (``thrust_adaptation=True``, off by default): the feed-forward ``ρ̈_d``
+(and the drag compensation) of ``u_p`` is scaled by the thrust ratio ``r̂ = 1 − c_z / g`` that
+the vertical integral command ``c_z = (−K_ξ ξ)_z`` measures (:mod:`agents.control.adaptation`),
+so that a vehicle heavier or weaker than the model gets the reference's acceleration, not
+``m_nom / m`` of it, without the integral having to follow it.
 """
 
 from __future__ import annotations
@@ -54,6 +60,7 @@ from typing import Any
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from agents.control.adaptation import scale_reference, thrust_ratio
 from agents.control.dflqr import (
     _NO_OFFSET,
     ATTITUDE_DAMPING,
@@ -210,15 +217,19 @@ class LQIPolicy(DFLQRPolicy):
             (:mod:`agents.control.drag`); False: the LQI as before, bit for bit.
         air_velocity_index: First observation entry of the estimated air velocity (the
             ``air_velocity`` block; ``from_env`` finds it), needed with ``drag_feedforward``.
+        thrust_adaptation: Scale the feed-forward by the thrust ratio the vertical integral
+            measures (:mod:`agents.control.adaptation`); False: the LQI as before, bit for bit.
 
     Attributes:
         K: (4, 7) gain on ``r̃``; K_xi: (4, 4) gain on the integrals; poles: closed-loop
         eigenvalues of the outer loop, 1/s; feedforward: the
-        :class:`~agents.control.drag.DragFeedforward`, or ``None``.
+        :class:`~agents.control.drag.DragFeedforward`, or ``None``; adaptation: whether the
+        thrust adaptation is on.
 
     Raises:
         ConfigError: Bad weights, an outer loop too fast for the attitude loop, a
-            ``drag_feedforward`` that is not a bool, or one without the air velocity.
+            ``drag_feedforward`` that is not a bool, or one without the air velocity, a
+            ``thrust_adaptation`` that is not a bool, or one without a vertical integral.
     """
 
     def __init__(
@@ -234,9 +245,11 @@ class LQIPolicy(DFLQRPolicy):
         control_dt: float = 0.01,
         drag_feedforward: bool = False,
         air_velocity_index: int | None = None,
+        thrust_adaptation: bool = False,
     ) -> None:
         if not (math.isfinite(max_tilt_deg) and 0.0 < max_tilt_deg <= 90.0):
             raise ConfigError(f"lqi.max_tilt_deg: got {max_tilt_deg!r}; allowed: (0, 90]")
+        self.adaptation = check_flag("lqi", thrust_adaptation, "thrust_adaptation")
         self.feedforward = (
             DragFeedforward(vehicle, air_velocity_index, "lqi")
             if check_flag("lqi", drag_feedforward)
@@ -250,6 +263,12 @@ class LQIPolicy(DFLQRPolicy):
         wn = np.sqrt(self.kp / np.diag(vehicle.inertia))
         check_separation(self.poles, wn)
         self._integrates = bool(np.any(self.K_xi != 0.0))
+        if self.adaptation and not np.any(self.K_xi[2] != 0.0):
+            raise ConfigError(
+                f"lqi.thrust_adaptation: got true with integral_weights "
+                f"{np.asarray(integral_weights).tolist()}; allowed: false, or a vertical integral"
+                " (integral_weights[2] > 0), whose command is the estimate"
+            )
 
     def predict(
         self,
@@ -259,7 +278,9 @@ class LQIPolicy(DFLQRPolicy):
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
         """SB3-style ``predict``: (obs_dim,) or (n, obs_dim) → float32 actions and the (n, 4)
-        integral state after this step (``state`` passed through when no axis integrates)."""
+        integral state after this step (``state`` passed through when no axis integrates).
+        With the thrust adaptation each lane's feed-forward is scaled by the ratio of its
+        integrals before this step (:meth:`thrust_ratio`)."""
         obs = np.asarray(observation, dtype=float)
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
@@ -273,14 +294,31 @@ class LQIPolicy(DFLQRPolicy):
                            self._tan_max, act, tilted)  # fmt: skip
         else:
             xi = self._integral_state(state, episode_start, batch.shape[0])
-            offset = -xi @ self.K_xi.T
+            offset = self._integral_command(xi)
+            flown = batch
+            if self.adaptation:  # the feed-forward scaled (agents.control.adaptation)
+                ratio = thrust_ratio(offset[:, 2])
+                flown = scale_reference(batch, ratio)
+                drag = None if drag is None else ratio[:, None] * drag
             if drag is not None:
                 offset[:, :3] += drag
-            _command_lanes(batch, self.K, self.kp, self.kd, mass, self._limits, offset,
+            _command_lanes(flown, self.K, self.kp, self.kd, mass, self._limits, offset,
                            self._tan_max, act, tilted)  # fmt: skip
             state = self._step_integrals(xi, batch, saturated(act, tilted))
         act = act.astype(np.float32)
         return (act[0] if single else act), state
+
+    def _integral_command(self, xi: FloatArray) -> FloatArray:
+        """(n, 4) the integral action ``−K_ξ ξ`` of the (n, 4) integrals ``xi``: m/s² on
+        ``u_p`` (heading frame), rad/s on ``u_ψ``."""
+        return -xi @ self.K_xi.T
+
+    def thrust_ratio(self, state: Any) -> FloatArray:
+        """(n,) the thrust ratio ``r̂ = m_eff / m_nom`` each lane's integrals ``state`` (n, 4)
+        measure (:func:`~agents.control.adaptation.thrust_ratio` of the vertical integral
+        command), whether or not the adaptation is on; ``None``: one lane, 1.0."""
+        xi = np.zeros((1, 4)) if state is None else np.array(state, dtype=float).reshape(-1, 4)
+        return thrust_ratio(self._integral_command(xi)[:, 2])
 
     def _step_integrals(self, xi: FloatArray, obs: FloatArray, held: np.ndarray) -> FloatArray:
         """The (n, 4) integrals after one control period: the position integral turned with the

@@ -37,9 +37,22 @@ tracking on SE(3) with integral action, :mod:`agents.control.se3`)."""
 FEEDFORWARD = ("lqi", "se3")
 """The controllers that take ``drag_feedforward`` (:mod:`agents.control.drag`)."""
 
+ADAPTATION = ("lqi", "se3")
+"""The controllers that take ``thrust_adaptation`` (:mod:`agents.control.adaptation`)."""
+
+_OPTIONS = {
+    "drag_feedforward": (FEEDFORWARD, "the drag feed-forward"),
+    "thrust_adaptation": (ADAPTATION, "the thrust adaptation"),
+}
+"""Each option of :func:`build_controller`: the controllers that take it and its name in errors."""
+
 
 def build_controller(
-    name: str, env: Any, key: str = "--policy", drag_feedforward: bool = False
+    name: str,
+    env: Any,
+    key: str = "--policy",
+    drag_feedforward: bool = False,
+    thrust_adaptation: bool = False,
 ) -> Any:
     """The controller ``name`` (one of :data:`CONTROLLERS`) for ``env``.
 
@@ -49,19 +62,23 @@ def build_controller(
         key: The setting that named it, for the error.
         drag_feedforward: Turn on the drag feed-forward (:data:`FEEDFORWARD` controllers only;
             the env must observe the estimated air velocity, ``observation.air_velocity``).
+        thrust_adaptation: Turn on the thrust adaptation (:data:`ADAPTATION` controllers only).
 
     Raises:
-        ValueError: ``name`` is not in :data:`CONTROLLERS` (naming ``key``), or
-            ``drag_feedforward`` with a controller without it.
-        ConfigError: ``drag_feedforward`` not a bool, or on an env without the air velocity.
+        ValueError: ``name`` is not in :data:`CONTROLLERS` (naming ``key``), or an option on
+            a controller without it.
+        ConfigError: An option not a bool, or ``drag_feedforward`` on an env without the air
+            velocity.
     """
     if name not in CONTROLLERS:
         raise ValueError(f"{key}: got {name!r}; allowed: one of {sorted(CONTROLLERS)}")
-    if drag_feedforward is False:
-        return CONTROLLERS[name](env)
-    if name not in FEEDFORWARD:
-        raise ValueError(
-            f"drag_feedforward: got {drag_feedforward!r} with {key} {name}; allowed: false, or "
-            f"a controller with the drag feed-forward ({', '.join(FEEDFORWARD)})"
-        )
-    return CONTROLLERS[name](env, drag_feedforward=drag_feedforward)
+    given = {"drag_feedforward": drag_feedforward, "thrust_adaptation": thrust_adaptation}
+    options = {option: value for option, value in given.items() if value is not False}
+    for option, value in options.items():
+        names, what = _OPTIONS[option]
+        if name not in names:
+            raise ValueError(
+                f"{option}: got {value!r} with {key} {name}; allowed: false, or a controller "
+                f"with {what} ({', '.join(names)})"
+            )
+    return CONTROLLERS[name](env, **options)

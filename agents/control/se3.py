@@ -28,7 +28,10 @@ vehicle and the Crazyflie. The tilt limit and the integral are the LQI's: the co
 most 30°, the integral in the heading frame, not integrated on a lane whose thrust or roll/pitch
 torque saturates or whose tilt is limited (conditional integration, no take-off hold), carried
 in ``predict``'s ``state`` (n, 3) m·s. The drag feed-forward is the LQI's
-(``drag_feedforward=True``: ``A`` gains the compensation of :mod:`agents.control.drag`).
+(``drag_feedforward=True``: ``A`` gains the compensation of :mod:`agents.control.drag`), and so
+is the thrust adaptation (``thrust_adaptation=True``: the feed-forward ``ẍ_d``, and the drag
+compensation, scaled by ``r̂ = 1 − c_z / g`` of the vertical integral command
+``c_z = −k_I e_I,z``, :mod:`agents.control.adaptation`).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.control.adaptation import scale_reference, thrust_ratio
 from agents.control.dflqr import (
     ATTITUDE_DAMPING,
     ATTITUDE_NATURAL_FREQ,
@@ -82,18 +86,19 @@ def _se3_lanes(
     tilted: np.ndarray,
 ) -> None:
     """Normalised ``thrust_torque`` actions ``out`` (n, 4) for observations ``obs`` (n, ≥16),
-    steps 1–3 of the module docstring; ``gains = (k_x, k_v, k_I)``, ``integral`` (n, 3) m·s,
-    ``offset`` (n, 3) m/s² added to ``A`` (the drag compensation; an empty (0, 3) adds
-    nothing), ``limits = (max thrust N, max torques (3) N·m)``, ``inertia`` (3, 3) kg·m²;
-    ``A`` is tilt-limited (:func:`~agents.control.dflqr.limit_tilt`), the lanes so limited
-    marked in ``tilted`` (n,)."""
+    steps 1–3 of the module docstring; ``gains = (k_x, k_v, k_I)`` (``k_I`` unused here),
+    ``integral`` (n, 3) the integral command ``−k_I e_I`` in m/s², ``offset`` (n, 3) m/s² added
+    to ``A`` (the drag compensation; an empty (0, 3) adds nothing), ``limits = (max thrust N,
+    max torques (3) N·m)``, ``inertia`` (3, 3) kg·m²; ``A`` is tilt-limited
+    (:func:`~agents.control.dflqr.limit_tilt`), the lanes so limited marked in ``tilted``
+    (n,)."""
     A = np.empty(3)
     Rd = np.empty((3, 3))
     E = np.empty((3, 3))
     for b in range(obs.shape[0]):
         o = obs[b]
         for i in range(3):
-            A[i] = o[12 + i] - gains[0] * o[i] - gains[1] * o[3 + i] - gains[2] * integral[b, i]
+            A[i] = o[12 + i] - gains[0] * o[i] - gains[1] * o[3 + i] + integral[b, i]
         A[2] -= GRAVITY
         if offset.shape[0]:
             for i in range(3):
@@ -150,12 +155,16 @@ class SE3Policy:
             (:mod:`agents.control.drag`); False: the controller as before, bit for bit.
         air_velocity_index: First observation entry of the estimated air velocity (the
             ``air_velocity`` block; ``from_env`` finds it), needed with ``drag_feedforward``.
+        thrust_adaptation: Scale the feed-forward by the thrust ratio the vertical integral
+            measures (:mod:`agents.control.adaptation`); False: the controller as before, bit
+            for bit.
 
     Raises:
         ConfigError: Negative or non-finite gains, an unstable outer loop (the linearised
             per-axis loop ``s³ + k_v s² + k_x s + k_I`` must be Hurwitz: ``k_I < k_x k_v``),
             one too fast for the attitude loop, a ``drag_feedforward`` that is not a bool, or
-            one without the air velocity.
+            one without the air velocity, a ``thrust_adaptation`` that is not a bool, or one
+            with ``k_I = 0``.
     """
 
     def __init__(
@@ -169,9 +178,11 @@ class SE3Policy:
         control_dt: float = 0.01,
         drag_feedforward: bool = False,
         air_velocity_index: int | None = None,
+        thrust_adaptation: bool = False,
     ) -> None:
         if not (math.isfinite(max_tilt_deg) and 0.0 < max_tilt_deg <= 90.0):
             raise ConfigError(f"se3.max_tilt_deg: got {max_tilt_deg!r}; allowed: (0, 90]")
+        self.adaptation = check_flag("se3", thrust_adaptation, "thrust_adaptation")
         self.feedforward = (
             DragFeedforward(vehicle, air_velocity_index, "se3")
             if check_flag("se3", drag_feedforward)
@@ -193,6 +204,11 @@ class SE3Policy:
         wn = ATTITUDE_NATURAL_FREQ if natural_freq is None else natural_freq
         wn = np.asarray(wn, dtype=float)
         check_separation(np.roots([1.0, k_v, k_x, k_i] if k_i > 0 else [1.0, k_v, k_x]), wn)
+        if self.adaptation and k_i == 0.0:
+            raise ConfigError(
+                f"se3.thrust_adaptation: got true with position_gains {gains.tolist()}; allowed:"
+                " false, or k_I > 0 (the vertical integral's command is the estimate)"
+            )
         inertia = np.diag(vehicle.inertia)
         self.vehicle = vehicle
         self.gains = gains
@@ -218,7 +234,8 @@ class SE3Policy:
     ) -> tuple[np.ndarray, Any]:
         """SB3-style ``predict``: (obs_dim,) or (n, obs_dim) → float32 actions and the (n, 3)
         position-error integral after this step (zeros on lanes whose ``episode_start`` is set,
-        or when no ``state`` is given)."""
+        or when no ``state`` is given). With the thrust adaptation each lane's feed-forward is
+        scaled by the ratio of its integral before this step (:meth:`thrust_ratio`)."""
         obs = np.asarray(observation, dtype=float)
         single = obs.ndim == 1
         batch = obs[None, :] if single else obs
@@ -229,10 +246,28 @@ class SE3Policy:
         act = np.zeros((n, self.action_dim))
         tilted = np.empty(n, dtype=np.bool_)
         drag = _NO_OFFSET if self.feedforward is None else self.feedforward.compensation(batch)
-        _se3_lanes(batch, self.gains, self.kR, self.kW, np.asarray(self.vehicle.inertia),
-                   float(self.vehicle.mass), self._limits, xi, drag, self._tan_max, BRAKING_RATE,
-                   act, tilted)  # fmt: skip
+        command = self._integral_command(xi)
+        flown = batch
+        if self.adaptation:  # the feed-forward scaled (agents.control.adaptation)
+            ratio = thrust_ratio(command[:, 2])
+            flown = scale_reference(batch, ratio)
+            drag = drag if self.feedforward is None else ratio[:, None] * drag
+        _se3_lanes(flown, self.gains, self.kR, self.kW, np.asarray(self.vehicle.inertia),
+                   float(self.vehicle.mass), self._limits, command, drag, self._tan_max,
+                   BRAKING_RATE, act, tilted)  # fmt: skip
         turned, grown = heading_frame_step(xi, batch, self.control_dt)
         state = np.where(saturated(act, tilted)[:, None], turned, grown)
         act = act.astype(np.float32)
         return (act[0] if single else act), state
+
+    def _integral_command(self, xi: FloatArray) -> FloatArray:
+        """(n, 3) the integral action ``−k_I e_I`` in m/s² (heading frame) of the (n, 3)
+        integrals ``xi`` in m·s."""
+        return -self.gains[2] * xi
+
+    def thrust_ratio(self, state: Any) -> FloatArray:
+        """(n,) the thrust ratio ``r̂ = m_eff / m_nom`` each lane's integral ``state`` (n, 3)
+        measures (:func:`~agents.control.adaptation.thrust_ratio` of the vertical integral
+        command), whether or not the adaptation is on; ``None``: one lane, 1.0."""
+        xi = np.zeros((1, 3)) if state is None else np.array(state, dtype=float).reshape(-1, 3)
+        return thrust_ratio(self._integral_command(xi)[:, 2])

@@ -40,7 +40,7 @@ import numpy as np
 
 from agents.control.dflqr import DFLQRPolicy
 from agents.control.lookat import LookAtPolicy
-from agents.control.named import CONTROLLERS, FEEDFORWARD, build_controller
+from agents.control.named import ADAPTATION, CONTROLLERS, FEEDFORWARD, build_controller
 
 RESIDUAL_DFLQR = "residual_dflqr"
 WRAPPERS = (RESIDUAL_DFLQR,)
@@ -86,24 +86,40 @@ BASES = (*CONTROLLERS, "lookat")
 (:mod:`agents.control.lookat`, for scenarios with the heading channel)."""
 
 
-def base_controller(env: Any, base: str, drag_feedforward: bool = False) -> Any:
+_OPTIONS = {"drag_feedforward": FEEDFORWARD, "thrust_adaptation": ADAPTATION}
+"""The base options a residual takes (``wrapper.<option>``), each with the bases that have it."""
+
+
+def _option_error(option: str, value: Any, base: str) -> ValueError:
+    """The refusal of ``wrapper.<option>`` (:data:`_OPTIONS`) ``value`` on ``base``."""
+    return ValueError(
+        f"wrapper.{option}: got {value!r} with wrapper.base {base!r}; allowed: false, or "
+        f"true with a base that has it ({', '.join(_OPTIONS[option])})"
+    )
+
+
+def base_controller(
+    env: Any, base: str, drag_feedforward: bool = False, thrust_adaptation: bool = False
+) -> Any:
     """The controller named ``base`` (one of :data:`BASES`) for ``env``, with the drag
-    feed-forward if asked (``lqi`` and ``se3``, :func:`agents.control.named.build_controller`).
+    feed-forward and the thrust adaptation if asked (``lqi`` and ``se3``,
+    :func:`agents.control.named.build_controller`).
 
     Raises:
         ValueError: Unknown name, ``lookat`` on a scenario without the heading channel, or
-            ``drag_feedforward`` on a base without it or an env without the air velocity.
+            an option on a base without it or ``drag_feedforward`` on an env without the air
+            velocity.
     """
     if base not in BASES:
         raise ValueError(f"wrapper.base: got {base!r}; allowed: {list(BASES)}")
-    if drag_feedforward is not False and base not in FEEDFORWARD:
-        raise ValueError(
-            f"wrapper.drag_feedforward: got {drag_feedforward!r} with wrapper.base {base!r}; "
-            f"allowed: false, or true with a base that has it ({', '.join(FEEDFORWARD)})"
-        )
+    for option, value in (("drag_feedforward", drag_feedforward),
+                          ("thrust_adaptation", thrust_adaptation)):  # fmt: skip
+        if value is not False and base not in _OPTIONS[option]:
+            raise _option_error(option, value, base)
     if base == "lookat":
         return LookAtPolicy(env)
-    return build_controller(base, env, "wrapper.base", drag_feedforward=drag_feedforward)
+    return build_controller(base, env, "wrapper.base", drag_feedforward=drag_feedforward,
+                            thrust_adaptation=thrust_adaptation)  # fmt: skip
 
 
 class ResidualDFLQR:
@@ -115,6 +131,8 @@ class ResidualDFLQR:
         controller: Controller to use; default the one named by ``base``.
         base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`), when no ``controller`` is given.
         drag_feedforward: The base's drag feed-forward (``lqi``, ``se3``), when no
+            ``controller`` is given.
+        thrust_adaptation: The base's thrust adaptation (``lqi``, ``se3``), when no
             ``controller`` is given.
 
     Attributes:
@@ -136,9 +154,10 @@ class ResidualDFLQR:
         controller: DFLQRPolicy | LookAtPolicy | None = None,
         base: str = "dflqr",
         drag_feedforward: bool = False,
+        thrust_adaptation: bool = False,
     ) -> None:
         if controller is None:
-            controller = base_controller(env, base, drag_feedforward)
+            controller = base_controller(env, base, drag_feedforward, thrust_adaptation)
         self.controller = controller
         self.dim = self.controller.action_dim
         # A heading channel (fifth component) is the agent's own command, not a residual:
@@ -216,6 +235,7 @@ class ResidualDFLQRWrapper(_ResidualSteps, gym.Wrapper):
         controller: Base controller to use; default the one named by ``base``.
         base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`).
         drag_feedforward: The base's drag feed-forward (``lqi``, ``se3``).
+        thrust_adaptation: The base's thrust adaptation (``lqi``, ``se3``).
 
     Attributes:
         residual: The :class:`ResidualDFLQR` composer (``controller``, ``scale``).
@@ -232,9 +252,12 @@ class ResidualDFLQRWrapper(_ResidualSteps, gym.Wrapper):
         controller: DFLQRPolicy | LookAtPolicy | None = None,
         base: str = "dflqr",
         drag_feedforward: bool = False,
+        thrust_adaptation: bool = False,
     ) -> None:
         super().__init__(env)
-        self.residual = ResidualDFLQR(env, scale, controller, base, drag_feedforward)
+        self.residual = ResidualDFLQR(
+            env, scale, controller, base, drag_feedforward, thrust_adaptation
+        )
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(self.residual.dim,), dtype=np.float32)
         self._obs = None
         self.last_action: np.ndarray | None = None
@@ -272,6 +295,7 @@ class ResidualDFLQRVectorWrapper(_ResidualSteps, gym.vector.VectorWrapper):
         controller: Base controller to use; default the one named by ``base``.
         base: ``"dflqr"`` or ``"lookat"`` (:data:`BASES`).
         drag_feedforward: The base's drag feed-forward (``lqi``, ``se3``).
+        thrust_adaptation: The base's thrust adaptation (``lqi``, ``se3``).
 
     Raises:
         ValueError: Bad ``scale`` or an env not in ``thrust_torque`` mode.
@@ -284,9 +308,12 @@ class ResidualDFLQRVectorWrapper(_ResidualSteps, gym.vector.VectorWrapper):
         controller: DFLQRPolicy | LookAtPolicy | None = None,
         base: str = "dflqr",
         drag_feedforward: bool = False,
+        thrust_adaptation: bool = False,
     ) -> None:
         super().__init__(env)
-        self.residual = ResidualDFLQR(env, scale, controller, base, drag_feedforward)
+        self.residual = ResidualDFLQR(
+            env, scale, controller, base, drag_feedforward, thrust_adaptation
+        )
         self.single_action_space = gym.spaces.Box(
             -1.0, 1.0, shape=(self.residual.dim,), dtype=np.float32
         )
@@ -333,23 +360,21 @@ def parse_wrapper_spec(spec: Any) -> tuple[str, dict[str, Any]] | None:
         return None
     if name not in WRAPPERS:
         raise ValueError(f"wrapper: got {name!r}; allowed: {['none', *WRAPPERS]}")
-    unknown = set(kwargs) - {"scale", "base", "drag_feedforward"}
+    unknown = set(kwargs) - {"scale", "base", *_OPTIONS}
     if unknown:
         raise ValueError(
-            f"wrapper.{sorted(unknown)[0]}: unknown key for {name}; allowed: ['base', "
-            "'drag_feedforward', 'scale']"
+            f"wrapper.{sorted(unknown)[0]}: unknown key for {name}; allowed: "
+            f"{sorted(['base', 'scale', *_OPTIONS])}"
         )
     if "scale" in kwargs:
         as_residual_scale(kwargs["scale"])  # validate early, with the config's wording
     base = kwargs.get("base", "dflqr")
     if base not in BASES:
         raise ValueError(f"wrapper.base: got {kwargs['base']!r}; allowed: {list(BASES)}")
-    ff = kwargs.get("drag_feedforward", False)
-    if not isinstance(ff, bool) or (ff and base not in FEEDFORWARD):
-        raise ValueError(
-            f"wrapper.drag_feedforward: got {ff!r} with wrapper.base {base!r}; allowed: false, "
-            f"or true with a base that has it ({', '.join(FEEDFORWARD)})"
-        )
+    for option, bases in _OPTIONS.items():
+        value = kwargs.get(option, False)
+        if not isinstance(value, bool) or (value and base not in bases):
+            raise _option_error(option, value, base)
     return name, kwargs
 
 
