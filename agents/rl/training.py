@@ -110,15 +110,11 @@ def train(
         quad = sorted(k for k in gym.registry if k.startswith("QuadSLAM"))
         raise ValueError(f"env: got {env_id!r}; allowed: {quad} or another registered id")
     source = Path(config_path) if config_path is not None else default_config_path(algo)
-    entry = load_hyperparams(algo, env_id, source)
-    if hyperparams:
-        entry = deep_merge(entry, hyperparams)
-    if timesteps is not None:
-        entry["n_timesteps"] = int(timesteps)
-    if n_envs is not None:
-        entry["n_envs"] = int(n_envs)
-    if backend is not None:
-        entry["backend"] = backend
+    entry = deep_merge(load_hyperparams(algo, env_id, source), hyperparams or {})
+    overrides = {"n_timesteps": timesteps, "n_envs": n_envs, "backend": backend}
+    entry.update(
+        {k: v if k == "backend" else int(v) for k, v in overrides.items() if v is not None}
+    )
     settings = resolve_settings(algo, entry)
 
     scenario_dict = check_setup(algo, settings, env_id)  # before any folder is written
