@@ -57,8 +57,8 @@ def _returns_per_scan(env: Any, steps: int) -> float:
 
 def returns_steps(plan: Plan) -> int:
     """Zero-action steps over which the returns per scan are counted: 500 (50 scans), fewer
-    (down to 200) when the plan's scalar samples are shorter than that."""
-    return max(200, min(500, plan.env_steps))
+    (down to 100) when the plan's scalar samples are shorter than that."""
+    return max(100, min(500, plan.env_steps))
 
 
 def bench_association(results: Results, plan: Plan) -> None:

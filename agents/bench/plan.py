@@ -73,10 +73,10 @@ QUICK = Plan(  # every section of FULL, smaller: within wall_budget_s (docs/perf
     worker_batches=(256,),
     n_workers=2,
     vec_lane_steps=300,
-    vec_min_steps=30,
-    vec_warmup=50,
+    vec_min_steps=20,
+    vec_warmup=30,
     memory_batches=(1, 256),
-    memory_steps=300,
+    memory_steps=100,
     process_repeats=1,
     wall_budget_s=60.0,
 )

@@ -189,10 +189,14 @@ def format_wall_times(doc: dict[str, Any], budget: tuple[str, float] | None = No
     """The wall time of each section and of the whole run (from the command's start), and
     whether it is within ``budget`` = (plan name, seconds) when given."""
     total = f"wall time {doc['wall_time_s']:.1f} s from the command's start"
+    per_section = doc.get("section_wall_s", {})
     if budget is not None:
         verdict = "within" if doc["wall_time_s"] <= budget[1] else "OVER"
-        total += f" ({verdict} the {budget[0]} plan's budget of {budget[1]:g} s)"
-    per_section = doc.get("section_wall_s", {})
+        total += f" ({verdict} the {budget[0]} plan's budget of {budget[1]:g} s"
+        if verdict == "OVER" and per_section:
+            longest = max(per_section, key=per_section.__getitem__)
+            total += f"; the longest section: {longest} {per_section[longest]:.1f} s"
+        total += ")"
     if not per_section:
         return total
     sections_s = ", ".join(f"{name} {s:.1f} s" for name, s in per_section.items())
