@@ -107,3 +107,28 @@ def random_spd(rng: np.random.Generator, n: int, lo: float = 1e-3, hi: float = 5
     q, _ = np.linalg.qr(rng.normal(size=(n, n)))
     a = (q * rng.uniform(lo, hi, n)) @ q.T
     return 0.5 * (a + a.T)
+
+
+def assert_zero_residual_flies_base(make: Any, base: str, steps: int, **options: Any) -> None:
+    """A residual wrapper on the ``base`` controller (with its ``options``) fed a zero residual
+    flies exactly as the bare controller: the vector env ``make()`` twice, ``steps`` steps of
+    two lanes, observations equal bit for bit."""
+    from agents.control.named import build_controller
+    from agents.rl.wrappers import ResidualDFLQRVectorWrapper, parse_wrapper_spec
+
+    spec = parse_wrapper_spec({"name": "residual_dflqr", "base": base, **options})
+    assert spec is not None
+    wrapped, plain = ResidualDFLQRVectorWrapper(make(), **spec[1]), make()
+    try:
+        policy = build_controller(base, plain, **options)
+        o_w, _ = wrapped.reset(seed=1)
+        o_p, _ = plain.reset(seed=1)
+        state = None
+        for _ in range(steps):
+            o_w, *_ = wrapped.step(np.zeros((2, 4), np.float32))
+            act, state = policy.predict(o_p, state=state)
+            o_p, *_ = plain.step(act)
+            np.testing.assert_array_equal(o_w, o_p)
+    finally:
+        wrapped.close()
+        plain.close()

@@ -12,13 +12,14 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import assert_zero_residual_flies_base
 from scipy.spatial.transform import Rotation
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.lqi import LQIPolicy
 from agents.control.named import build_controller
 from agents.control.se3 import SE3Policy
-from agents.rl.wrappers import ResidualDFLQRVectorWrapper, parse_wrapper_spec
+from agents.rl.wrappers import parse_wrapper_spec
 from quadslam_env.config_files import config_dir, load_yaml
 from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.params import vehicle_preset
@@ -176,22 +177,7 @@ def test_a_zero_residual_on_the_feedforward_base_flies_the_base():
         return gym.make_vec("QuadSLAM-v0", num_envs=2, vectorization_mode="vector_entry_point",
                             **kwargs)  # fmt: skip
 
-    spec = parse_wrapper_spec({"name": "residual_dflqr", "base": "lqi", "drag_feedforward": True})
-    assert spec is not None
-    wrapped, plain = ResidualDFLQRVectorWrapper(make(), **spec[1]), make()
-    try:
-        policy = build_controller("lqi", plain, drag_feedforward=True)
-        o_w, _ = wrapped.reset(seed=1)
-        o_p, _ = plain.reset(seed=1)
-        state = None
-        for _ in range(20):
-            o_w, *_ = wrapped.step(np.zeros((2, 4), np.float32))
-            act, state = policy.predict(o_p, state=state)
-            o_p, *_ = plain.step(act)
-            np.testing.assert_array_equal(o_w, o_p)
-    finally:
-        wrapped.close()
-        plain.close()
+    assert_zero_residual_flies_base(make, "lqi", 20, drag_feedforward=True)
 
 
 def test_bad_feedforward_settings_are_refused():

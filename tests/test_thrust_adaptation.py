@@ -13,6 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import assert_zero_residual_flies_base
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.cli.main import main
@@ -226,22 +227,13 @@ def test_a_zero_residual_on_the_adapted_base_flies_the_base() -> None:
 
     spec = parse_wrapper_spec({"name": "residual_dflqr", "base": "se3", "thrust_adaptation": True})
     assert spec is not None
-    wrapped, plain = ResidualDFLQRVectorWrapper(make(), **spec[1]), make()
+    wrapped = ResidualDFLQRVectorWrapper(make(), **spec[1])
     try:
         base: Any = wrapped.residual.controller
         assert base.adaptation
-        policy = build_controller("se3", plain, thrust_adaptation=True)
-        o_w, _ = wrapped.reset(seed=1)
-        o_p, _ = plain.reset(seed=1)
-        state = None
-        for _ in range(200):
-            o_w, *_ = wrapped.step(np.zeros((2, 4), np.float32))
-            act, state = policy.predict(o_p, state=state)
-            o_p, *_ = plain.step(act)
-            np.testing.assert_array_equal(o_w, o_p)
     finally:
         wrapped.close()
-        plain.close()
+    assert_zero_residual_flies_base(make, "se3", 200, thrust_adaptation=True)
 
 
 def test_bad_adaptation_settings_are_refused() -> None:
