@@ -132,3 +132,49 @@ def assert_zero_residual_flies_base(make: Any, base: str, steps: int, **options:
     finally:
         wrapped.close()
         plain.close()
+
+
+def assert_lanes_equal_scalar_env(
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    base: str,
+    seeds: list[int],
+    steps: int,
+    **options: Any,
+) -> tuple[Any, Any]:
+    """The ``base`` controller (with its ``options``) flown ``steps`` steps on the lanes of one
+    vector env (lane i seeded ``seeds[0] + i``) and on one scalar env per seed: every lane's
+    observations equal its scalar env's bit for bit.
+
+    Returns:
+        The vector env's controller and its state after the last step (for further checks).
+    """
+    from agents.control.named import build_controller
+
+    vec = gym.make_vec(env_id, num_envs=len(seeds), vectorization_mode="vector_entry_point",
+                       **env_kwargs)  # fmt: skip
+    try:
+        policy = build_controller(base, vec, **options)
+        obs, _ = vec.reset(seed=seeds[0])
+        state, start, lanes = None, np.ones(len(seeds), dtype=bool), [obs]
+        for _ in range(steps):
+            act, state = policy.predict(obs, state=state, episode_start=start)
+            obs, _, term, trunc, _ = vec.step(act)
+            start = term | trunc
+            lanes.append(obs)
+    finally:
+        vec.close()
+    for i, seed in enumerate(seeds):
+        env = gym.make(env_id, **env_kwargs)
+        try:
+            scalar = build_controller(base, env, **options)
+            o, _ = env.reset(seed=seed)
+            s = None
+            for k in range(steps):
+                np.testing.assert_array_equal(o, lanes[k][i])
+                a, s = scalar.predict(o, state=s)
+                o, *_ = env.step(a)
+            np.testing.assert_array_equal(o, lanes[steps][i])
+        finally:
+            env.close()
+    return policy, state

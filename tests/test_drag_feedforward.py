@@ -12,7 +12,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import assert_zero_residual_flies_base
+from conftest import assert_lanes_equal_scalar_env, assert_zero_residual_flies_base
 from scipy.spatial.transform import Rotation
 
 import quadslam_env  # noqa: F401  (registers the ids)
@@ -114,33 +114,7 @@ def test_with_the_true_wind_the_command_shifts_by_the_linear_drag_exactly(name):
 def test_lanes_equal_the_scalar_env_with_the_feedforward():
     kwargs: dict[str, Any] = {"scenario": "ekf_figure8_wind_states", "observation": WIND_OBS,
                               "episode": {"duration_s": 0.6}}  # fmt: skip
-    seeds, steps = [7, 8], 60
-    vec = gym.make_vec("QuadSLAM-v0", num_envs=2, vectorization_mode="vector_entry_point",
-                       **kwargs)  # fmt: skip
-    try:
-        policy = build_controller("se3", vec, drag_feedforward=True)
-        obs, _ = vec.reset(seed=seeds[0])
-        state, start, lanes = None, np.ones(2, dtype=bool), [obs]
-        for _ in range(steps):
-            act, state = policy.predict(obs, state=state, episode_start=start)
-            obs, _, term, trunc, _ = vec.step(act)
-            start = term | trunc
-            lanes.append(obs)
-    finally:
-        vec.close()
-    for i, seed in enumerate(seeds):
-        env = gym.make("QuadSLAM-v0", **kwargs)
-        try:
-            policy = build_controller("se3", env, drag_feedforward=True)
-            o, _ = env.reset(seed=seed)
-            s = None
-            for k in range(steps):
-                np.testing.assert_array_equal(o, lanes[k][i])
-                a, s = policy.predict(o, state=s)
-                o, *_ = env.step(a)
-            np.testing.assert_array_equal(o, lanes[steps][i])
-        finally:
-            env.close()
+    assert_lanes_equal_scalar_env("QuadSLAM-v0", kwargs, "se3", [7, 8], 60, drag_feedforward=True)
 
 
 @pytest.mark.parametrize("name", sorted(POLICIES))

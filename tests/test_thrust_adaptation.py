@@ -13,7 +13,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import assert_zero_residual_flies_base
+from conftest import assert_lanes_equal_scalar_env, assert_zero_residual_flies_base
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.cli.main import main
@@ -190,34 +190,10 @@ def test_off_it_flies_as_before_bit_for_bit(name):
 
 @pytest.mark.parametrize("name", sorted(POLICIES))
 def test_lanes_equal_the_scalar_env_with_the_adaptation(name):
-    seeds, steps = [21, 22], 400
-    vec = gym.make_vec("QuadSLAM-Oracle-v0", num_envs=2, vectorization_mode="vector_entry_point",
-                       **RANDOMIZED)  # fmt: skip
-    try:
-        policy = build_controller(name, vec, thrust_adaptation=True)
-        obs, _ = vec.reset(seed=seeds[0])
-        state, start, lanes = None, np.ones(2, dtype=bool), [obs]
-        for _ in range(steps):
-            act, state = policy.predict(obs, state=state, episode_start=start)
-            obs, _, term, trunc, _ = vec.step(act)
-            start = term | trunc
-            lanes.append(obs)
-        assert np.all(np.abs(policy.thrust_ratio(state) - 1.0) > 0.01)  # adapting
-    finally:
-        vec.close()
-    for i, seed in enumerate(seeds):
-        env = gym.make("QuadSLAM-Oracle-v0", **RANDOMIZED)
-        try:
-            policy = build_controller(name, env, thrust_adaptation=True)
-            o, _ = env.reset(seed=seed)
-            s = None
-            for k in range(steps):
-                np.testing.assert_array_equal(o, lanes[k][i])
-                a, s = policy.predict(o, state=s)
-                o, *_ = env.step(a)
-            np.testing.assert_array_equal(o, lanes[steps][i])
-        finally:
-            env.close()
+    policy, state = assert_lanes_equal_scalar_env(
+        "QuadSLAM-Oracle-v0", RANDOMIZED, name, [21, 22], 400, thrust_adaptation=True
+    )
+    assert np.all(np.abs(policy.thrust_ratio(state) - 1.0) > 0.01)  # adapting
 
 
 def test_a_zero_residual_on_the_adapted_base_flies_the_base() -> None:
