@@ -20,6 +20,7 @@ from quadslam_env.estimation import (
     LabelsReturns,
     LaneLoop,
     ModelsDrag,
+    MonitorsIntegrity,
     ParticleLaneLoop,
     ReservesLandmarks,
     ShowsParticles,
@@ -43,6 +44,8 @@ BATCH: dict[type, set[str]] = {
     UsesTruth: {"oracle"},
     ShowsParticles: {"fastslam", "fastslam_kinematic"},
     HasFullState: {"ekf_slam"},
+    # Only EKF-SLAM has the integrity monitor (docs/integrity.md).
+    MonitorsIntegrity: {"ekf_slam"},
     # The LaneLoop passes a vehicle or a wind on to the lanes that use it (below).
     TakesVehicle: {"fastslam", "fastslam_kinematic", "isam2"},
     TakesWind: {"fastslam", "fastslam_kinematic", "isam2"},
@@ -66,6 +69,7 @@ COPYABLE = BUILT_IN - {"isam2"}
 MODELS_DRAG = {"fastslam"}
 # Only the smoother puts a delayed scan on a keyframe of its own time (docs/isam2.md).
 TAKES_LATE_SCANS = {"isam2"}
+MONITORS_INTEGRITY = {"ekf_slam"}
 
 
 def _built() -> dict[str, Any]:
@@ -115,6 +119,11 @@ def test_models_drag_flag_is_the_documented_one(name: str) -> None:
 @pytest.mark.parametrize("name", sorted(BUILT_IN))
 def test_takes_late_scans_flag_is_the_documented_one(name: str) -> None:
     assert registry.takes_late_scans(name) == (name in TAKES_LATE_SCANS)
+
+
+@pytest.mark.parametrize("name", sorted(BUILT_IN))
+def test_monitors_integrity_flag_is_the_documented_one(name: str) -> None:
+    assert registry.monitors_integrity(name) == (name in MONITORS_INTEGRITY)
 
 
 def test_the_loop_says_its_lanes_flag(built: dict[str, Any]) -> None:

@@ -18,9 +18,9 @@ scan that :func:`estimators.ekf.update.update_lanes` corrects with (seed 004 §5
    return of a known-map lane, is dropped;
 5. after the update, a tentative landmark paired in ``confirm_hits`` (M) of its first
    ``confirm_window`` (N) scans is confirmed; one whose N scans pass without is removed from
-   the state (:func:`remove_landmark`: deleting a landmark's rows and columns of x and P is
-   exact marginalisation, and a false return that no later return paired has given the pose
-   no information, so clutter leaves no trace).
+   the state (:func:`~estimators.ekf.kernels.remove_landmark`: deleting a landmark's rows and
+   columns of x and P is exact marginalisation, and a false return that no later return paired
+   has given the pose no information, so clutter leaves no trace).
 
 Labels are the estimator's own names for landmarks (unrelated to the simulator's ids), reused
 after a removal; a known-map lane labels returns with the known map's ids. Tentative
@@ -41,7 +41,7 @@ from estimators.association import (
     joint_thresholds,
     nearest_neighbour,
 )
-from estimators.ekf.kernels import D_N_MAPPED, sync_lane
+from estimators.ekf.kernels import D_N_MAPPED, remove_landmark, sync_lane
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, innovation, innovation_covariance
@@ -225,42 +225,6 @@ def _label_returns(
         visible[label] = True
         meas[label] = returns[i]
         assoc[i] = label
-
-
-@kernel
-def remove_landmark(
-    xb: FloatArray,
-    Pb: FloatArray,
-    nb: int,
-    nv: int,
-    slot_of_id: np.ndarray,
-    id_of_slot: np.ndarray,
-    label: int,
-) -> None:
-    """Delete landmark ``label`` from one lane's state: its 3 entries of x and rows and
-    columns of P (marginalisation); later slots move down by one. The caller sets
-    ``n -= 3`` and unmaps the label."""
-    s = slot_of_id[label]
-    c = nv + 3 * s
-    m = nb - 3
-    for i in range(c, m):
-        xb[i] = xb[i + 3]
-        for j in range(nb):
-            Pb[i, j] = Pb[i + 3, j]
-    for i in range(m):
-        for j in range(c, m):
-            Pb[i, j] = Pb[i, j + 3]
-    for i in range(m, nb):
-        xb[i] = 0.0
-        for j in range(nb):
-            Pb[i, j] = 0.0
-            Pb[j, i] = 0.0
-    n_slots = (nb - nv) // 3
-    for t in range(s, n_slots - 1):
-        id_of_slot[t] = id_of_slot[t + 1]
-        slot_of_id[id_of_slot[t]] = t
-    id_of_slot[n_slots - 1] = -1
-    slot_of_id[label] = -1
 
 
 @kernel

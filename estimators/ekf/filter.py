@@ -42,6 +42,7 @@ from estimators.ekf.kernels import (
     fill_outputs,
     predict_lanes,
 )
+from estimators.ekf.monitor import IntegrityMonitor
 from estimators.ekf.settings import (
     ACCEL_BIAS_XY,
     ACCEL_BIAS_Z,
@@ -62,7 +63,7 @@ _AR3 = np.arange(3)
 
 
 @register("ekf_slam")
-class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates):
+class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates, IntegrityMonitor):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
     Implements :class:`~quadslam_env.estimation.protocol.BatchEstimator`. Lanes are
@@ -234,17 +235,8 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates):
             P[:POSE_DIM, :POSE_DIM] = 0.5 * (P0 + P0.T)
             if nv > POSE_DIM:  # the biases, then the wind, start at zero with their priors
                 P[POSE_DIM:nv, POSE_DIM:nv] = np.diag(self.settings.initial_extra_variances())
-            self.state.n[lane] = nv
-            self.state.stale[lane] = False
+            self.state.clear_lane(lane, nv, UNASSOCIATED)
             self.state.rates[lane] = mean0[j, RATE]
-            self.state.diag[:, lane] = 0.0
-            self.state.diag[D_NIS, lane] = math.nan
-            self.state.slot_of_id[lane] = -1
-            self.state.id_of_slot[lane] = -1
-            self.state.mapped[lane] = False
-            self.state.tentative[lane] = False
-            self.state.known_pos[lane] = 0.0
-            self.state.assoc[lane] = UNASSOCIATED
             known = maps[j]
             self.state.known[lane] = known is not None
             if known is not None:
@@ -351,7 +343,7 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates):
         :mod:`estimators.ekf.update`.
 
         Args:
-            t: (B,) scan times in s (unused).
+            t: (B,) scan times in s (the integrity monitor's readmission clock).
             lanes: (k,) int, lanes that scan.
             visible: (B, L) bool, returned landmark ids per lane.
             meas: (B, L, 3) measurements (α rad, β rad, δ m); only visible entries are read.
@@ -360,7 +352,6 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates):
         Raises:
             ValueError: On a non-finite visible measurement (nothing is changed then).
         """
-        del t
         lanes = np.ascontiguousarray(lanes, dtype=np.int64).reshape(-1)
         if lanes.size == 0:
             return
@@ -372,26 +363,14 @@ class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates):
         self._ensure_ids(visible.shape[1])
         r_diag = np.asarray(sigma, dtype=float).reshape(3) ** 2
         warmup.wait()
+        st = self.state
         update_lanes(
-            self.state.x,
-            self.state.P,
-            self.state.n,
-            self.nv,
-            self.state.stale,
-            self.state.slot_of_id,
-            self.state.id_of_slot,
-            self.state.mapped,
-            self.state.known,
-            self.state.known_pos,
-            self.state.diag,
-            lanes,
-            visible,
-            meas,
-            r_diag,
-            self.gate_threshold,
-            self._relinearise,
-            self.settings.max_iterations,
-        )
+            st.x, st.P, st.n, self.nv, st.stale, st.slot_of_id, st.id_of_slot, st.mapped,
+            st.known, st.known_pos, st.diag, lanes, visible, meas, r_diag, self.gate_threshold,
+            np.ascontiguousarray(t, dtype=float).reshape(-1),
+            *self.monitor_arguments(st.landmark_capacity), st.readmit_at,
+            self._relinearise, self.settings.max_iterations,
+        )  # fmt: skip
 
     def update_unlabeled(self, *args: Any) -> None:
         """:meth:`UnlabeledScans.update_unlabeled` with first-order updates only: when the

@@ -5,7 +5,7 @@ Every kernel works on one lane's slices of the batch arrays (``x[b]`` (nmax,), `
 per batch operation. ``fastmath`` stays off (IEEE semantics, no reassociation): the loops are
 written with the contiguous index innermost so LLVM vectorises them anyway.
 
-Diagnostics of all lanes live in one (7, B) float array whose rows are indexed by the ``D_*``
+Diagnostics of all lanes live in one (15, B) float array whose rows are indexed by the ``D_*``
 constants below, so :meth:`EkfSlamBatch.estimate` hands out row views without conversion.
 """
 
@@ -15,12 +15,17 @@ import math
 
 import numpy as np
 
+from quadslam_env.estimation.integrity import COUNT_KEYS, SEPARATION_KEYS
 from quadslam_env.models.frames import dcm_and_partials, wrap_pi
 from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.strapdown import strapdown_jacobians, strapdown_rk4
 from quadslam_env.types import POSE_DIM, FloatArray
 
 D_NIS, D_NIS_DOF, D_N_REJECTED, D_N_REJECTED_LAST, D_N_UPDATES, D_N_MAPPED, D_DIVERGED = range(7)
+D_FDE_TESTS, D_FDE_ALARMS, D_FDE_EXCLUSIONS, D_FDE_UNRESOLVED = range(7, 11)
+D_SEPARATION = 11
+"""First of the rows (N, E, D separation variances, then the hypotheses) of the monitor's last
+scan (:data:`quadslam_env.estimation.integrity.SEPARATION_KEYS`)."""
 DIAGNOSTIC_NAMES = (
     "nis",
     "nis_dof",
@@ -29,8 +34,11 @@ DIAGNOSTIC_NAMES = (
     "n_updates",
     "n_mapped",
     "diverged",
+    *COUNT_KEYS,
+    *SEPARATION_KEYS,
 )
-"""Names of the rows of the diagnostics array, in row order (keys of a snapshot's diagnostics)."""
+"""Names of the rows of the diagnostics array, in row order (keys of a snapshot's diagnostics);
+the integrity monitor's (:mod:`estimators.ekf.fde`) stay 0 without it."""
 
 MAX_PITCH = math.radians(89.0)
 """|θ̂| beyond which D(Λ) (1/cos θ) is treated as singular and the lane flagged diverged."""
@@ -321,7 +329,7 @@ def predict_lanes(
         nv: Vehicle-state size (9, or 13 with biases).
         stale: (B,) bool, set for lanes whose mirrored columns are out of date.
         rates: (B, 3) receives the bias-corrected gyro in rad/s.
-        diag: (7, B) diagnostics (row ``D_DIVERGED`` is set on failure).
+        diag: (15, B) diagnostics (row ``D_DIVERGED`` is set on failure).
         active: (B,) bool, lanes to propagate.
         accel: (B, 3) measured specific force in m/s² (only the z column is used, eq. 25,
             unless ``full``).
@@ -391,3 +399,39 @@ def fill_outputs(
                 c = nv + 3 * slot_of_id[b, j]  # shape-mismatch message (~2 s of first use)
                 for i in range(3):
                     landmark_means[b, j, i] = known_pos[b, j, i] if known[b] else xb[c + i]
+
+
+@kernel
+def remove_landmark(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    nv: int,
+    slot_of_id: np.ndarray,
+    id_of_slot: np.ndarray,
+    label: int,
+) -> None:
+    """Delete landmark ``label`` from one lane's state: its 3 entries of x and rows and
+    columns of P (marginalisation); later slots move down by one. The caller sets
+    ``n -= 3`` and unmaps the label."""
+    s = slot_of_id[label]
+    c = nv + 3 * s
+    m = nb - 3
+    for i in range(c, m):
+        xb[i] = xb[i + 3]
+        for j in range(nb):
+            Pb[i, j] = Pb[i + 3, j]
+    for i in range(m):
+        for j in range(c, m):
+            Pb[i, j] = Pb[i, j + 3]
+    for i in range(m, nb):
+        xb[i] = 0.0
+        for j in range(nb):
+            Pb[i, j] = 0.0
+            Pb[j, i] = 0.0
+    n_slots = (nb - nv) // 3
+    for t in range(s, n_slots - 1):
+        id_of_slot[t] = id_of_slot[t + 1]
+        slot_of_id[id_of_slot[t]] = t
+    id_of_slot[n_slots - 1] = -1
+    slot_of_id[label] = -1

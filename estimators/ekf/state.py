@@ -15,11 +15,16 @@ localises against a known map (:meth:`EkfSlamBatch._fit_state_slots`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 
+from estimators.ekf.kernels import D_NIS
 from quadslam_env.types import FloatArray
+
+_FILL = {"slot_of_id": -1, "id_of_slot": -1, "readmit_at": -math.inf}
+"""The neutral value of the arrays whose neutral value is not 0 (:meth:`EkfState.resize`)."""
 
 
 @dataclass
@@ -45,6 +50,8 @@ class EkfState:
         age: (B, Lmax) int, unknown association: scans since each tentative id was created.
         assoc: (B, R) int, the label of each return of the lanes' last unlabeled scans (-1:
             none); R grows with the widest scan.
+        readmit_at: (B, Lmax) time from which the integrity monitor lets each id be used
+            again, s (−inf: never left out; :mod:`estimators.ekf.fde`).
     """
 
     x: FloatArray
@@ -62,6 +69,7 @@ class EkfState:
     hits: np.ndarray
     age: np.ndarray
     assoc: np.ndarray
+    readmit_at: FloatArray
 
     @classmethod
     def empty(cls, num_lanes: int, nv: int, num_diagnostics: int) -> EkfState:
@@ -83,6 +91,7 @@ class EkfState:
             hits=np.zeros((b, 0), dtype=np.int64),
             age=np.zeros((b, 0), dtype=np.int64),
             assoc=np.zeros((b, 0), dtype=np.int64),
+            readmit_at=np.zeros((b, 0)),
         )
 
     @property
@@ -93,7 +102,7 @@ class EkfState:
     def resize(self, lmax: int, slots: int, nv: int) -> None:
         """Reallocate for ``lmax`` landmark ids and ``slots`` landmark states per lane
         (``nmax = nv + 3 slots``), keeping the content that fits; new entries take each
-        array's neutral value (0, False, or -1 for the id/slot maps)."""
+        array's neutral value (0, False, -1 for the id/slot maps, −inf for readmission)."""
         b = self.x.shape[0]
         nmax = nv + 3 * slots
         shapes = {
@@ -106,15 +115,31 @@ class EkfState:
             "tentative": (b, lmax),
             "hits": (b, lmax),
             "age": (b, lmax),
+            "readmit_at": (b, lmax),
         }
         for field in fields(self):
             shape = shapes.get(field.name)
             if shape is None:
                 continue
             old = getattr(self, field.name)
-            fill = -1 if field.name in ("slot_of_id", "id_of_slot") else 0
+            fill = _FILL.get(field.name, 0)
             new = np.full(shape, fill, dtype=old.dtype)
             # the old content fills the leading corner (all of it that fits)
             corner = tuple(slice(0, min(e, f)) for e, f in zip(old.shape, shape, strict=True))
             new[corner] = old[corner]
             setattr(self, field.name, new)
+
+    def clear_lane(self, lane: int, nv: int, unassociated: int) -> None:
+        """Start lane ``lane`` afresh: nv vehicle states, no landmarks, no diagnostics (NaN NIS),
+        nothing left out, no association (labels ``unassociated``); x and P are the caller's."""
+        self.n[lane] = nv
+        self.stale[lane] = False
+        self.diag[:, lane] = 0.0
+        self.diag[D_NIS, lane] = math.nan  # undefined before the first update
+        self.slot_of_id[lane] = -1
+        self.id_of_slot[lane] = -1
+        self.mapped[lane] = False
+        self.tentative[lane] = False
+        self.known_pos[lane] = 0.0
+        self.assoc[lane] = unassociated
+        self.readmit_at[lane] = -math.inf

@@ -29,6 +29,7 @@ from estimators.ekf.correction import (
     relinearise,
     stacked_gain,
 )
+from estimators.ekf.fde import leave_out, monitored
 from estimators.ekf.kernels import (
     D_DIVERGED,
     D_N_MAPPED,
@@ -37,6 +38,7 @@ from estimators.ekf.kernels import (
     D_N_UPDATES,
     D_NIS,
     D_NIS_DOF,
+    D_SEPARATION,
     sync_lane,
 )
 from quadslam_env.models.frames import dcm_and_partials, wrap_pi
@@ -146,10 +148,17 @@ def _update_mapped(
     max_iter: int,
     diag: FloatArray,
     b: int,
+    monitor: FloatArray,
+    lm_thr: FloatArray,
+    scan_thr: FloatArray,
+    excluded: np.ndarray,
 ) -> None:
     """Gated stacked update of one lane with landmarks ``lms`` (k, 3) observed as ``y``,
     iterated (:func:`~estimators.ekf.correction.relinearise`) when it is not linear enough
-    at ``tol`` noise stds (inf: never); the NIS is the first-order one (at the prior)."""
+    at ``tol`` noise stds (inf: never); the NIS is the first-order one (at the prior). With
+    the integrity monitor on (``monitor[0] > 0``) its tests and exclusion
+    (:func:`~estimators.ekf.fde.monitor_scan`) replace the gate, and ``excluded`` (k,) is set
+    where a landmark is left out as faulty."""
     k = lms.shape[0]
     h = np.empty((k, 3))
     U = np.empty((3 * k, nb))
@@ -158,16 +167,21 @@ def _update_mapped(
     nu = np.empty(3 * k)
     for i in range(k):
         innovation(y[i], h[i], nu[3 * i : 3 * i + 3])
-    # Per-landmark χ² gate on the 3×3 diagonal blocks of S.
     keep = np.empty(k, dtype=np.bool_)
     n_keep = 0
-    for i in range(k):
-        nis_i = solve3_nis(S, 3 * i, nu[3 * i : 3 * i + 3])
-        if not math.isfinite(nis_i):
-            diag[D_DIVERGED, b] = 1.0
+    if monitor[0] > 0.0:
+        if not monitored(S, U, nu, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
             return
-        keep[i] = nis_i <= gate
-        n_keep += keep[i]
+        for i in range(k):
+            n_keep += keep[i]
+    else:  # per-landmark χ² gate on the 3×3 diagonal blocks of S
+        for i in range(k):
+            nis_i = solve3_nis(S, 3 * i, nu[3 * i : 3 * i + 3])
+            if not math.isfinite(nis_i):
+                diag[D_DIVERGED, b] = 1.0
+                return
+            keep[i] = nis_i <= gate
+            n_keep += keep[i]
     diag[D_N_REJECTED_LAST, b] = k - n_keep
     diag[D_N_REJECTED, b] += k - n_keep
     if n_keep == 0:
@@ -310,18 +324,19 @@ def _register(
 
 @inline_kernel
 def _split_visible(
-    visible: np.ndarray, mapped: np.ndarray, known: bool
+    visible: np.ndarray, mapped: np.ndarray, known: bool, readmit_at: FloatArray, t: float
 ) -> tuple[np.ndarray, int, np.ndarray, int]:
     """``(obs, k_obs, new, k_new)``: of one lane's returned ids ``visible`` (L,) bool, the
     mapped ones (``obs[:k_obs]``, to correct with) and the unmapped ones (``new[:k_new]``, to
-    register; none in known-map mode), in id order."""
+    register; none in known-map mode), in id order; ids the integrity monitor left out are
+    skipped until their readmission time ``readmit_at`` (Lmax,) s (−inf: never left out)."""
     L = visible.shape[0]
     obs = np.empty(L, dtype=np.int64)
     new = np.empty(L, dtype=np.int64)
     k_obs = 0
     k_new = 0
     for j in range(L):
-        if visible[j]:
+        if visible[j] and not readmit_at[j] > t:
             if mapped[j]:
                 obs[k_obs] = j
                 k_obs += 1
@@ -349,10 +364,16 @@ def update_lanes(
     meas: FloatArray,
     r_diag: FloatArray,
     gate: float,
+    t: FloatArray,
+    monitor: FloatArray,
+    lm_thr: FloatArray,
+    scan_thr: FloatArray,
+    readmit_at: FloatArray,
     tol: float = math.inf,
     max_iter: int = 0,
 ) -> None:
-    """Correct each lane in ``lanes`` with its scan, then register its new landmarks.
+    """Correct each lane in ``lanes`` with its scan (through the integrity monitor when it is
+    on), drop the landmarks it left out, then register the lane's new landmarks.
 
     Args:
         x: (B, nmax) means; P: (B, nmax, nmax) covariances; n: (B,) int state sizes.
@@ -363,12 +384,17 @@ def update_lanes(
         mapped: (B, Lmax) bool, ids mapped (SLAM) or known (known-map lanes).
         known: (B,) bool, lanes in known-map mode (their unknown ids are ignored).
         known_pos: (B, Lmax, 3) known landmark positions in N, m.
-        diag: (7, B) diagnostics (rows ``D_*``).
+        diag: (15, B) diagnostics (rows ``D_*``).
         lanes: (k,) int, the scanning lanes.
         visible: (B, L) bool with L ≤ Lmax, returned landmark ids.
         meas: (B, L, 3) their measurements (α rad, β rad, δ m).
         r_diag: (3,) measurement noise variances.
         gate: Per-landmark NIS threshold (inf: no gating).
+        t: (B,) scan times, s.
+        monitor: (3,) the integrity monitor: mode (0 off, 1 detect, 2 exclude), the most
+            exclusions of one scan, the readmission delay in s (:mod:`estimators.ekf.fde`).
+        lm_thr, scan_thr: Its thresholds by kept landmarks and by degrees of freedom.
+        readmit_at: (B, Lmax) time from which each id may be used again, s (−inf: always).
         tol: Linearisation error in noise stds above which an update is iterated (inf:
             never; :mod:`estimators.ekf.correction`). max_iter: Most iterations.
     """
@@ -377,7 +403,12 @@ def update_lanes(
         if stale[b]:
             sync_lane(Pb, nb, nv)
             stale[b] = False
-        obs, k_obs, new, k_new = _split_visible(visible[b], mapped[b], known[b])
+        obs, k_obs, new, k_new = _split_visible(
+            visible[b], mapped[b], known[b], readmit_at[b], t[b]
+        )
+        if monitor[0] > 0.0 and k_obs == 0:  # no landmark to test: no fault hypothesis
+            for r in range(4):
+                diag[D_SEPARATION + r, b] = 0.0
         if k_obs:
             lms = np.empty((k_obs, 3))
             cols = np.full(k_obs, -1, dtype=np.int64)
@@ -391,7 +422,16 @@ def update_lanes(
                 for r in range(3):
                     y[i, r] = meas[b, j, r]
                     lms[i, r] = known_pos[b, j, r] if known[b] else xb[cols[i] + r]
-            _update_mapped(xb, Pb, nb, lms, cols, y, r_diag, gate, tol, max_iter, diag, b)
+            excluded = np.zeros(k_obs, dtype=np.bool_)
+            _update_mapped(
+                xb, Pb, nb, lms, cols, y, r_diag, gate, tol, max_iter, diag, b, monitor, lm_thr,
+                scan_thr, excluded,
+            )  # fmt: skip
+            for i in range(k_obs):
+                if excluded[i]:
+                    leave_out(b, obs[i], t[b] + monitor[2], x, P, n, nv, slot_of_id, id_of_slot,
+                               mapped, known, readmit_at, diag)  # fmt: skip
+            nb = n[b]
         if k_new:
             y = np.empty((k_new, 3))
             for i in range(k_new):

@@ -296,7 +296,7 @@ def predict_wind_lanes(
         nv: Vehicle-state size (11, or 17 with the biases).
         stale: (B,) bool lanes whose mirrored columns are out of date (updated).
         rates: (B, 3) receives the bias-corrected gyro in rad/s.
-        diag: (7, B) diagnostics (row ``D_DIVERGED`` is set on failure).
+        diag: (15, B) diagnostics (row ``D_DIVERGED`` is set on failure).
         active: (B,) bool lanes to propagate.
         accel: (B, 3) measured specific force in m/s² (z: the input; x, y: the measurement).
         gyro: (B, 3) measured body rates in rad/s.

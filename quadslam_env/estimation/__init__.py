@@ -7,6 +7,7 @@ never an estimator or the env, so estimators and the env both build on it.
 """
 
 from quadslam_env.estimation.health import HEALTH_PROBLEMS, health_codes, position_std
+from quadslam_env.estimation.integrity import MonitorSettings, protection_levels
 from quadslam_env.estimation.lane_loop import LaneLoop, ParticleLaneLoop
 from quadslam_env.estimation.memory import MemoryLimitError, MemoryTerm, Workload
 from quadslam_env.estimation.protocol import (
@@ -21,6 +22,7 @@ from quadslam_env.estimation.protocol import (
     KnownMaps,
     LabelsReturns,
     ModelsDrag,
+    MonitorsIntegrity,
     ReservesLandmarks,
     ShowsParticles,
     TakesLateScans,
@@ -39,6 +41,7 @@ from quadslam_env.estimation.registry import (
     make,
     memory_terms,
     models_drag,
+    monitors_integrity,
     register,
     takes_late_scans,
 )
@@ -62,6 +65,8 @@ __all__ = [
     "MemoryLimitError",
     "MemoryTerm",
     "ModelsDrag",
+    "MonitorSettings",
+    "MonitorsIntegrity",
     "ParticleLaneLoop",
     "ReservesLandmarks",
     "ShowsParticles",
@@ -80,7 +85,9 @@ __all__ = [
     "make",
     "memory_terms",
     "models_drag",
+    "monitors_integrity",
     "position_std",
+    "protection_levels",
     "register",
     "takes_late_scans",
 ]

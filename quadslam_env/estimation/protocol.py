@@ -33,6 +33,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from quadslam_env.estimation.integrity import MonitorSettings
 from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.params import VehicleParams
@@ -250,6 +251,17 @@ class TakesLateScans(Protocol):
     def takes_late_scans(self) -> bool:
         """Whether ``update`` of a past scan keeps the present (a batch of one-vehicle
         estimators: their class flag)."""
+
+
+@runtime_checkable
+class MonitorsIntegrity(Protocol):
+    """A batch estimator with an integrity monitor (the scenario's ``integrity`` section): it
+    tests each scan, leaves out the landmarks found faulty and reports the counts and the
+    solution separations of :mod:`quadslam_env.estimation.integrity` in its diagnostics; its
+    class says ``monitors_integrity = True``."""
+
+    def set_monitor(self, settings: MonitorSettings | None) -> None:
+        """Monitor every later scan with ``settings`` (``None``: no monitor, the default)."""
 
 
 # ---------------------------------------------------------- abilities of one vehicle's

@@ -151,6 +151,17 @@ def copyable(name: str) -> bool:
     return bool(getattr(_load(name), "copyable", True))
 
 
+def monitors_integrity(name: str) -> bool:
+    """Whether the estimator ``name`` has an integrity monitor: its class says
+    ``monitors_integrity = True`` (:class:`~quadslam_env.estimation.protocol.MonitorsIntegrity`;
+    the scenario's ``integrity.monitor`` is refused otherwise).
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    return bool(getattr(_load(name), "monitors_integrity", False))
+
+
 def takes_late_scans(name: str) -> bool:
     """Whether the estimator ``name`` takes a delayed LiDAR's scans at their own time without
     being copied: its class says ``takes_late_scans = True``
@@ -217,7 +228,7 @@ def memory_terms(name: str, load: Workload, params: dict[str, Any]) -> list[Memo
 def estimator_flag(name: str, flag: Callable[[str], bool]) -> bool:
     """``flag(name)`` for a scenario check, with ``flag`` one of the class flags above
     (:func:`associates_unlabeled`, :func:`copyable`, :func:`models_drag`,
-    :func:`takes_late_scans`).
+    :func:`monitors_integrity`, :func:`takes_late_scans`).
 
     Raises:
         ConfigError: Unknown name or a plug-in that cannot be loaded (the registry's message).
