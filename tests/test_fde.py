@@ -78,6 +78,12 @@ def _thresholds(p_fa: float, k: int) -> tuple[np.ndarray, np.ndarray]:
     return cfg.landmark_thresholds(k), cfg.scan_thresholds(k)
 
 
+def _monitor(S, U, nu, lm, scan, exclude: bool) -> tuple[int, np.ndarray, np.ndarray]:
+    """``monitor_scan`` on every landmark: ``(status, keep, sep)``."""
+    keep, sep = np.ones(nu.shape[0] // 3, dtype=bool), np.empty(4)
+    return monitor_scan(S, U, nu, lm, scan, exclude, 1, keep, sep), keep, sep
+
+
 def test_thresholds_are_the_chi2_quantiles():
     lm, scan = _thresholds(0.01, 5)
     assert math.isinf(lm[0]) and math.isinf(scan[0])
@@ -93,11 +99,10 @@ def test_false_alarm_rate_is_within_the_budget():
     _, _, _, S, U = _linear_update(rng, k=k)
     lm, scan = _thresholds(p_fa, k)
     L = np.linalg.cholesky(S)
-    keep, sep = np.empty(k, dtype=bool), np.empty(4)
     alarms = 0
     for _ in range(runs):
         nu = L @ rng.standard_normal(3 * k)
-        alarms += monitor_scan(S, U, nu, lm, scan, False, 1, keep, sep) != FDE_PASS
+        alarms += _monitor(S, U, nu, lm, scan, False)[0] != FDE_PASS
     rate = alarms / runs
     half_width = 3.0 * math.sqrt(p_fa * (1 - p_fa) / runs)
     assert 0.5 * p_fa <= rate <= p_fa + half_width
@@ -109,19 +114,19 @@ def test_a_faulty_landmark_is_excluded_and_all_faulty_is_unresolved():
     _, _, _, S, U = _linear_update(rng, k=k)
     lm, scan = _thresholds(1e-3, k)
     L = np.linalg.cholesky(S)
-    keep, sep = np.empty(k, dtype=bool), np.empty(4)
     nu = L @ rng.standard_normal(3 * k)
-    assert monitor_scan(S, U, nu, lm, scan, True, 1, keep, sep) == FDE_PASS
-    assert keep.all() and sep[3] == k
+    status, keep, sep = _monitor(S, U, nu, lm, scan, True)
+    assert status == FDE_PASS and keep.all() and sep[3] == k
     faulty = nu.copy()
     faulty[6:9] += 30.0 * np.sqrt(np.diag(S)[6:9])  # landmark 2
-    assert monitor_scan(S, U, faulty, lm, scan, False, 1, keep, sep) == FDE_DETECTED
-    assert keep.all()
-    assert monitor_scan(S, U, faulty, lm, scan, True, 1, keep, sep) == FDE_EXCLUDED
+    status, keep, _ = _monitor(S, U, faulty, lm, scan, False)
+    assert status == FDE_DETECTED and keep.all()
+    status, keep, sep = _monitor(S, U, faulty, lm, scan, True)
+    assert status == FDE_EXCLUDED
     assert keep.tolist() == [True, True, False, True, True] and sep[3] == k - 1
     everywhere = nu + 30.0 * np.sqrt(np.diag(S)) * rng.choice([-1.0, 1.0], 3 * k)
-    assert monitor_scan(S, U, everywhere, lm, scan, True, 1, keep, sep) == FDE_UNRESOLVED
-    assert not keep.any() and (sep == 0.0).all()
+    status, keep, sep = _monitor(S, U, everywhere, lm, scan, True)
+    assert status == FDE_UNRESOLVED and not keep.any() and (sep == 0.0).all()
 
 
 def test_protection_levels_analytic():

@@ -161,7 +161,8 @@ def monitor_scan(
             ``χ²_m(1 − p_fa/2)``.
         exclude: Leave out the landmark found faulty (False: detection only).
         max_exclusions: Most landmarks left out of one scan.
-        keep: (k,) bool, filled: the landmarks the update is to use (none if unresolved).
+        keep: (k,) bool, in: the landmarks to test (at least one); out: those the update is
+            to use (none if unresolved).
         sep: (4,) filled: the largest position separation variances (N, E, D) in m² over the
             kept landmarks, and their number (the hypotheses of the protection level); zero
             when the scan is not used.
@@ -170,7 +171,6 @@ def monitor_scan(
         One of ``FDE_*``.
     """
     k = nu.shape[0] // 3
-    keep[:] = True
     sep[:] = 0.0
     idx = np.empty(3 * k, dtype=np.int64)
     Sigma = np.empty((3 * k, 3 * k))

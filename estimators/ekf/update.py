@@ -155,10 +155,10 @@ def _update_mapped(
 ) -> None:
     """Gated stacked update of one lane with landmarks ``lms`` (k, 3) observed as ``y``,
     iterated (:func:`~estimators.ekf.correction.relinearise`) when it is not linear enough
-    at ``tol`` noise stds (inf: never); the NIS is the first-order one (at the prior). With
-    the integrity monitor on (``monitor[0] > 0``) its tests and exclusion
-    (:func:`~estimators.ekf.fde.monitor_scan`) replace the gate, and ``excluded`` (k,) is set
-    where a landmark is left out as faulty."""
+    at ``tol`` noise stds (inf: never); the NIS is the first-order one (at the prior). The
+    integrity monitor (:func:`~estimators.ekf.fde.monitor_scan`; ``monitor[0]``: 0 off, 1
+    detect, 2 exclude) tests the gated landmarks when it only detects, and replaces the gate
+    when it excludes; ``excluded`` (k,) is set where it leaves a landmark out as faulty."""
     k = lms.shape[0]
     h = np.empty((k, 3))
     U = np.empty((3 * k, nb))
@@ -167,21 +167,25 @@ def _update_mapped(
     nu = np.empty(3 * k)
     for i in range(k):
         innovation(y[i], h[i], nu[3 * i : 3 * i + 3])
-    keep = np.empty(k, dtype=np.bool_)
-    n_keep = 0
-    if monitor[0] > 0.0:
-        if not monitored(S, U, nu, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
-            return
-        for i in range(k):
-            n_keep += keep[i]
-    else:  # per-landmark χ² gate on the 3×3 diagonal blocks of S
+    keep = np.ones(k, dtype=np.bool_)
+    if monitor[0] < 1.5:  # no exclusion: the per-landmark χ² gate on the 3×3 blocks of S
         for i in range(k):
             nis_i = solve3_nis(S, 3 * i, nu[3 * i : 3 * i + 3])
             if not math.isfinite(nis_i):
                 diag[D_DIVERGED, b] = 1.0
                 return
             keep[i] = nis_i <= gate
-            n_keep += keep[i]
+    # The monitor tests the landmarks kept: detection only, on the gated ones (the update
+    # stays the unmonitored one); with exclusion, all of them (its tests replace the gate).
+    if monitor[0] > 0.5:
+        if not keep.any():  # every landmark gated out: no hypothesis to bound
+            for r in range(4):
+                diag[D_SEPARATION + r, b] = 0.0
+        elif not monitored(S, U, nu, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
+            return
+    n_keep = 0
+    for i in range(k):
+        n_keep += keep[i]
     diag[D_N_REJECTED_LAST, b] = k - n_keep
     diag[D_N_REJECTED, b] += k - n_keep
     if n_keep == 0:
