@@ -51,6 +51,7 @@ from quadslam_env.config import ScenarioConfig
 from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
 from quadslam_env.estimation.protocol import ReservesLandmarks, UsesTruth
+from quadslam_env.imu_period import fast_period_samples, period_sample
 from quadslam_env.metrics import METRIC_KEYS, EpisodeMetrics, input_columns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
@@ -340,11 +341,15 @@ class SimCore:
             The period's IMU samples (:data:`~quadslam_env.period_log.Sample`): one at or
             below the control rate, m with an IMU m times faster.
         """
+        vehicle, imu = self.vehicle, self.imu
         if self._imu_per_step == 1:
-            self.last_rates = self.vehicle.step(thrust, torque, self.dt, active)
+            self.last_rates = vehicle.step(thrust, torque, self.dt, active)
             self._tick(active)
-            return [self._imu_sample(active)]
-        samples = self._fast_imu_samples(thrust, torque, active)
+            rates, every = self.last_rates, self._steps_per_imu
+            return [period_sample(vehicle, imu, self.t, rates, self.steps, every, active)]
+        samples, self.last_rates = fast_period_samples(
+            vehicle, imu, self.t, self.dt, self._imu_per_step, thrust, torque, active
+        )
         self._tick(active)
         return samples
 
@@ -397,51 +402,6 @@ class SimCore:
         """The association component's ``update`` (``association.Association``), with the truth."""
         truth = (self.vehicle.state, self.landmarks, self.n_landmarks)
         self.association.update(est, self.estimator, scans, changed, *truth)
-
-    # ------------------------------------------------------------------ IMU
-    def _imu_sample(self, active: np.ndarray) -> Sample:
-        """The IMU input of this control period (IMU at or below the control rate).
-
-        Returns:
-            ``(t (B,), accel (B, 3), gyro (B, 3), thrust (B,), torque (B, 3))``: the sample
-            taken now, or (slower IMU) the latest one held.
-        """
-        vehicle, imu = self.vehicle, self.imu
-        vel = vehicle.air_velocity()
-        if self._steps_per_imu == 1:
-            accel, gyro = imu.sample(self.t, vel, self.last_rates, vehicle.applied_thrust, active)
-        else:
-            imu.accumulate(vel, self.last_rates, vehicle.applied_thrust, active)
-            due = active & (self.steps % self._steps_per_imu == 0)
-            if due.any():
-                imu.sample_held(self.t, due)
-            accel, gyro = imu.held_accel, imu.held_gyro
-        return self.t, accel, gyro, vehicle.applied_thrust, vehicle.applied_torque
-
-    def _fast_imu_samples(
-        self, thrust: FloatArray, torque: FloatArray, active: np.ndarray
-    ) -> list[Sample]:
-        """Integrate the vehicle over the m sub-periods of the control period (command held)
-        with an IMU sample after each (an IMU m times faster than the control); sets
-        :attr:`last_rates` to the rates averaged over the whole period.
-
-        Returns:
-            m tuples ``(t (B,), accel (B, 3), gyro (B, 3), thrust (B,), torque (B, 3))``.
-        """
-        vehicle, imu, m = self.vehicle, self.imu, self._imu_per_step
-        h = self.dt / m
-        rates = np.zeros((self.num_lanes, 3))
-        samples: list[Sample] = []
-        for i in range(m):
-            sub_rates = vehicle.step(thrust, torque, h, active)
-            rates += sub_rates
-            t_imu = self.t + (i + 1) * h
-            vel = vehicle.air_velocity()
-            accel, gyro = imu.sample(t_imu, vel, sub_rates, vehicle.applied_thrust, active)
-            f_t, tau = vehicle.applied_thrust.copy(), vehicle.applied_torque.copy()
-            samples.append((t_imu, accel, gyro, f_t, tau))
-        self.last_rates = rates / m
-        return samples
 
     # ------------------------------------------------------------------ helpers
     def _snapshot(self) -> BatchEstimate:
