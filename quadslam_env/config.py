@@ -2,7 +2,7 @@
 
 A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the sections ``vehicle``,
 ``imu``, ``lidar``, ``landmarks``, ``trajectory``, ``estimator``, ``reward``, ``observation``,
-``action``, ``episode``, ``render``, ``wind`` and ``randomize``. Per-call overrides
+``action``, ``episode``, ``render``, ``wind``, ``randomize`` and ``faults``. Per-call overrides
 (``gymnasium.make(id, episode={...})``) are merged into it key by key. Sections with a
 ``preset`` key start from that preset's values; keys given explicitly win over the preset.
 
@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from quadslam_env.config_episode import EpisodeConfig, ObservationConfig, RenderConfig, RewardConfig
+from quadslam_env.config_faults import FaultsConfig
 from quadslam_env.config_files import (
     available_scenarios,
     check_description,
@@ -44,6 +45,7 @@ __all__ = [
     "ConfigError",
     "EpisodeConfig",
     "EstimatorConfig",
+    "FaultsConfig",
     "FieldRow",
     "ImuConfig",
     "LandmarksConfig",
@@ -182,6 +184,7 @@ SECTIONS: dict[str, type[Section]] = {
     "render": RenderConfig,
     "wind": WindConfig,
     "randomize": RandomizeConfig,
+    "faults": FaultsConfig,
 }
 
 
@@ -207,6 +210,7 @@ class ScenarioConfig:
     render: RenderConfig
     wind: WindConfig
     randomize: RandomizeConfig
+    faults: FaultsConfig
     description: str = ""
 
     @property
@@ -287,6 +291,8 @@ class ScenarioConfig:
         )
         scenario.observation.check_estimator(scenario.estimator.name, scenario.estimator.params)
         scenario.randomize.check_feasible(scenario.vehicle.params())
+        faults, size = scenario.faults, scenario.landmarks.size
+        faults.check_scenario(scenario.episode.duration_s, size, scenario.lidar)
         return scenario
 
     def to_dict(self) -> dict[str, Any]:

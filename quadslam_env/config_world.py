@@ -98,6 +98,15 @@ class LandmarksConfig(Section):
         doc="explicit: landmark positions [x, y, z] in NED, m, each within 1000 km of the origin",
     )
 
+    @property
+    def size(self) -> int:
+        """Number of landmarks the layout makes (the map's size bound Lmax)."""
+        if self.layout == "rauniyar2023":
+            return self.count
+        if self.layout == "poles4":
+            return 4
+        return len(self.positions)
+
     def validate(self) -> None:
         for name in ("azimuth_deg", "elevation_deg", "range_m"):
             lo, hi = getattr(self, name)

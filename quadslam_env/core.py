@@ -12,8 +12,10 @@ as the scalar env always has. The wind (:mod:`quadslam_env.wind`: held over each
 in ``info``, advanced after the step; told to the estimator only with ``wind.inform_estimator``)
 spawns its gusts' generator from the world child, and domain randomisation
 (:mod:`quadslam_env.randomize`, the truth's parameters scaled per lane and episode; told with
-``randomize.inform_estimator``) its generator from the initial-error child, so no other stream
-changes when either is on.
+``randomize.inform_estimator``) its generator from the initial-error child, and a fault of
+the world (:mod:`quadslam_env.faults`: held over each step, applied before the vehicle flies
+it) its generator from the world child after the wind's, so no other stream changes when any of
+them is on.
 
 IMU rate (``imu.rate_hz``, docs/timing.md "IMU rate"): each IMU sample is the average of its
 inputs over its own period, and each prediction gets the input's white-noise std per step h,
@@ -51,6 +53,7 @@ from quadslam_env.config import ScenarioConfig
 from quadslam_env.episode_start import initial_state, settle_time
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
 from quadslam_env.estimation.protocol import ReservesLandmarks, UsesTruth
+from quadslam_env.faults import FaultBatch
 from quadslam_env.imu_period import fast_period_samples, period_sample
 from quadslam_env.metrics import METRIC_KEYS, EpisodeMetrics, input_columns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
@@ -130,6 +133,8 @@ class SimCore:
         capacity = landmark_capacity(cfg.landmarks)
         self.landmarks = np.zeros((b, capacity, 3))
         self.n_landmarks = np.zeros(b, dtype=np.int64)
+        self.faults = FaultBatch(cfg, self.trajectory, self.vehicle_params.mass, b)
+        capacity += self.faults.extra_landmarks  # the phantom's id, in the estimator's map
         self.estimator = make(
             cfg.estimator.name, b, capacity, vehicle=self.vehicle_params, **cfg.estimator.params
         )
@@ -215,6 +220,8 @@ class SimCore:
         self.imu.reset(lanes, [c[1] for c in children])
         self.lidar.reset(lanes, [c[2] for c in children])
         rand.finish(self.imu, self.lidar, self.wind)
+        worlds = [c[0] for c in children]  # the faults' spawn after the wind's
+        self.faults.reset(lanes, worlds, self.landmarks, self.n_landmarks, self.imu)
         if self._steps_per_imu > 1:  # a slower IMU's first sample, held until the next
             vel = self.vehicle.air_velocity()[lanes]
             self.imu.prime(lanes, vel, states0[:, RATE], self.vehicle.applied_thrust[lanes])
@@ -248,9 +255,10 @@ class SimCore:
         if copies is not None and copies.output is not self.estimator:  # a user swapped it
             copies = self._copies = copies_for(self.scenario, self.estimator, self.vehicle_params)
         if "landmarks" in opts and isinstance(self.estimator, ReservesLandmarks):
-            self.estimator.reserve_landmarks(len(opts["landmarks"]))
+            count = len(opts["landmarks"]) + self.faults.extra_landmarks
+            self.estimator.reserve_landmarks(count)
             if copies is not None:
-                copies.reserve_landmarks(len(opts["landmarks"]))
+                copies.reserve_landmarks(count)
 
     def _reset_estimator(
         self, lanes: np.ndarray, mean0: FloatArray, rngs: list[np.random.Generator]
@@ -288,6 +296,8 @@ class SimCore:
         act = action if active is None else np.where(active[:, None], action, 0.0)
         active = self._all_lanes if active is None else active
         thrust, torque = self._command(act, active)
+        t_next = (self.steps + active) * self.dt  # the lanes' times after the step
+        self.faults.advance(t_next, active, self.landmarks, self.imu)
         samples = self._fly(thrust, torque, active)
         scans = self._scan(active)
         timed = self.scenario.episode.report_step_time
@@ -315,7 +325,7 @@ class SimCore:
         self.episode.add_association(info, active)
         if ended:
             done = terminated | truncated
-            for key, value in self.episode.summary().items():
+            for key, value in (self.episode.summary() | self.faults.summary()).items():
                 info[key] = np.where(done, value, math.nan)
         info["termination_reason"] = reasons
         self.wind.advance(active)  # info holds the wind of this step; now the next one's
@@ -360,17 +370,17 @@ class SimCore:
 
     def _scan(self, active: np.ndarray) -> Scans | None:
         """The scans of the ``active`` lanes due to scan at their new step (``None``: none),
-        of the kind the association takes; sets :attr:`last_scan` and the lanes' landmark
-        counts in view."""
+        of the kind the association takes (in the world of the fault, and corrupted by it);
+        sets :attr:`last_scan` and the lanes' landmark counts in view."""
         state = self.vehicle.state
         scanning = (active & (self.steps % self.scenario.lidar_every == 0)).nonzero()[0]
         self.last_scan = None
         if not scanning.size:
             return None
-        dcm = dcm_from_euler_batch(state[:, EUL])
-        scans = self.association.scan(
-            self.lidar, state[:, POS], dcm, self.landmarks, self.n_landmarks, scanning
-        )
+        pos, dcm = state[:, POS], dcm_from_euler_batch(state[:, EUL])
+        points, counts = self.faults.scan_world(pos, dcm, self.landmarks, self.n_landmarks)
+        scans = self.association.scan(self.lidar, pos, dcm, points, counts, scanning)
+        self.faults.corrupt(scans)
         self.n_visible[scanning] = scans.n_returns[scanning]
         self.last_scan = scans
         return scans
@@ -442,8 +452,9 @@ class SimCore:
         state = self.vehicle.state
         values = np.empty((len(_ROWS), self.num_lanes))
         keys = self.association.metric_columns(
-            state, est, self.landmarks, self.imu.total_bias, values, self.wind.velocity
-        )
+            state, self.faults.metric_estimate(est), self.landmarks, self.imu.total_bias, values,
+            self.wind.velocity,
+        )  # fmt: skip
         diagnostics = est.diagnostics
         values[_NIS] = diagnostics.get("nis", math.nan)
         values[_ESS] = diagnostics.get("ess", math.nan)
@@ -456,4 +467,5 @@ class SimCore:
         info.update(self.wind.info())
         info.update(self.randomizer.info())
         info.update(self.association.info())
+        info.update(self.faults.info())
         return values, info

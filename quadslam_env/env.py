@@ -21,7 +21,7 @@ from quadslam_env.estimation import BatchEstimate, BatchEstimator
 from quadslam_env.memory import check_env_memory
 from quadslam_env.reset_options import parse_reset_options, parse_seed
 from quadslam_env.trajectories import FlatOutputs
-from quadslam_env.types import FloatArray
+from quadslam_env.types import TEXT_INFO_KEYS, FloatArray
 
 if TYPE_CHECKING:
     from quadslam_env.render import LaneRenderer
@@ -39,7 +39,7 @@ def lane_info(info: dict[str, Any], lane: int) -> dict[str, Any]:
     """One lane's ``info`` as floats; terms that do not apply (NaN) are left out."""
     out: dict[str, Any] = {}
     for key, value in info.items():
-        if key == "termination_reason":
+        if key in TEXT_INFO_KEYS:  # termination_reason, fault_kind: strings
             out[key] = value[lane]
             continue
         v = float(value[lane])

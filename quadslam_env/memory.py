@@ -66,7 +66,7 @@ def workload(scenario: ScenarioConfig, num_lanes: int) -> Workload:
     """What the estimator of ``scenario`` on ``num_lanes`` lanes will be asked to hold."""
     return Workload(
         num_lanes=int(num_lanes),
-        landmark_capacity=landmark_capacity(scenario.landmarks),
+        landmark_capacity=landmark_capacity(scenario.landmarks) + scenario.faults.extra_landmarks,
         known_map=scenario.estimator.known_map,
         scan_hz=scenario.episode.control_hz / scenario.lidar_every,
         duration_s=scenario.episode.duration_s,

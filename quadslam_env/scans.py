@@ -44,6 +44,12 @@ class Scans(Protocol):
     def n_returns(self) -> np.ndarray:
         """(B,) int returns per lane (0 for lanes that did not scan)."""
 
+    @property
+    def true_ids(self) -> np.ndarray:
+        """(B, W) int the true landmark id of each row of :attr:`meas` (-1: a false return;
+        rows outside :attr:`returned` unused), for the simulator only (the faults of
+        :mod:`quadslam_env.faults`); never passed to an estimator."""
+
     def apply(self, estimator: BatchEstimator, t: FloatArray, sigma: FloatArray) -> None:
         """Correct ``estimator``'s :attr:`lanes` with their scans.
 
@@ -93,6 +99,11 @@ class LabeledScans:
     def n_returns(self) -> np.ndarray:
         return cast(np.ndarray, self.visible.sum(axis=1))
 
+    @property
+    def true_ids(self) -> np.ndarray:
+        """Slot j is landmark j: a read-only (B, Lmax) view of the slot indices."""
+        return np.broadcast_to(np.arange(self.visible.shape[1]), self.visible.shape)
+
     def apply(self, estimator: BatchEstimator, t: FloatArray, sigma: FloatArray) -> None:
         estimator.update(t, self.lanes, self.visible, self.meas, sigma)
 
@@ -138,6 +149,11 @@ class UnlabeledScans:
     @property
     def n_returns(self) -> np.ndarray:
         return self.returns.count
+
+    @property
+    def true_ids(self) -> np.ndarray:
+        """The returns' true ids (``returns.truth``, the array itself: writable)."""
+        return self.returns.truth
 
     def apply(self, estimator: BatchEstimator, t: FloatArray, sigma: FloatArray) -> None:
         # the scenario check let only an estimator that AssociatesUnlabeled through

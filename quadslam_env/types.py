@@ -36,3 +36,8 @@ MEAS_DIM = 3
 
 IMU_DIM = 6
 """IMU sample ``(a_m [m/s²], ω_m [rad/s])`` in B (seed 000 eq. 5–7)."""
+
+TEXT_INFO_KEYS = ("termination_reason", "fault_kind")
+"""``info`` terms that hold text, one string per lane (``""`` where they do not apply) instead
+of a float: the envs pass them through as strings (the vector env as object arrays with a
+``_key`` mask of the non-empty ones)."""

@@ -45,6 +45,7 @@ from quadslam_env.reset_options import (
     parse_seed,
     split_reset_mask,
 )
+from quadslam_env.types import TEXT_INFO_KEYS
 
 if TYPE_CHECKING:
     from quadslam_env.render import LaneRenderer
@@ -245,7 +246,7 @@ class QuadSLAMVectorEnv(VectorEnv):
         core = self._core
         resetting = self._ended.copy()
         obs, reward, terminated, truncated, info = core.step(act, ~resetting)
-        info["termination_reason"] = np.array(info["termination_reason"], dtype=object)
+        _text_arrays(info)
         lanes = np.flatnonzero(resetting)
         if lanes.size:
             r_obs, r_info = core.reset_lanes(lanes, self.lane_rngs(lanes))
@@ -266,7 +267,7 @@ class QuadSLAMVectorEnv(VectorEnv):
         end now are reset now, as :class:`gymnasium.vector.SyncVectorEnv` does."""
         core = self._core
         obs, reward, terminated, truncated, info = core.step(act)
-        info["termination_reason"] = np.array(info["termination_reason"], dtype=object)
+        _text_arrays(info)
         ended = terminated | truncated
         lanes = np.flatnonzero(ended)
         extra: dict[str, Any] = {}
@@ -319,7 +320,7 @@ def parse_autoreset_mode(value: Any) -> AutoresetMode:
 
 def _only(value: np.ndarray, lanes: np.ndarray) -> np.ndarray:
     """A copy of the (B,) info term ``value`` that applies only in the (B,) bool ``lanes``."""
-    if value.dtype == object:  # termination_reason
+    if value.dtype == object:  # text: termination_reason, fault_kind
         return np.where(lanes, value, "")
     return np.where(lanes, value, np.nan)
 
@@ -330,7 +331,7 @@ def _put_lane_rows(info: dict[str, Any], lanes: np.ndarray, lane_info: dict[str,
     for key, value in info.items():
         if key in lane_info:
             value[lanes] = lane_info[key]
-        elif key == "termination_reason":
+        elif key in TEXT_INFO_KEYS:
             value[lanes] = ""
         else:
             value[lanes] = np.nan
@@ -340,17 +341,24 @@ def _lane_rows(lane_info: dict[str, Any], lanes: np.ndarray, b: int) -> dict[str
     """(B,) terms from the (k,) terms of ``lanes`` (k,): NaN in the other lanes."""
     out: dict[str, Any] = {}
     for key, value in lane_info.items():
-        row = np.full(b, np.nan)
+        row = np.full(b, "", dtype=object) if key in TEXT_INFO_KEYS else np.full(b, np.nan)
         row[lanes] = value
         out[key] = row
     return out
+
+
+def _text_arrays(info: dict[str, Any]) -> None:
+    """The core's text terms (lists of B strings) as object arrays, in place."""
+    for key in TEXT_INFO_KEYS:
+        if key in info:
+            info[key] = np.array(info[key], dtype=object)
 
 
 def _vector_info(info: dict[str, Any]) -> dict[str, Any]:
     """Gymnasium vector info: each (B,) array with a ``_key`` mask of the lanes it applies to."""
     out: dict[str, Any] = {}
     for key, value in info.items():
-        if key == "termination_reason":
+        if key in TEXT_INFO_KEYS:
             arr = np.asarray(value, dtype=object)
             mask = arr != ""
         else:

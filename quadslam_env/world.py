@@ -10,11 +10,7 @@ from quadslam_env.types import DEG, FloatArray
 
 def landmark_capacity(cfg: LandmarksConfig) -> int:
     """Number of landmarks the layout makes (the map's size bound Lmax)."""
-    if cfg.layout == "rauniyar2023":
-        return cfg.count
-    if cfg.layout == "poles4":
-        return 4
-    return len(cfg.positions)
+    return cfg.size
 
 
 def make_landmarks(

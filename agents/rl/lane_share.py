@@ -20,6 +20,7 @@ import numpy as np
 from agents.rl.wrappers import ResidualDFLQR, parse_wrapper_spec
 from quadslam_env.env import lane_info
 from quadslam_env.reset_options import parse_reset_options
+from quadslam_env.types import TEXT_INFO_KEYS
 from quadslam_env.vector_env import QuadSLAMVectorEnv
 
 # Keys of the dict observation with privileged=True (agents.rl.asymmetric reads them).
@@ -184,7 +185,7 @@ class LaneShare:
             obs[lanes] = r_obs
             reset_infos = dict(zip(lanes, self._infos(r_info, range(len(lanes))), strict=True))
         self._obs = obs
-        arrays = {key: value for key, value in info.items() if key != "termination_reason"}
+        arrays = {key: value for key, value in info.items() if key not in TEXT_INFO_KEYS}
         out = self._observation(obs.copy())
         return out, reward.astype(np.float32), dones, infos, reset_infos, arrays
 
