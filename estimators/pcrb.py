@@ -51,6 +51,17 @@ The bound on the error of a function ``g`` of the state (the inertial velocity `
 rotation vector of the attitude error) is ``∂g/∂x B ∂g/∂xᵀ``; :func:`error_bounds` gives the
 mean-square bounds of the position, inertial velocity and attitude (rotation angle) errors
 that :mod:`quadslam_env.metrics` reports.
+
+**The map block.** The landmarks' rows and columns of the same ``B`` bound the map: ``B_ll``
+(3×3, N frame, m²) of landmark ``l`` (:func:`landmark_blocks`) bounds the covariance of its
+position error, and the map RMSE that :mod:`quadslam_env.metrics` reports,
+``√((1/n) Σ_j ‖l̂_j − l_j‖²)`` over the n mapped landmarks, has the mean-square bound
+
+    E[(1/n) Σ_j ‖l̂_j − l_j‖²]  ≥  (1/n) Σ_j tr B_{l_j l_j}                      (2)
+
+(:func:`map_error_bound`). It holds the SLAM gauge: the landmarks inherit the prior's position
+variance (no measurement tells a shift of vehicle and map together), so ``tr B_ll`` never
+drops below the trace of the pose prior's position block.
 """
 
 from __future__ import annotations
@@ -208,11 +219,18 @@ class BoundResult:
         pose_cov: (K + 1, 9, 9) bound on the covariance of ``(ρ, v_B, Λ)`` at each step.
         bias_cov: (K + 1, 4, 4) bound on the bias states (b_ω, b_az), or ``None``.
         n_landmarks: (K + 1,) int, landmarks in the state (0 for a known map).
+        landmark_var: (K + 1, L, 3) bound on the variance of each landmark's position error
+            per NED axis in m² (the diagonal of its 3×3 block of eq. (1), the map block), NaN
+            before the landmark's first sighting; ``None`` for a known map.
+        landmark_cov: (L, 3, 3) bound on each landmark's error covariance at the last step
+            in m² (NaN for a landmark never seen); ``None`` for a known map.
     """
 
     pose_cov: FloatArray
     bias_cov: FloatArray | None
     n_landmarks: np.ndarray
+    landmark_var: FloatArray | None = None
+    landmark_cov: FloatArray | None = None
 
 
 def slam_bound(record: TruthRecord, model: BoundModel) -> BoundResult:
@@ -225,7 +243,8 @@ def slam_bound(record: TruthRecord, model: BoundModel) -> BoundResult:
     (:func:`augment_without_prior`).
 
     Returns:
-        The bound at ``t = 0 … K dt`` (step 0 is the prior).
+        The bound at ``t = 0 … K dt`` (step 0 is the prior), the map block with it when the
+        map is unknown (:func:`landmark_blocks`).
     """
     settings = model.settings
     nv = settings.nv
@@ -252,6 +271,7 @@ def slam_bound(record: TruthRecord, model: BoundModel) -> BoundResult:
     pose = np.empty((K + 1, POSE_DIM, POSE_DIM))
     bias = np.empty((K + 1, nv - POSE_DIM, nv - POSE_DIM)) if nv > POSE_DIM else None
     counts = np.zeros(K + 1, dtype=np.int64)
+    lm_var = None if model.known_map else np.full((K + 1, n_lm, 3), np.nan)
     pose[0] = P[:POSE_DIM, :POSE_DIM]
     if bias is not None:
         bias[0] = P[POSE_DIM:nv, POSE_DIM:nv]
@@ -270,7 +290,32 @@ def slam_bound(record: TruthRecord, model: BoundModel) -> BoundResult:
         if bias is not None:
             bias[k + 1] = P[POSE_DIM:nv, POSE_DIM:nv]
         counts[k + 1] = (n - nv) // 3
-    return BoundResult(pose_cov=pose, bias_cov=bias, n_landmarks=counts)
+        if lm_var is not None and ids is not None:  # the map block moves at scans only
+            seen = np.flatnonzero(slot >= 0)
+            lm_var[k + 1, seen] = np.diagonal(landmark_blocks(P, nv, slot[seen]), 0, 1, 2)
+        if lm_var is not None and ids is None:
+            lm_var[k + 1] = lm_var[k]
+    lm_cov = None
+    if lm_var is not None:
+        lm_cov = np.full((n_lm, 3, 3), np.nan)
+        seen = np.flatnonzero(slot >= 0)
+        lm_cov[seen] = landmark_blocks(P, nv, slot[seen])
+    return BoundResult(pose, bias, counts, lm_var, lm_cov)
+
+
+def landmark_blocks(P: FloatArray, nv: int, slots: np.ndarray) -> FloatArray:
+    """The 3×3 diagonal blocks of the map in the SLAM bound ``P`` (eq. (1) in its covariance
+    form): ``B_ll`` of each landmark, the bound on the covariance of its position error.
+
+    Args:
+        P: (n, n) bound of the state ``(x_v, l_0, l_1, …)``, vehicle part of size ``nv``.
+        slots: (m,) int, the landmarks' positions in the state (order of entry).
+
+    Returns:
+        (m, 3, 3) in m² (NED).
+    """
+    idx = nv + 3 * np.asarray(slots, dtype=np.int64)[:, None] + np.arange(3)
+    return np.asarray(P[idx[:, :, None], idx[:, None, :]], dtype=float)
 
 
 def _scan(
@@ -363,3 +408,24 @@ def error_bounds(state: FloatArray, pose_cov: FloatArray) -> dict[str, FloatArra
         "vel_var_axes": vel_axes.copy(),
         "euler_var_axes": np.diagonal(pose_cov[:, EUL, EUL], axis1=1, axis2=2).copy(),
     }
+
+
+def map_error_bound(landmark_var: FloatArray, mapped: np.ndarray | None = None) -> FloatArray:
+    """Mean-square bound of the map RMSE, eq. (2): ``(1/n) Σ_j tr B_{l_j l_j}`` per step.
+
+    Args:
+        landmark_var: (K, L, 3) per-axis variance bounds of the landmarks
+            (:attr:`BoundResult.landmark_var`), NaN for a landmark not yet seen.
+        mapped: (K, L) bool, the landmarks the estimate has mapped at each step (those the
+            metric averages over), or ``None`` for every landmark the bound has seen.
+
+    Returns:
+        (K,) in m², NaN at a step with no landmark in the set.
+    """
+    trace = landmark_var.sum(axis=2)
+    use = np.isfinite(trace) if mapped is None else np.asarray(mapped, bool) & np.isfinite(trace)
+    count = use.sum(axis=1)
+    total = np.where(use, trace, 0.0).sum(axis=1)
+    out = np.full(trace.shape[0], np.nan)
+    np.divide(total, count, out=out, where=count > 0)
+    return out

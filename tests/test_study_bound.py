@@ -14,7 +14,8 @@ import quadslam_env  # noqa: F401  (registers the ids)
 from agents.cli import main as cli
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import run_episodes
-from agents.studies.bound import TruthRecorder, figure_name, run_bound_study
+from agents.studies.bound import TruthRecorder, run_bound_study
+from agents.studies.bound_report import figure_name
 
 SCENARIO = "paper_ekf_figure8_known"
 
@@ -95,3 +96,30 @@ def test_figure_name_names_a_replaced_estimator() -> None:
     assert figure_name(result) == "bound_s.png"
     result["settings"]["estimator_override"] = "fastslam"
     assert figure_name(result) == "bound_s_fastslam.png"
+
+
+def test_unknown_map_writes_the_map_bound_beside_the_envs_map(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    out = tmp_path / "bound.json"
+    code = cli.main(
+        ["study", "bound", "--scenario", "paper_ekf_figure8", "--seeds", "2", "--duration", "2",
+         "--json", str(out), "--plots", str(tmp_path / "fig")]
+    )  # fmt: skip
+    assert code == 0
+    data = json.loads(out.read_text())
+    gauge = 3 * 0.001  # trace of the position block of the scenario's P0 (seed 001 Table 7)
+    for rec, ep in zip(data["seeds"], data["episodes"], strict=True):
+        # The recorder's map at the last step is the env's own episode map RMSE.
+        assert rec["est_map_rmse_m_final"] == pytest.approx(ep["map_rmse_m"], rel=1e-12)
+        assert rec["n_mapped_final"] == ep["n_mapped"] > 0
+        assert len(rec["landmarks"]) >= rec["n_mapped_final"]
+        for row in rec["landmarks"]:
+            # The SLAM gauge: no landmark is bound below the prior's position variance.
+            assert row["bound_m"] ** 2 >= gauge and row["scans"] >= 1
+            assert 0.0 <= row["first_seen_s"] <= 2.0
+        assert rec["bound_map_rmse_m_final"] ** 2 >= gauge
+    for key in ("bound_map_rmse_m", "est_map_rmse_m_steady", "bound_map_rmse_m_final"):
+        assert data["summary"][key]["pooled"] > 0.0
+    assert (tmp_path / "fig" / "bound_map_paper_ekf_figure8.png").stat().st_size > 10_000
+    assert "map RMSE" in capsys.readouterr().out

@@ -116,7 +116,7 @@ def cmd_study_association(args: argparse.Namespace) -> int:
 
 def cmd_study_bound(args: argparse.Namespace) -> int:
     """The posterior Cramér–Rao bound of a scenario next to its estimator's errors."""
-    from agents.studies.bound import cli_bound
+    from agents.studies.bound_report import cli_bound
 
     return cli_bound(args)
 

@@ -17,6 +17,9 @@ scenario's pose prior and map. It bounds estimators that use the IMU as their in
 also uses the applied control through the vehicle's dynamics (the dynamics-based FastSLAM) has
 more information and is not bound by it.
 
+**The map** (unknown map, known association): the landmark block of the same bound next to
+the estimate's map RMSE, per step and per landmark (:mod:`agents.studies.bound_map`).
+
 **Reading the numbers.** The PCRB bounds the mean-square error over the prior and the noise, so
 compare it with the error pooled over seeds, ``√(mean over seeds of MSE)`` (``pooled``); a
 single seed can fall below it (the initial error drawn from P0 is small on some seeds), and
@@ -32,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.studies.phases import format_phases, phase_ratios
+from agents.studies.bound_map import MapSeries, landmark_sq_errors, map_series
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.pcrb import BoundModel, TruthRecord, error_bounds, slam_bound
 from quadslam_env.metrics import step_metrics
@@ -62,6 +65,7 @@ class _Lane:
     err_norm: list[FloatArray] = field(default_factory=list)  # pos m, vel m/s, att rad
     err_axes: list[FloatArray] = field(default_factory=list)  # pos (3), vel_N (3), Euler (3)
     filter_var: list[FloatArray] = field(default_factory=list)  # pose-cov diagonal (9)
+    map_err2: list[FloatArray] = field(default_factory=list)  # (L,) ‖l̂ − l‖², NaN unmapped
 
     def truth(self) -> TruthRecord:
         return TruthRecord(
@@ -82,11 +86,14 @@ class TruthRecorder:
         self.lanes: list[_Lane] = []
         self.core: Any = None
         self._current: dict[int, _Lane] = {}
+        self._map_by_id = False
 
     def __call__(self, core: Any, stepped: np.ndarray, info: dict[str, Any]) -> None:
         if core is not self.core:  # a new vector env (the next chunk of seeds)
             self.core = core
             self._current = {}
+            cfg = core.scenario
+            self._map_by_id = not cfg.estimator.known_map and cfg.lidar.association == "known"
         state = core.vehicle.state
         est = core.est
         metrics = step_metrics(state, est, core.landmarks, core.imu.total_bias)
@@ -128,6 +135,9 @@ class TruthRecorder:
             rec.filter_var.append(
                 np.full(POSE_DIM, np.nan) if cov is None else np.diagonal(cov[lane]).copy()
             )
+            if self._map_by_id:
+                means, mapped = est.landmark_means[lane], est.landmark_mapped[lane]
+                rec.map_err2.append(landmark_sq_errors(means, mapped, rec.landmarks))
 
 
 def bound_model(core: Any) -> BoundModel:
@@ -190,6 +200,7 @@ class SeedBound:
     err_axes: FloatArray  # (K, 9)
     filter_var: FloatArray  # (K, 9)
     n_landmarks: np.ndarray
+    map: MapSeries | None = None  # the map and its bound (unknown map, known association)
 
     def summary(self, steady_from_s: float) -> dict[str, Any]:
         """RMSE-equivalents of the bound and RMSEs of the estimate, episode and steady."""
@@ -205,6 +216,8 @@ class SeedBound:
                 if f2 is not None:
                     out[f"filter_{name}_rmse_{unit}{span}"] = scale * _rms(f2[sel])
         out["n_landmarks_in_bound"] = int(self.n_landmarks[-1])
+        if self.map is not None:
+            out.update(self.map.summary(self.t, steady_from_s))
         return out
 
     def _filter_trace(self, block: int) -> FloatArray | None:
@@ -224,6 +237,10 @@ def compute_bounds(recorder: TruthRecorder, model: BoundModel, seeds: list[int])
         truth = lane.truth()
         result = slam_bound(truth, model)
         bounds = error_bounds(truth.state[1:], result.pose_cov[1:])
+        lm_map = None
+        if lane.map_err2 and result.landmark_var is not None:
+            lm_map = map_series(np.array(lane.map_err2[1:]), result.landmark_var[1:], lane.dt,
+                                truth.scan_steps, truth.scan_ids)  # fmt: skip
         out.append(
             SeedBound(
                 seed=seed,
@@ -233,6 +250,7 @@ def compute_bounds(recorder: TruthRecorder, model: BoundModel, seeds: list[int])
                 err_axes=np.array(lane.err_axes[1:]),
                 filter_var=np.array(lane.filter_var[1:]),
                 n_landmarks=result.n_landmarks[1:],
+                map=lm_map,
             )
         )
     return out
@@ -361,131 +379,3 @@ def run_bound_study(
         "episodes": episodes,
     }
     return result, series
-
-
-def format_bound(result: dict[str, Any]) -> str:
-    """Per-seed table and the summary as text."""
-    cols = [
-        ("seed", "seed", "{:d}"),
-        ("pos bound", "bound_pos_rmse_m", "{:.4f}"),
-        ("pos est", "est_pos_rmse_m", "{:.4f}"),
-        ("steady bound", "bound_pos_rmse_m_steady", "{:.4f}"),
-        ("steady est", "est_pos_rmse_m_steady", "{:.4f}"),
-        ("vel bound", "bound_vel_rmse_mps", "{:.4f}"),
-        ("vel est", "est_vel_rmse_mps", "{:.4f}"),
-        ("att bound°", "bound_att_rmse_deg", "{:.4f}"),
-        ("att est°", "est_att_rmse_deg", "{:.4f}"),
-    ]
-
-    def cell(fmt: str, value: Any) -> str:
-        if value is None or (isinstance(value, float) and not math.isfinite(value)):
-            return "-"
-        return fmt.format(value)
-
-    rows = [[c[0] for c in cols]]
-    for rec in result["seeds"]:
-        rows.append([cell(fmt, rec.get(key)) for _, key, fmt in cols])
-    for stat in ("median", "pooled"):
-        rows.append(
-            [stat] + [cell(fmt, result["summary"][key].get(stat)) for _, key, fmt in cols[1:]]
-        )
-    widths = [max(len(r[i]) for r in rows) for i in range(len(cols))]
-    lines = ["  ".join(c.rjust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
-    lines.insert(1, "-" * len(lines[0]))
-    lines.insert(len(lines) - 2, "-" * len(lines[0]))
-    head = (
-        f"{result['scenario']} / {result['estimator']}: PCRB (RMSE-equivalent √trace) vs "
-        f"estimate RMSE; steady state {result['settings']['steady_state']}"
-    )
-    return head + "\n" + "\n".join(lines)
-
-
-def bound_figure(result: dict[str, Any], series: list[SeedBound]) -> Any:
-    """Left: the first seed's per-axis errors with ±√ of the bound's diagonal; right: the
-    error norm of every seed, its RMS over seeds and the bound's √trace (mean over seeds).
-
-    Returns:
-        A matplotlib ``Figure`` (not attached to pyplot).
-    """
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(12.0, 9.0), layout="constrained")
-    axes = fig.subplots(3, 2, sharex=True)
-    first = series[0]
-    axis_keys = ("pos_var_axes", "vel_var_axes", "euler_var_axes")
-    trace_keys = ("pos_m2", "vel_m2ps2", "att_rad2")
-    labels = (
-        ("position error [m]", "‖position error‖ [m]"),
-        ("inertial velocity error [m/s]", "‖velocity error‖ [m/s]"),
-        ("Euler angle error [deg]", "attitude error angle [deg]"),
-    )
-    colors = ("tab:blue", "tab:orange", "tab:green")
-    for j, (_, _, scale, _) in enumerate(BLOCKS):
-        ax = axes[j, 0]
-        sd = scale * np.sqrt(np.clip(first.bound[axis_keys[j]], 0.0, None))
-        for a in range(3):
-            ax.plot(first.t, scale * first.err_axes[:, 3 * j + a], lw=0.8, color=colors[a],
-                    label="xyz"[a] if j < 2 else "φθψ"[a])  # fmt: skip
-            ax.fill_between(first.t, -sd[:, a], sd[:, a], color=colors[a], alpha=0.12, lw=0)
-        ax.set_ylabel(labels[j][0])
-        ax.legend(loc="upper right", fontsize=7, ncol=3, title="shaded: ±√bound", title_fontsize=7)
-        ax.grid(alpha=0.3)
-        ax = axes[j, 1]
-        length = min(len(s.t) for s in series)
-        t = series[0].t[:length]
-        errs = np.array([scale * s.err_norm[:length, j] for s in series])
-        for e in errs:
-            ax.plot(t, e, color="0.75", lw=0.5)
-        ax.plot(t, np.sqrt(np.mean(errs**2, axis=0)), color="k", lw=1.2, label="RMS over seeds")
-        bound = np.array([s.bound[trace_keys[j]][:length] for s in series])
-        line = scale * np.sqrt(bound.mean(axis=0))
-        ax.plot(t, line, color="tab:red", lw=1.5, label="PCRB √trace (mean over seeds)")
-        ax.set_ylim(bottom=0.1 * float(np.median(line)))  # the zero prior's start: off scale
-        ax.set_ylabel(labels[j][1])
-        ax.set_yscale("log")
-        ax.legend(loc="upper right", fontsize=7)
-        ax.grid(alpha=0.3, which="both")
-    axes[2, 0].set_xlabel("t [s]")
-    axes[2, 1].set_xlabel("t [s]")
-    n = len(series)
-    fig.suptitle(
-        f"{result['scenario']} / {result['estimator']}: error vs posterior Cramér–Rao bound "
-        f"(left: seed {first.seed}; right: {n} seed(s), grey = each seed)"
-    )
-    return fig
-
-
-def figure_name(result: dict[str, Any]) -> str:
-    """``bound_<scenario>.png``, or ``bound_<scenario>_<estimator>.png`` for an estimator
-    other than the scenario's."""
-    suffix = f"_{result['estimator']}" if result["settings"].get("estimator_override") else ""
-    return f"bound_{result['scenario']}{suffix}.png"
-
-
-def cli_bound(args: Any) -> int:
-    """``quadslam study bound``: fly, bound, print the table, write JSON and the figure."""
-    from agents.io.outputs import Saver, clean_json
-    from agents.io.overrides import parse_overrides
-    from agents.io.paths import check_output_dir, check_output_file
-
-    if args.json is not None:  # every output path before the flight
-        check_output_file(args.json, "--json")
-    if args.plots is not None:
-        check_output_dir(args.plots, "--plots")
-    seeds = list(range(args.seed, args.seed + args.seeds))
-    result, series = run_bound_study(
-        args.scenario, seeds, args.duration, parse_overrides(args.set), args.estimator
-    )
-    print(format_bound(result))
-    if args.phases is not None:
-        result["phases"] = phase_ratios(series, args.phases, BLOCKS)
-        print(format_phases(result["phases"], BLOCKS))
-    saver = Saver()
-    if args.json is not None:
-        print(f"json: {saver.write_json(args.json, clean_json(result), '--json')}")
-    if args.plots is not None:
-        fig = bound_figure(result, series)
-        path = args.plots / figure_name(result)
-        print(f"figure: {saver.save_figure(fig, path, '--plots')}")
-    saver.check()
-    return 0
