@@ -4,11 +4,14 @@ One call of :func:`update_lanes` handles every scanning lane (seed 001 eq. 37–
 
 1. the observed mapped (or, in known-map mode, known) landmarks are predicted with the LiDAR
    model and stacked into ``H`` over the columns ``[s, m_κ]`` (eq. 34, 40);
-2. each landmark is gated on its own 3-DOF NIS ``ν_iᵀ S_ii⁻¹ ν_i`` (rejections counted);
+2. each landmark is gated on its own 3-DOF NIS ``ν_iᵀ S_ii⁻¹ ν_i`` (rejections counted), and
+   with the integrity monitor on the scan is tested, its faulty landmarks left out
+   (:mod:`estimators.ekf.fde`);
 3. the accepted ones form one update touching only the rows ``[s, m_κ]`` of P:
    ``U = H P[idx, :]`` (= ``(P Hᵀ)ᵀ``), ``S = U[:, idx] Hᵀ + R`` (eq. 38), ``S = L Lᵀ``,
    ``Wᵀ = L⁻¹ U``, ``x += W L⁻¹ ν`` (eq. 42) and ``P -= W Wᵀ`` (= ``K S Kᵀ``, eq. 43);
-4. observed unmapped landmarks are registered in ascending id order (eq. 44–53).
+4. observed unmapped landmarks are registered in ascending id order (eq. 44–53,
+   :mod:`estimators.ekf.register`).
 
 A failed step (singular or non-positive-definite S, a non-finite result, a covariance
 diagonal that would turn negative) is skipped and sets the lane's ``diverged`` flag;
@@ -32,7 +35,6 @@ from estimators.ekf.correction import (
 from estimators.ekf.fde import leave_out, monitored
 from estimators.ekf.kernels import (
     D_DIVERGED,
-    D_N_MAPPED,
     D_N_REJECTED,
     D_N_REJECTED_LAST,
     D_N_UPDATES,
@@ -41,9 +43,9 @@ from estimators.ekf.kernels import (
     D_SEPARATION,
     sync_lane,
 )
-from quadslam_env.models.frames import dcm_and_partials, wrap_pi
+from estimators.ekf.register import register_new
+from quadslam_env.models.frames import wrap_pi
 from quadslam_env.models.jit import inline_kernel, kernel
-from quadslam_env.models.lidar import lidar_inverse_models
 from quadslam_env.types import EUL, POS, POSE_DIM, FloatArray
 
 _DIAG_FLOOR = -1e-9
@@ -134,6 +136,42 @@ def innovation(y: FloatArray, h: FloatArray, out: FloatArray) -> None:
     out[2] = y[2] - h[2]
 
 
+@inline_kernel
+def _select(
+    S: FloatArray,
+    U: FloatArray,
+    nu: FloatArray,
+    gate: float,
+    monitor: FloatArray,
+    lm_thr: FloatArray,
+    scan_thr: FloatArray,
+    keep: np.ndarray,
+    excluded: np.ndarray,
+    diag: FloatArray,
+    b: int,
+) -> bool:
+    """Which of one lane's k observed landmarks the update uses (``keep`` (k,), all True on
+    entry): the per-landmark χ² gate, then the integrity monitor's tests (``monitor``: see
+    :func:`update_lanes`). Returns False (the lane flagged diverged) on a singular S."""
+    k = keep.shape[0]
+    if monitor[0] < 1.5:  # no exclusion: the per-landmark χ² gate on the 3×3 blocks of S
+        for i in range(k):
+            nis_i = solve3_nis(S, 3 * i, nu[3 * i : 3 * i + 3])
+            if not math.isfinite(nis_i):
+                diag[D_DIVERGED, b] = 1.0
+                return False
+            keep[i] = nis_i <= gate
+    # The monitor tests the landmarks kept: detection only, on the gated ones (the update
+    # stays the unmonitored one); with exclusion, all of them (its tests replace the gate).
+    if monitor[0] > 0.5:
+        if not keep.any():  # every landmark gated out: no hypothesis to bound
+            for r in range(4):
+                diag[D_SEPARATION + r, b] = 0.0
+        elif not monitored(S, U, nu, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
+            return False
+    return True
+
+
 @kernel
 def _update_mapped(
     xb: FloatArray,
@@ -153,12 +191,9 @@ def _update_mapped(
     scan_thr: FloatArray,
     excluded: np.ndarray,
 ) -> None:
-    """Gated stacked update of one lane with landmarks ``lms`` (k, 3) observed as ``y``,
-    iterated (:func:`~estimators.ekf.correction.relinearise`) when it is not linear enough
-    at ``tol`` noise stds (inf: never); the NIS is the first-order one (at the prior). The
-    integrity monitor (:func:`~estimators.ekf.fde.monitor_scan`; ``monitor[0]``: 0 off, 1
-    detect, 2 exclude) tests the gated landmarks when it only detects, and replaces the gate
-    when it excludes; ``excluded`` (k,) is set where it leaves a landmark out as faulty."""
+    """Gated stacked update of one lane with ``lms`` (k, 3) observed as ``y``, iterated beyond
+    ``tol`` noise stds (inf: never; ``correction.relinearise``), its NIS at the prior;
+    ``excluded`` (k,) set where the integrity monitor leaves a landmark out (:func:`_select`)."""
     k = lms.shape[0]
     h = np.empty((k, 3))
     U = np.empty((3 * k, nb))
@@ -168,21 +203,8 @@ def _update_mapped(
     for i in range(k):
         innovation(y[i], h[i], nu[3 * i : 3 * i + 3])
     keep = np.ones(k, dtype=np.bool_)
-    if monitor[0] < 1.5:  # no exclusion: the per-landmark χ² gate on the 3×3 blocks of S
-        for i in range(k):
-            nis_i = solve3_nis(S, 3 * i, nu[3 * i : 3 * i + 3])
-            if not math.isfinite(nis_i):
-                diag[D_DIVERGED, b] = 1.0
-                return
-            keep[i] = nis_i <= gate
-    # The monitor tests the landmarks kept: detection only, on the gated ones (the update
-    # stays the unmonitored one); with exclusion, all of them (its tests replace the gate).
-    if monitor[0] > 0.5:
-        if not keep.any():  # every landmark gated out: no hypothesis to bound
-            for r in range(4):
-                diag[D_SEPARATION + r, b] = 0.0
-        elif not monitored(S, U, nu, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
-            return
+    if not _select(S, U, nu, gate, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
+        return
     n_keep = 0
     for i in range(k):
         n_keep += keep[i]
@@ -233,99 +255,6 @@ def _update_mapped(
     diag[D_N_UPDATES, b] += 1.0
 
 
-@kernel
-def inverse_measurements(
-    xb: FloatArray,
-    Pb: FloatArray,
-    nb: int,
-    y: FloatArray,
-    r_diag: FloatArray,
-    lms: FloatArray,
-    Plx: FloatArray,
-    Pll: FloatArray,
-) -> None:
-    """Landmarks observed as ``y`` (kn, 3) from one lane's pose, with their covariances.
-
-    ``lms`` (kn, 3) = ``g(ŝ, y) = ρ + C_NB ϱ(y)`` (eq. 44), ``Plx`` (3kn, nb) =
-    ``G_s P[s, :nb]`` (eq. 50) and ``Pll`` (3kn, 3kn) = ``G_s P_ss G_sᵀ + G_y R G_yᵀ`` (eq. 48,
-    exactly symmetric), with ``G_s = [I, 0, ∂g/∂Λ]``. With ``nb = 9`` this is the pose-only
-    part (what a landmark candidate outside the state needs).
-    """
-    kn = y.shape[0]
-    C = np.empty((3, 3))
-    dC = np.empty((3, 3, 3))
-    dcm_and_partials(xb[6], xb[7], xb[8], C, dC)
-    G_eul = np.empty((kn, 3, 3))
-    G_y = np.empty((kn, 3, 3))
-    P6, P7, P8 = Pb[6], Pb[7], Pb[8]
-    lidar_inverse_models(xb[POS], C, dC, y, lms, G_eul, G_y)
-    for i in range(kn):
-        for r in range(3):
-            g0, g1, g2 = G_eul[i, r, 0], G_eul[i, r, 1], G_eul[i, r, 2]
-            Pr, row = Pb[r], Plx[3 * i + r]
-            for j in range(nb):
-                row[j] = Pr[j] + (g0 * P6[j] + g1 * P7[j] + g2 * P8[j])
-    ml = 3 * kn
-    for a in range(ml):
-        for i in range(kn):
-            for r in range(3):
-                acc = Plx[a, r]
-                for c in range(3):
-                    acc += Plx[a, 6 + c] * G_eul[i, r, c]
-                Pll[a, 3 * i + r] = acc
-    for i in range(kn):  # + G_y R G_yᵀ on the diagonal blocks (eq. 48)
-        for r in range(3):
-            for t in range(3):
-                acc = 0.0
-                for c in range(3):
-                    acc += (G_y[i, r, c] * r_diag[c]) * G_y[i, t, c]
-                Pll[3 * i + r, 3 * i + t] += acc
-    for a in range(ml):
-        for c in range(a):
-            v = 0.5 * (Pll[a, c] + Pll[c, a])
-            Pll[a, c] = v
-            Pll[c, a] = v
-
-
-@kernel
-def _register(
-    xb: FloatArray,
-    Pb: FloatArray,
-    nb: int,
-    y: FloatArray,
-    r_diag: FloatArray,
-) -> bool:
-    """Augment one lane's x and P with the landmarks observed as ``y`` (kn, 3) (eq. 44–53).
-
-    ``l = g(ŝ⁺, y) = ρ + C_NB ϱ(y)``, ``P_ll = G_s P_ss G_sᵀ + G_y R G_yᵀ``,
-    ``P_lx = G_s [P_ss P_sm]`` with ``G_s = [I, 0, ∂g/∂Λ]``. All new landmarks of the scan go
-    in as one block; this equals registering them one at a time (eq. 46–53), since
-    registration leaves ŝ unchanged and the cross-covariance of two new landmarks is
-    ``G_si P_ss G_sjᵀ`` either way. Returns False (nothing written) on a non-finite result.
-    """
-    kn = y.shape[0]
-    ml = 3 * kn
-    lms = np.empty((kn, 3))
-    Plx = np.empty((ml, nb))  # eq. 50
-    Pll = np.empty((ml, ml))
-    inverse_measurements(xb, Pb, nb, y, r_diag, lms, Plx, Pll)
-    if not (np.isfinite(lms).all() and np.isfinite(Pll).all() and np.isfinite(Plx).all()):
-        return False
-    if nb + ml > xb.shape[0]:
-        raise ValueError("EKF-SLAM registration beyond the state capacity")
-    for a in range(ml):
-        Pa, Ra = Pb[nb + a], Plx[a]
-        for j in range(nb):
-            Pa[j] = Ra[j]
-            Pb[j, nb + a] = Ra[j]
-        for c in range(ml):
-            Pa[nb + c] = Pll[a, c]
-    for i in range(kn):
-        for r in range(3):
-            xb[nb + 3 * i + r] = lms[i, r]
-    return True
-
-
 @inline_kernel
 def _split_visible(
     visible: np.ndarray, mapped: np.ndarray, known: bool, readmit_at: FloatArray, t: float
@@ -348,6 +277,35 @@ def _split_visible(
                 new[k_new] = j
                 k_new += 1
     return obs, k_obs, new, k_new
+
+
+@inline_kernel
+def _gather(
+    obs: np.ndarray,
+    xb: FloatArray,
+    nv: int,
+    slot_of_id: np.ndarray,
+    known: bool,
+    known_pos: FloatArray,
+    meas: FloatArray,
+) -> tuple[FloatArray, np.ndarray, FloatArray]:
+    """``(lms (k, 3), cols (k,), y (k, 3))`` of one lane's observed mapped ids ``obs`` (k,):
+    their positions (in x, or known), their first columns in x (-1: known) and their
+    measurements from the lane's ``meas`` (L, 3)."""
+    k = obs.shape[0]
+    lms = np.empty((k, 3))
+    cols = np.full(k, -1, dtype=np.int64)
+    y = np.empty((k, 3))
+    # Element by element throughout this module's kernels: an array assignment compiles
+    # numba's shape-mismatch message (~2 s of first-use compile).
+    for i in range(k):
+        j = obs[i]
+        if not known:
+            cols[i] = nv + 3 * slot_of_id[j]
+        for r in range(3):
+            y[i, r] = meas[j, r]
+            lms[i, r] = known_pos[j, r] if known else xb[cols[i] + r]
+    return lms, cols, y
 
 
 @kernel
@@ -414,18 +372,8 @@ def update_lanes(
             for r in range(4):
                 diag[D_SEPARATION + r, b] = 0.0
         if k_obs:
-            lms = np.empty((k_obs, 3))
-            cols = np.full(k_obs, -1, dtype=np.int64)
-            y = np.empty((k_obs, 3))
-            # Element by element throughout this module's kernels: an array assignment
-            # compiles numba's shape-mismatch message (~2 s of first-use compile).
-            for i in range(k_obs):
-                j = obs[i]
-                if not known[b]:
-                    cols[i] = nv + 3 * slot_of_id[b, j]
-                for r in range(3):
-                    y[i, r] = meas[b, j, r]
-                    lms[i, r] = known_pos[b, j, r] if known[b] else xb[cols[i] + r]
+            lms, cols, y = _gather(obs[:k_obs], xb, nv, slot_of_id[b], known[b], known_pos[b],
+                                   meas[b])  # fmt: skip
             excluded = np.zeros(k_obs, dtype=np.bool_)
             _update_mapped(
                 xb, Pb, nb, lms, cols, y, r_diag, gate, tol, max_iter, diag, b, monitor, lm_thr,
@@ -435,22 +383,9 @@ def update_lanes(
                 if excluded[i]:
                     leave_out(b, obs[i], t[b] + monitor[2], x, P, n, nv, slot_of_id, id_of_slot,
                                mapped, known, readmit_at, diag)  # fmt: skip
-            nb = n[b]
         if k_new:
-            y = np.empty((k_new, 3))
-            for i in range(k_new):
-                for r in range(3):
-                    y[i, r] = meas[b, new[i], r]
-            if _register(xb, Pb, nb, y, r_diag):
-                nm = (nb - nv) // 3
-                for i in range(k_new):
-                    slot_of_id[b, new[i]] = nm + i
-                    id_of_slot[b, nm + i] = new[i]
-                    mapped[b, new[i]] = True
-                n[b] = nb + 3 * k_new
-                diag[D_N_MAPPED, b] = nm + k_new
-            else:
-                diag[D_DIVERGED, b] = 1.0
+            register_new(b, new[:k_new], x, P, n, nv, meas, r_diag, slot_of_id, id_of_slot,
+                          mapped, diag)  # fmt: skip
 
 
 @kernel
