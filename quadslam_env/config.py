@@ -2,9 +2,9 @@
 
 A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the sections ``vehicle``,
 ``imu``, ``lidar``, ``landmarks``, ``trajectory``, ``estimator``, ``reward``, ``observation``,
-``action``, ``episode``, ``render``, ``wind``, ``randomize`` and ``faults``. Per-call overrides
-(``gymnasium.make(id, episode={...})``) are merged into it key by key. Sections with a
-``preset`` key start from that preset's values; keys given explicitly win over the preset.
+``action``, ``episode``, ``render``, ``wind``, ``randomize``, ``faults`` and ``integrity``.
+Per-call overrides (``gymnasium.make(id, episode={...})``) are merged into it key by key.
+Sections with a ``preset`` key start from that preset's values; keys given explicitly win.
 
 Every unknown key, wrong type or out-of-range value raises :class:`ConfigError` (a
 ``ValueError``) whose message names the dotted key, the bad value and what is allowed.
@@ -34,6 +34,7 @@ from quadslam_env.config_hardware import (
     VehicleConfig,
     check_rotor_action,
 )
+from quadslam_env.config_integrity import IntegrityConfig
 from quadslam_env.config_randomize import RandomizeConfig
 from quadslam_env.config_schema import ConfigError, FieldRow, Section, field_rows
 from quadslam_env.config_schema import spec as _spec
@@ -48,6 +49,7 @@ __all__ = [
     "FaultsConfig",
     "FieldRow",
     "ImuConfig",
+    "IntegrityConfig",
     "LandmarksConfig",
     "LidarConfig",
     "ObservationConfig",
@@ -185,6 +187,7 @@ SECTIONS: dict[str, type[Section]] = {
     "wind": WindConfig,
     "randomize": RandomizeConfig,
     "faults": FaultsConfig,
+    "integrity": IntegrityConfig,
 }
 
 
@@ -211,6 +214,7 @@ class ScenarioConfig:
     wind: WindConfig
     randomize: RandomizeConfig
     faults: FaultsConfig
+    integrity: IntegrityConfig
     description: str = ""
 
     @property
@@ -293,6 +297,7 @@ class ScenarioConfig:
         scenario.randomize.check_feasible(scenario.vehicle.params())
         faults, size = scenario.faults, scenario.landmarks.size
         faults.check_scenario(scenario.episode.duration_s, size, scenario.lidar)
+        scenario.integrity.check_scenario(scenario)
         return scenario
 
     def to_dict(self) -> dict[str, Any]:
@@ -396,8 +401,7 @@ def check_copyable(scenario: ScenarioConfig) -> None:
 
 
 def check_heading(scenario: ScenarioConfig) -> None:
-    """The heading channel and the free-heading reference go together, and the landmark
-    observation needs an estimated map.
+    """The heading channel goes with the free heading; the landmark observation, a real map.
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.

@@ -55,6 +55,7 @@ from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes,
 from quadslam_env.estimation.protocol import ReservesLandmarks, UsesTruth
 from quadslam_env.faults import FaultBatch
 from quadslam_env.imu_period import fast_period_samples, period_sample
+from quadslam_env.integrity import IntegrityTerms
 from quadslam_env.metrics import METRIC_KEYS, EpisodeMetrics, input_columns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
@@ -142,6 +143,8 @@ class SimCore:
         # A second run of the estimator from copies: the filter at the IMU instants of a
         # slower IMU, or at each lane's newest delivered scan of a delayed LiDAR.
         self._copies = copies_for(cfg, self.estimator, self.vehicle_params)
+        self.integrity = IntegrityTerms(cfg.integrity, b)  # the estimator's monitor, if any
+        self.integrity.configure((self.estimator,))
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
         delay = cfg.action.delay_steps  # a delayed action: the agent's last d in a ring
         self._actions = ActionDelay(delay, b, self.action_map.hover_action) if delay else None
@@ -241,6 +244,7 @@ class SimCore:
         self.termination.reset(lanes)
         self.episode.reset(lanes)
         est = self._snapshot()
+        self.integrity.reset(lanes, est)
         self._associate(est, None, np.isin(np.arange(self.num_lanes), lanes))
         ref = self.reference()
         _, info = self._metrics(est, ref)
@@ -323,9 +327,11 @@ class SimCore:
         info.update({key: values[row] for key, row in _REWARD_ROWS})
         self.episode.add_columns(values, _EPISODE_ROWS, active)
         self.episode.add_association(info, active)
+        integrity = self.integrity.add(info, active)
         if ended:
             done = terminated | truncated
-            for key, value in (self.episode.summary() | self.faults.summary()).items():
+            summaries = self.episode.summary() | self.faults.summary() | integrity
+            for key, value in summaries.items():
                 info[key] = np.where(done, value, math.nan)
         info["termination_reason"] = reasons
         self.wind.advance(active)  # info holds the wind of this step; now the next one's
@@ -468,4 +474,5 @@ class SimCore:
         info.update(self.randomizer.info())
         info.update(self.association.info())
         info.update(self.faults.info())
+        info.update(self.integrity.info(est, state))
         return values, info

@@ -24,6 +24,7 @@ from quadslam_env.env import lane_info
 from quadslam_env.estimation import MemoryTerm
 from quadslam_env.memory import check_env_memory
 from quadslam_env.metrics import phase_key
+from quadslam_env.metrics.integrity import SUMMARY_KEYS as INTEGRITY_SUMMARY_KEYS
 
 # Record keys reported over the whole episode and, with the phase in the name
 # (``track_pos_rmse_steady_m``, ``track_pos_rmse_transient_m``, …), over each phase.
@@ -94,7 +95,10 @@ _WIND_FROM_INFO = {
         ("transient", "est_wind_rmse_transient_mps"),
     )
 }
-_OPTIONAL_FROM_INFO = {**_ASSOCIATION_FROM_INFO, **_WIND_FROM_INFO}
+# The integrity monitor (``integrity.monitor``) adds its summaries (docs/integrity.md "Metrics").
+_INTEGRITY_FROM_INFO = {key.removeprefix("episode_"): key for key in INTEGRITY_SUMMARY_KEYS}
+_INTEGRITY_FROM_INFO["fault_onset_s"] = "episode_fault_onset_s"  # with a fault of the world
+_OPTIONAL_FROM_INFO = {**_ASSOCIATION_FROM_INFO, **_WIND_FROM_INFO, **_INTEGRITY_FROM_INFO}
 MAX_LANES = 64  # episodes flown at once by run_episodes
 Observer = Callable[[Any, np.ndarray, dict[str, Any]], None]
 """``observer(core, stepped, info)`` of :func:`run_episodes`."""

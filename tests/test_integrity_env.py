@@ -1,0 +1,146 @@
+"""The integrity monitor in the env (quadslam_env/integrity.py, metrics/integrity.py): the
+``integrity`` section's checks, its info terms, the episode summaries recomputed from the
+per-step terms, and the vector env's lanes against the scalar env."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import fly_dflqr
+
+import quadslam_env  # noqa: F401  (registers the ids)
+from agents.control.dflqr import DFLQRPolicy
+from quadslam_env.config import ConfigError, load_scenario
+
+SCENARIO = "paper_ekf_figure8"
+SHORT = {"episode": {"duration_s": 6.0}}
+MONITOR = {"integrity": {"monitor": "exclude", "alert_limit_m": 0.5}}
+MOVING = {
+    "faults": {"kind": "landmark_moves", "magnitude": 0.5, "onset_s": 2.0},
+}
+STEP_KEYS = ("hpl_m", "vpl_m", "integrity_alert", "fde_tested", "fde_alarm", "fde_excluded",
+             "integrity_mi", "integrity_hmi")  # fmt: skip
+
+
+def _env(**overrides: Any) -> gym.Env:
+    return gym.make("QuadSLAM-v0", scenario=SCENARIO, **{**SHORT, **overrides})
+
+
+@pytest.mark.parametrize(
+    ("section", "message"),
+    [
+        ({"monitor": "sometimes"}, "integrity.monitor"),
+        ({"monitor": "detect", "p_fa": 0.0}, "integrity.p_fa"),
+        ({"monitor": "detect", "p_fa": 1.0}, "integrity.p_fa"),
+        ({"monitor": "detect", "p_hmi": 1.5}, "integrity.p_hmi"),
+        ({"monitor": "detect", "alert_limit_m": -1.0}, "integrity.alert_limit_m"),
+        ({"monitor": "detect", "max_exclusions": 2}, "integrity.max_exclusions"),
+        ({"p_fa": 0.01}, "integrity.p_fa"),
+    ],
+)
+def test_bad_settings_name_the_key(section: dict[str, Any], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(SCENARIO, {"integrity": section})
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"estimator": {"name": "fastslam"}}, "no integrity monitor"),
+        ({"lidar": {"association": "unknown"}}, "lidar.association"),
+        ({"lidar": {"delay_steps": 2}}, "lidar.delay_steps"),
+    ],
+)
+def test_monitor_refused_where_it_cannot_run(overrides: dict[str, Any], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(SCENARIO, {**overrides, "integrity": {"monitor": "detect"}})
+
+
+def test_monitor_off_adds_no_terms() -> None:
+    env = _env()
+    try:
+        infos, _ = fly_dflqr(env, seed=0, steps=30)
+    finally:
+        env.close()
+    assert not set(STEP_KEYS) & set(infos[-1])
+
+
+def test_summaries_recomputed_from_the_step_terms() -> None:
+    """Availability, MI and HMI rates, the false-alarm rate and the time to alert of the episode
+    summary equal their recomputation from the per-step ``info``; HMI is the error beyond the
+    alert limit without an alert, MI the error beyond the protection level."""
+    env = _env(**MONITOR, **MOVING)
+    try:
+        infos, _ = fly_dflqr(env, seed=3)
+    finally:
+        env.close()
+    col = {k: np.array([float(i[k]) for i in infos]) for k in (*STEP_KEYS, "t", "fault_active",
+                                                                  "est_pos_err_h_m",
+                                                                  "est_pos_err_v_m")}  # fmt: skip
+    last = infos[-1]
+    e_h, e_v = col["est_pos_err_h_m"], col["est_pos_err_v_m"]
+    assert np.isfinite(col["hpl_m"]).all() and (col["hpl_m"] > 0).all()
+    alert = (col["hpl_m"] > 0.5) | (col["vpl_m"] > 0.5)
+    np.testing.assert_array_equal(col["integrity_alert"], alert)
+    np.testing.assert_array_equal(col["integrity_mi"], (e_h > col["hpl_m"]) | (e_v > col["vpl_m"]))
+    np.testing.assert_array_equal(col["integrity_hmi"], ((e_h > 0.5) | (e_v > 0.5)) & ~alert)
+    assert last["episode_integrity_availability"] == pytest.approx(1.0 - alert.mean())
+    assert last["episode_integrity_hmi_rate"] == pytest.approx(col["integrity_hmi"].mean())
+    free = col["fault_active"] < 0.5
+    tested = col["fde_tested"] > 0.5
+    alarms = col["fde_alarm"] > 0.5
+    rate = (tested & free & alarms).sum() / (tested & free).sum()
+    assert last["episode_fde_false_alarm_rate"] == pytest.approx(rate)
+    on = np.flatnonzero(col["fault_active"] > 0.5)
+    caught = on[alarms[on]]
+    if caught.size:
+        tta = col["t"][caught[0]] - col["t"][on[0]]
+        assert last["episode_fde_time_to_alert_s"] == pytest.approx(tta)
+        assert last["episode_fde_missed_detection"] == 0.0
+    else:
+        assert last["episode_fde_missed_detection"] == 1.0
+        assert math.isnan(last["episode_fde_time_to_alert_s"])
+
+
+def test_a_moving_landmark_is_detected_and_dropped() -> None:
+    """A landmark moving at 0.5 m/s from 2 s: the monitor alarms and leaves it out."""
+    env = _env(**MONITOR, **MOVING)
+    try:
+        infos, _ = fly_dflqr(env, seed=1)
+    finally:
+        env.close()
+    excluded = sum(float(i["fde_excluded"]) for i in infos if i["fault_active"] > 0.5)
+    assert excluded >= 1
+    assert infos[-1]["episode_fde_missed_detection"] == 0.0
+
+
+def test_lanes_equal_the_scalar_env_with_faults_and_monitor() -> None:
+    kwargs = {"scenario": SCENARIO, **SHORT, **MONITOR, **MOVING}
+    seeds, steps = [4, 5], 300
+    vec = gym.make_vec("QuadSLAM-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                       **kwargs)  # fmt: skip
+    try:
+        policy = DFLQRPolicy.from_env(vec)
+        obs, _ = vec.reset(seed=seeds[0])
+        lanes = []
+        for _ in range(steps):
+            obs, _, _, _, info = vec.step(policy.predict(obs)[0])
+            lanes.append((obs.copy(), {k: np.array(info[k]) for k in STEP_KEYS}))
+    finally:
+        vec.close()
+    for i, seed in enumerate(seeds):
+        env = gym.make("QuadSLAM-v0", **kwargs)
+        try:
+            scalar = DFLQRPolicy.from_env(env)
+            o, _ = env.reset(seed=seed)
+            for k in range(steps):
+                o, _, _, _, info = env.step(scalar.predict(o)[0])
+                np.testing.assert_array_equal(o, lanes[k][0][i])
+                for key in STEP_KEYS:
+                    assert float(info[key]) == float(lanes[k][1][key][i]), (key, k)
+        finally:
+            env.close()
