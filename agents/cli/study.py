@@ -1,5 +1,6 @@
 """``quadslam study …``: the studies' subcommands (cost of estimation, active perception,
-robustness, data association, Cramér–Rao bound, the estimators against the bound) and the
+robustness, data association, integrity, Cramér–Rao bound, the estimators against the bound) and
+the
 writing of their ``--json``/``--plots`` outputs."""
 
 from __future__ import annotations
@@ -112,6 +113,24 @@ def cmd_study_association(args: argparse.Namespace) -> int:
     print(format_study(result))
     print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
     return _save_study(args, result, write_json, plot_study, "association_clutter.png")
+
+
+def cmd_study_integrity(args: argparse.Namespace) -> int:
+    """The integrity monitor against each fault kind: detection, protection levels, errors."""
+    from agents.io.paths import check_output_dir, check_output_file
+    from agents.studies.integrity import format_study, plot_study, run_study, write_json
+
+    if args.json is not None:
+        check_output_file(args.json, "--json")
+    if args.plots is not None:
+        check_output_dir(args.plots, "--plots")
+    seeds = args.seeds or (3 if args.quick else 20)
+    tic = time.perf_counter()
+    result = run_study(seeds, args.seed, args.quick, args.free_seeds)
+    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
+    print(format_study(result))
+    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
+    return _save_study(args, result, write_json, plot_study, "integrity_stanford.png")
 
 
 def cmd_study_bound(args: argparse.Namespace) -> int:
@@ -264,6 +283,7 @@ def add_study_parser(
     assoc.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     assoc.add_argument("--plots", type=Path, help="write the clutter figure (PNG) here")
     assoc.set_defaults(func=cmd_study_association)
+    _add_integrity_parser(studies, positive_int)
     bound = studies.add_parser(
         "bound",
         help="posterior Cramér–Rao bound along each seed's true trajectory vs the "
@@ -291,6 +311,24 @@ def add_study_parser(
     )
     bound.set_defaults(func=cmd_study_bound)
     _add_estimators_parser(studies, positive_int, positive_float)
+
+
+def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> None:
+    """``quadslam study integrity``'s parser."""
+    integ = studies.add_parser(
+        "integrity",
+        help="EKF-SLAM's integrity monitor, detecting and excluding, fault-free and with each "
+        "fault kind: false alarms, protection levels, detection, errors, Stanford diagrams",
+    )
+    integ.add_argument("--quick", action="store_true", help="3 seeds of 20 s")
+    integ.add_argument("--seeds", type=positive_int, help="episodes per fault row (default 20)")
+    integ.add_argument(
+        "--free-seeds", type=positive_int, help="fault-free episodes (default 50; quick 3)"
+    )
+    integ.add_argument("--seed", type=int, default=1000, help="first held-out seed (1000)")
+    integ.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    integ.add_argument("--plots", type=Path, help="write the Stanford diagrams (PNG) here")
+    integ.set_defaults(func=cmd_study_integrity)
 
 
 def _phase_edges(text: str) -> list[float]:
