@@ -50,11 +50,12 @@ from quadslam_env.sensor_lanes import lane_indices
 from quadslam_env.trajectories import Trajectory
 from quadslam_env.types import DEG, EUL, POS, FloatArray
 
-FAULT_KEYS = ("fault_active", "fault_kind", "fault_landmark")
+FAULT_KEYS = ("fault_active", "fault_kind", "fault_landmark", "fault_in_view")
 """``info`` terms of every step with a fault (module docstring of the timing): 1.0 where the
 fault is active, else 0.0; the kind where active, else ``""`` (text, like
 ``termination_reason``); the id of the landmark it moves or the phantom's, where active (NaN
-otherwise)."""
+otherwise); 1.0 where that landmark is among the step's returns, else 0.0 (0.0 for the kinds
+without one)."""
 
 ONSET_KEY = "episode_fault_onset_s"
 """The episode summary of the episode's onset, s (drawn or fixed; also when the episode ended
@@ -138,6 +139,7 @@ class FaultBatch:
         active: (B,) bool, the fault is active at the lane's current step.
         onset: (B,) the episode's onset, s. end: (B,) its end, s (inf: the episode's end).
         target: (B,) int, the moving landmark's id or the phantom's (-1: none).
+        in_view: (B,) bool, the active fault's landmark is among the step's returns.
         affected: Per lane, the (k,) ids of the landmarks whose ranges are biased (``None``:
             every return, false returns too).
     """
@@ -153,6 +155,7 @@ class FaultBatch:
         self.onset = np.zeros(b)
         self.end = np.full(b, math.inf)
         self.target = np.full(b, -1, dtype=np.int64)
+        self.in_view = np.zeros(b, dtype=bool)
         self.affected: list[np.ndarray | None] = [None] * b
         self._start = np.zeros((b, 3))  # the moving landmark's position at the onset, N m
         self._velocity = np.zeros((b, 3))  # its velocity while active, N m/s
@@ -215,6 +218,7 @@ class FaultBatch:
                 self.affected[lane] = np.sort(rng.permutation(n)[:k]) if n else np.zeros(0, int)
             elif self.kind == "imu_bias_step":
                 self._base_bias[lane] = imu.bias0[lane]
+        self.in_view[idx] = False
         self._apply(idx, np.zeros(idx.shape[0]), landmarks, imu)
 
     def _draw_motion(self, lane: int, points: FloatArray, rng: np.random.Generator) -> None:
@@ -260,6 +264,7 @@ class FaultBatch:
         if not self.enabled:
             return
         idx = np.flatnonzero(active)
+        self.in_view[idx] = False  # until this step's scan returns the landmark
         self._apply(idx, t[idx], landmarks, imu)
 
     def _apply(self, idx: np.ndarray, t: FloatArray, landmarks: FloatArray, imu: ImuBatch) -> None:
@@ -303,7 +308,12 @@ class FaultBatch:
     def corrupt(self, scans: Scans) -> None:
         """Bias the ranges of the affected returns of the active lanes of ``scans`` in place
         (``range_bias``), or mark the phantom's unlabeled returns as false ones (true id -1:
-        it is no landmark); nothing for the other kinds."""
+        it is no landmark); nothing for the other kinds. Notes where the active fault's
+        landmark is among the returns (``fault_in_view``)."""
+        if self.target.max() >= 0:
+            lanes = scans.lanes[self.active[scans.lanes]]
+            hit = scans.returned[lanes] & (scans.true_ids[lanes] == self.target[lanes, None])
+            self.in_view[lanes] = hit.any(axis=1)
         if self.kind == "phantom_landmark" and not self._known:
             ids = scans.true_ids  # the returns' truth (unlabeled scans), writable
             ids[ids == self.target[:, None]] = -1
@@ -337,8 +347,12 @@ class FaultBatch:
         kind = np.full(self.active.shape[0], "", dtype=object)
         kind[self.active] = self.kind
         landmark = np.where(self.active & (self.target >= 0), self.target, math.nan)
-        return {"fault_active": self.active.astype(float), "fault_kind": kind,
-                "fault_landmark": landmark}  # fmt: skip
+        return {
+            "fault_active": self.active.astype(float),
+            "fault_kind": kind,
+            "fault_landmark": landmark,
+            "fault_in_view": self.in_view.astype(float),
+        }
 
     def summary(self) -> dict[str, FloatArray]:
         """The episode summary :data:`ONSET_KEY` of every lane, (B,); none without a fault."""

@@ -111,6 +111,9 @@ def test_a_moving_landmark_is_at_start_plus_speed_times_time() -> None:
         assert info["fault_active"] == float(active)
         assert info["fault_kind"] == ("landmark_moves" if active else "")
         assert info.get("fault_landmark") == (3.0 if active else None)
+        scan = core.last_scan  # labeled: slot 3 is landmark 3
+        seen = active and scan is not None and 0 in scan.lanes and bool(scan.returned[0, 3])
+        assert info["fault_in_view"] == float(seen)
         est = core.est
         mapped = est.landmark_mapped[0]
         if mapped.any():

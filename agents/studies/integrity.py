@@ -8,7 +8,8 @@ gate included; its protection levels and alarms are reported) and excluding
 (``exclude``: the landmarks found faulty are left out and dropped from the map). Per row: the
 false-alarm rate on fault-free scans against the budget, misleading and hazardously misleading
 information, availability, the share of fault-free steps the protection levels bound and how
-far above the error they sit, detection within 3 s and the time to alert, and the horizontal
+far above the error they sit, detection within 3 s and the time to alert (for a moving or a
+phantom landmark from the first scan after the onset that returns it), and the horizontal
 error over the episode's last 5 s against the fault-free row's. The Stanford diagram (true
 error against protection level, 2-D histogram, with the alert limit) of each row is the figure.
 ``--quick`` flies 3 seeds of 20 s (a smoke run, not a result).
@@ -49,7 +50,10 @@ FAULTS: dict[str, dict[str, Any]] = {
 """The cases: the ``faults`` section of each (none for the fault-free row)."""
 MODES = ("detect", "exclude")
 _SERIES = ("t", "est_pos_err_h_m", "est_pos_err_v_m", "hpl_m", "vpl_m", "integrity_alert",
-           "fault_active", "fde_alarm", "fde_tested")  # fmt: skip
+           "fault_active", "fault_in_view", "fde_alarm", "fde_tested")  # fmt: skip
+_SIGHTED = ("landmark_moves", "phantom_landmark")
+"""The kinds whose time to alert runs from the first scan that returns the faulty landmark
+after the onset (before it no monitor can see the fault)."""
 
 
 @dataclass
@@ -105,9 +109,11 @@ def _ratio(num: float, den: float) -> float | None:
     return json_float(num / den) if den > 0 else None
 
 
-def row_summary(series: list[dict[str, np.ndarray]]) -> dict[str, Any]:
+def row_summary(series: list[dict[str, np.ndarray]], sighted: bool = False) -> dict[str, Any]:
     """The row's integrity figures from its step logs (module docstring), pooled over the
-    episodes where a rate is asked, medians over the episodes otherwise."""
+    episodes where a rate is asked, medians over the episodes otherwise; with ``sighted`` the
+    time to alert runs from the first scan after the onset that returns the faulty landmark
+    (episodes where none does are counted apart, ``never_in_view``)."""
     cat = {k: np.concatenate([s[k] for s in series]) for k in _SERIES}
     free = cat["fault_active"] < 0.5
     e_h, e_v, hpl, vpl = cat["est_pos_err_h_m"], cat["est_pos_err_v_m"], cat["hpl_m"], cat["vpl_m"]
@@ -116,15 +122,20 @@ def row_summary(series: list[dict[str, np.ndarray]]) -> dict[str, Any]:
     tested = cat["fde_tested"] > 0.5
     ff_tests = int((tested & free).sum())
     ff_alarms = int((tested & free & (cat["fde_alarm"] > 0.5)).sum())
-    tta, late_err, peak = [], [], []
+    tta, late_err, peak, unseen = [], [], [], 0
     for s in series:
         on = np.flatnonzero(s["fault_active"] > 0.5)
         window = s["t"] > s["t"][-1] - RECOVERY_WINDOW_S
         late_err.append(float(np.sqrt(np.mean(s["est_pos_err_h_m"][window] ** 2))))
         if on.size:
+            peak.append(float(s["est_pos_err_h_m"][on[0] :].max()))
+            if sighted:  # from the first scan that returns the faulty landmark
+                on = on[np.argmax(s["fault_in_view"][on] > 0.5) :]
+                if not (s["fault_in_view"][on] > 0.5).any():
+                    unseen += 1
+                    continue
             alarms = on[s["fde_alarm"][on] > 0.5]
             tta.append(float(s["t"][alarms[0]] - s["t"][on[0]]) if alarms.size else math.inf)
-            peak.append(float(s["est_pos_err_h_m"][on[0] :].max()))
     tta_arr = np.array(tta)
     return {
         "episodes": len(series),
@@ -142,6 +153,7 @@ def row_summary(series: list[dict[str, np.ndarray]]) -> dict[str, Any]:
         "detected_within_3s": _ratio(float((tta_arr <= DETECT_WITHIN_S).sum()), tta_arr.size),
         "median_time_to_alert_s": json_float(float(np.median(tta_arr))) if tta else None,
         "missed": int(np.isinf(tta_arr).sum()),
+        "never_in_view": unseen,
         "late_err_h_rms_m": json_float(float(np.median(late_err))),
         "peak_err_h_after_onset_m": json_float(float(np.median(peak))) if peak else None,
         "episodes_over_alert_limit": int(sum(p > ALERT_LIMIT_M for p in peak)),
@@ -172,9 +184,10 @@ def run_study(
             episodes, log = _fly(case, mode, seed_list, duration)
             series = log.arrays()
             logs[(case, mode)] = series
+            summary = row_summary(series, case in _SIGHTED)
             rows.append(
                 {"case": case, "mode": mode, "faults": FAULTS[case], "seeds": seed_list,
-                 "summary": row_summary(series), "wall_s": round(time.perf_counter() - tic, 1),
+                 "summary": summary, "wall_s": round(time.perf_counter() - tic, 1),
                  "episodes": episodes}
             )  # fmt: skip
     free = {r["mode"]: r["summary"]["late_err_h_rms_m"] for r in rows if r["case"] == "fault_free"}
