@@ -42,7 +42,7 @@ import copy
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 import numpy as np
@@ -85,6 +85,12 @@ _CORE_ROWS = tuple((key, _ROWS[key]) for key in _CORE_KEYS)
 _REWARD_ROWS = tuple((key, _ROWS[key]) for key in REWARD_KEYS)
 _EPISODE_ROWS = input_columns(_ROWS)
 
+LaneCheck = Callable[[FloatArray, np.ndarray, np.ndarray, np.ndarray, list[str]], bool]
+"""A check across lanes after the termination checks (the team env's collisions): given
+the (B, 12) true states, the (B,) bool lanes stepped now, and the (B,) terminated and
+truncated flags and the B reasons, which it updates in place, whether a lane that went on
+ends here."""
+
 
 class SimCore:
     """B lanes of the quadcopter-with-estimator simulation.
@@ -92,6 +98,9 @@ class SimCore:
     Args:
         scenario: The validated scenario (every lane runs the same one).
         num_lanes: B ≥ 1.
+        references: The lanes' references (default: the scenario's trajectory in every
+            lane; a :class:`~quadslam_env.trajectories.LaneTrajectory` shifts each lane's).
+        lane_check: Run after the termination checks of each step (:data:`LaneCheck`).
 
     Attributes:
         steps: (B,) control steps since each lane's reset.
@@ -108,7 +117,13 @@ class SimCore:
             noise-free gyro input), for analyses along the truth (``estimators.pcrb``).
     """
 
-    def __init__(self, scenario: ScenarioConfig, num_lanes: int) -> None:
+    def __init__(
+        self,
+        scenario: ScenarioConfig,
+        num_lanes: int,
+        references: Trajectory | None = None,
+        lane_check: LaneCheck | None = None,
+    ) -> None:
         cfg = scenario
         b = int(num_lanes)
         self.scenario = cfg
@@ -131,6 +146,8 @@ class SimCore:
         step: ``ND √(1/h)`` for the step h = min(dt, T_IMU) (module docstring)."""
         self.lidar = LidarBatch(cfg.lidar, b)
         self.trajectory = Trajectory(cfg.trajectory)
+        self.references = self.trajectory if references is None else references
+        self.lane_check = lane_check
         capacity = landmark_capacity(cfg.landmarks)
         self.landmarks = np.zeros((b, capacity, 3))
         self.n_landmarks = np.zeros(b, dtype=np.int64)
@@ -155,7 +172,7 @@ class SimCore:
             self._heading = (np.zeros(b), np.zeros(b))
         self._heading0 = math.radians(cfg.trajectory.yaw_deg)
         self.reward = Reward(cfg.reward, self.action_map.hover_action)
-        self.observer = ObservationBuilder(cfg.observation, self.trajectory)
+        self.observer = ObservationBuilder(cfg.observation, self.references)
         self.steps = np.zeros(b, dtype=np.int64)
         self._all_lanes = np.ones(b, dtype=bool)
         self.t: FloatArray = np.zeros(b)
@@ -320,6 +337,8 @@ class SimCore:
             state, values[_TRACK], values[_NEES_POSE],
             health_codes(est, self._max_cov_trace), active, self.steps,
         )  # fmt: skip
+        if self.lane_check is not None:  # across lanes: the team env's collisions
+            ended = self.lane_check(state, active, terminated, truncated, reasons) or ended
         std = position_std(est) if self.scenario.reward.pos_std_weight > 0.0 else None
         self.reward.terms(state, ref, act, terminated, values[_REWARD0 : _REWARD + 1], std)
         obs = self.observer.build(est, ref, self.t, self.n_visible)
@@ -327,10 +346,10 @@ class SimCore:
         info.update({key: values[row] for key, row in _REWARD_ROWS})
         self.episode.add_columns(values, _EPISODE_ROWS, active)
         self.episode.add_association(info, active)
-        integrity = self.integrity.add(info, active)
+        self.integrity.add(info, active)
         if ended:
             done = terminated | truncated
-            summaries = self.episode.summary() | self.faults.summary() | integrity
+            summaries = self.episode.summary() | self.faults.summary() | self.integrity.summary()
             for key, value in summaries.items():
                 info[key] = np.where(done, value, math.nan)
         info["termination_reason"] = reasons
@@ -444,7 +463,7 @@ class SimCore:
         """Reference of every lane (or of ``lanes``) at its current time; with a free heading
         its ψ_d and ψ̇_d are the lanes' commanded ones."""
         idx = slice(None) if lanes is None else np.asarray(lanes)
-        ref = self.trajectory.batch(self.t[idx])
+        ref = self.references.batch(self.t[idx], lanes)
         if self._heading is None:
             return ref
         heading, rate = self._heading

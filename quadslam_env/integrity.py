@@ -14,18 +14,70 @@ With the monitor off it does nothing and adds no terms.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from typing import Any, cast
 
 import numpy as np
 
 from quadslam_env.config_integrity import IntegrityConfig
-from quadslam_env.estimation import BatchEstimate, MonitorsIntegrity, protection_levels
-from quadslam_env.estimation.integrity import COUNT_KEYS, SEPARATION_KEYS
-from quadslam_env.metrics.integrity import IntegrityEpisode, misleading
-from quadslam_env.types import POS, FloatArray
+from quadslam_env.estimation import BatchEstimate, MonitorsIntegrity
+from quadslam_env.estimation.integrity import (
+    COUNT_KEYS,
+    SEPARATION_KEYS,
+    LevelFactors,
+    levels_lanes,
+)
+from quadslam_env.metrics.integrity import STEP_KEYS as MISLEADING_KEYS
+from quadslam_env.metrics.integrity import IntegrityEpisode, misleading_lanes
+from quadslam_env.models.jit import kernel
+from quadslam_env.types import FloatArray
 
-_TESTS, _ALARMS, _EXCLUSIONS = COUNT_KEYS[:3]
+STEP_KEYS = (
+    "hpl_m",
+    "vpl_m",
+    "integrity_alert",
+    "fde_tested",
+    "fde_alarm",
+    "fde_excluded",
+    *MISLEADING_KEYS,
+)
+"""The ``info`` terms of every step with the monitor on (module docstring)."""
+
+
+@kernel
+def _step_terms(
+    pose_cov: FloatArray,
+    sep_n: FloatArray,
+    sep_e: FloatArray,
+    sep_d: FloatArray,
+    hypotheses: FloatArray,
+    tests: FloatArray,
+    alarms: FloatArray,
+    exclusions: FloatArray,
+    counts: FloatArray,
+    tables: FloatArray,
+    h_limit: float,
+    v_limit: float,
+    state: FloatArray,
+    est_pos: FloatArray,
+    out: FloatArray,
+) -> None:
+    """The rows of ``out`` (12, B) in the order of :data:`STEP_KEYS`: the protection levels
+    (:func:`~quadslam_env.estimation.integrity.levels_lanes`), the alert, this step's tests,
+    alarms and exclusions (the monitor's counts less ``counts`` (3, B), which becomes the
+    counts), then the misleading-information terms
+    (:func:`~quadslam_env.metrics.integrity.misleading_lanes`)."""
+    levels_lanes(pose_cov, sep_n, sep_e, sep_d, hypotheses, tables, out[0], out[1])
+    for b in range(out.shape[1]):
+        hpl, vpl = out[0, b], out[1, b]
+        finite = math.isfinite(hpl) and math.isfinite(vpl)
+        out[2, b] = 1.0 if (hpl > h_limit or vpl > v_limit or not finite) else 0.0
+        out[3, b] = 1.0 if tests[b] > counts[0, b] else 0.0
+        out[4, b] = 1.0 if alarms[b] > counts[1, b] else 0.0
+        out[5, b] = exclusions[b] - counts[2, b]
+        counts[0, b], counts[1, b], counts[2, b] = tests[b], alarms[b], exclusions[b]
+    misleading_lanes(state, est_pos, out[0], out[1], out[2], h_limit, v_limit, out[6:])
 
 
 class IntegrityTerms:
@@ -40,6 +92,7 @@ class IntegrityTerms:
         self.cfg = cfg
         self.enabled = cfg.enabled
         self.limits = (cfg.alert_limit_m, cfg.vertical_limit_m)
+        self.factors = LevelFactors(cfg.p_fa, cfg.p_hmi)
         self._counts = np.zeros((3, num_lanes))  # tests, alarms, exclusions at the last step
         self.episode = IntegrityEpisode(num_lanes)
 
@@ -53,7 +106,9 @@ class IntegrityTerms:
     def reset(self, lanes: np.ndarray, est: BatchEstimate) -> None:
         """Start the ``lanes``' counts and episode sums afresh (after the estimator's reset)."""
         if self.enabled:
-            self._counts[:, lanes] = self._read_counts(est)[:, lanes]
+            d = est.diagnostics
+            for row, key in enumerate(COUNT_KEYS[:3]):
+                self._counts[row, lanes] = d[key][lanes]
             self.episode.reset(lanes)
 
     def info(self, est: BatchEstimate, state: FloatArray) -> dict[str, FloatArray]:
@@ -62,35 +117,23 @@ class IntegrityTerms:
         if not self.enabled:
             return {}
         d = est.diagnostics
-        pose_cov = cast(FloatArray, est.pose_cov)
-        pos_var = np.diagonal(pose_cov[:, POS, POS], axis1=1, axis2=2)
-        separation = np.stack([d[key] for key in SEPARATION_KEYS[:3]], axis=-1)
-        cfg, hypotheses = self.cfg, d[SEPARATION_KEYS[3]]
-        hpl, vpl = protection_levels(pos_var, separation, hypotheses, cfg.p_fa, cfg.p_hmi)
-        alert = (hpl > self.limits[0]) | (vpl > self.limits[1]) | ~np.isfinite(hpl + vpl)
-        counts = self._read_counts(est)
-        new = counts - self._counts
-        self._counts = counts
-        out = {
-            "hpl_m": hpl,
-            "vpl_m": vpl,
-            "integrity_alert": alert.astype(float),
-            "fde_tested": (new[0] > 0).astype(float),
-            "fde_alarm": (new[1] > 0).astype(float),
-            "fde_excluded": new[2],
-        }
-        out.update(misleading(state, est.position, hpl, vpl, alert, self.limits))
-        return out
+        hypotheses = d[SEPARATION_KEYS[3]]
+        out = np.empty((len(STEP_KEYS), hypotheses.shape[0]))
+        sep_n, sep_e, sep_d = (d[key] for key in SEPARATION_KEYS[:3])
+        tests, alarms, exclusions = (d[key] for key in COUNT_KEYS[:3])
+        tables = self.factors.tables(int(hypotheses.max(initial=0.0)))
+        _step_terms(
+            cast(FloatArray, est.pose_cov), sep_n, sep_e, sep_d, hypotheses, tests, alarms,
+            exclusions, self._counts, tables, self.limits[0], self.limits[1], state,
+            est.position, out,
+        )  # fmt: skip
+        return dict(zip(STEP_KEYS, out, strict=True))
 
-    def add(self, info: dict[str, Any], lanes: np.ndarray) -> dict[str, FloatArray]:
-        """Add the step of the ``lanes`` (B,) bool to the episode sums; returns the episode
-        summaries of every lane (empty with the monitor off)."""
-        if not self.enabled:
-            return {}
-        self.episode.add(info, lanes)
-        return self.episode.summary()
+    def add(self, info: dict[str, Any], lanes: np.ndarray) -> None:
+        """Add the step of the ``lanes`` (B,) bool to the episode sums."""
+        if self.enabled:
+            self.episode.add(info, lanes)
 
-    @staticmethod
-    def _read_counts(est: BatchEstimate) -> FloatArray:
-        d = est.diagnostics
-        return np.stack([d[_TESTS], d[_ALARMS], d[_EXCLUSIONS]]).astype(float)
+    def summary(self) -> dict[str, FloatArray]:
+        """The episode summaries of every lane (empty with the monitor off)."""
+        return self.episode.summary() if self.enabled else {}

@@ -20,7 +20,7 @@ from estimators.ekf.fde import (
     subset_inverse,
 )
 from estimators.ekf.filter import EkfSlamBatch
-from quadslam_env.estimation.integrity import MonitorSettings, protection_levels
+from quadslam_env.estimation.integrity import LevelFactors, MonitorSettings, protection_levels
 
 
 def _linear_update(rng: np.random.Generator, n: int = 12, k: int = 4):
@@ -136,7 +136,8 @@ def test_protection_levels_analytic():
     sep = np.array([[0.0, 0.0, 0.0], [0.01, 0.02, 0.005]])
     hyp = np.array([0.0, 4.0])
     p_fa, p_hmi = 1e-3, 1e-4
-    hpl, vpl = protection_levels(var, sep, hyp, p_fa, p_hmi)
+    pose_cov = np.stack([np.diag(v) for v in var])
+    hpl, vpl = protection_levels(pose_cov, sep.T, hyp, LevelFactors(p_fa, p_hmi))
     k_h, k_v = norm.isf(p_hmi / 8), norm.isf(p_hmi / 4)
     assert hpl[0] == pytest.approx(k_h * math.hypot(0.2, 0.3), rel=1e-12)
     assert vpl[0] == pytest.approx(k_v * 0.1, rel=1e-12)

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import gammainccinv, ndtri
 
+from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
 SEPARATION_KEYS = ("pl_sep_n", "pl_sep_e", "pl_sep_d", "pl_hypotheses")
@@ -89,29 +90,77 @@ class MonitorSettings:
         return out
 
 
+class LevelFactors:
+    """The factors of the protection levels by the number k of hypotheses, for the budgets
+    ``p_fa`` and ``p_hmi`` (module docstring), tabulated once up to the largest k asked for.
+
+    Args:
+        p_fa: False-alarm budget of a scan's tests, in (0, 1).
+        p_hmi: Integrity risk per step, in (0, 1).
+    """
+
+    def __init__(self, p_fa: float, p_hmi: float) -> None:
+        self.p_fa, self.p_hmi = float(p_fa), float(p_hmi)
+        self._tables = np.zeros((3, 0))
+
+    def tables(self, k_max: int) -> FloatArray:
+        """(3, ≥ k_max + 1) rows ``T_k`` (0 at k = 0), ``K_N = K_E`` and ``K_D`` by k."""
+        if self._tables.shape[1] <= k_max:
+            k = np.arange(2 * k_max + 2, dtype=float)
+            threshold = np.zeros_like(k)
+            threshold[1:] = chi2_isf(self.p_fa / (2.0 * k[1:]), 3.0)
+            k_h = -ndtri(self.p_hmi / (8.0 * (k + 1.0)))
+            k_v = -ndtri(self.p_hmi / (4.0 * (k + 1.0)))
+            self._tables = np.ascontiguousarray(np.stack([threshold, k_h, k_v]))
+        return self._tables
+
+
+@kernel
+def levels_lanes(
+    pose_cov: FloatArray,
+    sep_n: FloatArray,
+    sep_e: FloatArray,
+    sep_d: FloatArray,
+    hypotheses: FloatArray,
+    tables: FloatArray,
+    hpl: FloatArray,
+    vpl: FloatArray,
+) -> None:
+    """``PL_q = √(T_k D_q) + K_q √(σ_q² + D_q)`` per axis, ``HPL = √(PL_N² + PL_E²)``,
+    ``VPL = PL_D`` of each lane (module docstring; the separations ``sep_*`` (B,) per axis,
+    ``tables`` of :meth:`LevelFactors.tables`); NaN stays NaN."""
+    pl = np.empty(3)
+    for b in range(hpl.shape[0]):
+        k = int(hypotheses[b])
+        for q in range(3):
+            v = pose_cov[b, q, q]
+            d = sep_n[b] if q == 0 else (sep_e[b] if q == 1 else sep_d[b])
+            v = 0.0 if v < 0.0 else v  # round-off below zero; NaN is kept
+            d = 0.0 if d < 0.0 else d
+            scale = tables[2, k] if q == 2 else tables[1, k]
+            pl[q] = math.sqrt(tables[0, k] * d) + scale * math.sqrt(v + d)
+        hpl[b] = math.sqrt(pl[0] * pl[0] + pl[1] * pl[1])
+        vpl[b] = pl[2]
+
+
 def protection_levels(
-    pos_var: FloatArray, separation: FloatArray, hypotheses: FloatArray, p_fa: float, p_hmi: float
+    pose_cov: FloatArray, separation: FloatArray, hypotheses: FloatArray, factors: LevelFactors
 ) -> tuple[FloatArray, FloatArray]:
     """Horizontal and vertical protection levels of B lanes (module docstring).
 
     Args:
-        pos_var: (B, 3) position variances (N, E, D) of the solution, m².
-        separation: (B, 3) the largest separation variances of the last scan per axis, m².
+        pose_cov: (B, ≥3, ≥3) covariances whose leading 3×3 block is the position's (N, E, D)
+            of the solution, m².
+        separation: (3, B) the largest separation variances of the last scan per axis, m².
         hypotheses: (B,) the number k of landmarks they cover (0: none).
-        p_fa: False-alarm budget of a scan's tests, in (0, 1).
-        p_hmi: Integrity risk per step, in (0, 1).
+        factors: The budgets' factors.
 
     Returns:
         ``(hpl, vpl)`` (B,) in m (NaN where a variance is not finite).
     """
     k = np.asarray(hypotheses, dtype=float)
-    kk = np.maximum(k, 1.0)
-    threshold = np.where(k > 0, chi2_isf(p_fa / (2.0 * kk), 3.0), 0.0)
-    k_h = -ndtri(p_hmi / (8.0 * (k + 1.0)))
-    k_v = -ndtri(p_hmi / (4.0 * (k + 1.0)))
-    sep = np.maximum(np.asarray(separation, dtype=float), 0.0)
-    var = np.maximum(np.asarray(pos_var, dtype=float), 0.0)
-    scale = np.stack([k_h, k_h, k_v], axis=-1)
-    levels = np.sqrt(threshold[:, None] * sep) + scale * np.sqrt(var + sep)
-    hpl = np.hypot(levels[:, 0], levels[:, 1])
-    return hpl, levels[:, 2]
+    tables = factors.tables(int(k.max(initial=0.0)))
+    hpl, vpl = np.empty(k.shape[0]), np.empty(k.shape[0])
+    sep = np.asarray(separation, dtype=float)
+    levels_lanes(np.asarray(pose_cov, dtype=float), sep[0], sep[1], sep[2], k, tables, hpl, vpl)
+    return hpl, vpl

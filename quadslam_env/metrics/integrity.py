@@ -20,10 +20,11 @@ import math
 
 import numpy as np
 
-from quadslam_env.types import POS, FloatArray
+from quadslam_env.models.jit import kernel
+from quadslam_env.types import FloatArray
 
 STEP_KEYS = ("est_pos_err_h_m", "est_pos_err_v_m", "integrity_mi", "integrity_hmi")
-"""The per-step ``info`` terms of :func:`misleading`."""
+"""The per-step ``info`` terms of :func:`misleading_lanes`."""
 SUMMARY_KEYS = (
     "episode_integrity_availability",
     "episode_integrity_mi_rate",
@@ -37,32 +38,66 @@ SUMMARY_KEYS = (
 """The episode summaries of :meth:`IntegrityEpisode.summary`."""
 
 
-def misleading(
+@kernel
+def misleading_lanes(
     true_pos: FloatArray,
     est_pos: FloatArray,
     hpl: FloatArray,
     vpl: FloatArray,
-    alert: np.ndarray,
-    limits: tuple[float, float],
-) -> dict[str, FloatArray]:
-    """The step's true errors and misleading-information flags of B lanes (module docstring).
+    alert: FloatArray,
+    h_limit: float,
+    v_limit: float,
+    out: FloatArray,
+) -> None:
+    """Rows of ``out`` (4, B), :data:`STEP_KEYS`: ``e_h``, ``e_v``, MI and HMI of each lane
+    (module docstring), from the true states ``true_pos`` (B, ≥3; ρ first, N, m), the
+    estimated positions ``est_pos`` (B, 3), the protection levels ``hpl``, ``vpl`` (B,) m,
+    ``alert`` (B,) 1.0 where raised, and the horizontal and vertical alert limits in m."""
+    for b in range(out.shape[1]):
+        dn = est_pos[b, 0] - true_pos[b, 0]
+        de = est_pos[b, 1] - true_pos[b, 1]
+        e_h = math.sqrt(dn * dn + de * de)
+        e_v = abs(est_pos[b, 2] - true_pos[b, 2])
+        out[0, b] = e_h
+        out[1, b] = e_v
+        out[2, b] = 1.0 if (e_h > hpl[b] or e_v > vpl[b]) else 0.0
+        hazard = (e_h > h_limit or e_v > v_limit) and not alert[b] > 0.5
+        out[3, b] = 1.0 if hazard else 0.0
 
-    Args:
-        true_pos: (B, ≥3) true states (ρ first) in N, m.
-        est_pos: (B, 3) estimated positions ρ̂ in N, m.
-        hpl, vpl: (B,) protection levels, m.
-        alert: (B,) bool, an alert is raised.
-        limits: The horizontal and vertical alert limits, m.
 
-    Returns:
-        :data:`STEP_KEYS` → (B,) float (flags as 1.0 / 0.0).
-    """
-    err = est_pos - true_pos[:, POS]
-    e_h = np.hypot(err[:, 0], err[:, 1])
-    e_v = np.abs(err[:, 2])
-    mi = (e_h > hpl) | (e_v > vpl)
-    hazard = ((e_h > limits[0]) | (e_v > limits[1])) & ~alert
-    return dict(zip(STEP_KEYS, (e_h, e_v, mi.astype(float), hazard.astype(float)), strict=True))
+@kernel
+def _accumulate(
+    sums: FloatArray,
+    onset: FloatArray,
+    alerted: FloatArray,
+    lanes: np.ndarray,
+    alert: FloatArray,
+    mi: FloatArray,
+    hmi: FloatArray,
+    tested: FloatArray,
+    alarm: FloatArray,
+    faulty: FloatArray,
+    t: FloatArray,
+) -> None:
+    """Add one step of the ``lanes`` (B,) bool to the rows of ``sums`` (8, B) (the fields of
+    :class:`IntegrityEpisode`), and note each lane's fault onset and first alarm during the
+    fault (s; NaN until then)."""
+    for b in range(lanes.shape[0]):
+        if not lanes[b]:
+            continue
+        is_test, is_alarm, is_fault = tested[b] > 0.5, alarm[b] > 0.5, faulty[b] > 0.5
+        sums[0, b] += 1.0
+        sums[1, b] += 1.0 - alert[b]
+        sums[2, b] += mi[b]
+        sums[3, b] += hmi[b]
+        sums[4, b] += is_test
+        sums[5, b] += is_alarm
+        sums[6, b] += is_test and not is_fault
+        sums[7, b] += is_alarm and not is_fault
+        if is_fault and math.isnan(onset[b]):
+            onset[b] = t[b]
+        if is_fault and is_alarm and math.isnan(alerted[b]):
+            alerted[b] = t[b]
 
 
 class IntegrityEpisode:
@@ -77,7 +112,8 @@ class IntegrityEpisode:
     def __init__(self, num_lanes: int) -> None:
         self._sums = np.zeros((len(self._FIELDS), num_lanes))
         self._onset = np.full(num_lanes, math.nan)  # the fault's first active step, s
-        self._alerted = np.full(num_lanes, math.nan)  # the first alarm at or after it, s
+        self._alerted = np.full(num_lanes, math.nan)  # the first alarm during the fault, s
+        self._no_fault = np.zeros(num_lanes)
 
     def reset(self, lanes: np.ndarray) -> None:
         """Start the ``lanes``' sums afresh."""
@@ -88,27 +124,12 @@ class IntegrityEpisode:
     def add(self, info: dict[str, FloatArray], lanes: np.ndarray) -> None:
         """Add one step of the ``lanes`` (B,) bool, from its ``info`` (the monitor's terms,
         ``integrity_mi``/``integrity_hmi``, ``t`` and, with faults, ``fault_active``)."""
-        active = info.get("fault_active")
-        faulty = np.zeros_like(lanes) if active is None else active > 0.5
-        tested, alarm = info["fde_tested"] > 0.5, info["fde_alarm"] > 0.5
-        terms = (
-            np.ones(lanes.shape[0]),
-            1.0 - info["integrity_alert"],
-            info["integrity_mi"],
-            info["integrity_hmi"],
-            tested,
-            alarm,
-            tested & ~faulty,
-            alarm & ~faulty,
-        )
-        for row, term in enumerate(terms):
-            self._sums[row] += np.where(lanes, term, 0.0)
-        t = info["t"]
-        start = lanes & faulty & np.isnan(self._onset)
-        self._onset[start] = t[start]
-        caught = lanes & alarm & ~np.isnan(self._onset) & np.isnan(self._alerted)
-        caught &= faulty
-        self._alerted[caught] = t[caught]
+        faulty = info.get("fault_active", self._no_fault)
+        _accumulate(
+            self._sums, self._onset, self._alerted, lanes, info["integrity_alert"],
+            info["integrity_mi"], info["integrity_hmi"], info["fde_tested"], info["fde_alarm"],
+            faulty, info["t"],
+        )  # fmt: skip
 
     def summary(self) -> dict[str, FloatArray]:
         """:data:`SUMMARY_KEYS` → (B,) float of every lane's episode so far (NaN where a term
