@@ -5,12 +5,14 @@ Each trajectory returns, at any time t, ``ρ_d, ρ̇_d, ρ̈_d`` (NED, m, m/s, m
 velocity, ``ψ_d = atan2(ẏ, ẋ)`` and ``ψ̇_d = (ẋÿ - ẏẍ)/(ẋ² + ẏ²)``.
 
 The formulas live once, in a numba kernel over a batch of times (one per lane of the
-simulation core); the scalar call is the one-lane case.
+simulation core); the scalar call is the one-lane case. :class:`LaneTrajectory` is one
+trajectory flown by lanes shifted in time and position (a team's vehicles).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,8 +110,12 @@ class Trajectory:
         self._tangent = cfg.yaw_mode == "tangent"
         self._fixed_yaw = math.radians(cfg.yaw_deg)
 
-    def batch(self, t: FloatArray) -> FlatOutputs:
-        """Flat outputs at the times ``t`` (B,) in s, as (B, 3) and (B,) arrays."""
+    def batch(self, t: FloatArray, lanes: Sequence[int] | np.ndarray | None = None) -> FlatOutputs:
+        """Flat outputs at the times ``t`` (B,) in s, as (B, 3) and (B,) arrays.
+
+        ``lanes`` names the lanes the times belong to; every lane flies this reference, so it
+        is not read here (:class:`LaneTrajectory` shifts each lane's).
+        """
         t = np.ascontiguousarray(t, dtype=float)
         b = t.shape[0]
         out = FlatOutputs(
@@ -140,8 +146,9 @@ class Trajectory:
         return out
 
     def __call__(self, t: float) -> FlatOutputs:
-        """Flat outputs at time ``t`` (s): pos/vel/acc (3,), yaw and yaw rate floats."""
-        ref = self.batch(np.array([float(t)]))
+        """Flat outputs at time ``t`` (s) of lane 0 (every lane's here): pos/vel/acc (3,), yaw
+        and yaw rate floats."""
+        ref = self.batch(np.array([float(t)]), [0])
         return FlatOutputs(
             pos=ref.pos[0],
             vel=ref.vel[0],
@@ -149,3 +156,46 @@ class Trajectory:
             yaw=float(ref.yaw[0]),  # type: ignore[index]
             yaw_rate=float(ref.yaw_rate[0]),  # type: ignore[index]
         )
+
+
+class LaneTrajectory(Trajectory):
+    """The trajectory of ``cfg`` flown by B lanes, each shifted in time and position: lane i's
+    reference is ``ρ_d,i(t) = ρ_d(t + τ_i) + p_i``, with the velocity, acceleration and
+    heading of ``t + τ_i`` (a team's vehicles on phase-shifted copies of one path).
+
+    :meth:`batch` takes the times of all B lanes in lane order, or of ``lanes``; the one-instant
+    call is lane 0's reference (the scenario's own when ``τ_0 = 0`` and ``p_0 = 0``).
+
+    Args:
+        cfg: Trajectory settings.
+        time_offsets_s: (B,) τ_i in s.
+        pos_offsets_m: (B, 3) p_i in N, m.
+
+    Raises:
+        ValueError: The offsets do not have the shapes (B,) and (B, 3).
+    """
+
+    def __init__(
+        self, cfg: TrajectoryConfig, time_offsets_s: FloatArray, pos_offsets_m: FloatArray
+    ) -> None:
+        super().__init__(cfg)
+        self.time_offsets_s = np.array(time_offsets_s, dtype=float)
+        self.pos_offsets_m = np.array(pos_offsets_m, dtype=float)
+        b = self.time_offsets_s.size
+        if self.time_offsets_s.shape != (b,) or self.pos_offsets_m.shape != (b, 3):
+            raise ValueError(
+                f"LaneTrajectory: got offsets of shapes {self.time_offsets_s.shape} and "
+                f"{self.pos_offsets_m.shape}; allowed: (B,) and (B, 3)"
+            )
+
+    def batch(self, t: FloatArray, lanes: Sequence[int] | np.ndarray | None = None) -> FlatOutputs:
+        """Flat outputs of the lanes (all B, or ``lanes`` (k,)) at their times ``t`` (B,) or
+        (k,) in s, as (B or k, 3) and (B or k,) arrays."""
+        idx = slice(None) if lanes is None else np.asarray(lanes)
+        shift = self.time_offsets_s[idx]
+        t = np.asarray(t, dtype=float)
+        if t.shape != shift.shape:
+            raise ValueError(f"LaneTrajectory.batch: got {t.shape} times for {shift.shape} lanes")
+        ref = super().batch(t + shift)
+        ref.pos[:] += self.pos_offsets_m[idx]
+        return ref
