@@ -96,6 +96,12 @@ class ObservationConfig(Section):
         "body frame (3 values, m/s; what the drag feed-forward of lqi and se3 reads); needs "
         "an estimator that estimates the wind",
     )
+    protection_levels: bool = _spec(
+        False,
+        kind="bool",
+        doc="append the horizontal and vertical protection levels (2 values, m); needs "
+        "integrity.monitor",
+    )
     clip: float = _spec(
         100.0, lo=1e-6, hi=1e30, doc="observations are clipped to ±clip (the Box bounds)"
     )

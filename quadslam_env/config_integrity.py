@@ -30,7 +30,15 @@ class IntegrityConfig(Section):
     SECTION: ClassVar[str] = "integrity"
     ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
         **dict.fromkeys(
-            ("p_fa", "p_hmi", "alert_limit_m", "vertical_alert_limit_m"), ("monitor", _ON)
+            (
+                "p_fa",
+                "p_hmi",
+                "alert_limit_m",
+                "vertical_alert_limit_m",
+                "alert_weight",
+                "terminate_on_alert",
+            ),
+            ("monitor", _ON),
         ),
         **dict.fromkeys(("max_exclusions", "readmit_s"), ("monitor", ("exclude",))),
     }
@@ -87,6 +95,19 @@ class IntegrityConfig(Section):
         "sighting this long after, s",
     )
 
+    alert_weight: float = _spec(
+        0.0,
+        lo=0.0,
+        hi=1e6,
+        doc="reward term −alert_weight on every step with an integrity alert (reward_alert; "
+        "0: none)",
+    )
+    terminate_on_alert: bool = _spec(
+        False,
+        kind="bool",
+        doc="end the episode (integrity_alert) on an alert after episode.settle_s",
+    )
+
     def validate(self) -> None:
         """The budgets are probabilities strictly inside (0, 1)."""
         for key in ("p_fa", "p_hmi"):
@@ -118,15 +139,21 @@ class IntegrityConfig(Section):
 
     def check_scenario(self, scenario: Any) -> None:
         """Of the :class:`~quadslam_env.config.ScenarioConfig` ``scenario`` (typed ``Any``:
-        this module sits below it), refuse a monitor with an estimator that has none, with
-        unknown association (the monitor's readmission follows landmark ids, which unlabeled
-        scans do not carry), or with a second run of the estimator from copies (a slower IMU,
-        a delayed LiDAR), whose output the monitor's counts would not follow.
+        this module sits below it), refuse the protection levels in the observation without a
+        monitor, and a monitor with an estimator that has none, with unknown association (the
+        monitor's readmission follows landmark ids, which unlabeled scans do not carry), or
+        with a second run of the estimator from copies (a slower IMU, a delayed LiDAR), whose
+        output the monitor's counts would not follow.
 
         Raises:
-            ConfigError: Names ``integrity.monitor``, the estimator, the association or the
-                setting.
+            ConfigError: Names ``observation.protection_levels`` or ``integrity.monitor``, the
+                estimator, the association or the setting.
         """
+        if scenario.observation.protection_levels and not self.enabled:
+            raise ConfigError(
+                "observation.protection_levels: got true with integrity.monitor = 'off'; "
+                "allowed: false, or integrity.monitor 'detect' or 'exclude'"
+            )
         name, association = scenario.estimator.name, scenario.lidar.association
         second_run = "imu.rate_hz" if scenario.steps_per_imu > 1 else None
         if scenario.lidar.delay_steps:

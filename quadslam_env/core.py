@@ -160,8 +160,6 @@ class SimCore:
         # A second run of the estimator from copies: the filter at the IMU instants of a
         # slower IMU, or at each lane's newest delivered scan of a delayed LiDAR.
         self._copies = copies_for(cfg, self.estimator, self.vehicle_params)
-        self.integrity = IntegrityTerms(cfg.integrity, b)  # the estimator's monitor, if any
-        self.integrity.configure((self.estimator,))
         self.action_map = ActionMap(cfg.action, self.vehicle_params)
         delay = cfg.action.delay_steps  # a delayed action: the agent's last d in a ring
         self._actions = ActionDelay(delay, b, self.action_map.hover_action) if delay else None
@@ -183,6 +181,8 @@ class SimCore:
         self._state0 = initial_state(cfg, self.trajectory, self.vehicle_params.mass)
         self.settle_s = settle_time(cfg, self.trajectory, self._state0)
         """End of the transient, s: the episode's ``*_steady`` summaries cover t > settle_s."""
+        self.integrity = IntegrityTerms(cfg.integrity, b, self.settle_s)  # the monitor, if any
+        self.integrity.configure((self.estimator,))
         self.episode = EpisodeMetrics(b, association=unlabeled, settle_s=self.settle_s)
         self.termination = Termination(cfg.episode, self.dt, b, self.max_steps)
         self._guard = OutputGuard(_ROWS, cfg.reward.termination_penalty)  # the last defence
@@ -265,7 +265,7 @@ class SimCore:
         self._associate(est, None, np.isin(np.arange(self.num_lanes), lanes))
         ref = self.reference()
         _, info = self._metrics(est, ref)
-        obs = self.observer.build(est, ref, self.t, self.n_visible)
+        obs = self.observer.build(est, ref, self.t, self.n_visible, self.integrity.levels(info))
         return obs[lanes], {key: value[lanes] for key, value in info.items()}
 
     def _prepare_estimator(self, opts: dict[str, Any]) -> None:
@@ -339,9 +339,11 @@ class SimCore:
         )  # fmt: skip
         if self.lane_check is not None:  # across lanes: the team env's collisions
             ended = self.lane_check(state, active, terminated, truncated, reasons) or ended
+        ended = self.integrity.terminate(info, active, terminated, truncated, reasons) or ended
         std = position_std(est) if self.scenario.reward.pos_std_weight > 0.0 else None
         self.reward.terms(state, ref, act, terminated, values[_REWARD0 : _REWARD + 1], std)
-        obs = self.observer.build(est, ref, self.t, self.n_visible)
+        self.integrity.penalise(values[_REWARD], info)
+        obs = self.observer.build(est, ref, self.t, self.n_visible, self.integrity.levels(info))
         ended = self._guard.check(obs, values, active, terminated, truncated, reasons) or ended
         info.update({key: values[row] for key, row in _REWARD_ROWS})
         self.episode.add_columns(values, _EPISODE_ROWS, active)

@@ -43,6 +43,8 @@ STEP_KEYS = (
     *MISLEADING_KEYS,
 )
 """The ``info`` terms of every step with the monitor on (module docstring)."""
+ALERT_REASON = "integrity_alert"
+"""The ``termination_reason`` of an episode ended by an alert (``terminate_on_alert``)."""
 
 
 @kernel
@@ -86,10 +88,12 @@ class IntegrityTerms:
     Args:
         cfg: The validated section.
         num_lanes: B.
+        settle_s: End of the episodes' transient, s (``terminate_on_alert`` acts after it).
     """
 
-    def __init__(self, cfg: IntegrityConfig, num_lanes: int) -> None:
+    def __init__(self, cfg: IntegrityConfig, num_lanes: int, settle_s: float = 0.0) -> None:
         self.cfg = cfg
+        self.settle_s = settle_s
         self.enabled = cfg.enabled
         self.limits = (cfg.alert_limit_m, cfg.vertical_limit_m)
         self.factors = LevelFactors(cfg.p_fa, cfg.p_hmi)
@@ -128,6 +132,42 @@ class IntegrityTerms:
             est.position, out,
         )  # fmt: skip
         return dict(zip(STEP_KEYS, out, strict=True))
+
+    @staticmethod
+    def levels(info: dict[str, Any]) -> tuple[FloatArray, FloatArray] | None:
+        """The step's ``(hpl, vpl)`` (B,) from its ``info`` (``None`` with the monitor off), for
+        the observation's ``protection_levels``."""
+        return (info["hpl_m"], info["vpl_m"]) if "hpl_m" in info else None
+
+    def terminate(
+        self,
+        info: dict[str, Any],
+        active: np.ndarray,
+        terminated: np.ndarray,
+        truncated: np.ndarray,
+        reasons: list[str],
+    ) -> bool:
+        """With ``integrity.terminate_on_alert``: end the ``active`` (B,) lanes that raise an
+        alert after the transient (``terminated``, ``reasons`` updated in place, ``truncated``
+        cleared there). Returns whether a lane ended here."""
+        if not self.cfg.terminate_on_alert:
+            return False
+        late = info["t"] > self.settle_s
+        ends = active & (info["integrity_alert"] > 0.5) & late & ~terminated
+        for lane in np.flatnonzero(ends).tolist():
+            reasons[lane] = ALERT_REASON
+        terminated |= ends
+        truncated &= ~ends
+        return bool(ends.any())
+
+    def penalise(self, reward: FloatArray, info: dict[str, Any]) -> None:
+        """With ``integrity.alert_weight`` > 0: the term ``reward_alert = −w·alert`` added to
+        the step's ``reward`` (B,) in place and to ``info``."""
+        weight = self.cfg.alert_weight
+        if self.enabled and weight > 0.0:
+            term = -weight * info["integrity_alert"]
+            reward += term
+            info["reward_alert"] = term
 
     def add(self, info: dict[str, Any], lanes: np.ndarray) -> None:
         """Add the step of the ``lanes`` (B,) bool to the episode sums."""

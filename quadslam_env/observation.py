@@ -174,6 +174,8 @@ def observation_layout(cfg: ObservationConfig) -> list[tuple[str, int]]:
         layout.append(("est_wind", 2))
     if cfg.air_velocity:
         layout.append(("air_velocity", 3))
+    if cfg.protection_levels:
+        layout.append(("protection_levels", 2))
     return layout
 
 
@@ -190,8 +192,9 @@ class ObservationBuilder:
     in the last scan, mapped), reference look-ahead (3 per entry of ``lookahead_s``:
     ``C3(ψ_d)ᵀ(ρ_d(t+Δ) - ρ_d(t))``, m), the nearest mapped landmarks (4 per landmark of
     ``landmarks_nearest``: :func:`nearest_landmarks`), the estimated horizontal wind (2,
-    ``estimated_wind``: ``(ŵ_N, ŵ_E)``, N frame, m/s) and the estimated air-relative velocity (3,
-    ``air_velocity``: :func:`air_velocity`).
+    ``estimated_wind``: ``(ŵ_N, ŵ_E)``, N frame, m/s), the estimated air-relative velocity (3,
+    ``air_velocity``: :func:`air_velocity`) and the protection levels (2, ``protection_levels``:
+    HPL, VPL of the integrity monitor, m; 0 where none is given).
     """
 
     def __init__(self, cfg: ObservationConfig, trajectory: Trajectory) -> None:
@@ -207,6 +210,7 @@ class ObservationBuilder:
         ref: FlatOutputs,
         t: FloatArray,
         n_visible: np.ndarray,
+        levels: tuple[FloatArray, FloatArray] | None = None,
         wind: FloatArray | None = None,
     ) -> np.ndarray:
         """Observations (B, size) float32 of the lanes at times ``t`` (B,).
@@ -216,6 +220,8 @@ class ObservationBuilder:
             ref: Reference of the B lanes at ``t``.
             t: (B,) lane times in s.
             n_visible: (B,) landmarks returned by each lane's last scan.
+            levels: ``(hpl, vpl)`` (B,) each, the step's protection levels in m
+                (:mod:`quadslam_env.integrity`); ``None``: zeros.
             wind: (B, ≥2) wind in N, m/s for the wind blocks instead of ``est.wind`` (the true
                 wind of a privileged observation); ``None``: the estimate's.
         """
@@ -266,6 +272,9 @@ class ObservationBuilder:
             if self.cfg.air_velocity:
                 obs[:, i : i + 3] = air_velocity(est, ne)
                 i += 3
+        if self.cfg.protection_levels:
+            obs[:, i : i + 2] = 0.0 if levels is None else np.stack(levels, axis=-1)
+            i += 2
         out = np.empty((b, self.size), dtype=np.float32)
         _finish(obs, float(self.cfg.clip), out)
         return out

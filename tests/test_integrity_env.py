@@ -144,3 +144,53 @@ def test_lanes_equal_the_scalar_env_with_faults_and_monitor() -> None:
                     assert float(info[key]) == float(lanes[k][1][key][i]), (key, k)
         finally:
             env.close()
+
+
+def test_protection_levels_in_the_observation_and_the_alert_reward() -> None:
+    """The last two observation entries are the step's HPL and VPL; ``reward_alert`` is
+    −w on alert steps and the reward terms still sum to the reward."""
+    env = _env(
+        integrity={"monitor": "exclude", "alert_limit_m": 0.3, "alert_weight": 2.0},
+        observation={"protection_levels": True},
+    )
+    try:
+        policy = DFLQRPolicy.from_env(env)
+        obs, info = env.reset(seed=2)
+        np.testing.assert_array_equal(obs[-2:], np.float32([info["hpl_m"], info["vpl_m"]]))
+        alerts = 0
+        for _ in range(200):
+            obs, reward, _, _, info = env.step(policy.predict(obs)[0])
+            np.testing.assert_array_equal(obs[-2:], np.float32([info["hpl_m"], info["vpl_m"]]))
+            assert info["reward_alert"] == -2.0 * info["integrity_alert"]
+            terms = sum(float(v) for k, v in info.items() if k.startswith("reward_"))
+            assert reward == pytest.approx(terms, abs=1e-12)
+            alerts += info["integrity_alert"] > 0.5
+        assert alerts > 0  # the tight limit raises alerts the reward sees
+    finally:
+        env.close()
+
+
+def test_terminate_on_alert_after_the_transient() -> None:
+    env = _env(
+        integrity={"monitor": "detect", "alert_limit_m": 1e-3, "terminate_on_alert": True},
+        episode={"duration_s": 6.0, "settle_s": 1.0},
+    )
+    try:
+        infos, terminated = fly_dflqr(env, seed=0)
+    finally:
+        env.close()
+    assert terminated and infos[-1]["termination_reason"] == "integrity_alert"
+    assert infos[-1]["t"] == pytest.approx(1.01)  # the first step after settle_s: all alert
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"observation": {"protection_levels": True}}, "observation.protection_levels"),
+        ({"integrity": {"alert_weight": 1.0}}, "integrity.alert_weight"),
+        ({"integrity": {"terminate_on_alert": True}}, "integrity.terminate_on_alert"),
+    ],
+)
+def test_integrity_task_options_need_the_monitor(overrides: dict[str, Any], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(SCENARIO, overrides)

@@ -28,6 +28,13 @@ def cmd_study_active(args: argparse.Namespace) -> int:
     return _training_study(args, study_active, "study_active", "active_perception.png")
 
 
+def cmd_study_integrity_task(args: argparse.Namespace) -> int:
+    """The active-perception study on the integrity-aware task: availability per heading."""
+    from agents.studies import integrity_task
+
+    return _training_study(args, integrity_task, "study_integrity_task", "integrity_task.png")
+
+
 def cmd_study_robustness(args: argparse.Namespace) -> int:
     """DF-LQR, LQI, SE(3) and residual PPO on the LQI, each on the Oracle and every
     estimator, under nominal, randomised and windy physics."""
@@ -314,7 +321,7 @@ def add_study_parser(
 
 
 def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> None:
-    """``quadslam study integrity``'s parser."""
+    """The parsers of ``quadslam study integrity`` and ``integrity-task``."""
     integ = studies.add_parser(
         "integrity",
         help="EKF-SLAM's integrity monitor, detecting and excluding, fault-free and with each "
@@ -329,6 +336,13 @@ def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> N
     integ.add_argument("--json", type=Path, help="write the table and episodes as JSON")
     integ.add_argument("--plots", type=Path, help="write the Stanford diagrams (PNG) here")
     integ.set_defaults(func=cmd_study_integrity)
+    task = studies.add_parser(
+        "integrity-task",
+        help="the active-perception study with the integrity monitor, the protection levels "
+        "in the observation and a reward on alerts: availability of each heading policy",
+    )
+    _training_study_args(task, positive_int, 5, "write the active-perception figure here")
+    task.set_defaults(func=cmd_study_integrity_task)
 
 
 def _phase_edges(text: str) -> list[float]:

@@ -148,6 +148,7 @@ def run_study(
     duration_s: float | None = None,
     hyperparams: dict[str, Any] | None = None,
     first_training_seed: int = 0,
+    env_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Fly the baselines, train and fly the learned agent; ``{"rows", "settings", "traces"}``.
 
@@ -165,6 +166,8 @@ def run_study(
         duration_s: Episode length in s for training and flights (default the scenario's).
         hyperparams: Merged into the ``ppo.yaml`` entry (before ``duration_s``).
         first_training_seed: The training seeds are ``first_training_seed`` on (default 0).
+        env_overrides: Settings of the env for the training and every flight (e.g. the
+            integrity-aware task of :mod:`agents.studies.integrity_task`).
 
     Raises:
         ValueError: ``first_training_seed`` below 0.
@@ -181,6 +184,7 @@ def run_study(
     timesteps = timesteps or (100_000 if quick else None)
     seeds = list(range(EVAL_SEED0, EVAL_SEED0 + n_eps))
     length = {} if duration_s is None else {"episode": {"duration_s": float(duration_s)}}
+    length = deep_merge(env_overrides or {}, length)
     entry = deep_merge(hyperparams or {}, {"env_kwargs": length}) if length else hyperparams
     # Every training first: they run side by side; the flights follow in this process.
     runs = train_all(
