@@ -1,6 +1,6 @@
 # Two entry points: `make demo` and `make test`. Both create .venv if missing and install the package
-# (with the `ray`, `gtsam`, `clients` and `sbx` extras, so the sweep, iSAM2, client-library and
-# JAX-backend tests run).
+# (with the `ray`, `gtsam`, `clients`, `sbx` and `team` extras, so the sweep, iSAM2,
+# client-library, JAX-backend and team-env tests run).
 # `make test-rllib` runs the RLlib test in its own venv, .venv-rllib: ray[rllib] pins gymnasium
 # 1.2.2, and .venv keeps the newest gymnasium.
 PYTHON ?= python3
@@ -24,7 +24,7 @@ $(BIN)/python:
 
 $(STAMP): $(BIN)/python pyproject.toml constraints.txt
 	$(BIN)/pip install --quiet -c constraints.txt torch==2.13.0
-	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray,gtsam,clients,sbx]"
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,ray,gtsam,clients,sbx,team]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -12,6 +12,9 @@ Registered ids (plain-data kwargs only):
 
 Each id has a native vector env (``gymnasium.make_vec(id, num_envs=B)``): B lanes of the
 batched simulation core in one process.
+
+Several vehicles in one world: ``quadslam_env.team.parallel_env(n_vehicles=N)``, a PettingZoo
+``ParallelEnv`` (the ``[team]`` extra; not imported here).
 """
 
 from gymnasium.envs.registration import register
