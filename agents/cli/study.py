@@ -104,40 +104,44 @@ def _save_study(
     return 0
 
 
-def cmd_study_association(args: argparse.Namespace) -> int:
-    """Known vs NN vs JCBB (EKF) and known vs ML (FastSLAM), and the clutter sweep."""
+def _flown_study(
+    args: argparse.Namespace, study: Any, png: str, run: Callable[[int], dict[str, Any]]
+) -> int:
+    """Run a study that flies episodes without training (``run(seeds)``, its module's
+    ``format_study``, ``write_json``, ``plot_study``): check the output paths first, print the
+    table and the wall clock, write ``--json`` and ``--plots`` (``png``)."""
     from agents.io.paths import check_output_dir, check_output_file
-    from agents.studies.association import format_study, plot_study, run_study, write_json
 
     if args.json is not None:
         check_output_file(args.json, "--json")
     if args.plots is not None:
         check_output_dir(args.plots, "--plots")
-    seeds = args.seeds or (3 if args.quick else 20)
     tic = time.perf_counter()
-    result = run_study(seeds, args.quick)
+    result = run(args.seeds or (3 if args.quick else 20))
     result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
-    print(format_study(result))
+    print(study.format_study(result))
     print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
-    return _save_study(args, result, write_json, plot_study, "association_clutter.png")
+    return _save_study(args, result, study.write_json, study.plot_study, png)
+
+
+def cmd_study_association(args: argparse.Namespace) -> int:
+    """Known vs NN vs JCBB (EKF) and known vs ML (FastSLAM), and the clutter sweep."""
+    from agents.studies import association
+
+    def run(seeds: int) -> dict[str, Any]:
+        return association.run_study(seeds, args.quick)
+
+    return _flown_study(args, association, "association_clutter.png", run)
 
 
 def cmd_study_integrity(args: argparse.Namespace) -> int:
     """The integrity monitor against each fault kind: detection, protection levels, errors."""
-    from agents.io.paths import check_output_dir, check_output_file
-    from agents.studies.integrity import format_study, plot_study, run_study, write_json
+    from agents.studies import integrity
 
-    if args.json is not None:
-        check_output_file(args.json, "--json")
-    if args.plots is not None:
-        check_output_dir(args.plots, "--plots")
-    seeds = args.seeds or (3 if args.quick else 20)
-    tic = time.perf_counter()
-    result = run_study(seeds, args.seed, args.quick, args.free_seeds)
-    result["settings"]["wall_s"] = round(time.perf_counter() - tic, 1)
-    print(format_study(result))
-    print(f"wall clock: {result['settings']['wall_s'] / 60:.1f} min")
-    return _save_study(args, result, write_json, plot_study, "integrity_stanford.png")
+    def run(seeds: int) -> dict[str, Any]:
+        return integrity.run_study(seeds, args.seed, args.quick, args.free_seeds)
+
+    return _flown_study(args, integrity, "integrity_stanford.png", run)
 
 
 def cmd_study_bound(args: argparse.Namespace) -> int:
