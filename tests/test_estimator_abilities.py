@@ -15,6 +15,7 @@ from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.estimation import (
     AssociatesUnlabeled,
     ChecksMemory,
+    FusesLandmarks,
     HasFullState,
     HasParticles,
     LabelsReturns,
@@ -46,6 +47,8 @@ BATCH: dict[type, set[str]] = {
     HasFullState: {"ekf_slam"},
     # Only EKF-SLAM has the integrity monitor (docs/integrity.md).
     MonitorsIntegrity: {"ekf_slam"},
+    # Only EKF-SLAM fuses another vehicle's landmarks into its joint Gaussian (docs/team.md).
+    FusesLandmarks: {"ekf_slam"},
     # The LaneLoop passes a vehicle or a wind on to the lanes that use it (below).
     TakesVehicle: {"fastslam", "fastslam_kinematic", "isam2"},
     TakesWind: {"fastslam", "fastslam_kinematic", "isam2"},
@@ -70,6 +73,7 @@ MODELS_DRAG = {"fastslam"}
 # Only the smoother puts a delayed scan on a keyframe of its own time (docs/isam2.md).
 TAKES_LATE_SCANS = {"isam2"}
 MONITORS_INTEGRITY = {"ekf_slam"}
+FUSES_LANDMARKS = {"ekf_slam"}
 
 
 def _built() -> dict[str, Any]:
@@ -124,6 +128,11 @@ def test_takes_late_scans_flag_is_the_documented_one(name: str) -> None:
 @pytest.mark.parametrize("name", sorted(BUILT_IN))
 def test_monitors_integrity_flag_is_the_documented_one(name: str) -> None:
     assert registry.monitors_integrity(name) == (name in MONITORS_INTEGRITY)
+
+
+@pytest.mark.parametrize("name", sorted(BUILT_IN))
+def test_fuses_landmarks_flag_is_the_documented_one(name: str) -> None:
+    assert registry.fuses_landmarks(name) == (name in FUSES_LANDMARKS)
 
 
 def test_the_loop_says_its_lanes_flag(built: dict[str, Any]) -> None:

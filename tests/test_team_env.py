@@ -204,7 +204,10 @@ def test_team_position_rmse_is_over_the_vehicles_and_the_episode() -> None:
         ({"n_vehicles": 0}, "n_vehicles: got 0; allowed: an integer >= 1"),
         ({"n_vehicles": True}, "n_vehicles: got True"),
         ({"n_vehicles": 2.0}, "n_vehicles: got 2.0"),
-        ({"team": {"fusion": "ci"}}, "team.fusion: got 'ci'; allowed: one of ['independent']"),
+        (
+            {"team": {"fusion": "pooled"}},
+            "team.fusion: got 'pooled'; allowed: one of ['independent'",
+        ),
         ({"team": {"links": True}}, "team.links: unknown key"),
         ({"team": {"time_offsets_s": [0.0, 1.0]}}, "team.time_offsets_s: got 2 entries"),
         ({"team": {"time_offsets_s": [1.0, 2.0, 3.0]}}, "team.time_offsets_s[0]: got 1.0"),

@@ -35,6 +35,7 @@ import numpy as np
 from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.ekf import warmup
 from estimators.ekf.associate import UnlabeledScans
+from estimators.ekf.fusion import LandmarkFusion
 from estimators.ekf.inspection import FilterInspection
 from estimators.ekf.kernels import (
     D_NIS,
@@ -63,7 +64,9 @@ _AR3 = np.arange(3)
 
 
 @register("ekf_slam")
-class EkfSlamBatch(UnlabeledScans, FilterInspection, MemorySizing, WindStates, IntegrityMonitor):
+class EkfSlamBatch(
+    UnlabeledScans, FilterInspection, MemorySizing, WindStates, IntegrityMonitor, LandmarkFusion
+):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 
     Implements :class:`~quadslam_env.estimation.protocol.BatchEstimator`. Lanes are

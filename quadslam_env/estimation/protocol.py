@@ -10,8 +10,8 @@ true state (the oracle, which says ``uses_truth = True``, is the one exception).
 Abilities that only some estimators have are protocols of their own, checked with
 ``isinstance(estimator, Ability)`` where they are used (docs/design.md §5): of a batch,
 :class:`ReservesLandmarks`, :class:`AssociatesUnlabeled`, :class:`UsesTruth`,
-:class:`ShowsParticles`, :class:`HasFullState`, :class:`TakesVehicle`, :class:`TakesWind` and
-:class:`TakesLateScans`;
+:class:`ShowsParticles`, :class:`HasFullState`, :class:`TakesVehicle`, :class:`TakesWind`,
+:class:`TakesLateScans`, :class:`MonitorsIntegrity` and :class:`FusesLandmarks`;
 of one vehicle's estimator (what :class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its
 lanes), :class:`ChecksMemory`, :class:`LabelsReturns`, :class:`HasParticles`,
 :class:`UsesVehicle` and :class:`ModelsDrag`. A runtime-checkable protocol's
@@ -22,8 +22,9 @@ against them; the call sites are typed by the protocol, and
 scenario check must know before any estimator is built is a class flag that the registry
 reads instead: ``associates_unlabeled``, ``uses_truth``, ``copyable = False`` (an estimator
 the env cannot deep-copy for a slow IMU or a delayed LiDAR), ``takes_late_scans`` (one that
-takes a delayed LiDAR's scans at their own time without a copy) and ``models_drag`` (a process
-model with drag, which ``wind.inform_estimator`` needs).
+takes a delayed LiDAR's scans at their own time without a copy), ``models_drag`` (a process
+model with drag, which ``wind.inform_estimator`` needs), ``monitors_integrity`` and
+``fuses_landmarks`` (the team env's map fusion).
 """
 
 from __future__ import annotations
@@ -262,6 +263,22 @@ class MonitorsIntegrity(Protocol):
 
     def set_monitor(self, settings: MonitorSettings | None) -> None:
         """Monitor every later scan with ``settings`` (``None``: no monitor, the default)."""
+
+
+@runtime_checkable
+class FusesLandmarks(Protocol):
+    """A batch estimator that fuses another vehicle's landmark estimates into a lane's state
+    (the team env's ``team.fusion`` ``ci`` and ``naive``, docs/team.md); its class says
+    ``fuses_landmarks = True``, which the team settings' check reads before any estimator is
+    built."""
+
+    def fuse_landmarks(
+        self, lane: int, ids: np.ndarray, means: FloatArray, covs: FloatArray, mode: str
+    ) -> tuple[int, float]:
+        """Fuse the landmarks ``ids`` (k,) with means (k, 3) m and covariances (k, 3, 3) m²,
+        N frame, by the rule ``mode`` (``ci``: covariance intersection; ``naive``: a Kalman
+        update as if independent) into lane ``lane``; returns how many were fused (those the
+        lane has mapped) and the CI weight ω (1 for ``naive``, NaN if none or failed)."""
 
 
 # ---------------------------------------------------------- abilities of one vehicle's

@@ -162,6 +162,17 @@ def monitors_integrity(name: str) -> bool:
     return bool(getattr(_load(name), "monitors_integrity", False))
 
 
+def fuses_landmarks(name: str) -> bool:
+    """Whether the estimator ``name`` fuses another vehicle's landmark estimates: its class
+    says ``fuses_landmarks = True`` (:class:`~quadslam_env.estimation.protocol.FusesLandmarks`;
+    the team env's ``team.fusion`` ``ci`` and ``naive`` are refused otherwise).
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    return bool(getattr(_load(name), "fuses_landmarks", False))
+
+
 def takes_late_scans(name: str) -> bool:
     """Whether the estimator ``name`` takes a delayed LiDAR's scans at their own time without
     being copied: its class says ``takes_late_scans = True``
@@ -228,7 +239,7 @@ def memory_terms(name: str, load: Workload, params: dict[str, Any]) -> list[Memo
 def estimator_flag(name: str, flag: Callable[[str], bool]) -> bool:
     """``flag(name)`` for a scenario check, with ``flag`` one of the class flags above
     (:func:`associates_unlabeled`, :func:`copyable`, :func:`models_drag`,
-    :func:`monitors_integrity`, :func:`takes_late_scans`).
+    :func:`monitors_integrity`, :func:`takes_late_scans`, :func:`fuses_landmarks`).
 
     Raises:
         ConfigError: Unknown name or a plug-in that cannot be loaded (the registry's message).

@@ -18,11 +18,36 @@ import numpy as np
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.config_schema import ConfigError, Section
 from quadslam_env.config_schema import spec as _spec
+from quadslam_env.estimation import estimator_flag, fuses_landmarks
 from quadslam_env.types import FloatArray
 
-FUSION_MODES = ("independent",)
+FUSION_MODES = ("independent", "ci", "naive")
 """The fusion modes there are: ``independent``, each vehicle its own estimator and nothing
-shared (the baseline; ``ci``, ``naive`` and ``centralised`` are planned, docs/team.md)."""
+shared (the baseline); ``ci``, the vehicles' landmark estimates fused by covariance
+intersection; ``naive``, the same messages fused as if independent (docs/team.md "Fusion").
+``centralised`` is not there yet (:data:`NOT_YET`)."""
+
+NOT_YET = {
+    "centralised": "one estimator of every vehicle and the map (a centralised smoother over "
+    "the team's measurements) is not implemented yet",
+}
+"""Fusion modes planned but refused, and the missing feature each one needs."""
+
+SHARING = ("ci", "naive")
+"""The fusion modes that send messages (the communication settings apply to them only)."""
+
+COMMS_KEYS = (
+    "message_every_scans",
+    "message_rate_hz",
+    "latency_steps",
+    "drop_probability",
+    "landmarks_per_message",
+)
+"""The communication settings, read only with a fusion mode of :data:`SHARING`."""
+
+FLOAT_BYTES = 8
+"""Bytes per float of a message: each landmark sends its id, mean (3) and covariance (6)."""
+FLOATS_PER_LANDMARK = 10
 
 OFFSET_MAX_M = 1e3
 """Largest |coordinate| of a vehicle's position offset, m."""
@@ -44,11 +69,58 @@ class TeamConfig(Section):
     """The team of N vehicles in one world: fusion, per-vehicle references, collisions."""
 
     SECTION: ClassVar[str] = "team"
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = dict.fromkeys(
+        COMMS_KEYS, ("fusion", SHARING)
+    )
     fusion: str = _spec(
         "independent",
         kind="str",
         choices=FUSION_MODES,
-        doc="independent: each vehicle runs its own estimator and nothing is shared",
+        doc="independent: each vehicle runs its own estimator and nothing is shared; ci: the "
+        "vehicles send their landmark estimates and each fuses them by covariance "
+        "intersection; naive: the same fused as if independent (double counting)",
+    )
+    message_every_scans: int | None = _spec(
+        None,
+        kind="int",
+        optional=True,
+        lo=1,
+        hi=100000,
+        doc="a vehicle sends a message after every m-th of its scans; null = every scan "
+        "(unless message_rate_hz)",
+    )
+    message_rate_hz: float | None = _spec(
+        None,
+        optional=True,
+        lo=0.0,
+        lo_open=True,
+        hi=1e4,
+        doc="messages per second of each vehicle, Hz, at most episode.control_hz (sent at the "
+        "end of the step on which floor(t · rate) grows); null = by scans",
+    )
+    latency_steps: int = _spec(
+        0,
+        kind="int",
+        lo=0,
+        hi=100000,
+        doc="control steps between a message's sending (end of a step) and its fusion (start of "
+        "the step after this many more)",
+    )
+    drop_probability: float = _spec(
+        0.0,
+        lo=0.0,
+        hi=1.0,
+        doc="probability that a message does not reach one receiver (drawn per receiver from "
+        "the sender's own generator)",
+    )
+    landmarks_per_message: int | None = _spec(
+        None,
+        kind="int",
+        optional=True,
+        lo=1,
+        hi=100000,
+        doc="the k landmarks a message carries: the sender's best known (smallest covariance "
+        "trace, then smallest id); null = every landmark it has mapped",
     )
     time_offsets_s: tuple[float, ...] | None = _spec(
         None,
@@ -78,6 +150,34 @@ class TeamConfig(Section):
         "(vehicle_collision); null = no collision check",
     )
 
+    @classmethod
+    def from_dict(cls, data: Any) -> Any:
+        """:meth:`Section.from_dict`, after refusing a planned fusion mode with what it needs.
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        fusion = data.get("fusion") if isinstance(data, dict) else None
+        if isinstance(fusion, str) and fusion in NOT_YET:
+            raise ConfigError(
+                f"team.fusion: got {fusion!r}: {NOT_YET[fusion]}; allowed: one of "
+                f"{list(FUSION_MODES)}"
+            )
+        return super().from_dict(data)
+
+    def validate(self) -> None:
+        """One way of timing the messages at most.
+
+        Raises:
+            ConfigError: Both ``message_every_scans`` and ``message_rate_hz`` set.
+        """
+        if self.message_every_scans is not None and self.message_rate_hz is not None:
+            raise ConfigError(
+                f"team.message_rate_hz: got {self.message_rate_hz!r} with "
+                f"team.message_every_scans = {self.message_every_scans!r}; allowed: one of the "
+                "two (the other null)"
+            )
+
     def check(self, n_vehicles: int, scenario: ScenarioConfig) -> None:
         """The checks that need N and the scenario: one offset per vehicle, none for vehicle 0
         (it flies the scenario's own reference, the single env's), and a world the vehicles can
@@ -102,10 +202,53 @@ class TeamConfig(Section):
                     f"team.{key}[0]: got {_plain(value[0])}; allowed: {zero} (vehicle 0 flies "
                     "the scenario's own reference)"
                 )
+        if self.fusion in SHARING:
+            self._check_sharing(scenario)
         if scenario.faults.kind == "landmark_moves":
             raise ConfigError(
                 "faults.kind: got 'landmark_moves'; allowed in the team env: any other kind "
                 "(a landmark moved in one vehicle's lane would split the shared field)"
+            )
+
+    def _check_sharing(self, scenario: ScenarioConfig) -> None:
+        """What map fusion needs of the scenario: an estimator that fuses landmarks, the
+        landmark ids common to the vehicles (known association), a map to fuse (no known
+        map), one run of the estimator (no copies) and a message rate the steps can hold.
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        name, got = scenario.estimator.name, f"team.fusion: got {self.fusion!r}"
+        if not estimator_flag(name, fuses_landmarks):
+            raise ConfigError(
+                f"{got} with estimator.name = {name!r}, which cannot fuse landmark estimates; "
+                "allowed: 'independent', or an estimator with one (ekf_slam, or a plug-in with "
+                "fuses_landmarks = True)"
+            )
+        if scenario.lidar.association != "known":
+            raise ConfigError(
+                f"{got} with lidar.association = {scenario.lidar.association!r}; allowed: "
+                "'independent', or lidar.association 'known' (the fusion pairs the vehicles' "
+                "landmarks by id; unknown association would need map matching first)"
+            )
+        if scenario.estimator.known_map:
+            raise ConfigError(
+                f"{got} with estimator.known_map = true (no map to fuse); allowed: "
+                "'independent', or estimator.known_map false"
+            )
+        second = "imu.rate_hz" if scenario.steps_per_imu > 1 else None
+        if scenario.lidar.delay_steps:
+            second = "lidar.delay_steps"
+        if second is not None:
+            raise ConfigError(
+                f"{got} with {second} set (the estimator runs from copies, which a fused "
+                f"message would miss); allowed: 'independent', or {second} at its default"
+            )
+        rate, control = self.message_rate_hz, scenario.episode.control_hz
+        if rate is not None and rate > control:
+            raise ConfigError(
+                f"team.message_rate_hz: got {rate!r}; allowed: at most episode.control_hz = "
+                f"{control!r} (one message per step)"
             )
 
     def offsets(self, n_vehicles: int, period_s: float) -> tuple[FloatArray, FloatArray]:

@@ -7,6 +7,10 @@ termination; the lanes share the landmark field (vehicle 0's draw, given to the 
 each reset) and differ in their references, starts and streams (:mod:`quadslam_env.team.world`).
 With ``team.fusion: independent`` nothing passes between the vehicles, so ``vehicle_0`` is the
 single env (``gymnasium.make("QuadSLAM-v0")`` with the same seed), step for step, bit for bit.
+With ``ci`` or ``naive`` the vehicles send their landmark estimates
+(:class:`~quadslam_env.team.comms.Comms`: sent at the end of a step, fused by the estimator at
+the start of a later one). The team's map terms are read from the lane snapshots
+(:class:`~quadslam_env.team.map_metrics.MapMetrics`).
 The core's check across lanes ends two vehicles that collide
 (:class:`~quadslam_env.team.collision.Collisions`). A vehicle that ends leaves ``agents``
 (PettingZoo's convention); its lane is no longer stepped.
@@ -32,7 +36,9 @@ from quadslam_env.extras import require
 from quadslam_env.memory import check_env_memory
 from quadslam_env.reset_options import parse_reset_options, parse_seed
 from quadslam_env.team.collision import Collisions
-from quadslam_env.team.config import TeamConfig, parse_vehicles
+from quadslam_env.team.comms import Comms
+from quadslam_env.team.config import SHARING, TeamConfig, parse_vehicles
+from quadslam_env.team.map_metrics import MapMetrics
 from quadslam_env.team.metrics import TeamMetrics
 from quadslam_env.team.world import start_states, team_references, vehicle_generators
 from quadslam_env.types import FloatArray
@@ -111,6 +117,12 @@ class TeamParallelEnv(ParallelEnv):
         self._rngs: list[np.random.Generator] | None = None
         self._live = np.zeros(n, dtype=bool)  # the lanes of the agents still in the episode
         self._metrics = TeamMetrics(n)
+        self._maps = MapMetrics(n)
+        self._comms: Comms | None = None
+        if self.team.fusion in SHARING:
+            control_hz = self.scenario.episode.control_hz
+            self._comms = Comms(self.team, n, self.scenario.lidar_every, control_hz)
+        self._steps_done = 0
 
     @property
     def core(self) -> SimCore:
@@ -162,11 +174,36 @@ class TeamParallelEnv(ParallelEnv):
             infos.append(lane_info(info, 0))
         self.agents = list(self.possible_agents)
         self._live[:] = True
+        self._steps_done = 0
         self._metrics.reset()
+        self._maps.reset()
+        if self._comms is not None:
+            self._comms.reset(self._rngs)
         err = np.array([row.get("est_pos_err_m", math.nan) for row in infos])
-        team = _applying(self._metrics.terms(err, core.vehicle.state, self._live))
+        team = self._metrics.terms(err, core.vehicle.state, self._live)
+        anees, team = self._map_terms(team, self._live)
+        for i, row in enumerate(infos):
+            row |= _applying({"est_landmark_anees": float(anees[i])})
+        team = _applying(team)
         observations = {agent: rows[i] for i, agent in enumerate(self.agents)}
         return observations, {agent: {**infos[i], **team} for i, agent in enumerate(self.agents)}
+
+    def _truth(self) -> FloatArray:
+        """(L, 3) the shared true landmark field, m, N frame (for the metrics only)."""
+        core = self._core
+        return core.landmarks[0, : core.n_landmarks[0]]
+
+    def _map_terms(
+        self, team: dict[str, float], lanes: np.ndarray
+    ) -> tuple[FloatArray, dict[str, float]]:
+        """Each vehicle's landmark ANEES (N,) and ``team`` with the map terms and the message
+        counts of the vehicles ``lanes`` (N,) bool."""
+        truth = self._truth()
+        anees = self._maps.observe(self._core.estimator, truth, truth.shape[0], lanes)
+        team = team | self._maps.terms(truth, lanes)
+        if self._comms is not None:
+            team |= self._comms.terms()
+        return anees, team
 
     def step(self, actions: Any) -> Step:
         """Advance every live vehicle one control period (``dt`` s).
@@ -191,14 +228,22 @@ class TeamParallelEnv(ParallelEnv):
                 "vehicle's ended); call reset() before step()"
             )
         act = self._actions(actions)
-        core, live = self._core, self._live.copy()
+        core, live, comms = self._core, self._live.copy(), self._comms
+        if comms is not None:  # the messages due now, fused before the step
+            comms.deliver(core.estimator, self._steps_done, live)
         obs, reward, terminated, truncated, info = core.step(act, live)
+        self._steps_done += 1
         err = info["est_pos_err_m"]
         self._metrics.add(err, live)
         team = self._metrics.terms(err, core.vehicle.state, live)
         self._live &= ~(terminated | truncated)
+        if comms is not None:  # the live vehicles due to send, from their new estimates
+            comms.send(core.estimator, core.steps, self._live)
+        info["est_landmark_anees"], team = self._map_terms(team, live)
         if not self._live.any():  # the last vehicles end: the team's episode summary
-            team |= self._metrics.summary()
+            team |= self._metrics.summary() | self._maps.summary(self._truth())
+            if comms is not None:
+                team |= {f"team_episode_{k[5:]}": v for k, v in comms.terms().items()}
         team = _applying(team)
         out: Step = ({}, {}, {}, {}, {})
         for agent in self.agents:

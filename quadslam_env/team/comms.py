@@ -1,0 +1,154 @@
+"""The team's communication model: which vehicle sends what, when, and what reaches whom
+(docs/team.md "Communication").
+
+With ``team.fusion`` ``ci`` or ``naive`` every live vehicle broadcasts a message at the end of
+a step on which it is due (after every m-th of its scans, ``team.message_every_scans``, or at a
+rate, ``team.message_rate_hz``): its ``team.landmarks_per_message`` best-known landmarks (the
+smallest covariance traces, then the smallest ids; every mapped landmark by default), each as
+its id, mean (3) and covariance (6 numbers), read from its estimator's lane snapshot. Each
+other live vehicle misses the message with ``team.drop_probability``, one draw per receiver
+from the sender's own generator (spawned from the vehicle's stream at reset, so the drops
+repeat with the seed); a message that reaches it is fused at the start of the step
+``team.latency_steps`` steps after the next one, by the estimator's
+:class:`~quadslam_env.estimation.protocol.FusesLandmarks` (the math is the estimator's:
+:mod:`estimators.ekf.fusion`). A message for a vehicle that has ended is discarded.
+
+Coordination only: no estimation math here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import cast
+
+import numpy as np
+
+from quadslam_env.estimation import BatchEstimate, BatchEstimator, FusesLandmarks
+from quadslam_env.team.config import FLOAT_BYTES, FLOATS_PER_LANDMARK, TeamConfig
+from quadslam_env.types import FloatArray
+
+COUNT_KEYS = (
+    "team_messages_sent",
+    "team_messages_delivered",
+    "team_messages_dropped",
+    "team_bytes_sent",
+)
+"""The episode's message counts so far (a broadcast counts once in ``sent`` and its bytes; each
+receiver's copy once in ``delivered`` or ``dropped``)."""
+
+
+@dataclass(frozen=True)
+class Message:
+    """One vehicle's landmark estimates for one receiver.
+
+    Attributes:
+        sender: The sending vehicle.
+        receiver: The receiving vehicle.
+        due: The number of steps after which the receiver fuses it (at the start of the next).
+        ids: (k,) int landmark ids.
+        means: (k, 3) means, m, N frame.
+        covs: (k, 3, 3) covariances, m².
+    """
+
+    sender: int
+    receiver: int
+    due: int
+    ids: np.ndarray
+    means: FloatArray
+    covs: FloatArray
+
+
+class Comms:
+    """The messages of one episode (module docstring).
+
+    Args:
+        team: The team settings.
+        n_vehicles: N.
+        lidar_every: Control steps per scan.
+        control_hz: Control steps per second.
+    """
+
+    def __init__(self, team: TeamConfig, n_vehicles: int, lidar_every: int, control_hz: float):
+        self.mode = team.fusion
+        self.n_vehicles = n_vehicles
+        self._every = team.message_every_scans or 1
+        self._rate = team.message_rate_hz
+        self._lidar_every = lidar_every
+        self._control_hz = control_hz
+        self._latency = team.latency_steps
+        self._drop = team.drop_probability
+        self._k = team.landmarks_per_message
+        self._rngs: list[np.random.Generator] = []
+        self._queue: list[Message] = []
+        self.counts = dict.fromkeys(COUNT_KEYS, 0)
+        self.fused = np.zeros(n_vehicles, dtype=np.int64)
+
+    def reset(self, rngs: list[np.random.Generator]) -> None:
+        """Start an episode: no message in flight, the counts at 0, and each vehicle's drop
+        generator spawned from its stream ``rngs`` (N,) (after the core's reset spawned its
+        own, so the vehicles' other draws are those of independent fusion)."""
+        self._rngs = [rng.spawn(1)[0] for rng in rngs]
+        self._queue = []
+        self.counts = dict.fromkeys(COUNT_KEYS, 0)
+        self.fused[:] = 0
+
+    def due(self, steps: np.ndarray) -> np.ndarray:
+        """(N,) bool: the vehicles due to send after their ``steps`` (N,) int steps."""
+        if self._rate is None:
+            scans = steps // self._lidar_every
+            return (steps % self._lidar_every == 0) & (scans % self._every == 0) & (steps > 0)
+        ticks = np.floor(steps * (self._rate / self._control_hz) + 1e-9)
+        before = np.floor((steps - 1) * (self._rate / self._control_hz) + 1e-9)
+        return (ticks > before) & (steps > 0)
+
+    def send(self, estimator: BatchEstimator, steps: np.ndarray, live: np.ndarray) -> None:
+        """At the end of a step: the ``live`` (N,) vehicles due after ``steps`` (N,) send.
+
+        Args:
+            estimator: The core's estimator (each sender's lane snapshot is read).
+            steps: (N,) int each vehicle's steps so far.
+            live: (N,) bool the vehicles still in the episode after the step.
+        """
+        for i in np.flatnonzero(self.due(steps) & live).tolist():
+            ids, means, covs = self._best(estimator.lane_estimate(i))
+            self.counts["team_messages_sent"] += 1
+            self.counts["team_bytes_sent"] += FLOAT_BYTES * FLOATS_PER_LANDMARK * ids.size
+            due = int(steps[i]) + self._latency
+            for j in range(self.n_vehicles):
+                if j == i or not live[j]:
+                    continue
+                if self._rngs[i].random() < self._drop:
+                    self.counts["team_messages_dropped"] += 1
+                    continue
+                self._queue.append(Message(i, j, due, ids, means, covs))
+
+    def _best(self, est: BatchEstimate) -> tuple[np.ndarray, FloatArray, FloatArray]:
+        """The message's landmarks from a lane snapshot (B = 1): the k smallest covariance
+        traces (ties: smaller id first), every mapped landmark without k."""
+        ids, means, covs = est.mapped_landmarks(0)
+        if self._k is not None and ids.size > self._k:
+            order = np.lexsort((ids, np.trace(covs, axis1=1, axis2=2)))[: self._k]
+            order.sort()
+            ids, means, covs = ids[order], means[order], covs[order]
+        return ids.copy(), means.copy(), covs.copy()
+
+    def deliver(self, estimator: BatchEstimator, steps_done: int, live: np.ndarray) -> None:
+        """At the start of a step: fuse the messages due after ``steps_done`` steps into
+        their ``live`` (N,) receivers, in the order they were sent; sets :attr:`fused` (N,),
+        the landmarks fused into each vehicle now."""
+        self.fused[:] = 0
+        if not self._queue:
+            return
+        now = [m for m in self._queue if m.due <= steps_done]
+        self._queue = [m for m in self._queue if m.due > steps_done]
+        fuser = cast(FusesLandmarks, estimator)  # the team settings' check saw its flag
+        for msg in now:
+            if not live[msg.receiver]:
+                continue
+            self.counts["team_messages_delivered"] += 1
+            fused, _ = fuser.fuse_landmarks(msg.receiver, msg.ids, msg.means, msg.covs, self.mode)
+            self.fused[msg.receiver] += fused
+
+    def terms(self) -> dict[str, float]:
+        """The episode's counts so far (:data:`COUNT_KEYS`) as floats."""
+        return {key: float(value) for key, value in self.counts.items()}
