@@ -2,10 +2,11 @@
 levels, alerts and monitor outcomes in ``info`` (docs/integrity.md).
 
 With ``integrity.monitor`` other than ``off``, :class:`IntegrityTerms` gives the estimator its
-:class:`~quadslam_env.estimation.integrity.MonitorSettings` (and every copy the env runs of it)
-and reads back, each step, the monitor's counts and solution separations from the snapshot's
-diagnostics: ``hpl_m``, ``vpl_m`` (:func:`~quadslam_env.estimation.integrity.protection_levels`
-from the position covariance and the last scan's separations), ``integrity_alert`` (a level
+:class:`~quadslam_env.estimation.integrity.MonitorSettings` (the section refuses the settings
+that would run copies of it) and reads back, each step, the monitor's counts and solution
+separations from the snapshot's diagnostics: ``hpl_m``, ``vpl_m``
+(:func:`~quadslam_env.estimation.integrity.levels_lanes` from the position covariance and the
+last scan's separations), ``integrity_alert`` (a level
 above its alert limit), ``fde_tested``, ``fde_alarm`` and ``fde_excluded`` (the scans tested,
 those that alarmed, and the landmarks left out on this step), then against the truth the
 misleading-information terms and the episode sums of :mod:`quadslam_env.metrics.integrity`.
@@ -101,8 +102,8 @@ class IntegrityTerms:
         self.episode = IntegrityEpisode(num_lanes)
 
     def configure(self, estimators: Iterable[Any]) -> None:
-        """Tell the ``estimators`` (the env's and its copies; their class flag was checked
-        with the scenario) the monitor's settings."""
+        """Tell the ``estimators`` (the env's; their class flag was checked with the scenario)
+        the monitor's settings."""
         if self.enabled:
             for estimator in estimators:
                 cast(MonitorsIntegrity, estimator).set_monitor(self.cfg.monitor_settings())
