@@ -45,7 +45,7 @@ import numpy as np
 from estimators.ekf.correction import correction, stacked_gain
 from estimators.ekf.kernels import D_DIVERGED, sync_lane
 from estimators.ekf.state import EkfState
-from estimators.ekf.update import _subtract_outer
+from estimators.ekf.update import subtract_outer
 from quadslam_env.types import FloatArray
 
 FUSION_MODES = ("ci", "naive")
@@ -178,7 +178,7 @@ def fuse_lane(
     xb[:nb] += dx
     if prior != 1.0:
         Pb[:nb, :nb] *= prior
-    _subtract_outer(Pb, Wt, nb)
+    subtract_outer(Pb, Wt, nb)
     return float(omega)
 
 

@@ -48,7 +48,7 @@ from quadslam_env.models.frames import wrap_pi
 from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.types import EUL, POS, POSE_DIM, FloatArray
 
-_DIAG_FLOOR = -1e-9
+DIAG_FLOOR = -1e-9
 """Most negative posterior variance accepted as round-off."""
 
 
@@ -82,7 +82,7 @@ def stacked_model(
 
 
 @kernel
-def _subtract_outer(Pb: FloatArray, Wt: FloatArray, nb: int) -> None:
+def subtract_outer(Pb: FloatArray, Wt: FloatArray, nb: int) -> None:
     """``P[:n, :n] -= W Wᵀ`` (eq. 43) for ``Wt = Wᵀ`` (m, n), exactly symmetric.
 
     The lower triangle is computed (each ``(W Wᵀ)_ij`` summed over a in order, then
@@ -241,13 +241,13 @@ def _update_mapped(
     negative = False
     for j in range(nb):
         total += dx[j]
-        negative = negative or Pb[j, j] - wsq[j] < _DIAG_FLOOR
+        negative = negative or Pb[j, j] - wsq[j] < DIAG_FLOOR
     if not math.isfinite(nis) or not math.isfinite(total) or negative:
         diag[D_DIVERGED, b] = 1.0
         return
     for j in range(nb):
         xb[j] += dx[j]
-    _subtract_outer(Pb, Wt, nb)
+    subtract_outer(Pb, Wt, nb)
     xb[6] = wrap_pi(xb[6])
     xb[8] = wrap_pi(xb[8])
     diag[D_NIS, b] = nis

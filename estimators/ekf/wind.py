@@ -47,7 +47,7 @@ from estimators.ekf.kernels import (
 )
 from estimators.ekf.settings import WIND_DIM
 from estimators.ekf.state import EkfState
-from estimators.ekf.update import _DIAG_FLOOR, _subtract_outer
+from estimators.ekf.update import DIAG_FLOOR, subtract_outer
 from quadslam_env.models.frames import wrap_pi
 from quadslam_env.models.jit import inline_kernel, kernel
 from quadslam_env.models.rigid_body import Vec3
@@ -255,14 +255,14 @@ def accel_update(
     for j in range(nb):
         total += dx[j]
         wsq = Wt[0, j] * Wt[0, j] + Wt[1, j] * Wt[1, j]
-        negative = negative or Pb[j, j] - wsq < _DIAG_FLOOR
+        negative = negative or Pb[j, j] - wsq < DIAG_FLOOR
     if not math.isfinite(total) or negative:
         return False
     for j in range(nb):
         xb[j] += dx[j]
     if stale:
         sync_lane(Pb, nb, nv)
-    _subtract_outer(Pb, Wt, nb)
+    subtract_outer(Pb, Wt, nb)
     xb[6] = wrap_pi(xb[6])
     xb[8] = wrap_pi(xb[8])
     return True
