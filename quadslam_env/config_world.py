@@ -293,8 +293,8 @@ class WindConfig(Section):
             return
         if drag_per_s == 0.0 and not any(drag_quadratic_per_m):
             raise ConfigError(
-                f"wind: got steady_mps {list(self.steady_mps)} and turbulence "
-                f"{self.turbulence!r} with vehicle.drag_per_s = 0 and "
+                f"wind.steady_mps: got {list(self.steady_mps)} with wind.turbulence "
+                f"{self.turbulence!r}, vehicle.drag_per_s = 0 and "
                 f"vehicle.drag_quadratic_per_m = {list(drag_quadratic_per_m)}, so the wind "
                 "would push on nothing; allowed: a drag with a wind (vehicle.drag_per_s > 0 "
                 "or a vehicle.drag_quadratic_per_m > 0), or no wind"
