@@ -239,6 +239,13 @@ class ScenarioConfig:
         return max(1, round(self.episode.control_hz / self.imu_rate_hz))
 
     @property
+    def second_run(self) -> str | None:
+        """The setting that runs a copy of the estimator beside it, or ``None``."""
+        if self.steps_per_imu > 1:
+            return "imu.rate_hz"
+        return "lidar.delay_steps" if self.lidar.delay_steps else None
+
+    @property
     def max_steps(self) -> int:
         """Control steps in one episode."""
         return math.ceil(self.episode.duration_s * self.episode.control_hz - 1e-9)
@@ -279,7 +286,7 @@ class ScenarioConfig:
                 f"lidar.rate_hz: got {scenario.lidar.rate_hz}; allowed: a rate that divides "
                 f"episode.control_hz = {scenario.episode.control_hz} (integer ratio >= 1)"
             )
-        check_imu_rate(scenario.imu.rate_hz, scenario.episode.control_hz)
+        scenario.episode.check_imu_rate(scenario.imu.rate_hz)
         scenario.episode.check_substep(scenario.vehicle.physics_dt_s)
         check_delays(scenario)
         check_copyable(scenario)
@@ -309,26 +316,6 @@ class ScenarioConfig:
             sec = getattr(self, key)
             out[key] = {f.name: _plain(getattr(sec, f.name)) for f in fields(sec)}
         return out
-
-
-def check_imu_rate(rate_hz: float | None, control_hz: float) -> None:
-    """``imu.rate_hz`` must be null, an integer multiple of ``episode.control_hz`` or an
-    integer fraction of it (the IMU samples on a grid that the control grid refines or is
-    refined by: docs/design.md §3, docs/timing.md "IMU rate").
-
-    Raises:
-        ConfigError: Naming the key, the value and what is allowed.
-    """
-    if rate_hz is None:
-        return
-    ratio = rate_hz / control_hz
-    whole = ratio if ratio >= 1.0 else 1.0 / ratio
-    if abs(whole - round(whole)) > 1e-9 * whole:
-        raise ConfigError(
-            f"imu.rate_hz: got {rate_hz}; allowed: null (= episode.control_hz), or a rate "
-            f"that is an integer multiple or an integer fraction of episode.control_hz = "
-            f"{control_hz} (e.g. {control_hz / 10:g} or {control_hz * 10:g})"
-        )
 
 
 def check_delays(scenario: ScenarioConfig) -> None:
@@ -363,23 +350,21 @@ def check_delays(scenario: ScenarioConfig) -> None:
 
 
 def check_copyable(scenario: ScenarioConfig) -> None:
-    """An IMU slower than the control and a delayed LiDAR run a copy of the estimator beside
-    it (:class:`~quadslam_env.period_log.EstimatorCopies`), so they need an estimator whose
-    class does not say ``copyable = False`` (:func:`quadslam_env.estimation.copyable`); a
-    delayed LiDAR also goes with one whose class says ``takes_late_scans = True``
-    (:func:`quadslam_env.estimation.takes_late_scans`: it takes each scan at its own time
-    without a copy, :class:`~quadslam_env.scan_delay.LateScans`).
+    """A second run (:attr:`ScenarioConfig.second_run`, ``period_log.EstimatorCopies``) needs
+    an estimator that can be copied (:func:`quadslam_env.estimation.copyable`), or, for a
+    delayed LiDAR, one that takes late scans (:func:`quadslam_env.estimation.takes_late_scans`:
+    each scan at its own time without a copy, :class:`~quadslam_env.scan_delay.LateScans`).
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.
     """
-    name = scenario.estimator.name
-    if scenario.steps_per_imu > 1:
+    name, second = scenario.estimator.name, scenario.second_run
+    if second == "imu.rate_hz":
         control_hz = scenario.episode.control_hz
         got = f"imu.rate_hz: got {scenario.imu.rate_hz} < episode.control_hz = {control_hz}"
         why = "an IMU slower than the control runs a copy of the estimator at its instants"
         allowed = f"imu.rate_hz null or >= episode.control_hz with {name!r}"
-    elif scenario.lidar.delay_steps > 0:
+    elif second is not None:
         got = f"lidar.delay_steps: got {scenario.lidar.delay_steps}"
         why = "a delayed scan is applied to a copy of the estimator at the scan's time"
         allowed = f"lidar.delay_steps: 0 with {name!r}"

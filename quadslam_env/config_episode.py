@@ -215,6 +215,26 @@ class EpisodeConfig(Section):
                 f"episode.duration_s = {self.duration_s} (a steady phase must remain)"
             )
 
+    def check_imu_rate(self, rate_hz: float | None) -> None:
+        """``imu.rate_hz`` must be null, an integer multiple of ``control_hz`` or an integer
+        fraction of it (the IMU samples on a grid that the control grid refines or is refined
+        by: docs/design.md §3, docs/timing.md "IMU rate").
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        if rate_hz is None:
+            return
+        control_hz = self.control_hz
+        ratio = rate_hz / control_hz
+        whole = ratio if ratio >= 1.0 else 1.0 / ratio
+        if abs(whole - round(whole)) > 1e-9 * whole:
+            raise ConfigError(
+                f"imu.rate_hz: got {rate_hz}; allowed: null (= episode.control_hz), or a rate "
+                f"that is an integer multiple or an integer fraction of episode.control_hz = "
+                f"{control_hz} (e.g. {control_hz / 10:g} or {control_hz * 10:g})"
+            )
+
     def check_substep(self, physics_dt_s: float) -> None:
         """The control period ``1 / control_hz`` must be a whole multiple n ≥ 1 of the RK4
         substep ``vehicle.physics_dt_s``, so that the vehicle is integrated in substeps of

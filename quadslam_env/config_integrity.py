@@ -155,9 +155,7 @@ class IntegrityConfig(Section):
                 "allowed: false, or integrity.monitor 'detect' or 'exclude'"
             )
         name, association = scenario.estimator.name, scenario.lidar.association
-        second_run = "imu.rate_hz" if scenario.steps_per_imu > 1 else None
-        if scenario.lidar.delay_steps:
-            second_run = "lidar.delay_steps"
+        second_run = scenario.second_run
         if not self.enabled:
             return
         if second_run is not None:

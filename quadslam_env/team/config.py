@@ -236,9 +236,7 @@ class TeamConfig(Section):
                 f"{got} with estimator.known_map = true (no map to fuse); allowed: "
                 "'independent', or estimator.known_map false"
             )
-        second = "imu.rate_hz" if scenario.steps_per_imu > 1 else None
-        if scenario.lidar.delay_steps:
-            second = "lidar.delay_steps"
+        second = scenario.second_run
         if second is not None:
             raise ConfigError(
                 f"{got} with {second} set (the estimator runs from copies, which a fused "
