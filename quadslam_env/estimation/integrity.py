@@ -56,6 +56,16 @@ def chi2_isf(p: FloatArray | float, dof: FloatArray | float) -> FloatArray:
     return np.asarray(2.0 * gammainccinv(0.5 * np.asarray(dof), p), dtype=float)
 
 
+def landmark_thresholds(p_fa: float, capacity: int) -> FloatArray:
+    """(capacity + 1,) the landmark test's threshold ``T_k = χ²_3(1 − p_fa/(2k))`` by the number
+    k of landmarks tested (inf at k = 0): the monitor's test and the protection levels' bound on
+    an undetected separation."""
+    k = np.arange(capacity + 1, dtype=float)
+    out = np.full(capacity + 1, math.inf)
+    out[1:] = chi2_isf(p_fa / (2.0 * k[1:]), 3.0)
+    return out
+
+
 @dataclass(frozen=True)
 class MonitorSettings:
     """What a monitoring estimator is told (from the scenario's ``integrity`` section).
@@ -74,12 +84,8 @@ class MonitorSettings:
     readmit_s: float
 
     def landmark_thresholds(self, capacity: int) -> FloatArray:
-        """(capacity + 1,) the landmark test's threshold ``χ²_3(1 − p_fa/(2k))`` by k (inf at
-        k = 0)."""
-        k = np.arange(capacity + 1, dtype=float)
-        out = np.full(capacity + 1, math.inf)
-        out[1:] = chi2_isf(self.p_fa / (2.0 * k[1:]), 3.0)
-        return out
+        """(capacity + 1,) :func:`landmark_thresholds` of this budget."""
+        return landmark_thresholds(self.p_fa, capacity)
 
     def scan_thresholds(self, capacity: int) -> FloatArray:
         """(3 capacity + 1,) the scan test's threshold ``χ²_m(1 − p_fa/2)`` by degrees of
@@ -107,8 +113,8 @@ class LevelFactors:
         """(3, ≥ k_max + 1) rows ``T_k`` (0 at k = 0), ``K_N = K_E`` and ``K_D`` by k."""
         if self._tables.shape[1] <= k_max:
             k = np.arange(2 * k_max + 2, dtype=float)
-            threshold = np.zeros_like(k)
-            threshold[1:] = chi2_isf(self.p_fa / (2.0 * k[1:]), 3.0)
+            threshold = landmark_thresholds(self.p_fa, k.shape[0] - 1)
+            threshold[0] = 0.0  # no landmark: no faulty hypothesis to bound
             k_h = -ndtri(self.p_hmi / (8.0 * (k + 1.0)))
             k_v = -ndtri(self.p_hmi / (4.0 * (k + 1.0)))
             self._tables = np.ascontiguousarray(np.stack([threshold, k_h, k_v]))
