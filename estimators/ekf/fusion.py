@@ -2,10 +2,10 @@
 (docs/team.md "Fusion").
 
 A message is k landmark estimates of another vehicle, by landmark id: means ``y_j`` (k, 3) and
-3×3 covariances ``Q_j`` (k, 3, 3), in the N frame both vehicles share (known start poses,
-known association). Of them, the landmarks the lane has mapped are fused in one step as a
-linear measurement of its stacked landmark block: ``z = (y_j)``, ``H`` selecting the columns
-of those landmarks in x.
+either the sender's joint covariance ``Q`` (3k, 3k) of them or only its 3×3 blocks ``Q_jj``
+(k, 3, 3), in the N frame both vehicles share (known start poses, known association). Of them,
+the landmarks the lane has mapped are fused in one step as a linear measurement of its stacked
+landmark block: ``z = (y_j)``, ``H`` selecting the columns of those landmarks in x.
 
 **Covariance intersection** (``ci``; Julier & Uhlmann 1997, "A non-divergent estimation
 algorithm in the presence of unknown correlations", Proc. ACC; Uijt de Haag & Martens §2
@@ -13,9 +13,13 @@ eq. 17). The errors of the lane's state and of the message are correlated in an 
 (the vehicles exchange maps, so each one's map soon holds the other's information), and so are
 the sender's landmarks among themselves (only their 3×3 blocks are sent). Both are covered:
 
-- the stacked message ``(y, R_k)`` with ``R_k = k · blockdiag(Q_j)`` is consistent whatever
-  the sender's cross-covariances, since ``Q ≤ k · blockdiag(Q_jj)`` for any positive
-  semi-definite Q with those diagonal blocks (Cauchy–Schwarz: ``(Σ vⱼᵀeⱼ)² ≤ k Σ (vⱼᵀeⱼ)²``);
+- the stacked message is ``(y, R)`` with the sender's joint covariance, ``R = Q`` (the rows
+  and columns of the fused landmarks); with only the blocks sent, ``R = k · blockdiag(Q_jj)``,
+  consistent whatever the sender's cross-covariances, since ``Q ≤ k · blockdiag(Q_jj)`` for any
+  positive semi-definite Q with those diagonal blocks (Cauchy–Schwarz:
+  ``(Σ vⱼᵀeⱼ)² ≤ k Σ (vⱼᵀeⱼ)²``). The bound costs much: a vehicle's landmarks share the error
+  of the poses it mapped them from (its initial position error, unobservable, most of it), so
+  Q is close to that bound and the blocks carry about 1/k of the information;
 - CI of the lane's whole state ``(x, P)`` with it, ``P⁺⁻¹ = ω P⁻¹ + (1 − ω) Hᵀ R_k⁻¹ H``,
   is consistent whatever the correlation between the two; it is the Kalman update of the prior
   ``(x, P / ω)`` by ``z`` with noise ``R_k / (1 − ω)``, which is how it is computed here (the
@@ -29,9 +33,9 @@ lane it drives ω towards 0, and the P / ω of every other state with it (measur
 pose covariances diverged on the figure-8, docs/team.md). A message of k landmarks is fused once
 rather than landmark by landmark, since each CI step divides all of P by its ω.
 
-**Naive** (``naive``): the same update with ω = 1 and ``R = blockdiag(Q_j)``, a Kalman update
-as if the message were independent of the lane's state and its landmarks of each other; kept to
-show what double counting does (the fused covariance shrinks below the errors).
+**Naive** (``naive``): the same update with ω = 1 and ``R = Q`` (or ``blockdiag(Q_jj)``), a
+Kalman update as if the message were independent of the lane's state and its landmarks of
+each other; kept to show what double counting does (the fused covariance shrinks below the errors).
 
 A landmark of the message the lane has not mapped is left out (not registered): its estimate
 from the message has an unknown correlation with the lane's vehicle states, and entering it with
@@ -135,7 +139,7 @@ def fuse_lane(
     nb: int,
     cols: np.ndarray,
     means: FloatArray,
-    covs: FloatArray,
+    R: FloatArray,
     mode: str,
 ) -> float:
     """Fuse a message of k landmarks into one lane's state, in place (module docstring).
@@ -146,7 +150,8 @@ def fuse_lane(
         nb: Used size n of the lane's state.
         cols: (k,) int first column in x of each fused landmark (``nv + 3 · slot``).
         means: (k, 3) the sender's landmark means, m, N frame.
-        covs: (k, 3, 3) their covariances, m².
+        R: (3k, 3k) the message's covariance of them, m² (the sender's joint covariance, or
+            ``k · blockdiag`` of its blocks for ``ci``).
         mode: ``ci`` or ``naive``.
 
     Returns:
@@ -155,12 +160,8 @@ def fuse_lane(
     """
     k = cols.shape[0]
     idx = (cols[:, None] + np.arange(3)).ravel()
-    R = np.zeros((3 * k, 3 * k))
-    for j in range(k):
-        R[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] = covs[j]
     P_mm = Pb[np.ix_(idx, idx)]
     if mode == "ci":
-        R *= k  # the bound on the sender's unknown cross-covariances
         omega = ci_weight(Pb[:nb, :nb], idx, R)
         prior, noise = 1.0 / omega, R / (1.0 - omega)
     else:
@@ -182,6 +183,28 @@ def fuse_lane(
     return float(omega)
 
 
+def message_noise(covs: FloatArray, keep: np.ndarray, mode: str) -> FloatArray:
+    """The covariance R (3m, 3m) m² of a message's ``keep`` (k,) bool landmarks (m of them).
+
+    Args:
+        covs: (3k, 3k) the sender's joint covariance of its k landmarks, or (k, 3, 3) only
+            their blocks.
+        keep: (k,) bool the landmarks fused.
+        mode: ``ci`` or ``naive``: with blocks only, ``ci`` takes ``m · blockdiag`` (the bound
+            on the unknown cross-covariances, module docstring), ``naive`` the blocks as they
+            are.
+    """
+    if covs.ndim == 2:
+        rows = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
+        return np.array(covs[np.ix_(rows, rows)])
+    blocks = covs[keep]
+    m = blocks.shape[0]
+    R = np.zeros((3 * m, 3 * m))
+    for j in range(m):
+        R[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] = blocks[j]
+    return R * m if mode == "ci" else R
+
+
 class LandmarkFusion:
     """:class:`~quadslam_env.estimation.protocol.FusesLandmarks` for
     :class:`~estimators.ekf.filter.EkfSlamBatch` (a mixin over its
@@ -200,7 +223,8 @@ class LandmarkFusion:
             lane: The receiving lane.
             ids: (k,) int landmark ids of the message.
             means: (k, 3) their means, m, N frame.
-            covs: (k, 3, 3) their covariances, m².
+            covs: (3k, 3k) the sender's joint covariance of them, or (k, 3, 3) only its
+                blocks, m².
             mode: ``ci`` or ``naive`` (:data:`FUSION_MODES`).
 
         Returns:
@@ -214,22 +238,51 @@ class LandmarkFusion:
         if mode not in FUSION_MODES:
             raise ValueError(f"fuse_landmarks: mode got {mode!r}; allowed: one of {FUSION_MODES}")
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        means = np.asarray(means, dtype=float).reshape(ids.shape[0], 3)
-        covs = np.asarray(covs, dtype=float).reshape(ids.shape[0], 3, 3)
+        k = ids.shape[0]
+        means = np.asarray(means, dtype=float).reshape(k, 3)
+        covs = np.asarray(covs, dtype=float)
+        if covs.shape not in ((k, 3, 3), (3 * k, 3 * k)):
+            raise ValueError(
+                f"fuse_landmarks: covs got shape {covs.shape}; allowed: ({k}, 3, 3) or "
+                f"({3 * k}, {3 * k}) for {k} ids"
+            )
         st = self.state
-        if st.known[lane] or ids.size == 0:
+        if st.known[lane] or k == 0:
             return 0, float("nan")
         inside = (ids >= 0) & (ids < st.landmark_capacity)
-        keep = np.zeros(ids.shape[0], dtype=bool)
+        keep = np.zeros(k, dtype=bool)
         keep[inside] = st.mapped[lane, ids[inside]] & ~st.tentative[lane, ids[inside]]
         if not keep.any():
             return 0, float("nan")
-        nb = int(st.n[lane])
-        if st.stale[lane]:
-            sync_lane(st.P[lane], nb, self.nv)
-            st.stale[lane] = False
+        self._sync(lane)
         cols = self.nv + 3 * st.slot_of_id[lane, ids[keep]]
-        omega = fuse_lane(st.x[lane], st.P[lane], nb, cols, means[keep], covs[keep], mode)
+        R = message_noise(covs, keep, mode)
+        omega = fuse_lane(st.x[lane], st.P[lane], int(st.n[lane]), cols, means[keep], R, mode)
         if omega != omega:  # NaN: not applied
             st.diag[D_DIVERGED, lane] = 1.0
         return int(keep.sum()), omega
+
+    def landmark_covariance(self, lane: int, ids: np.ndarray) -> FloatArray:
+        """The joint covariance (3k, 3k) m² of lane ``lane``'s mapped landmarks ``ids`` (k,), in
+        their order (a copy).
+
+        Raises:
+            ValueError: An id the lane has not mapped.
+        """
+        st = self.state
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        inside = (ids >= 0) & (ids < st.landmark_capacity)
+        if not inside.all() or not st.mapped[lane, ids].all():
+            raise ValueError(
+                f"landmark_covariance: ids {ids.tolist()} not all mapped in lane {lane}"
+            )
+        self._sync(lane)
+        rows = ((self.nv + 3 * st.slot_of_id[lane, ids])[:, None] + np.arange(3)).ravel()
+        return np.array(st.P[lane][np.ix_(rows, rows)])
+
+    def _sync(self, lane: int) -> None:
+        """Make lane ``lane``'s covariance fully symmetric (it may hold one triangle)."""
+        st = self.state
+        if st.stale[lane]:
+            sync_lane(st.P[lane], int(st.n[lane]), self.nv)
+            st.stale[lane] = False

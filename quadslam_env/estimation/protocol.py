@@ -278,7 +278,12 @@ class FusesLandmarks(Protocol):
         """Fuse the landmarks ``ids`` (k,) with means (k, 3) m and covariances (k, 3, 3) m²,
         N frame, by the rule ``mode`` (``ci``: covariance intersection; ``naive``: a Kalman
         update as if independent) into lane ``lane``; returns how many were fused (those the
-        lane has mapped) and the CI weight ω (1 for ``naive``, NaN if none or failed)."""
+        lane has mapped) and the CI weight ω (1 for ``naive``, NaN if none or failed).
+        ``covs`` may also be the landmarks' joint covariance (3k, 3k)."""
+
+    def landmark_covariance(self, lane: int, ids: np.ndarray) -> FloatArray:
+        """The joint covariance (3k, 3k) m² of lane ``lane``'s mapped landmarks ``ids`` (k,),
+        in their order (what a message with ``team.message_covariance: joint`` carries)."""
 
 
 # ---------------------------------------------------------- abilities of one vehicle's

@@ -5,7 +5,9 @@ With ``team.fusion`` ``ci`` or ``naive`` every live vehicle broadcasts a message
 a step on which it is due (after every m-th of its scans, ``team.message_every_scans``, or at a
 rate, ``team.message_rate_hz``): its ``team.landmarks_per_message`` best-known landmarks (the
 smallest covariance traces, then the smallest ids; every mapped landmark by default), each as
-its id, mean (3) and covariance (6 numbers), read from its estimator's lane snapshot. Each
+its id and mean (3), and their covariance, read from its estimator's lane: the sender's joint
+(3k, 3k) covariance of them (``team.message_covariance: joint``, the default), or only each
+landmark's 3×3 block (``blocks``). Each
 other live vehicle misses the message with ``team.drop_probability``, one draw per receiver
 from the sender's own generator (spawned from the vehicle's stream at reset, so the drops
 repeat with the seed); a message that reaches it is fused at the start of the step
@@ -24,7 +26,7 @@ from typing import cast
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, FusesLandmarks
-from quadslam_env.team.config import FLOAT_BYTES, FLOATS_PER_LANDMARK, TeamConfig
+from quadslam_env.team.config import FLOAT_BYTES, TeamConfig, message_floats
 from quadslam_env.types import FloatArray
 
 COUNT_KEYS = (
@@ -47,7 +49,7 @@ class Message:
         due: The number of steps after which the receiver fuses it (at the start of the next).
         ids: (k,) int landmark ids.
         means: (k, 3) means, m, N frame.
-        covs: (k, 3, 3) covariances, m².
+        covs: (3k, 3k) their joint covariance, or (k, 3, 3) their blocks, m².
     """
 
     sender: int
@@ -78,6 +80,7 @@ class Comms:
         self._latency = team.latency_steps
         self._drop = team.drop_probability
         self._k = team.landmarks_per_message
+        self._covariance = team.message_covariance
         self._rngs: list[np.random.Generator] = []
         self._queue: list[Message] = []
         self.counts = dict.fromkeys(COUNT_KEYS, 0)
@@ -111,8 +114,12 @@ class Comms:
         """
         for i in np.flatnonzero(self.due(steps) & live).tolist():
             ids, means, covs = self._best(estimator.lane_estimate(i))
+            if self._covariance == "joint":
+                covs = cast(FusesLandmarks, estimator).landmark_covariance(i, ids)
             self.counts["team_messages_sent"] += 1
-            self.counts["team_bytes_sent"] += FLOAT_BYTES * FLOATS_PER_LANDMARK * ids.size
+            self.counts["team_bytes_sent"] += FLOAT_BYTES * message_floats(
+                ids.size, self._covariance
+            )
             due = int(steps[i]) + self._latency
             for j in range(self.n_vehicles):
                 if j == i or not live[j]:

@@ -42,12 +42,26 @@ COMMS_KEYS = (
     "latency_steps",
     "drop_probability",
     "landmarks_per_message",
+    "message_covariance",
 )
 """The communication settings, read only with a fusion mode of :data:`SHARING`."""
 
+COVARIANCES = ("joint", "blocks")
+"""What a message carries of its landmarks' covariance: ``joint``, the sender's joint (3k, 3k)
+covariance of its k landmarks; ``blocks``, only their 3×3 blocks (docs/team.md "Fusion")."""
+
 FLOAT_BYTES = 8
-"""Bytes per float of a message: each landmark sends its id, mean (3) and covariance (6)."""
-FLOATS_PER_LANDMARK = 10
+"""Bytes per float of a message (:func:`message_floats`)."""
+
+
+def message_floats(k: int, covariance: str) -> int:
+    """The floats of a message of ``k`` landmarks: per landmark its id and mean (4), and the
+    upper triangle of the joint (3k, 3k) covariance (``joint``) or of each 3×3 block (6 per
+    landmark, ``blocks``)."""
+    if covariance == "joint":
+        return 4 * k + 3 * k * (3 * k + 1) // 2
+    return 10 * k
+
 
 OFFSET_MAX_M = 1e3
 """Largest |coordinate| of a vehicle's position offset, m."""
@@ -121,6 +135,14 @@ class TeamConfig(Section):
         hi=100000,
         doc="the k landmarks a message carries: the sender's best known (smallest covariance "
         "trace, then smallest id); null = every landmark it has mapped",
+    )
+    message_covariance: str = _spec(
+        "joint",
+        kind="str",
+        choices=COVARIANCES,
+        doc="joint: a message carries the sender's joint covariance of its k landmarks (4k + "
+        "3k(3k + 1)/2 floats); blocks: only their 3×3 blocks (10 floats per landmark), which "
+        "ci then bounds by k times their block diagonal",
     )
     time_offsets_s: tuple[float, ...] | None = _spec(
         None,
