@@ -226,3 +226,76 @@ def test_tianshou_ppo_held_out_episodes_equal_the_scalar_env_flown_by_hand() -> 
     got = sorted(zip(stats.returns.tolist(), stats.lens.tolist(), strict=True))
     assert [n for _, n in got] == [n for _, n in sorted(expected)]
     assert [r for r, _ in got] == pytest.approx([r for r, _ in sorted(expected)], rel=1e-5)
+
+
+def _team_rows(values: dict[str, object], agents: list[str]) -> object:
+    import numpy as np
+
+    return np.stack([values[agent] for agent in agents])
+
+
+def test_team_vec_env_steps_the_team_env_and_ends_the_team_with_its_first_vehicle() -> None:
+    pytest.importorskip("pettingzoo")
+    import numpy as np
+
+    from quadslam_env.team import parallel_env
+
+    example = _load("team_sb3_supersuit")
+    settings = {"n_vehicles": 3, "episode": {"duration_s": 2.0}}
+    venv = example.TeamVecEnv(parallel_env(**settings), seed=5)
+    team = parallel_env(**settings)  # flown by hand with the same actions
+    agents = team.possible_agents
+    obs = venv.reset()
+    ref, _ = team.reset(seed=5)
+    assert np.array_equal(obs, _team_rows(ref, agents))
+    rng = np.random.default_rng(0)
+    for _ in range(200):  # random thrust and torques: the vehicles tilt over within 2 s
+        actions = rng.uniform(-1.0, 1.0, (3, 4)).astype(np.float32)
+        venv.step_async(actions)
+        obs, rewards, dones, infos = venv.step_wait()
+        ref, ref_rewards, terms, truncs, _ = team.step(dict(zip(agents, actions, strict=True)))
+        assert rewards.tolist() == pytest.approx([ref_rewards[a] for a in agents], rel=1e-6)
+        if dones.any():
+            break
+        assert np.array_equal(obs, _team_rows(ref, agents))
+    assert dones.all()  # the first vehicle to end ends the team's episode
+    own = [a for a in agents if terms[a] or truncs[a]]
+    assert 1 <= len(own) < 3 and team.agents  # some vehicles ended, the others were cut
+    for i, agent in enumerate(agents):
+        assert infos[i]["TimeLimit.truncated"] is (not terms[agent])  # cut: bootstrapped
+        assert np.array_equal(infos[i]["terminal_observation"], ref[agent])
+    assert (venv.episodes_ended, venv.episodes_cut) == (len(own), 3 - len(own))
+    ref, _ = team.reset()  # the team was reset, its streams continued (no new seed)
+    assert np.array_equal(obs, _team_rows(ref, agents))
+    assert venv.samples.tolist() == [venv.samples[0]] * 3
+
+
+def test_team_sb3_trains_one_policy_on_every_vehicle_and_evaluates_each(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    pytest.importorskip("pettingzoo")
+    example = _load("team_sb3_supersuit")
+    vehicles, n_steps, timesteps, duration_s = 2, 128, 700, 2.0
+    argv = [f"--timesteps={timesteps}", f"--vehicles={vehicles}", f"--n-steps={n_steps}",
+            f"--duration={duration_s}", "--hidden", "16"]  # fmt: skip
+    assert example.main(argv) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    # PPO collects whole rollouts of n_steps steps of every vehicle: ceil(700 / 256) = 3.
+    per_vehicle = -(-timesteps // (n_steps * vehicles)) * n_steps
+    samples = " ".join(f"vehicle_{i}={per_vehicle}" for i in range(vehicles))
+    assert lines[0] == f"trained: {per_vehicle * vehicles} steps; samples per vehicle: {samples}"
+    match = re.fullmatch(r"vehicle episodes: (\d+) ended, (\d+) cut by a teammate's", lines[1])
+    assert match is not None, lines[1]
+    ended, cut = int(match.group(1)), int(match.group(2))
+    # Each team episode ends every vehicle's: at least one by itself, the others cut.
+    assert ended >= 1 and (ended + cut) % vehicles == 0 and cut <= ended * (vehicles - 1)
+    assert len(lines) == 2 + vehicles
+    max_steps = round(duration_s * 100)
+    for i, line in enumerate(lines[2:]):
+        match = re.fullmatch(
+            rf"vehicle_{i}: tracking RMSE (\S+) m, (\d+) steps, ended by (\S+(?: limit)?)", line
+        )
+        assert match is not None, line
+        assert math.isfinite(float(match.group(1))) and float(match.group(1)) > 0.0
+        assert 1 <= int(match.group(2)) <= max_steps
+        assert (match.group(3) == "time limit") is (int(match.group(2)) == max_steps)
