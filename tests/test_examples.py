@@ -240,7 +240,7 @@ def test_team_vec_env_steps_the_team_env_and_ends_the_team_with_its_first_vehicl
 
     from quadslam_env.team import parallel_env
 
-    example = _load("team_sb3_supersuit")
+    example = _load("team_sb3")
     settings = {"n_vehicles": 3, "episode": {"duration_s": 2.0}}
     venv = example.TeamVecEnv(parallel_env(**settings), seed=5)
     team = parallel_env(**settings)  # flown by hand with the same actions
@@ -274,7 +274,7 @@ def test_team_sb3_trains_one_policy_on_every_vehicle_and_evaluates_each(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     pytest.importorskip("pettingzoo")
-    example = _load("team_sb3_supersuit")
+    example = _load("team_sb3")
     vehicles, n_steps, timesteps, duration_s = 2, 128, 700, 2.0
     argv = [f"--timesteps={timesteps}", f"--vehicles={vehicles}", f"--n-steps={n_steps}",
             f"--duration={duration_s}", "--hidden", "16"]  # fmt: skip

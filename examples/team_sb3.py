@@ -33,8 +33,8 @@ flies one team episode on the team env itself, with the trained policy determini
 prints each vehicle's tracking RMSE. Run it::
 
     pip install "quadslam[rl,team]"
-    python examples/team_sb3_supersuit.py --timesteps 20000 --vehicles 3
-    python examples/team_sb3_supersuit.py --timesteps 2048 --vehicles 2 --duration 2
+    python examples/team_sb3.py --timesteps 20000 --vehicles 3
+    python examples/team_sb3.py --timesteps 2048 --vehicles 2 --duration 2
 """
 
 from __future__ import annotations
