@@ -41,6 +41,7 @@ class IntegrityConfig(Section):
             ("monitor", _ON),
         ),
         **dict.fromkeys(("max_exclusions", "readmit_s"), ("monitor", ("exclude",))),
+        "sequential_window": ("monitor", _ON),
     }
     monitor: str = _spec(
         "off",
@@ -94,6 +95,15 @@ class IntegrityConfig(Section):
         doc="a landmark left out is dropped from the map and may be registered anew from a "
         "sighting this long after, s",
     )
+    sequential_window: int | None = _spec(
+        None,
+        kind="int",
+        lo=1,
+        hi=100,
+        optional=True,
+        doc="W: also test the sum of each landmark's statistics over its last W sightings "
+        "(a sequential test, with half of p_fa); null = no sequential test",
+    )
 
     alert_weight: float = _spec(
         0.0,
@@ -135,6 +145,7 @@ class IntegrityConfig(Section):
             exclude=self.monitor == "exclude",
             max_exclusions=self.max_exclusions,
             readmit_s=self.readmit_s,
+            sequential_window=self.sequential_window,
         )
 
     def check_scenario(self, scenario: Any) -> None:

@@ -97,7 +97,8 @@ class IntegrityTerms:
         self.settle_s = settle_s
         self.enabled = cfg.enabled
         self.limits = (cfg.alert_limit_m, cfg.vertical_limit_m)
-        self.factors = LevelFactors(cfg.p_fa, cfg.p_hmi)
+        settings = cfg.monitor_settings()  # the landmark test's budget bounds the levels
+        self.factors = LevelFactors(settings.snapshot_p_fa if settings else cfg.p_fa, cfg.p_hmi)
         self._counts = np.zeros((3, num_lanes))  # tests, alarms, exclusions at the last step
         self.episode = IntegrityEpisode(num_lanes)
 

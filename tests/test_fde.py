@@ -17,6 +17,7 @@ from estimators.ekf.fde import (
     landmark_tests,
     monitor_scan,
     separation_variances,
+    sequential_tests,
     subset_inverse,
 )
 from estimators.ekf.filter import EkfSlamBatch
@@ -78,10 +79,17 @@ def _thresholds(p_fa: float, k: int) -> tuple[np.ndarray, np.ndarray]:
     return cfg.landmark_thresholds(k), cfg.scan_thresholds(k)
 
 
+def _no_windows(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The sequential arguments of ``monitor_scan`` without a sequential test."""
+    return np.arange(k), np.zeros((k, 0)), np.zeros(k, dtype=np.int64), np.full((k + 1, 1), np.inf)
+
+
 def _monitor(S, U, nu, lm, scan, exclude: bool) -> tuple[int, np.ndarray, np.ndarray]:
     """``monitor_scan`` on every landmark: ``(status, keep, sep)``."""
-    keep, sep = np.ones(nu.shape[0] // 3, dtype=bool), np.empty(4)
-    return monitor_scan(S, U, nu, lm, scan, exclude, 1, keep, sep), keep, sep
+    k = nu.shape[0] // 3
+    keep, sep = np.ones(k, dtype=bool), np.empty(4)
+    status = monitor_scan(S, U, nu, lm, scan, exclude, 1, keep, sep, *_no_windows(k))
+    return status, keep, sep
 
 
 def test_thresholds_are_the_chi2_quantiles():
@@ -179,3 +187,129 @@ def test_monitor_off_leaves_the_filter_unchanged_and_excluded_landmarks_are_drop
     mapped, diag = runs[False]
     assert mapped[0].tolist() == [True, True, False, True]
     assert diag["fde_alarms"] == 1 and diag["fde_exclusions"] == 1
+
+
+def _sequential(p_fa: float, k: int, window: int) -> MonitorSettings:
+    return MonitorSettings(p_fa, True, 1, 1.0, sequential_window=window)
+
+
+def test_sequential_thresholds_are_the_chi2_quantiles_and_the_budget_is_split():
+    """The sequential test of n statistics: χ²_3n(1 − p_fa/(2k)); beside it the one-scan tests
+    have half the budget; without it the thresholds are those of the full budget."""
+    p_fa, k, window = 0.01, 5, 4
+    cfg = _sequential(p_fa, k, window)
+    seq = cfg.sequential_thresholds(k)
+    assert seq.shape == (k + 1, window + 1)
+    assert np.isinf(seq[0]).all() and np.isinf(seq[:, 0]).all()
+    for n in range(1, window + 1):
+        want = chi2.ppf(1.0 - p_fa / (2.0 * np.arange(1, k + 1)), 3 * n)
+        np.testing.assert_allclose(seq[1:, n], want, rtol=1e-9)
+    assert cfg.snapshot_p_fa == p_fa / 2
+    lm, scan = cfg.landmark_thresholds(k), cfg.scan_thresholds(k)
+    np.testing.assert_allclose(lm[1:], chi2.ppf(1.0 - p_fa / (4.0 * np.arange(1, k + 1)), 3))
+    np.testing.assert_allclose(scan[1:], chi2.ppf(1.0 - p_fa / 4.0, np.arange(1, 3 * k + 1)))
+    off = MonitorSettings(p_fa, True, 1, 1.0)
+    assert off.snapshot_p_fa == p_fa and off.sequential_thresholds(k).shape == (k + 1, 1)
+    np.testing.assert_array_equal(off.landmark_thresholds(k), _thresholds(p_fa, k)[0])
+
+
+def test_window_sum_is_the_hand_computed_sum_of_the_last_statistics():
+    """Each tested landmark's statistic enters its id's ring of W; the excess is the sum of its
+    last min(c, W) statistics over χ²_3n of the landmarks tested; untested ids keep theirs."""
+    window, lmax = 3, 4
+    thr = _sequential(0.01, 3, window).sequential_thresholds(3)
+    stats, count = np.zeros((lmax, window)), np.zeros(lmax, dtype=np.int64)
+    ids = np.array([3, 0, 2])
+    history: dict[int, list[float]] = {3: [], 0: [], 2: []}
+    rng = np.random.default_rng(2)
+    for scan in range(6):
+        keep = np.array([True, scan % 2 == 0, True])  # id 0 tested every other scan
+        t = rng.uniform(0.0, 10.0, 3)
+        excess = np.empty(3)
+        sequential_tests(t, keep, ids, stats, count, thr, excess)
+        kept = int(keep.sum())
+        for i, a in zip(np.flatnonzero(keep), range(kept), strict=True):
+            history[int(ids[i])].append(float(t[a]))
+        for i, j in enumerate(ids.tolist()):
+            last = history[j][-window:]
+            assert count[j] == len(history[j])
+            if keep[i]:
+                assert excess[i] == pytest.approx(sum(last) / thr[kept, len(last)], rel=1e-12)
+            else:
+                assert excess[i] == 0.0
+    assert count[1] == 0 and (stats[1] == 0.0).all()
+
+
+def test_a_sequential_alarm_excludes_the_landmark_the_one_scan_tests_miss():
+    """S = I (t_i = |ν_i|²): a landmark whose every t_i is below the one-scan thresholds is
+    excluded at the first scan where its window sum crosses χ²_3n, and not before."""
+    k, window, p_fa = 2, 4, 1e-3
+    cfg = _sequential(p_fa, k, window)
+    lm, scan, seq = cfg.landmark_thresholds(k), cfg.scan_thresholds(k), cfg.sequential_thresholds(k)
+    S, U = np.eye(3 * k), np.zeros((3 * k, 9))
+    value = 0.7 * lm[k]  # t of landmark 1 on every scan; landmark 0 has ν = 0
+    nu = np.zeros(3 * k)
+    nu[3] = math.sqrt(value)
+    sums = np.cumsum(np.full(window, value))
+    first = next(n for n in range(1, window + 1) if sums[n - 1] > seq[k, n])  # by hand
+    assert first > 1 and value < scan[3 * k]
+    stats, count = np.zeros((k, window)), np.zeros(k, dtype=np.int64)
+    for n in range(1, first + 1):
+        keep, sep = np.ones(k, dtype=bool), np.empty(4)
+        status = monitor_scan(S, U, nu, lm, scan, True, 1, keep, sep, np.arange(k), stats, count,
+                              seq)  # fmt: skip
+        assert stats[1, n - 1] == pytest.approx(value, rel=1e-12) and count[1] == n
+        if n < first:
+            assert status == FDE_PASS and keep.all()
+    assert status == FDE_EXCLUDED and keep.tolist() == [True, False] and sep[3] == 1
+    status = monitor_scan(S, U, nu, lm, scan, True, 1, np.ones(k, dtype=bool), sep,
+                          *_no_windows(k))  # fmt: skip
+    assert status == FDE_PASS  # the one-scan tests alone do not see it
+
+
+def test_sequential_false_alarm_rate_is_within_its_budget():
+    """Fault-free innovations ν ~ N(0, S), independent from scan to scan (a consistent linear
+    filter): the sequential tests alone alarm on their half of p_fa, the three tests together
+    on at most p_fa. The windows overlap, so alarms come in runs of up to W scans: the bound is
+    3 standard deviations of a W-dependent Bernoulli mean, √((2W − 1) p (1 − p) / N)."""
+    rng = np.random.default_rng(17)
+    k, p_fa, window, runs = 5, 0.02, 3, 40_000
+    _, _, _, S, U = _linear_update(rng, k=k)
+    cfg = _sequential(p_fa, k, window)
+    lm, scan, seq = cfg.landmark_thresholds(k), cfg.scan_thresholds(k), cfg.sequential_thresholds(k)
+    off = np.full_like(lm, np.inf), np.full_like(scan, np.inf)
+    L = np.linalg.cholesky(S)
+    ids, sep = np.arange(k), np.empty(4)
+    windows = [(np.zeros((k, window)), np.zeros(k, dtype=np.int64)) for _ in range(2)]
+    alarms = np.zeros(2)
+    for _ in range(runs):
+        nu = L @ rng.standard_normal(3 * k)
+        for row, (thr_lm, thr_scan) in enumerate((off, (lm, scan))):
+            keep = np.ones(k, dtype=bool)
+            status = monitor_scan(S, U, nu, thr_lm, thr_scan, False, 1, keep, sep, ids,
+                                  *windows[row], seq)  # fmt: skip
+            alarms[row] += status != FDE_PASS
+    sequential, total = alarms / runs
+    budget = p_fa / 2
+    bound = 3.0 * math.sqrt((2 * window - 1) * budget * (1 - budget) / runs)
+    assert 0.5 * budget <= sequential <= budget + bound
+    assert sequential <= total <= p_fa + 3.0 * math.sqrt((2 * window - 1) * p_fa / runs)
+
+
+def test_sequential_windows_restart_when_left_out_and_at_reset():
+    sigma = np.full(3, 0.01)
+    lanes = np.zeros(1, dtype=np.int64)
+    meas = np.array([[[0.1, 0.1, 5.0], [0.2, 0.0, 4.0], [-0.2, 0.05, 6.0], [0.0, -0.1, 3.0]]])
+    visible = np.ones((1, 4), dtype=bool)
+    jumped = meas.copy()
+    jumped[0, 2, 2] += 0.5
+    ekf = EkfSlamBatch(1, 4)
+    ekf.set_monitor(_sequential(1e-3, 4, 3))
+    ekf.reset_lanes(lanes, np.zeros((1, 12)), 0.01 * np.eye(12)[None], [None])
+    ekf.update(np.zeros(1), lanes, visible, meas, sigma)  # registers the landmarks
+    ekf.update(np.full(1, 0.1), lanes, visible, meas, sigma)
+    assert ekf.state.seq_stats.shape == (1, 4, 3) and ekf.state.seq_count[0].tolist() == [1] * 4
+    ekf.update(np.full(1, 0.2), lanes, visible, jumped, sigma)
+    assert ekf.state.seq_count[0].tolist() == [2, 2, 0, 2]  # landmark 2 left out
+    ekf.reset_lanes(lanes, np.zeros((1, 12)), 0.01 * np.eye(12)[None], [None])
+    assert not ekf.state.seq_count.any() and not ekf.state.seq_stats.any()

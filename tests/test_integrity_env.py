@@ -40,6 +40,10 @@ def _env(**overrides: Any) -> gym.Env:
         ({"monitor": "detect", "alert_limit_m": -1.0}, "integrity.alert_limit_m"),
         ({"monitor": "detect", "max_exclusions": 2}, "integrity.max_exclusions"),
         ({"p_fa": 0.01}, "integrity.p_fa"),
+        ({"monitor": "exclude", "sequential_window": 0}, "sequential_window: got 0; allowed"),
+        ({"monitor": "exclude", "sequential_window": 2.5}, "sequential_window: got 2.5; allowed"),
+        ({"monitor": "detect", "sequential_window": "ten"}, "sequential_window: got 'ten'"),
+        ({"sequential_window": 5}, "integrity.sequential_window: got 5, which integrity.monitor"),
     ],
 )
 def test_bad_settings_name_the_key(section: dict[str, Any], message: str) -> None:
@@ -118,8 +122,10 @@ def test_a_moving_landmark_is_detected_and_dropped() -> None:
     assert infos[-1]["episode_fde_missed_detection"] == 0.0
 
 
-def test_lanes_equal_the_scalar_env_with_faults_and_monitor() -> None:
-    kwargs = {"scenario": SCENARIO, **SHORT, **MONITOR, **MOVING}
+@pytest.mark.parametrize("window", [None, 3])
+def test_lanes_equal_the_scalar_env_with_faults_and_monitor(window: int | None) -> None:
+    monitor = {"integrity": {**MONITOR["integrity"], "sequential_window": window}}
+    kwargs = {"scenario": SCENARIO, **SHORT, **monitor, **MOVING}
     seeds, steps = [4, 5], 300
     vec = gym.make_vec("QuadSLAM-v0", num_envs=2, vectorization_mode="vector_entry_point",
                        **kwargs)  # fmt: skip
@@ -144,6 +150,35 @@ def test_lanes_equal_the_scalar_env_with_faults_and_monitor() -> None:
                     assert float(info[key]) == float(lanes[k][1][key][i]), (key, k)
         finally:
             env.close()
+
+
+def _first_alarm_s(seed: int, window: int | None) -> float:
+    """The time of the first alarm after the onset of a landmark moving at 0.2 m/s from 2 s
+    (inf: none), excluding, with the sequential test of ``window`` scans or without it."""
+    env = _env(
+        integrity={**MONITOR["integrity"], "sequential_window": window},
+        faults={**MOVING["faults"], "magnitude": 0.2},
+        episode={"duration_s": 8.0},
+    )
+    try:
+        infos, _ = fly_dflqr(env, seed=seed)
+    finally:
+        env.close()
+    alarms = [i["t"] for i in infos if i["fault_active"] > 0.5 and i["fde_alarm"] > 0.5]
+    return float(alarms[0]) if alarms else math.inf
+
+
+def test_the_sequential_test_detects_a_slow_drift_earlier() -> None:
+    """The seeds of 0-11 where the moving landmark is in view on at least 18 scans after the
+    onset (1, 4, 6, 8, 9, 10; and 11, where the one-scan tests alarm on another landmark at the
+    onset, which at half the budget they no longer do): with the sequential test the first alarm
+    never comes later, and on most of them earlier (on two the one-scan tests alone miss it)."""
+    earlier = 0
+    for seed in (1, 4, 6, 8, 9, 10):
+        snapshot, sequential = _first_alarm_s(seed, None), _first_alarm_s(seed, 10)
+        assert sequential <= snapshot, seed
+        earlier += sequential < snapshot
+    assert earlier >= 4
 
 
 def test_protection_levels_in_the_observation_and_the_alert_reward() -> None:

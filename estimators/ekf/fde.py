@@ -10,9 +10,23 @@ landmarks kept (S the innovation covariance of seed 001 eq. 38, ν the innovatio
   left out, ``t_i = g_iᵀ Σ_ii⁻¹ g_i`` with ``g = Σ ν`` (the 3-DOF χ² of the *solution
   separation* of hypothesis i, see below), against ``χ²_3(1 − p_fa/(2k))`` (Bonferroni: the two
   tests share the false-alarm budget p_fa);
-* **exclusion** — on an alarm, the landmark with the largest ``t_i`` is left out and both tests
-  are run again on the rest, up to ``max_exclusions`` times; if the alarm persists the scan is
-  not used at all (*unresolved*).
+* **sequential test** (with ``sequential_window`` W) — for each landmark tested the sum of its
+  ``t_i`` over its last n = min(c, W) sightings (c those since it was last left out), against
+  ``χ²_3n(1 − p_fa/(2k))``: a χ² with 3n degrees of freedom when the filter is consistent, the
+  innovations of a Kalman filter being white, so the statistics of different scans are
+  independent. It is the χ² test of a change in the mean of a Kalman filter's innovations
+  over a finite moving window (Basseville & Nikiforov 1993, "Detection of Abrupt Changes:
+  Theory and Application", Prentice Hall; in Kalman-filter integrity monitoring: Joerger &
+  Pervan 2013, "Kalman Filter-Based Integrity Monitoring Against Sensor Faults", J. Guidance,
+  Control, and Dynamics 36(2)). A landmark that drifts slowly grows each ``t_i`` little; the
+  sum over n scans grows with the sum of their noncentralities while its noise grows as √n.
+  The one-scan tests then get half of p_fa (scan test ``χ²_3k(1 − p_fa/4)``, landmark tests
+  ``χ²_3(1 − p_fa/(4k))``) and the sequential tests the other half, so the three together
+  alarm on at most p_fa of the fault-free scans;
+* **exclusion** — on an alarm, the landmark with the largest ``t_i`` (on a sequential alarm
+  alone: the largest window sum over its threshold) is left out and the one-scan tests are run
+  again on the rest (the sequential ones keep their first-pass result), up to
+  ``max_exclusions`` times; if an alarm persists the scan is not used at all (*unresolved*).
 
 The separations are those of Joerger, Chan & Pervan (2014), "Solution Separation Versus
 Residual-Based RAIM", NAVIGATION 61(4), written for one Kalman update: the subset solution that
@@ -138,6 +152,77 @@ def separation_variances(
 
 
 @kernel
+def sequential_tests(
+    t: FloatArray,
+    keep: np.ndarray,
+    ids: np.ndarray,
+    stats: FloatArray,
+    count: np.ndarray,
+    seq_thr: FloatArray,
+    excess: FloatArray,
+) -> None:
+    """Append each tested landmark's statistic to its window and give its sequential test.
+
+    Landmark i's window holds its last ``n = min(c, W)`` statistics ``t_i`` (c its sightings
+    since it was last left out or its lane reset); their sum is tested against
+    ``χ²_3n(1 − p_fa/(2k))`` (module docstring).
+
+    Args:
+        t: (≥ kept,) the statistics ``t_a`` of the kept landmarks, in their order.
+        keep: (k,) bool, the landmarks tested.
+        ids: (k,) int, their landmark ids.
+        stats: (Lmax, W) float, each id's window of statistics (a ring of W), in and out.
+        count: (Lmax,) int, each id's sightings so far, in and out.
+        seq_thr: (≥ kept + 1, W + 1) thresholds by landmarks tested and window length.
+        excess: (k,) filled: each tested landmark's window sum over its threshold (an alarm
+            above 1), 0 for those not tested.
+    """
+    window = stats.shape[1]
+    kept = 0
+    for i in range(keep.shape[0]):
+        kept += keep[i]
+    a = 0
+    for i in range(keep.shape[0]):
+        excess[i] = 0.0
+        if not keep[i]:
+            continue
+        j = ids[i]
+        c = count[j]
+        stats[j, c % window] = t[a]
+        count[j] = c + 1
+        n = min(c + 1, window)
+        total = 0.0
+        for r in range(n):
+            total += stats[j, r]
+        excess[i] = total / seq_thr[kept, n]
+        a += 1
+
+
+@kernel
+def alarmed(
+    scan_alarm: bool, t: FloatArray, lm_thr: float, keep: np.ndarray, excess: FloatArray
+) -> int:
+    """The landmark an alarm points at, by its index among all k (-1: no alarm): on a one-scan
+    alarm (the scan test's ``scan_alarm``, or a kept landmark's ``t_a`` (in ``t[:kept]``) above
+    ``lm_thr``) the kept landmark with the largest ``t_a``; else, on a sequential alarm (an
+    ``excess`` (k,) above 1), the kept landmark with the largest excess."""
+    k = keep.shape[0]
+    worst, a, target = -1, -1, -1
+    for i in range(k):
+        if keep[i]:
+            a += 1
+            if worst < 0 or t[a] > t[worst]:
+                worst, target = a, i
+    if scan_alarm or t[worst] > lm_thr:
+        return target
+    target = -1
+    for i in range(k):
+        if keep[i] and excess[i] > 1.0 and (target < 0 or excess[i] > excess[target]):
+            target = i
+    return target
+
+
+@kernel
 def monitor_scan(
     S: FloatArray,
     U: FloatArray,
@@ -148,6 +233,10 @@ def monitor_scan(
     max_exclusions: int,
     keep: np.ndarray,
     sep: FloatArray,
+    ids: np.ndarray,
+    stats: FloatArray,
+    count: np.ndarray,
+    seq_thr: FloatArray,
 ) -> int:
     """Test one lane's scan of k landmarks, exclude the faulty ones, and give the separations.
 
@@ -156,9 +245,9 @@ def monitor_scan(
         U: (3k, n) ``H P⁻`` over the lane's state (its first three columns: the position).
         nu: (3k,) innovations (angles wrapped).
         lm_thr: (≥ k + 1,) the landmark test's threshold by the number of kept landmarks,
-            ``χ²_3(1 − p_fa/(2k))``.
+            ``χ²_3(1 − p/(2k))`` (p the one-scan budget).
         scan_thr: (≥ 3k + 1,) the scan test's threshold by degrees of freedom,
-            ``χ²_m(1 − p_fa/2)``.
+            ``χ²_m(1 − p/2)``.
         exclude: Leave out the landmark found faulty (False: detection only).
         max_exclusions: Most landmarks left out of one scan.
         keep: (k,) bool, in: the landmarks to test (at least one); out: those the update is
@@ -166,6 +255,9 @@ def monitor_scan(
         sep: (4,) filled: the largest position separation variances (N, E, D) in m² over the
             kept landmarks, and their number (the hypotheses of the protection level); zero
             when the scan is not used.
+        ids, stats, count, seq_thr: The sequential test (:func:`sequential_tests`): the k
+            landmarks' ids, the lane's windows (Lmax, W) and sightings (Lmax,), the thresholds
+            (≥ k + 1, W + 1); W = 0: no sequential test.
 
     Returns:
         One of ``FDE_*``.
@@ -175,6 +267,7 @@ def monitor_scan(
     idx = np.empty(3 * k, dtype=np.int64)
     Sigma = np.empty((3 * k, 3 * k))
     t = np.empty(k)
+    excess = np.zeros(k)
     status = FDE_PASS
     excluded = 0
     while True:
@@ -186,11 +279,10 @@ def monitor_scan(
         if kept == 0:  # every landmark left out: nothing to test, the prediction stands
             return status
         q = landmark_tests(Sigma, m, nu, idx, t)
-        worst = 0
-        for a in range(kept):
-            if t[a] > t[worst]:
-                worst = a
-        if not (q > scan_thr[m] or t[worst] > lm_thr[kept]):
+        if excluded == 0 and stats.shape[1] > 0:  # the first pass: every landmark tested
+            sequential_tests(t, keep, ids, stats, count, seq_thr, excess)
+        target = alarmed(q > scan_thr[m], t, lm_thr[kept], keep, excess)
+        if target < 0:
             break
         if not exclude:
             status = FDE_DETECTED
@@ -198,12 +290,7 @@ def monitor_scan(
         if excluded == max_exclusions:
             keep[:] = False
             return FDE_UNRESOLVED
-        a = -1  # the worst kept landmark's index among all k
-        for i in range(k):
-            a += keep[i]
-            if keep[i] and a == worst:
-                keep[i] = False
-                break
+        keep[target] = False
         excluded += 1
         status = FDE_EXCLUDED
     separation_variances(Sigma, m, U, idx, sep)
@@ -217,19 +304,24 @@ def monitored(
     U: FloatArray,
     nu: FloatArray,
     monitor: FloatArray,
-    lm_thr: FloatArray,
-    scan_thr: FloatArray,
+    thresholds: tuple[FloatArray, FloatArray, FloatArray],
     keep: np.ndarray,
     excluded: np.ndarray,
     diag: FloatArray,
     b: int,
+    windows: tuple[np.ndarray, FloatArray, np.ndarray],
 ) -> bool:
     """Run the integrity monitor on one lane's scan (:func:`~estimators.ekf.fde.monitor_scan`)
     and count its outcome in ``diag``; ``monitor`` = (mode: 1 detect, 2 exclude, the most
-    exclusions, the readmission delay s). Returns False if S is not positive definite (the
-    lane is flagged diverged)."""
+    exclusions, the readmission delay s), ``thresholds`` = (landmark, scan, sequential),
+    ``windows`` = (the scan's k landmark ids, the lane's sequential windows (Lmax, W) and
+    sightings (Lmax,) by id). Returns False if S is not positive definite (the lane is flagged
+    diverged)."""
     sep = np.empty(4)
-    status = monitor_scan(S, U, nu, lm_thr, scan_thr, monitor[0] > 1.5, int(monitor[1]), keep, sep)
+    lm_thr, scan_thr, seq_thr = thresholds
+    ids, stats, count = windows
+    status = monitor_scan(S, U, nu, lm_thr, scan_thr, monitor[0] > 1.5, int(monitor[1]), keep,
+                          sep, ids, stats, count, seq_thr)  # fmt: skip
     if status == FDE_SINGULAR:
         diag[D_DIVERGED, b] = 1.0
         return False
@@ -261,12 +353,15 @@ def leave_out(
     mapped: np.ndarray,
     known: np.ndarray,
     readmit_at: FloatArray,
+    seq_count: np.ndarray,
     diag: FloatArray,
 ) -> None:
     """Landmark ``j`` of lane ``b``, found faulty, is not used until ``until`` s; in a SLAM
     lane it is also dropped from the map (marginalised: a moved landmark must not drag the
-    vehicle), to be registered anew from a sighting after that time."""
+    vehicle), to be registered anew from a sighting after that time. Its sequential test
+    starts afresh (``seq_count`` (B, Lmax): no sightings)."""
     readmit_at[b, j] = until
+    seq_count[b, j] = 0
     if known[b]:
         return
     remove_landmark(x[b], P[b], n[b], nv, slot_of_id[b], id_of_slot[b], j)

@@ -371,7 +371,8 @@ class EkfSlamBatch(
             st.x, st.P, st.n, self.nv, st.stale, st.slot_of_id, st.id_of_slot, st.mapped,
             st.known, st.known_pos, st.diag, lanes, visible, meas, r_diag, self.gate_threshold,
             np.ascontiguousarray(t, dtype=float).reshape(-1),
-            *self.monitor_arguments(st.landmark_capacity), st.readmit_at,
+            *self.monitor_arguments(st.landmark_capacity), st.readmit_at, st.seq_stats,
+            st.seq_count,
             self._relinearise, self.settings.max_iterations,
         )  # fmt: skip
 

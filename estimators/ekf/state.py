@@ -52,6 +52,9 @@ class EkfState:
             none); R grows with the widest scan.
         readmit_at: (B, Lmax) time from which the integrity monitor lets each id be used
             again, s (−inf: never left out; :mod:`estimators.ekf.fde`).
+        seq_stats: (B, Lmax, W) the integrity monitor's sequential test: each id's last W
+            landmark statistics, a ring (W = 0: no sequential test).
+        seq_count: (B, Lmax) int, each id's sightings in it since it was last left out.
     """
 
     x: FloatArray
@@ -70,6 +73,8 @@ class EkfState:
     age: np.ndarray
     assoc: np.ndarray
     readmit_at: FloatArray
+    seq_stats: FloatArray
+    seq_count: np.ndarray
 
     @classmethod
     def empty(cls, num_lanes: int, nv: int, num_diagnostics: int) -> EkfState:
@@ -92,6 +97,8 @@ class EkfState:
             age=np.zeros((b, 0), dtype=np.int64),
             assoc=np.zeros((b, 0), dtype=np.int64),
             readmit_at=np.zeros((b, 0)),
+            seq_stats=np.zeros((b, 0, 0)),
+            seq_count=np.zeros((b, 0), dtype=np.int64),
         )
 
     @property
@@ -116,6 +123,8 @@ class EkfState:
             "hits": (b, lmax),
             "age": (b, lmax),
             "readmit_at": (b, lmax),
+            "seq_stats": (b, lmax, self.seq_stats.shape[2]),
+            "seq_count": (b, lmax),
         }
         for field in fields(self):
             shape = shapes.get(field.name)
@@ -143,3 +152,11 @@ class EkfState:
         self.known_pos[lane] = 0.0
         self.assoc[lane] = unassociated
         self.readmit_at[lane] = -math.inf
+        self.seq_stats[lane] = 0.0
+        self.seq_count[lane] = 0
+
+    def set_window(self, window: int) -> None:
+        """Sequential windows of ``window`` statistics per id (0: none), all lanes' empty."""
+        b, lmax = self.seq_count.shape
+        self.seq_stats = np.zeros((b, lmax, window))
+        self.seq_count[:] = 0

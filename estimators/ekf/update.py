@@ -143,16 +143,17 @@ def _select(
     nu: FloatArray,
     gate: float,
     monitor: FloatArray,
-    lm_thr: FloatArray,
-    scan_thr: FloatArray,
+    thresholds: tuple[FloatArray, FloatArray, FloatArray],
     keep: np.ndarray,
     excluded: np.ndarray,
     diag: FloatArray,
     b: int,
+    windows: tuple[np.ndarray, FloatArray, np.ndarray],
 ) -> bool:
     """Which of one lane's k observed landmarks the update uses (``keep`` (k,), all True on
-    entry): the per-landmark χ² gate, then the integrity monitor's tests (``monitor``: see
-    :func:`update_lanes`). Returns False (the lane flagged diverged) on a singular S."""
+    entry): the per-landmark χ² gate, then the integrity monitor's tests (``monitor``,
+    ``thresholds``; ``windows``: the k ids and the lane's sequential windows and sightings by
+    id: see :func:`update_lanes`). Returns False (the lane flagged diverged) on a singular S."""
     k = keep.shape[0]
     if monitor[0] < 1.5:  # no exclusion: the per-landmark χ² gate on the 3×3 blocks of S
         for i in range(k):
@@ -167,7 +168,7 @@ def _select(
         if not keep.any():  # every landmark gated out: no hypothesis to bound
             for r in range(4):
                 diag[D_SEPARATION + r, b] = 0.0
-        elif not monitored(S, U, nu, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
+        elif not monitored(S, U, nu, monitor, thresholds, keep, excluded, diag, b, windows):
             return False
     return True
 
@@ -187,9 +188,9 @@ def _update_mapped(
     diag: FloatArray,
     b: int,
     monitor: FloatArray,
-    lm_thr: FloatArray,
-    scan_thr: FloatArray,
+    thresholds: tuple[FloatArray, FloatArray, FloatArray],
     excluded: np.ndarray,
+    windows: tuple[np.ndarray, FloatArray, np.ndarray],
 ) -> None:
     """Gated stacked update of one lane with ``lms`` (k, 3) observed as ``y``, iterated beyond
     ``tol`` noise stds (inf: never; ``correction.relinearise``), its NIS at the prior;
@@ -203,7 +204,7 @@ def _update_mapped(
     for i in range(k):
         innovation(y[i], h[i], nu[3 * i : 3 * i + 3])
     keep = np.ones(k, dtype=np.bool_)
-    if not _select(S, U, nu, gate, monitor, lm_thr, scan_thr, keep, excluded, diag, b):
+    if not _select(S, U, nu, gate, monitor, thresholds, keep, excluded, diag, b, windows):
         return
     n_keep = 0
     for i in range(k):
@@ -328,9 +329,10 @@ def update_lanes(
     gate: float,
     t: FloatArray,
     monitor: FloatArray,
-    lm_thr: FloatArray,
-    scan_thr: FloatArray,
+    thresholds: tuple[FloatArray, FloatArray, FloatArray],
     readmit_at: FloatArray,
+    seq_stats: FloatArray,
+    seq_count: np.ndarray,
     tol: float = math.inf,
     max_iter: int = 0,
 ) -> None:
@@ -355,8 +357,9 @@ def update_lanes(
         t: (B,) scan times, s.
         monitor: (3,) the integrity monitor: mode (0 off, 1 detect, 2 exclude), the most
             exclusions of one scan, the readmission delay in s (:mod:`estimators.ekf.fde`).
-        lm_thr, scan_thr: Its thresholds by kept landmarks and by degrees of freedom.
+        thresholds: Its thresholds (landmark, scan, sequential: :mod:`estimators.ekf.monitor`).
         readmit_at: (B, Lmax) time from which each id may be used again, s (−inf: always).
+        seq_stats, seq_count: (B, Lmax, W), (B, Lmax) int: its sequential windows by id.
         tol: Linearisation error in noise stds above which an update is iterated (inf:
             never; :mod:`estimators.ekf.correction`). max_iter: Most iterations.
     """
@@ -376,13 +379,13 @@ def update_lanes(
                                    meas[b])  # fmt: skip
             excluded = np.zeros(k_obs, dtype=np.bool_)
             _update_mapped(
-                xb, Pb, nb, lms, cols, y, r_diag, gate, tol, max_iter, diag, b, monitor, lm_thr,
-                scan_thr, excluded,
+                xb, Pb, nb, lms, cols, y, r_diag, gate, tol, max_iter, diag, b, monitor,
+                thresholds, excluded, (obs[:k_obs], seq_stats[b], seq_count[b]),
             )  # fmt: skip
             for i in range(k_obs):
                 if excluded[i]:
                     leave_out(b, obs[i], t[b] + monitor[2], x, P, n, nv, slot_of_id, id_of_slot,
-                               mapped, known, readmit_at, diag)  # fmt: skip
+                               mapped, known, readmit_at, seq_count, diag)  # fmt: skip
         if k_new:
             register_new(b, new[:k_new], x, P, n, nv, meas, r_diag, slot_of_id, id_of_slot,
                           mapped, diag)  # fmt: skip

@@ -12,7 +12,8 @@ Protection levels (solution separation; Joerger, Chan & Pervan 2014, "Solution S
 Versus Residual-Based RAIM", NAVIGATION 61(4)). Per axis q of N, E, D, with σ_q² the position
 variance of the solution, ``D_q`` the largest separation variance over the k landmarks (the
 subset solution that leaves out landmark i has the variance ``σ_q² + D_iq``) and ``T_k`` the
-landmark test's threshold ``χ²_3(1 − p_fa/(2k))``::
+landmark test's threshold ``χ²_3(1 − p/(2k))``, p the one-scan tests' budget
+(:attr:`MonitorSettings.snapshot_p_fa`: ``p_fa``, or half of it beside the sequential test)::
 
     PL_q = √(T_k D_q) + K_q σ_q,(i) ,    σ_q,(i) = √(σ_q² + D_q),
 
@@ -56,13 +57,17 @@ def chi2_isf(p: FloatArray | float, dof: FloatArray | float) -> FloatArray:
     return np.asarray(2.0 * gammainccinv(0.5 * np.asarray(dof), p), dtype=float)
 
 
-def landmark_thresholds(p_fa: float, capacity: int) -> FloatArray:
-    """(capacity + 1,) the landmark test's threshold ``T_k = χ²_3(1 − p_fa/(2k))`` by the number
-    k of landmarks tested (inf at k = 0): the monitor's test and the protection levels' bound on
-    an undetected separation."""
+def landmark_thresholds(p_fa: float, capacity: int, dof: float = 3.0) -> FloatArray:
+    """(capacity + 1,) the threshold ``χ²_dof(1 − p_fa/(2k))`` of one of k landmark tests that
+    share half of the budget ``p_fa`` by the number k of landmarks tested (inf at k = 0).
+
+    With ``dof = 3`` it is the landmark test's ``T_k``: the monitor's test and the protection
+    levels' bound on an undetected separation; with ``dof = 3n`` the sequential test of a
+    landmark's last n statistics (:meth:`MonitorSettings.sequential_thresholds`).
+    """
     k = np.arange(capacity + 1, dtype=float)
     out = np.full(capacity + 1, math.inf)
-    out[1:] = chi2_isf(p_fa / (2.0 * k[1:]), 3.0)
+    out[1:] = chi2_isf(p_fa / (2.0 * k[1:]), dof)
     return out
 
 
@@ -76,23 +81,44 @@ class MonitorSettings:
         max_exclusions: Most landmarks left out of one scan.
         readmit_s: A landmark left out is dropped from the map and may enter it again (from
             a new sighting) this many seconds later, s.
+        sequential_window: W, the sightings of a landmark its sequential test sums (``None``:
+            no sequential test).
     """
 
     p_fa: float
     exclude: bool
     max_exclusions: int
     readmit_s: float
+    sequential_window: int | None = None
+
+    @property
+    def snapshot_p_fa(self) -> float:
+        """The budget of the one-scan tests (the scan's and the landmarks'): all of ``p_fa``,
+        or half of it beside the sequential test, which has the other half (Bonferroni: the
+        three tests' union alarms on at most ``p_fa`` of the fault-free scans)."""
+        return self.p_fa if self.sequential_window is None else 0.5 * self.p_fa
 
     def landmark_thresholds(self, capacity: int) -> FloatArray:
-        """(capacity + 1,) :func:`landmark_thresholds` of this budget."""
-        return landmark_thresholds(self.p_fa, capacity)
+        """(capacity + 1,) :func:`landmark_thresholds` of the one-scan budget."""
+        return landmark_thresholds(self.snapshot_p_fa, capacity)
 
     def scan_thresholds(self, capacity: int) -> FloatArray:
-        """(3 capacity + 1,) the scan test's threshold ``χ²_m(1 − p_fa/2)`` by degrees of
-        freedom m (inf at m = 0)."""
+        """(3 capacity + 1,) the scan test's threshold ``χ²_m(1 − p/2)`` by degrees of freedom
+        m (inf at m = 0), p the one-scan budget."""
         dof = np.arange(3 * capacity + 1, dtype=float)
         out = np.full(3 * capacity + 1, math.inf)
-        out[1:] = chi2_isf(self.p_fa / 2.0, dof[1:])
+        out[1:] = chi2_isf(self.snapshot_p_fa / 2.0, dof[1:])
+        return out
+
+    def sequential_thresholds(self, capacity: int) -> FloatArray:
+        """(capacity + 1, W + 1) the sequential test's threshold ``χ²_3n(1 − p_fa/(2k))`` of a
+        landmark's last n ≤ W statistics by the number k of landmarks tested (row) and n
+        (column); inf at k = 0 or n = 0. The sequential tests of a scan's k landmarks share
+        half of ``p_fa``. Without the test, (capacity + 1, 1) of inf."""
+        window = self.sequential_window or 0
+        out = np.full((capacity + 1, window + 1), math.inf)
+        for n in range(1, window + 1):
+            out[:, n] = landmark_thresholds(self.p_fa, capacity, 3.0 * n)
         return out
 
 
