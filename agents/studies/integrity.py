@@ -5,8 +5,8 @@ DF-LQR flies on EKF-SLAM's estimate (``paper_ekf_figure8``, the unknown map) on 
 fault-free and with each fault kind of the ``faults`` section (onset drawn in 10–15 s), with
 the monitor detecting only (``integrity.monitor: detect``: the filter is the unmonitored one;
 its protection levels and alarms are reported), on the filter without its χ² gate and with it,
-and excluding (``exclude``: the landmarks found faulty are left out and dropped from the
-map). Per row: the
+excluding (``exclude``: the landmarks found faulty are left out and dropped from the map), and
+excluding with the sequential test as well (``integrity.sequential_window``). Per row: the
 false-alarm rate on fault-free scans against the budget, misleading and hazardously misleading
 information, availability, the share of fault-free steps the protection levels bound and how
 far above the error they sit, detection within 3 s and the time to alert (for a moving or a
@@ -49,10 +49,12 @@ FAULTS: dict[str, dict[str, Any]] = {
     },
 }  # fmt: skip
 """The cases: the ``faults`` section of each (none for the fault-free row)."""
-MODES = ("detect_no_gate", "detect", "exclude")
+MODES = ("detect_no_gate", "detect", "exclude", "exclude_sequential")
 """The monitor's rows: detecting on EKF-SLAM without its per-landmark χ² gate
 (``gate_probability: 1``: every return used, as the paper's filter), detecting on the gated
-filter, and excluding."""
+filter, excluding, and excluding with the sequential test as well."""
+SEQUENTIAL_WINDOW = 10
+"""``integrity.sequential_window`` of the ``exclude_sequential`` row: 1 s of scans."""
 _SERIES = ("t", "est_pos_err_h_m", "est_pos_err_v_m", "hpl_m", "vpl_m", "integrity_alert",
            "fault_active", "fault_in_view", "fde_alarm", "fde_tested")  # fmt: skip
 _SIGHTED = ("landmark_moves", "phantom_landmark")
@@ -83,10 +85,13 @@ class StepLog:
 
 
 def _overrides(case: str, mode: str, duration: float | None) -> dict[str, Any]:
+    monitor = mode.removesuffix("_no_gate").removesuffix("_sequential")
     out: dict[str, Any] = {
-        "integrity": {"monitor": mode.removesuffix("_no_gate"), "alert_limit_m": ALERT_LIMIT_M,
-                      "p_fa": P_FA, "p_hmi": P_HMI},
+        "integrity": {"monitor": monitor, "alert_limit_m": ALERT_LIMIT_M, "p_fa": P_FA,
+                      "p_hmi": P_HMI},
     }  # fmt: skip
+    if mode.endswith("_sequential"):
+        out["integrity"]["sequential_window"] = SEQUENTIAL_WINDOW
     if mode.endswith("_no_gate"):
         out["estimator"] = {"params": {"gate_probability": 1.0}}
     if FAULTS[case]:
