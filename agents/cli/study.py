@@ -144,6 +144,17 @@ def cmd_study_integrity(args: argparse.Namespace) -> int:
     return _flown_study(args, integrity, "integrity_stanford.png", run)
 
 
+def cmd_study_cooperative(args: argparse.Namespace) -> int:
+    """Teams of 1, 2 and 4 vehicles: map fusion modes, team map RMSE and consistency."""
+    from agents.io.cpus import available_cpus
+    from agents.studies import cooperative
+
+    def run(seeds: int) -> dict[str, Any]:
+        return cooperative.run_study(seeds, args.seed, args.quick, args.jobs or available_cpus())
+
+    return _flown_study(args, cooperative, "cooperative_map.png", run)
+
+
 def cmd_study_bound(args: argparse.Namespace) -> int:
     """The posterior Cramér–Rao bound of a scenario next to its estimator's errors."""
     from agents.studies.bound_report import cli_bound
@@ -347,6 +358,23 @@ def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> N
     )
     _training_study_args(task, positive_int, 5, "write the active-perception figure here")
     task.set_defaults(func=cmd_study_integrity_task)
+    coop = studies.add_parser(
+        "cooperative",
+        help="teams of 1, 2 and 4 vehicles sharing maps: independent, covariance intersection "
+        "and naive fusion; team map RMSE, landmark ANEES, bytes sent; the map figure",
+    )
+    coop.add_argument("--quick", action="store_true", help="3 seeds of 20 s")
+    coop.add_argument("--seeds", type=positive_int, help="episodes per row (default 20)")
+    coop.add_argument("--seed", type=int, default=1000, help="first held-out seed (1000)")
+    coop.add_argument(
+        "--jobs",
+        type=positive_int,
+        help="episodes at a time, each in its own process (default: the CPU cores available; "
+        "1: in this process); the results do not depend on it",
+    )
+    coop.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    coop.add_argument("--plots", type=Path, help="write the team map figure (PNG) here")
+    coop.set_defaults(func=cmd_study_cooperative)
 
 
 def _phase_edges(text: str) -> list[float]:
