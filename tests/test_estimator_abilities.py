@@ -23,6 +23,7 @@ from quadslam_env.estimation import (
     ModelsDrag,
     MonitorsIntegrity,
     ParticleLaneLoop,
+    ReportsLandmarkCovariances,
     ReservesLandmarks,
     ShowsParticles,
     TakesLateScans,
@@ -49,6 +50,8 @@ BATCH: dict[type, set[str]] = {
     MonitorsIntegrity: {"ekf_slam"},
     # Only EKF-SLAM fuses another vehicle's landmarks into its joint Gaussian (docs/team.md).
     FusesLandmarks: {"ekf_slam"},
+    # and gives every lane's landmark covariances at once (the team's map terms).
+    ReportsLandmarkCovariances: {"ekf_slam"},
     # The LaneLoop passes a vehicle or a wind on to the lanes that use it (below).
     TakesVehicle: {"fastslam", "fastslam_kinematic", "isam2"},
     TakesWind: {"fastslam", "fastslam_kinematic", "isam2"},

@@ -251,6 +251,28 @@ def test_team_map_terms_are_their_definitions(independent: Any) -> None:
     assert info["team_n_mapped"] == len(union)
 
 
+class _SnapshotsOnly:
+    """The estimator seen through its lane snapshots only (no batched covariances)."""
+
+    def __init__(self, estimator: Any) -> None:
+        self.lane_estimate = estimator.lane_estimate
+
+
+def test_batched_map_terms_equal_those_of_the_lane_snapshots() -> None:
+    from quadslam_env.team.map_metrics import MapMetrics
+
+    env, _ = _flown({"fusion": "ci", "time_offsets_s": [0.0, 6.25, 12.5]}, n=3, steps=150)
+    truth, count = env.core.landmarks[0], int(env.core.n_landmarks[0])
+    lanes = np.array([True, False, True])
+    fast, slow = MapMetrics(3), MapMetrics(3)
+    got = fast.observe(env.core.estimator, truth, count, lanes)
+    want = slow.observe(_SnapshotsOnly(env.core.estimator), truth, count, lanes)  # type: ignore[arg-type]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert np.isnan(got[1]) and np.isfinite(got[[0, 2]]).all()
+    for key, value in fast.terms(truth, lanes).items():
+        assert value == pytest.approx(slow.terms(truth, lanes)[key], rel=1e-12), key
+
+
 @pytest.mark.parametrize(
     ("kwargs", "fragment"),
     [

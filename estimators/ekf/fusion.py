@@ -280,6 +280,20 @@ class LandmarkFusion:
         rows = ((self.nv + 3 * st.slot_of_id[lane, ids])[:, None] + np.arange(3)).ravel()
         return np.array(st.P[lane][np.ix_(rows, rows)])
 
+    def landmark_covariances(self) -> FloatArray:
+        """(B, Lmax, 3, 3) m² every lane's landmark covariances by id
+        (:class:`~quadslam_env.estimation.protocol.ReportsLandmarkCovariances`): the 3×3
+        diagonal blocks of P of the mapped landmarks (zeros in known-map lanes; the rows of
+        unmapped ids are those of slot 0 and mean nothing). No sync is needed: only the ``P_mv``
+        block lags after a prediction, never a landmark's own block."""
+        st = self.state
+        cols = self.nv + 3 * np.maximum(st.slot_of_id, 0)  # (B, Lmax)
+        rows = cols[..., None] + np.arange(3)  # (B, Lmax, 3)
+        lanes = np.arange(cols.shape[0])[:, None, None, None]
+        out = st.P[lanes, rows[..., :, None], rows[..., None, :]]
+        out[st.known] = 0.0
+        return out
+
     def _sync(self, lane: int) -> None:
         """Make lane ``lane``'s covariance fully symmetric (it may hold one triangle)."""
         st = self.state

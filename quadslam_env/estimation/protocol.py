@@ -211,6 +211,16 @@ class HasFullState(Protocol):
 
 
 @runtime_checkable
+class ReportsLandmarkCovariances(Protocol):
+    """A batch estimator that gives every lane's landmark covariances at once (EKF-SLAM); the
+    team env's map terms read them each step (without it, one lane snapshot per vehicle)."""
+
+    def landmark_covariances(self) -> FloatArray:
+        """(B, Lmax, 3, 3) m² each lane's landmark covariances by id: those of the landmarks
+        :meth:`BatchEstimator.estimate` reports mapped; the other rows are undefined."""
+
+
+@runtime_checkable
 class TakesVehicle(Protocol):
     """A batch estimator that can be told each lane's vehicle (``randomize.inform_estimator``).
 

@@ -28,7 +28,7 @@ import math
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation import BatchEstimator, ReportsLandmarkCovariances
 from quadslam_env.metrics import cholesky_nees
 from quadslam_env.types import FloatArray
 
@@ -63,6 +63,35 @@ def landmark_anees(means: FloatArray, covs: FloatArray, truth: FloatArray) -> fl
     return total / means.shape[0]
 
 
+def _lanes_anees(
+    mapped: np.ndarray, means: FloatArray, covs: FloatArray, truth: FloatArray
+) -> FloatArray:
+    """:func:`landmark_anees` of k lanes at once.
+
+    Args:
+        mapped: (k, L) bool each lane's mapped landmarks, by id.
+        means: (k, L, 3) their estimates, m, N frame.
+        covs: (k, L, 3, 3) their covariances, m².
+        truth: (L, 3) the true positions, m, N frame.
+
+    Returns:
+        (k,) each lane's landmark ANEES (NaN with nothing mapped).
+    """
+    lane, ids = np.nonzero(mapped)
+    n = mapped.sum(axis=1)
+    out = np.full(mapped.shape[0], math.nan)
+    try:  # all at once; a covariance that is not positive definite: lane by lane below
+        err = (means[lane, ids] - truth[ids])[:, :, None]
+        y = np.linalg.solve(np.linalg.cholesky(covs[lane, ids]), err)
+        total = np.bincount(lane, weights=np.sum(y * y, axis=(1, 2)), minlength=n.size)
+        out[n > 0] = total[n > 0] / n[n > 0]
+    except np.linalg.LinAlgError:
+        for row in np.flatnonzero(n).tolist():
+            got = mapped[row]
+            out[row] = landmark_anees(means[row, got], covs[row, got], truth[got])
+    return out
+
+
 class MapMetrics:
     """Each vehicle's latest map and the team's terms over them (module docstring).
 
@@ -72,61 +101,74 @@ class MapMetrics:
 
     def __init__(self, n_vehicles: int) -> None:
         self.n_vehicles = n_vehicles
-        self._maps: list[tuple[np.ndarray, FloatArray] | None] = [None] * n_vehicles
+        self._mapped = np.zeros((n_vehicles, 0), dtype=bool)  # (N, L) the latest maps, by id
+        self._means = np.zeros((n_vehicles, 0, 3))
         self._anees = np.full(n_vehicles, math.nan)
 
     def reset(self) -> None:
         """Forget the maps of the last episode."""
-        self._maps = [None] * self.n_vehicles
+        self._mapped[:] = False
         self._anees[:] = math.nan
 
     def observe(
         self, estimator: BatchEstimator, truth: FloatArray, count: int, lanes: np.ndarray
     ) -> FloatArray:
-        """Read the maps of the vehicles ``lanes`` (N,) bool after a reset or a step.
+        """Read the maps of the vehicles ``lanes`` (N,) bool after a reset or a step: all at
+        once from an estimator that :class:`ReportsLandmarkCovariances`, else from each
+        vehicle's lane snapshot.
 
         Args:
-            estimator: The core's estimator (each vehicle's lane snapshot is read).
+            estimator: The core's estimator.
             truth: (≥ count, 3) the shared true landmark positions, m, N frame.
-            count: The number of true landmarks.
+            count: The number of true landmarks (a phantom's id, beyond them, is left out).
             lanes: (N,) bool the vehicles to read.
 
         Returns:
             (N,) each vehicle's ``est_landmark_anees`` (NaN outside ``lanes`` or with
             nothing mapped).
         """
+        if self._mapped.shape[1] != count:
+            self._mapped = np.zeros((self.n_vehicles, count), dtype=bool)
+            self._means = np.zeros((self.n_vehicles, count, 3))
+        sel = np.flatnonzero(lanes)
+        if isinstance(estimator, ReportsLandmarkCovariances):
+            est = estimator.estimate()
+            mapped = est.landmark_mapped[sel, :count]
+            means = est.landmark_means[sel, :count]
+            covs = estimator.landmark_covariances()[sel, :count]
+        else:
+            mapped = np.zeros((sel.size, count), dtype=bool)
+            means, covs = np.zeros((sel.size, count, 3)), np.zeros((sel.size, count, 3, 3))
+            for row, i in enumerate(sel.tolist()):
+                ids, m, c = estimator.lane_estimate(i).mapped_landmarks(0)
+                keep = ids < count
+                mapped[row, ids[keep]] = True
+                means[row, ids[keep]], covs[row, ids[keep]] = m[keep], c[keep]
+        self._mapped[sel], self._means[sel] = mapped, means
+        self._anees[sel] = _lanes_anees(mapped, means, covs, truth[:count])
         out = np.full(self.n_vehicles, math.nan)
-        for i in np.flatnonzero(lanes).tolist():
-            ids, means, covs = estimator.lane_estimate(i).mapped_landmarks(0)
-            keep = ids < count  # a phantom's id is no landmark of the field
-            ids, means, covs = ids[keep], means[keep], covs[keep]
-            self._maps[i] = (ids, means)
-            out[i] = self._anees[i] = landmark_anees(means, covs, truth[ids])
+        out[sel] = self._anees[sel]
         return out
 
     def terms(self, truth: FloatArray, lanes: np.ndarray) -> dict[str, float]:
         """:data:`TERMS` over the latest maps of the vehicles ``lanes`` (N,) bool (NaN where
         none has a landmark mapped)."""
-        rmse: list[float] = []
-        union: dict[int, FloatArray] = {}
-        for i in np.flatnonzero(lanes).tolist():
-            held = self._maps[i]
-            if held is None or held[0].size == 0:
-                continue
-            ids, means = held
-            rmse.append(math.sqrt(float(np.mean(np.sum((means - truth[ids]) ** 2, axis=1)))))
-            for j, mean in zip(ids.tolist(), means, strict=True):
-                union.setdefault(j, mean)
-        if not union:
+        mapped, means = self._mapped[lanes], self._means[lanes]
+        count = mapped.shape[1]
+        err2 = np.sum((means - truth[:count]) ** 2, axis=2)  # (k, L)
+        n = mapped.sum(axis=1)
+        if not n.any():
             return {"team_map_rmse_m": math.nan, "team_union_map_rmse_m": math.nan,
                     "team_n_mapped": 0.0}  # fmt: skip
-        ids = np.fromiter(union, dtype=np.int64)
-        means = np.stack(list(union.values()))
-        err2 = np.sum((means - truth[ids]) ** 2, axis=1)
+        has = n > 0
+        rmse = np.sqrt(np.sum(err2 * mapped, axis=1)[has] / n[has])
+        union = mapped.any(axis=0)  # (L,): the lowest-numbered vehicle's estimate of each
+        first = np.argmax(mapped, axis=0)[union]
+        union_err2 = err2[first, np.flatnonzero(union)]
         return {
             "team_map_rmse_m": float(np.mean(rmse)),
-            "team_union_map_rmse_m": math.sqrt(float(np.mean(err2))),
-            "team_n_mapped": float(ids.size),
+            "team_union_map_rmse_m": math.sqrt(float(np.mean(union_err2))),
+            "team_n_mapped": float(union.sum()),
         }
 
     def summary(self, truth: FloatArray) -> dict[str, float]:
