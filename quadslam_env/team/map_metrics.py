@@ -1,12 +1,12 @@
 """The team's map against the true landmark field (docs/team.md "Info"): each vehicle's
 landmark consistency, the team's map error and how much of the field the team has mapped.
 
-Per vehicle (its lane snapshot: the mapped landmarks' means and 3×3 covariances by id):
+Per vehicle (its mapped landmarks' means and 3×3 covariances by id, read for all vehicles at
+once from an estimator that reports them, else from each one's lane snapshot):
 
 - ``est_landmark_anees``: the mean over its mapped landmarks j of the NEES
   ``(l̂_j − l_j)ᵀ P_jj⁻¹ (l̂_j − l_j)`` (3 DOF each; ``‖L⁻¹e‖²`` with ``P_jj = L Lᵀ``, the
-  pose NEES's :func:`quadslam_env.metrics.cholesky_nees` where a block is not positive
-  definite);
+  pose NEES's :func:`quadslam_env.metrics.cholesky_nees`);
 
 for the team (the vehicles of the step):
 
@@ -30,66 +30,43 @@ import numpy as np
 
 from quadslam_env.estimation import BatchEstimator, ReportsLandmarkCovariances
 from quadslam_env.metrics import cholesky_nees
+from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
 TERMS = ("team_map_rmse_m", "team_union_map_rmse_m", "team_n_mapped")
 """The team's map terms of every vehicle's info, and (as ``team_episode_*``) of the summary."""
 
 
-def landmark_anees(means: FloatArray, covs: FloatArray, truth: FloatArray) -> float:
-    """Mean NEES of landmark estimates against the truth.
-
-    Args:
-        means: (k, 3) estimated landmark positions, m, N frame.
-        covs: (k, 3, 3) their covariances, m².
-        truth: (k, 3) the true positions, m, N frame.
-
-    Returns:
-        ``(1/k) Σ_j e_jᵀ P_jj⁻¹ e_j`` (NaN for k = 0; inf if a covariance is not positive
-        semi-definite).
-    """
-    if means.shape[0] == 0:
-        return math.nan
-    err = means - truth
-    try:  # all at once; a covariance that is not positive definite: one by one below
-        y = np.linalg.solve(np.linalg.cholesky(covs), err[:, :, None])
-        return float(np.sum(y * y)) / means.shape[0]
-    except np.linalg.LinAlgError:
-        pass
-    L, y = np.empty((3, 3)), np.empty(3)
-    total = 0.0
-    for j in range(means.shape[0]):
-        total += cholesky_nees(covs[j], err[j], L, y)[0]
-    return total / means.shape[0]
-
-
-def _lanes_anees(
-    mapped: np.ndarray, means: FloatArray, covs: FloatArray, truth: FloatArray
-) -> FloatArray:
-    """:func:`landmark_anees` of k lanes at once.
+@kernel
+def lanes_map_errors(
+    mapped: np.ndarray,
+    means: FloatArray,
+    covs: FloatArray,
+    truth: FloatArray,
+    nees: FloatArray,
+    sq: FloatArray,
+) -> None:
+    """Each lane's sums over its mapped landmarks of the NEES and the squared error, in place.
 
     Args:
         mapped: (k, L) bool each lane's mapped landmarks, by id.
         means: (k, L, 3) their estimates, m, N frame.
         covs: (k, L, 3, 3) their covariances, m².
         truth: (L, 3) the true positions, m, N frame.
-
-    Returns:
-        (k,) each lane's landmark ANEES (NaN with nothing mapped).
+        nees: (k,) out: Σ_j e_jᵀ P_jj⁻¹ e_j (:func:`~quadslam_env.metrics.cholesky_nees`; inf
+            when a block is not positive semi-definite).
+        sq: (k,) out: Σ_j ‖e_j‖², m².
     """
-    lane, ids = np.nonzero(mapped)
-    n = mapped.sum(axis=1)
-    out = np.full(mapped.shape[0], math.nan)
-    try:  # all at once; a covariance that is not positive definite: lane by lane below
-        err = (means[lane, ids] - truth[ids])[:, :, None]
-        y = np.linalg.solve(np.linalg.cholesky(covs[lane, ids]), err)
-        total = np.bincount(lane, weights=np.sum(y * y, axis=(1, 2)), minlength=n.size)
-        out[n > 0] = total[n > 0] / n[n > 0]
-    except np.linalg.LinAlgError:
-        for row in np.flatnonzero(n).tolist():
-            got = mapped[row]
-            out[row] = landmark_anees(means[row, got], covs[row, got], truth[got])
-    return out
+    L, y, e = np.empty((3, 3)), np.empty(3), np.empty(3)
+    for b in range(mapped.shape[0]):
+        nees[b] = sq[b] = 0.0
+        for j in range(mapped.shape[1]):
+            if not mapped[b, j]:
+                continue
+            for a in range(3):
+                e[a] = means[b, j, a] - truth[j, a]
+                sq[b] += e[a] * e[a]
+            nees[b] += cholesky_nees(covs[b, j], e, L, y)[0]
 
 
 class MapMetrics:
@@ -104,11 +81,12 @@ class MapMetrics:
         self._mapped = np.zeros((n_vehicles, 0), dtype=bool)  # (N, L) the latest maps, by id
         self._means = np.zeros((n_vehicles, 0, 3))
         self._anees = np.full(n_vehicles, math.nan)
+        self._rmse = np.full(n_vehicles, math.nan)
 
     def reset(self) -> None:
         """Forget the maps of the last episode."""
         self._mapped[:] = False
-        self._anees[:] = math.nan
+        self._anees[:] = self._rmse[:] = math.nan
 
     def observe(
         self, estimator: BatchEstimator, truth: FloatArray, count: int, lanes: np.ndarray
@@ -145,7 +123,12 @@ class MapMetrics:
                 mapped[row, ids[keep]] = True
                 means[row, ids[keep]], covs[row, ids[keep]] = m[keep], c[keep]
         self._mapped[sel], self._means[sel] = mapped, means
-        self._anees[sel] = _lanes_anees(mapped, means, covs, truth[:count])
+        nees, sq = np.empty(sel.size), np.empty(sel.size)
+        lanes_map_errors(mapped, means, covs, truth[:count], nees, sq)
+        n = mapped.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):  # nothing mapped: NaN
+            self._anees[sel] = np.where(n > 0, nees / n, math.nan)
+            self._rmse[sel] = np.where(n > 0, np.sqrt(sq / n), math.nan)
         out = np.full(self.n_vehicles, math.nan)
         out[sel] = self._anees[sel]
         return out
@@ -153,22 +136,20 @@ class MapMetrics:
     def terms(self, truth: FloatArray, lanes: np.ndarray) -> dict[str, float]:
         """:data:`TERMS` over the latest maps of the vehicles ``lanes`` (N,) bool (NaN where
         none has a landmark mapped)."""
-        mapped, means = self._mapped[lanes], self._means[lanes]
-        count = mapped.shape[1]
-        err2 = np.sum((means - truth[:count]) ** 2, axis=2)  # (k, L)
-        n = mapped.sum(axis=1)
-        if not n.any():
+        mapped = self._mapped[lanes]
+        union = mapped.any(axis=0)  # (L,): the lowest-numbered vehicle's estimate of each
+        if not union.any():
             return {"team_map_rmse_m": math.nan, "team_union_map_rmse_m": math.nan,
                     "team_n_mapped": 0.0}  # fmt: skip
-        has = n > 0
-        rmse = np.sqrt(np.sum(err2 * mapped, axis=1)[has] / n[has])
-        union = mapped.any(axis=0)  # (L,): the lowest-numbered vehicle's estimate of each
-        first = np.argmax(mapped, axis=0)[union]
-        union_err2 = err2[first, np.flatnonzero(union)]
+        ids = np.flatnonzero(union)
+        first = self._means[lanes][np.argmax(mapped, axis=0)[ids], ids]
+        rmse = self._rmse[lanes]
         return {
-            "team_map_rmse_m": float(np.mean(rmse)),
-            "team_union_map_rmse_m": math.sqrt(float(np.mean(union_err2))),
-            "team_n_mapped": float(union.sum()),
+            "team_map_rmse_m": float(np.mean(rmse[np.isfinite(rmse)])),
+            "team_union_map_rmse_m": math.sqrt(
+                float(np.mean(np.sum((first - truth[ids]) ** 2, axis=1)))
+            ),
+            "team_n_mapped": float(ids.size),
         }
 
     def summary(self, truth: FloatArray) -> dict[str, float]:
