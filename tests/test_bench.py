@@ -60,8 +60,8 @@ def test_document_is_wellformed(tiny_run) -> None:
     assert {"cpu", "cores", "python", "numpy", "numba", "load_average"} <= set(doc["machine"])
     groups = {e["group"] for e in doc["results"]}
     assert groups == {
-        "ekf_slam", "fastslam", "env", "vector", "physics", "association", "memory", "compile",
-        "render",
+        "ekf_slam", "fastslam", "env", "vector", "physics", "team", "association", "memory",
+        "compile", "render",
     }  # fmt: skip
     for entry in doc["results"]:
         assert {"group", "name", "params", "unit", "median", "min", "max", "n"} <= set(entry)
@@ -92,6 +92,26 @@ def test_physics_ratio_pairs_the_alternating_samples(tiny_run) -> None:
     # The quotient's extremes are bounded by the extremes of its numerator and denominator.
     assert full["min"] / nominal["max"] <= ratio["min"] <= ratio["max"]
     assert ratio["max"] <= full["max"] / nominal["min"]
+
+
+def test_team_ratios_pair_the_alternating_samples(tiny_run) -> None:
+    """Each team's ratio is, round by round, its vehicle-steps/s over the vector env's taken in
+    the same round, and carries the lower-bound target the end of the output judges."""
+    from agents.bench.team import N_VEHICLES, TARGET, TEAMS
+
+    doc, _, stdout, _ = tiny_run
+    got = {e["name"]: e for e in doc["results"] if e["group"] == "team"}
+    vector = got["vehicle_steps_per_s/vector"]
+    assert vector["n"] == 2 * TINY.repeats and vector["params"]["num_envs"] == N_VEHICLES
+    for label in TEAMS:
+        team, ratio = got[f"vehicle_steps_per_s/{label}"], got[f"{label}_over_vector"]
+        assert team["n"] == ratio["n"] == vector["n"]
+        assert team["min"] / vector["max"] <= ratio["min"] <= ratio["max"]
+        assert ratio["max"] <= team["max"] / vector["min"]
+        assert ratio["params"]["target_min"] == TARGET
+        verdict = "met" if ratio["median"] >= TARGET else "NOT met"
+        assert f"target team {label}_over_vector: " in stdout
+        assert f"against >= {TARGET:g} ratio: {verdict}" in stdout
 
 
 def test_association_entries(tiny_run) -> None:

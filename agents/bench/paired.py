@@ -12,6 +12,7 @@ the figure.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -30,6 +31,25 @@ def _lanes(plan: Plan) -> int:
     return 256 if 256 in plan.vec_batches else max(plan.vec_batches)
 
 
+def alternate(
+    runs: dict[str, Callable[[int], Any]], steps: int, rounds: int
+) -> dict[str, list[float]]:
+    """Time ``runs`` (label → a function flying that many steps) in alternating rounds of
+    ``steps`` steps each, the order reversed every round.
+
+    Returns:
+        label → the wall time of each round, s.
+    """
+    times: dict[str, list[float]] = {label: [] for label in runs}
+    labels = list(runs)
+    for r in range(rounds):
+        for label in labels if r % 2 == 0 else labels[::-1]:
+            tic = time.perf_counter()
+            runs[label](steps)
+            times[label].append(time.perf_counter() - tic)
+    return times
+
+
 def bench_physics(results: Results, plan: Plan) -> None:
     """Env-steps/s of the nominal and the full-physics EKF-SLAM vector env, timed in
     alternation in one process, and their ratio per round (full over nominal)."""
@@ -38,23 +58,20 @@ def bench_physics(results: Results, plan: Plan) -> None:
     scenarios = {label: (env_id, kw) for label, env_id, kw in VECTOR_SCENARIOS}
     b = _lanes(plan)
     steps = steps_per_sample(plan, b)
-    runs: dict[str, list[Any]] = {}  # label -> [vector env, policy, last observations]
+    vecs = []
     try:
+        runs = {}
         for label in (NOMINAL, FULL_PHYSICS):
             env_id, kwargs = scenarios[label]
             vec = make_vector(env_id, b, **kwargs)
-            runs[label] = [vec, DFLQRPolicy.from_env(vec), vec.reset(seed=0)[0]]
-            _fly(runs[label], plan.vec_warmup)  # the EKF maps its landmarks first
-        rates: dict[str, list[float]] = {NOMINAL: [], FULL_PHYSICS: []}
-        for r in range(plan.repeats * ROUNDS_PER_REPEAT):
-            order = (NOMINAL, FULL_PHYSICS) if r % 2 == 0 else (FULL_PHYSICS, NOMINAL)
-            for label in order:
-                tic = time.perf_counter()
-                _fly(runs[label], steps)
-                rates[label].append(b * steps / (time.perf_counter() - tic))
+            vecs.append(vec)
+            runs[label] = vector_flight(vec, DFLQRPolicy.from_env(vec))
+            runs[label](plan.vec_warmup)  # the EKF maps its landmarks first
+        times = alternate(runs, steps, plan.repeats * ROUNDS_PER_REPEAT)
     finally:
-        for vec, _, _ in runs.values():
+        for vec in vecs:
             vec.close()
+    rates = {label: [b * steps / t for t in samples] for label, samples in times.items()}
     note = (
         f"the two vector envs timed in alternation in one process ({len(rates[NOMINAL])} "
         f"rounds of {steps} steps each, the order swapped every round) after "
@@ -68,9 +85,13 @@ def bench_physics(results: Results, plan: Plan) -> None:
                 steps=steps)  # fmt: skip
 
 
-def _fly(run: list[Any], steps: int) -> None:
-    """Step ``run`` = [vector env, policy, observations] ``steps`` times in place."""
-    vec, policy, obs = run
-    for _ in range(steps):
-        obs = np.asarray(vec.step(policy.predict(obs)[0])[0])
-    run[2] = obs
+def vector_flight(vec: Any, policy: Any) -> Callable[[int], None]:
+    """A function that steps the vector env ``vec`` that many times with ``policy`` (from its
+    reset with seed 0), keeping its observations between calls."""
+    obs = [vec.reset(seed=0)[0]]
+
+    def fly(steps: int) -> None:
+        for _ in range(steps):
+            obs[0] = np.asarray(vec.step(policy.predict(obs[0])[0])[0])
+
+    return fly

@@ -9,6 +9,10 @@ unit, as one JSON entry. The sections (``--only``):
   factor, zero action and DF-LQR;
 * ``vector``, ``workers`` (:mod:`agents.bench.envs`): native vector env throughput in
   env-steps/s vs lanes B, in one process and split over 2 worker processes;
+* ``physics`` (:mod:`agents.bench.paired`): rotors, wind and randomised physics against the
+  nominal vector env, timed in alternation;
+* ``team`` (:mod:`agents.bench.team`): the team env of 4 vehicles against the vector env of 4
+  lanes, timed in alternation;
 * ``association`` (:mod:`agents.bench.association`): unknown data association (JCBB, NN)
   against known association, scalar and vector env;
 * ``memory``, ``compile`` (:mod:`agents.bench.process`): peak RSS vs B and numba compile time,
@@ -16,10 +20,10 @@ unit, as one JSON entry. The sections (``--only``):
 * ``render`` (:mod:`agents.bench.render`): ``rgb_array`` frames/s and the time to record a
   video of an episode (``gymnasium.wrappers.RecordVideo``).
 
-Two sections need an extra (:data:`SECTION_EXTRAS`): ``workers`` stable-baselines3 (``[rl]``)
-and ``render`` matplotlib (``[plots]``). Without it, a run of all sections skips that one with
-a line on stderr naming the extra, and ``--only`` naming it stops before anything is measured
-with that line as its error.
+Three sections need an extra (:data:`SECTION_EXTRAS`): ``workers`` stable-baselines3
+(``[rl]``), ``render`` matplotlib (``[plots]``) and ``team`` pettingzoo (``[team]``). Without
+it, a run of all sections skips that one with a line on stderr naming the extra, and ``--only``
+naming it stops before anything is measured with that line as its error.
 
 The old ``AsyncVectorEnv``/``SubprocVecEnv`` scaling section (about 2,000 steps/s for 1–4
 workers of the scalar env) was dropped: the native vector env does 5,000 steps/s with one lane
@@ -42,11 +46,15 @@ from typing import Any
 from agents.bench.plan import FULL, QUICK, Plan, Results
 
 SECTION_NAMES = (
-    "ekf", "fastslam", "env", "vector", "physics", "association", "workers", "memory",
+    "ekf", "fastslam", "env", "vector", "physics", "team", "association", "workers", "memory",
     "compile", "render",
 )  # fmt: skip
 
-SECTION_EXTRAS = {"workers": ("stable_baselines3", "rl"), "render": ("matplotlib", "plots")}
+SECTION_EXTRAS = {
+    "workers": ("stable_baselines3", "rl"),
+    "render": ("matplotlib", "plots"),
+    "team": ("pettingzoo", "team"),
+}
 """Section → (the module it needs, the ``quadslam[...]`` extra that brings it)."""
 
 VERSIONED = ("numpy", "numba", "gymnasium", "stable_baselines3", "matplotlib", "gtsam")
@@ -170,18 +178,21 @@ def format_results(entries: list[dict[str, Any]]) -> str:
 
 
 def format_targets(entries: list[dict[str, Any]]) -> str:
-    """One line per entry with a ``target_s`` (an upper bound): its median against the target
-    and whether it is met, in plain words; '' if no entry has one."""
+    """One line per entry with a ``target_s`` (an upper bound) or a ``target_min`` (a lower
+    bound): its median against the target and whether it is met, in plain words; '' if no
+    entry has one."""
     lines = []
     for e in entries:
-        target = e["params"].get("target_s")
-        if target is None:
-            continue
-        verdict = "met" if e["median"] <= target else "NOT met"
-        lines.append(
-            f"target {e['group']} {e['name']}: {_fmt(e['median'])} {e['unit']} "
-            f"(median of {e['n']}) against <= {_fmt(target)} {e['unit']}: {verdict}"
-        )
+        for key, sign, ok in (("target_s", "<=", e["median"].__le__),
+                              ("target_min", ">=", e["median"].__ge__)):  # fmt: skip
+            target = e["params"].get(key)
+            if target is None:
+                continue
+            lines.append(
+                f"target {e['group']} {e['name']}: {_fmt(e['median'])} {e['unit']} "
+                f"(median of {e['n']}) against {sign} {_fmt(target)} {e['unit']}: "
+                f"{'met' if ok(target) else 'NOT met'}"
+            )
     return "\n".join(lines)
 
 
@@ -218,6 +229,7 @@ def sections() -> dict[str, Callable[[Results, Plan], None]]:
     from agents.bench.paired import bench_physics
     from agents.bench.process import bench_compile, bench_memory
     from agents.bench.render import bench_render
+    from agents.bench.team import bench_team
 
     return {
         "ekf": bench_ekf,
@@ -225,6 +237,7 @@ def sections() -> dict[str, Callable[[Results, Plan], None]]:
         "env": bench_env,
         "vector": bench_vector,
         "physics": bench_physics,
+        "team": bench_team,
         "association": bench_association,
         "workers": bench_workers,
         "memory": bench_memory,
