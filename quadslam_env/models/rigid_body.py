@@ -27,6 +27,8 @@ estimator's model) they compute exactly what they did before wind existed.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -247,6 +249,60 @@ def rigid_body_derivative(
         out[9], out[10], out[11] = euler_equation(x[9], x[10], x[11], (u[1], u[2], u[3]), body)
 
 
+@inline_kernel
+def rk4_stages(
+    derivative: Callable[[FloatArray, Any, FloatArray], None],
+    args: Any,
+    x: FloatArray,
+    n: int,
+    h: float,
+    work: FloatArray,
+) -> None:
+    """One classical RK4 step of size ``h`` s of ``ẋ[:n] = derivative(x, args)`` on ``x[:n]``
+    in place, ``args`` held: the RK4 stages of every model (:func:`rk4_step`, the strapdown
+    drag model of :mod:`quadslam_env.models.strapdown`).
+
+    ``derivative`` is a kernel called as ``derivative(x, args, out)``, writing ``ẋ[:n]`` into
+    ``out``. numba compiles this function (inlined into its caller) for the kernel passed,
+    so the derivative is a direct call, not one dispatched at run time. The entries of ``x``
+    from ``n`` on are held over the step: every stage state carries them unchanged (inputs
+    the derivative reads from the state, e.g. body rates held as an input).
+
+    Args:
+        derivative: The derivative kernel.
+        args: Tuple of the derivative's other arguments.
+        x: (m,) state; ``x[:n]`` is advanced, ``x[n:]`` held.
+        n: Number of leading entries of ``x`` integrated.
+        h: Step in s.
+        work: (≥5, ≥m) scratch (rows: the four stages, the stage state).
+    """
+    k1, k2, k3, k4, tmp = work[0], work[1], work[2], work[3], work[4]
+    half = 0.5 * h
+    for j in range(n, x.shape[0]):
+        tmp[j] = x[j]
+    derivative(x, args, k1)
+    for j in range(n):
+        tmp[j] = x[j] + half * k1[j]
+    derivative(tmp, args, k2)
+    for j in range(n):
+        tmp[j] = x[j] + half * k2[j]
+    derivative(tmp, args, k3)
+    for j in range(n):
+        tmp[j] = x[j] + h * k3[j]
+    derivative(tmp, args, k4)
+    sixth = h / 6.0
+    for j in range(n):
+        x[j] = x[j] + sixth * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+
+
+@inline_kernel
+def _rigid_body_stage(x: FloatArray, args: Any, out: FloatArray) -> None:
+    """:func:`rigid_body_derivative` with ``args = (u, body, hold_rates, air, aero)``, in the
+    form :func:`rk4_stages` calls."""
+    u, body, hold_rates, air, aero = args
+    rigid_body_derivative(x, u, body, hold_rates, out, air, aero)
+
+
 @kernel
 def rk4_step(
     x: FloatArray,
@@ -258,25 +314,12 @@ def rk4_step(
     air: AirTuple,
     aero: bool,
 ) -> None:
-    """One classical RK4 step of size ``h`` s on ``x`` (12,) in place, input and wind held.
+    """One classical RK4 step of size ``h`` s on ``x`` (12,) in place, input and wind held
+    (:func:`rk4_stages` on :func:`rigid_body_derivative`).
 
     ``work`` is (5, 12) scratch; other arguments as in :func:`rigid_body_derivative`.
     """
-    k1, k2, k3, k4, tmp = work[0], work[1], work[2], work[3], work[4]
-    half = 0.5 * h
-    rigid_body_derivative(x, u, body, hold_rates, k1, air, aero)
-    for j in range(STATE_DIM):
-        tmp[j] = x[j] + half * k1[j]
-    rigid_body_derivative(tmp, u, body, hold_rates, k2, air, aero)
-    for j in range(STATE_DIM):
-        tmp[j] = x[j] + half * k2[j]
-    rigid_body_derivative(tmp, u, body, hold_rates, k3, air, aero)
-    for j in range(STATE_DIM):
-        tmp[j] = x[j] + h * k3[j]
-    rigid_body_derivative(tmp, u, body, hold_rates, k4, air, aero)
-    sixth = h / 6.0
-    for j in range(STATE_DIM):
-        x[j] = x[j] + sixth * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+    rk4_stages(_rigid_body_stage, (u, body, hold_rates, air, aero), x, STATE_DIM, h, work)
 
 
 @kernel

@@ -57,6 +57,7 @@ from quadslam_env.models.rigid_body import (
     kinematics,
     kinematics_dcm,
     pack_bodies,
+    rk4_stages,
     rk4_step,
 )
 from quadslam_env.types import GRAVITY, POSE_DIM, FloatArray
@@ -65,6 +66,9 @@ _EYE = np.eye(3)[None]
 _BODY = pack_bodies(1.0, 0.0, _EYE, _EYE)[0]
 """Unit mass, no drag: with zero thrust the rigid body's specific force is the input alone."""
 _NO_CQ = np.zeros(3)
+
+DragArgs = tuple[float, float, float, float, Vec3]
+"""``(a_z [m/s²], w_N, w_E [m/s], μ [1/s], c_q (3) [1/m])``: the drag model's held inputs."""
 
 
 @kernel
@@ -158,10 +162,10 @@ def horizontal_drag(
 
 
 @inline_kernel
-def _drag_derivative(
-    y: FloatArray, accel_z: float, wn: float, we: float, mu: float, cq: Vec3, out: FloatArray
-) -> None:
-    """Rows ρ̇, v̇, Λ̇ of the drag model (module docstring) for ``y = (s, ω)`` into ``out[:9]``."""
+def _drag_derivative(y: FloatArray, args: DragArgs, out: FloatArray) -> None:
+    """Rows ρ̇, v̇, Λ̇ of the drag model (module docstring) for ``y = (s, ω)`` into ``out[:9]``,
+    with ``args = (a_z, w_N, w_E, μ, c_q)`` (as :func:`strapdown_drag_rk4` takes them)."""
+    accel_z, wn, we, mu, cq = args
     cf, sf = math.cos(y[6]), math.sin(y[6])
     ct, st = math.cos(y[7]), math.sin(y[7])
     c = dcm_from_trig(cf, sf, ct, st, math.cos(y[8]), math.sin(y[8]))
@@ -182,8 +186,8 @@ def strapdown_drag_rk4(
 ) -> None:
     """One classical RK4 step of the drag model with λ = (a_z, ω) and the wind held over ``dt``.
 
-    The stages of :func:`~quadslam_env.models.rigid_body.rk4_step` on
-    ``ṡ = f_s(s, λ) + P_xy d(v_a)`` (module docstring).
+    :func:`~quadslam_env.models.rigid_body.rk4_stages` on ``ṡ = f_s(s, λ) + P_xy d(v_a)``
+    (module docstring), ω held.
 
     Args:
         y: (12,) ``(s, ω)``: s (9,) is advanced in place, ω (rad/s) is the held input.
@@ -193,23 +197,7 @@ def strapdown_drag_rk4(
         dt: Step in s.
         work: (≥5, 12) scratch.
     """
-    k1, k2, k3, k4, tmp = work[0], work[1], work[2], work[3], work[4]
-    half = 0.5 * dt
-    for j in range(POSE_DIM, 12):
-        tmp[j] = y[j]
-    _drag_derivative(y, accel_z, wn, we, mu, cq, k1)
-    for j in range(POSE_DIM):
-        tmp[j] = y[j] + half * k1[j]
-    _drag_derivative(tmp, accel_z, wn, we, mu, cq, k2)
-    for j in range(POSE_DIM):
-        tmp[j] = y[j] + half * k2[j]
-    _drag_derivative(tmp, accel_z, wn, we, mu, cq, k3)
-    for j in range(POSE_DIM):
-        tmp[j] = y[j] + dt * k3[j]
-    _drag_derivative(tmp, accel_z, wn, we, mu, cq, k4)
-    sixth = dt / 6.0
-    for j in range(POSE_DIM):
-        y[j] = y[j] + sixth * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j])
+    rk4_stages(_drag_derivative, (accel_z, wn, we, mu, cq), y, POSE_DIM, dt, work)
 
 
 @kernel
@@ -330,7 +318,7 @@ def drag_process_derivative(
     y = np.concatenate((np.asarray(s, dtype=float), np.asarray(gyro, dtype=float)))
     out = np.empty(12)
     wn, we, q = _wind_args(wind_ne, cq)
-    _drag_derivative(y, float(accel_z), wn, we, float(mu), q, out)
+    _drag_derivative(y, (float(accel_z), wn, we, float(mu), q), out)
     return out[:POSE_DIM]
 
 
