@@ -18,7 +18,7 @@ from typing import Any
 from tqdm import tqdm
 
 from agents.cli.arg_types import positive_float, positive_int
-from agents.control.named import ADAPTATION, CONTROLLERS, FEEDFORWARD
+from agents.control.named import CONTROLLERS, OPTIONS
 from agents.io.overrides import parse_overrides
 
 RESULTS_FILE = "results.txt"
@@ -171,21 +171,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             f"quadslam run: error: --integral-gain: only with --policy dflqr (got --policy "
             f"{args.policy}, whose integral action is its own)"
         )
-    if args.drag_feedforward and args.policy not in FEEDFORWARD:
-        raise SystemExit(
-            f"quadslam run: error: --drag-feedforward: only with --policy "
-            f"{' or '.join(FEEDFORWARD)} (got --policy {args.policy})"
-        )
-    if args.thrust_adaptation and args.policy not in ADAPTATION:
-        raise SystemExit(
-            f"quadslam run: error: --thrust-adaptation: only with --policy "
-            f"{' or '.join(ADAPTATION)} (got --policy {args.policy})"
-        )
+    options = controller_options(args, "run")
     if args.policy == "dflqr":
         policy = DFLQRPolicy.from_env(env, integral_gain=args.integral_gain or 0.0)
     else:
-        policy = build_controller(args.policy, env, drag_feedforward=args.drag_feedforward,
-                                  thrust_adaptation=args.thrust_adaptation)  # fmt: skip
+        policy = build_controller(args.policy, env, **options)
     fly(env, policy, args.policy, seeds, plots, args.json, args.video)
     return 0
 
@@ -196,6 +186,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from agents.rl.policies import load_policy
     from agents.rl.run_folder import run_config
 
+    options = controller_options(args, "evaluate")  # before anything is read or built
     # A trained model is evaluated on its training env id and scenario unless told otherwise.
     named = args.policy in CONTROLLERS
     cfg = run_config(args.policy) if not named and Path(args.policy).exists() else None
@@ -221,7 +212,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         check_episodes_memory(env.unwrapped.scenario, args.episodes, "--episodes")
     check_outputs(args.plots, args.json, args.video)  # before loading and flying
-    policy, name = load_policy(args.policy, env, trust_pickle=args.trust_pickle)
+    policy, name = load_policy(args.policy, env, trust_pickle=args.trust_pickle, options=options)
     seeds = list(range(args.seed, args.seed + args.episodes))
     fly(env, policy, name, seeds, args.plots, args.json, args.video)
     return 0
@@ -313,6 +304,7 @@ def add_fly_parsers(sub: Any) -> None:
         "saved before it, or a bare .zip): unpickling runs any code the files hold, so only "
         "for files you trust (quadslam convert-run converts a run once)",
     )
+    add_controller_flags(ev)
     ev.set_defaults(func=cmd_evaluate)
 
 
@@ -325,7 +317,13 @@ def _controller_options(run: argparse.ArgumentParser) -> None:
         help="DF-LQR integral action on the position error, k_i in s^-3 (default off; "
         "e.g. 0.02; must stay below the loop's stability bound, 0.11 with the shipped weights)",
     )
-    run.add_argument(
+    add_controller_flags(run)
+
+
+def add_controller_flags(parser: argparse.ArgumentParser) -> None:
+    """``--drag-feedforward`` and ``--thrust-adaptation`` on ``parser``: the controller options
+    of :data:`agents.control.named.OPTIONS`, read back by :func:`controller_options`."""
+    parser.add_argument(
         "--drag-feedforward",
         action="store_true",
         help="lqi and se3: add the drag the vehicle's model predicts on the estimated "
@@ -333,10 +331,36 @@ def _controller_options(run: argparse.ArgumentParser) -> None:
         "observation.air_velocity=true and an estimator that estimates the wind (ekf_slam "
         "with estimator.params.wind: estimate, as in ekf_figure8_wind_states)",
     )
-    run.add_argument(
+    parser.add_argument(
         "--thrust-adaptation",
         action="store_true",
         help="lqi and se3: scale the reference acceleration (the feed-forward) by the thrust "
         "ratio (true over nominal mass, per unit thrust) that the vertical integral measures "
         "(default off)",
     )
+
+
+def controller_options(args: argparse.Namespace, command: str) -> dict[str, Any]:
+    """The keyword arguments of the controller options that ``args`` turns on
+    (:func:`add_controller_flags`), for
+    :func:`agents.control.named.build_controller` (``drag_feedforward=True``, …).
+
+    Args:
+        args: The parsed options of ``quadslam run`` or ``quadslam evaluate`` (``policy``
+            and the flags).
+        command: The command's name, for the error.
+
+    Raises:
+        SystemExit: A flag given with a ``--policy`` that does not take it (a controller
+            without the option, or a trained model), one line naming the flag.
+    """
+    options: dict[str, Any] = {}
+    for option, (names, _) in OPTIONS.items():
+        if getattr(args, option):
+            if args.policy not in names:
+                raise SystemExit(
+                    f"quadslam {command}: error: --{option.replace('_', '-')}: only with "
+                    f"--policy {' or '.join(names)} (got --policy {args.policy})"
+                )
+            options[option] = True
+    return options

@@ -40,17 +40,45 @@ FEEDFORWARD = ("lqi", "se3")
 ADAPTATION = ("lqi", "se3")
 """The controllers that take ``thrust_adaptation`` (:mod:`agents.control.adaptation`)."""
 
-_OPTIONS = {
+OPTIONS = {
     "drag_feedforward": (FEEDFORWARD, "the drag feed-forward"),
     "thrust_adaptation": (ADAPTATION, "the thrust adaptation"),
 }
 """Each option of :func:`build_controller`: the controllers that take it and its name in errors."""
 
 
+def controller_options(name: str, key: str = "--policy", **given: Any) -> dict[str, Any]:
+    """The options of :data:`OPTIONS` in ``given`` that are not ``False``, checked against
+    the controller ``name`` (its name is not checked: a name that is no controller takes
+    none).
+
+    Args:
+        name: What ``key`` names: a controller, or another policy (a trained model).
+        key: The setting that named it, for the error.
+        **given: Option → value (``drag_feedforward=True``).
+
+    Raises:
+        ValueError: An option not in :data:`OPTIONS`, or one on a policy without it (naming
+            the option and ``key``).
+    """
+    options = {option: value for option, value in given.items() if value is not False}
+    for option, value in options.items():
+        if option not in OPTIONS:
+            raise ValueError(f"{option}: unknown controller option; allowed: {list(OPTIONS)}")
+        names, what = OPTIONS[option]
+        if name not in names:
+            raise ValueError(
+                f"{option}: got {value!r} with {key} {name}; allowed: false, or a controller "
+                f"with {what} ({', '.join(names)})"
+            )
+    return options
+
+
 def build_controller(
     name: str,
     env: Any,
     key: str = "--policy",
+    *,
     drag_feedforward: bool = False,
     thrust_adaptation: bool = False,
 ) -> Any:
@@ -66,19 +94,13 @@ def build_controller(
 
     Raises:
         ValueError: ``name`` is not in :data:`CONTROLLERS` (naming ``key``), or an option on
-            a controller without it.
+            a controller without it (:func:`controller_options`).
         ConfigError: An option not a bool, or ``drag_feedforward`` on an env without the air
             velocity.
     """
     if name not in CONTROLLERS:
         raise ValueError(f"{key}: got {name!r}; allowed: one of {sorted(CONTROLLERS)}")
-    given = {"drag_feedforward": drag_feedforward, "thrust_adaptation": thrust_adaptation}
-    options = {option: value for option, value in given.items() if value is not False}
-    for option, value in options.items():
-        names, what = _OPTIONS[option]
-        if name not in names:
-            raise ValueError(
-                f"{option}: got {value!r} with {key} {name}; allowed: false, or a controller "
-                f"with {what} ({', '.join(names)})"
-            )
+    options = controller_options(
+        name, key, drag_feedforward=drag_feedforward, thrust_adaptation=thrust_adaptation
+    )
     return CONTROLLERS[name](env, **options)

@@ -106,13 +106,16 @@ def _run(params: dict[str, Any], folder: Path) -> dict[str, Any]:
 
 
 def _evaluate(params: dict[str, Any], folder: Path) -> dict[str, Any]:
-    """``quadslam evaluate --policy P --seed S --episodes K`` (env resolved by the spec)."""
+    """``quadslam evaluate --policy P --seed S --episodes K`` (env resolved by the spec;
+    ``--drag-feedforward``, ``--thrust-adaptation`` when the job sets them)."""
+    from agents.control.named import OPTIONS
     from agents.rl.policies import load_policy
 
     env = make_env(params["env"], params["scenario"], params["estimator"], params["overrides"])
     try:
         trust = bool(params.get("trust_pickle", False))
-        policy, name = load_policy(params["policy"], env, trust_pickle=trust)
+        options = {key: True for key in OPTIONS if params.get(key)}
+        policy, name = load_policy(params["policy"], env, trust_pickle=trust, options=options)
         plots = folder / "plots" if params["plots"] else None
         return fly(env, policy, name, params["seeds"], plots)
     finally:

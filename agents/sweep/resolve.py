@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from agents.control.named import CONTROLLERS
+from agents.control.named import CONTROLLERS, OPTIONS, controller_options
 
 DEFAULT_EVAL_SEED = 1000  # held-out seeds of train jobs start here (as in the study)
 DEFAULT_EPISODES = 10  # held-out episodes per train job (quadslam evaluate's default)
@@ -67,14 +67,15 @@ class Resolver:
             point: The grid point: axis keys (``scenario``, ``env``, …) and ``set:<key>`` /
                 ``hp:<key>`` entries, each with one value.
             fixed: The block's non-axis settings (``plots``, ``episodes``, ``eval_seed``,
-                ``trust_pickle``).
+                ``trust_pickle``, ``drag_feedforward``, ``thrust_adaptation``).
             where: How error messages name the point (spec, block, axis values).
             lanes: The seeds a ``run`` or ``evaluate`` job flies at once (``seeds_per_job``).
 
         Returns:
             ``(params, columns)``: :attr:`agents.sweep.spec.Job.params` without the seeds, and
             the table columns (resolved scenario and estimator names, env id, algorithm,
-            policy, one column per ``set``/``hyperparams`` key).
+            policy, the controller options turned on, one column per ``set``/``hyperparams``
+            key).
 
         Raises:
             SweepSpecError: The point names something that does not exist or is invalid, or
@@ -116,6 +117,7 @@ class Resolver:
             algo=params.get("algo"),
             policy=params.get("policy", "dflqr") if kind != "train" else params["algo"],
         )
+        columns.update({key: True for key in OPTIONS if params.get(key)})
         columns.update({k: _cell(v) for k, v in sets.items()})
         columns.update({f"hyperparams.{k}": _cell(v) for k, v in hps.items()})
         return params, columns
@@ -172,6 +174,7 @@ class Resolver:
             params["policy"] = policy
             if fixed.get("trust_pickle"):  # only when set: the other jobs keep their ids
                 params["trust_pickle"] = True
+            params.update(_controller_options(policy, fixed, resolved))
         return params, resolved
 
     def _train(
@@ -236,6 +239,25 @@ class Resolver:
             "eval_seed": int(fixed.get("eval_seed", DEFAULT_EVAL_SEED)),
         }
         return params, resolved
+
+
+def _controller_options(policy: str, fixed: dict[str, Any], resolved: Any) -> dict[str, bool]:
+    """The controller options an evaluate block turns on (``drag_feedforward: true``, …), as
+    the policy ``policy`` on the scenario ``resolved`` takes them.
+
+    Raises:
+        ValueError: An option on a policy without it, or the drag feed-forward on a scenario
+            whose observation has no air velocity (naming the key).
+    """
+    given = {key: fixed[key] for key in OPTIONS if key in fixed}
+    options = controller_options(policy, "policy", **given)
+    if options.get("drag_feedforward") and not resolved.observation.air_velocity:
+        raise ValueError(
+            "drag_feedforward: got true with observation.air_velocity false; allowed: false, or "
+            "set: {observation.air_velocity: true} (with an estimator that estimates the "
+            "wind: ekf_slam with estimator.params.wind: estimate)"
+        )
+    return options
 
 
 def _check_env_id(env_id: str) -> None:

@@ -33,7 +33,11 @@ kind          one job is
 one job, as K lanes of one vector env (``quadslam run --seed S --seeds K``: the same numbers,
 less start-up per episode, fewer and longer jobs). ``trust_pickle: true`` (evaluate; default
 false) is ``quadslam evaluate --trust-pickle``: a run folder without ``policy.npz`` or a bare
-SB3 zip is read by unpickling it, which runs any code it holds.
+SB3 zip is read by unpickling it, which runs any code it holds. ``drag_feedforward: true`` and
+``thrust_adaptation: true`` (evaluate; default false) are ``quadslam evaluate
+--drag-feedforward`` / ``--thrust-adaptation``: only with a ``policy`` of the controllers that
+take them (``lqi``, ``se3``), the drag feed-forward also only with
+``observation.air_velocity: true``.
 
 Everything is checked before any job starts (:func:`load_spec`): unknown keys or kinds,
 empty grids, unknown scenarios, env ids, algorithms or estimators, bad ``set`` keys or values
@@ -57,16 +61,26 @@ from typing import Any
 
 import yaml
 
-from agents.control.named import CONTROLLERS
+from agents.control.named import CONTROLLERS, OPTIONS
 from agents.sweep.resolve import Resolver, SweepSpecError, is_int
 
 __all__ = ["KINDS", "Job", "SweepSpecError", "load_spec", "parse_spec", "shipped_specs"]
 
 KINDS = ("run", "evaluate", "train")
+#: The named controllers' options an evaluate block takes (``quadslam evaluate``'s flags).
+CONTROLLER_KEYS = tuple(OPTIONS)
 _COMMON = ("kind", "name", "scenario", "estimator", "seed", "seeds", "set", "cpus")
 KIND_KEYS: dict[str, tuple[str, ...]] = {
     "run": (*_COMMON, "seeds_per_job", "plots"),
-    "evaluate": (*_COMMON, "seeds_per_job", "policy", "env", "plots", "trust_pickle"),
+    "evaluate": (
+        *_COMMON,
+        "seeds_per_job",
+        "policy",
+        "env",
+        "plots",
+        "trust_pickle",
+        *CONTROLLER_KEYS,
+    ),
     "train": (
         *_COMMON,
         "algo",
@@ -79,6 +93,8 @@ KIND_KEYS: dict[str, tuple[str, ...]] = {
         "eval_seed",
     ),
 }
+#: Keys of one value for the whole block (never an axis).
+FIXED_KEYS = ("plots", "episodes", "eval_seed", "trust_pickle", *CONTROLLER_KEYS)
 #: Keys whose list value is a grid axis (``set`` and ``hyperparams`` entries are too).
 AXIS_KEYS = ("scenario", "estimator", "env", "algo", "policy", "config", "timesteps", "n_envs")
 TOP_KEYS = ("description", "jobs")
@@ -245,7 +261,7 @@ def _expand_block(
     cpus = block.get("cpus", 1)
     if isinstance(cpus, bool) or not isinstance(cpus, int | float) or not cpus > 0:
         raise SweepSpecError(f"{where}.cpus: got {cpus!r}; allowed: a positive number")
-    fixed = {k: block[k] for k in ("plots", "episodes", "eval_seed", "trust_pickle") if k in block}
+    fixed = {k: block[k] for k in FIXED_KEYS if k in block}
     _check_scalars(fixed, where)
 
     axes: list[tuple[str, list[Any]]] = []
@@ -334,7 +350,7 @@ def _seeds(block: dict[str, Any], where: str) -> Sequence[int]:
 
 
 def _check_scalars(fixed: dict[str, Any], where: str) -> None:
-    for key in ("plots", "trust_pickle"):
+    for key in ("plots", "trust_pickle", *CONTROLLER_KEYS):
         if key in fixed and not isinstance(fixed[key], bool):
             raise SweepSpecError(f"{where}.{key}: got {fixed[key]!r}; allowed: true or false")
     if "episodes" in fixed and (not is_int(fixed["episodes"]) or fixed["episodes"] < 0):
