@@ -40,7 +40,7 @@ import numpy as np
 
 from agents.control.dflqr import DFLQRPolicy
 from agents.control.lookat import LookAtPolicy
-from agents.control.named import ADAPTATION, CONTROLLERS, FEEDFORWARD, build_controller
+from agents.control.named import CONTROLLERS, OPTIONS, build_controller
 
 RESIDUAL_DFLQR = "residual_dflqr"
 WRAPPERS = (RESIDUAL_DFLQR,)
@@ -86,16 +86,24 @@ BASES = (*CONTROLLERS, "lookat")
 (:mod:`agents.control.lookat`, for scenarios with the heading channel)."""
 
 
-_OPTIONS = {"drag_feedforward": FEEDFORWARD, "thrust_adaptation": ADAPTATION}
-"""The base options a residual takes (``wrapper.<option>``), each with the bases that have it."""
+_OPTIONS = {option: names for option, (names, _) in OPTIONS.items()}
+"""The base options a residual takes (``wrapper.<option>``), each with the bases that have it
+(the controllers' options, :data:`agents.control.named.OPTIONS`)."""
 
 
-def _option_error(option: str, value: Any, base: str) -> ValueError:
-    """The refusal of ``wrapper.<option>`` (:data:`_OPTIONS`) ``value`` on ``base``."""
-    return ValueError(
-        f"wrapper.{option}: got {value!r} with wrapper.base {base!r}; allowed: false, or "
-        f"true with a base that has it ({', '.join(_OPTIONS[option])})"
-    )
+def _check_options(base: str, given: dict[str, Any]) -> None:
+    """Refuse a ``wrapper.<option>`` of :data:`_OPTIONS` that is not a bool, or true on a
+    ``base`` without it.
+
+    Raises:
+        ValueError: Naming ``wrapper.<option>``, the value, the base and what is allowed.
+    """
+    for option, value in given.items():
+        if not isinstance(value, bool) or (value and base not in _OPTIONS[option]):
+            raise ValueError(
+                f"wrapper.{option}: got {value!r} with wrapper.base {base!r}; allowed: false, "
+                f"or true with a base that has it ({', '.join(_OPTIONS[option])})"
+            )
 
 
 def base_controller(
@@ -112,10 +120,8 @@ def base_controller(
     """
     if base not in BASES:
         raise ValueError(f"wrapper.base: got {base!r}; allowed: {list(BASES)}")
-    for option, value in (("drag_feedforward", drag_feedforward),
-                          ("thrust_adaptation", thrust_adaptation)):  # fmt: skip
-        if value is not False and base not in _OPTIONS[option]:
-            raise _option_error(option, value, base)
+    _check_options(base, {"drag_feedforward": drag_feedforward,
+                          "thrust_adaptation": thrust_adaptation})  # fmt: skip
     if base == "lookat":
         return LookAtPolicy(env)
     return build_controller(base, env, "wrapper.base", drag_feedforward=drag_feedforward,
@@ -371,10 +377,7 @@ def parse_wrapper_spec(spec: Any) -> tuple[str, dict[str, Any]] | None:
     base = kwargs.get("base", "dflqr")
     if base not in BASES:
         raise ValueError(f"wrapper.base: got {kwargs['base']!r}; allowed: {list(BASES)}")
-    for option, bases in _OPTIONS.items():
-        value = kwargs.get(option, False)
-        if not isinstance(value, bool) or (value and base not in bases):
-            raise _option_error(option, value, base)
+    _check_options(base, {option: kwargs.get(option, False) for option in _OPTIONS})
     return name, kwargs
 
 
