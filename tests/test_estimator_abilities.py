@@ -16,6 +16,7 @@ from quadslam_env.estimation import (
     AssociatesUnlabeled,
     ChecksMemory,
     FusesLandmarks,
+    FusesRanges,
     HasFullState,
     HasParticles,
     LabelsReturns,
@@ -50,6 +51,8 @@ BATCH: dict[type, set[str]] = {
     MonitorsIntegrity: {"ekf_slam"},
     # Only EKF-SLAM fuses another vehicle's landmarks into its joint Gaussian (docs/team.md).
     FusesLandmarks: {"ekf_slam"},
+    # and a range to another vehicle, beaconed by its broadcast position (docs/team.md).
+    FusesRanges: {"ekf_slam"},
     # and gives every lane's landmark covariances at once (the team's map terms).
     ReportsLandmarkCovariances: {"ekf_slam"},
     # The LaneLoop passes a vehicle or a wind on to the lanes that use it (below).
@@ -77,6 +80,7 @@ MODELS_DRAG = {"fastslam"}
 TAKES_LATE_SCANS = {"isam2"}
 MONITORS_INTEGRITY = {"ekf_slam"}
 FUSES_LANDMARKS = {"ekf_slam"}
+FUSES_RANGES = {"ekf_slam"}
 
 
 def _built() -> dict[str, Any]:
@@ -136,6 +140,11 @@ def test_monitors_integrity_flag_is_the_documented_one(name: str) -> None:
 @pytest.mark.parametrize("name", sorted(BUILT_IN))
 def test_fuses_landmarks_flag_is_the_documented_one(name: str) -> None:
     assert registry.fuses_landmarks(name) == (name in FUSES_LANDMARKS)
+
+
+@pytest.mark.parametrize("name", sorted(BUILT_IN))
+def test_fuses_ranges_flag_is_the_documented_one(name: str) -> None:
+    assert registry.fuses_ranges(name) == (name in FUSES_RANGES)
 
 
 def test_the_loop_says_its_lanes_flag(built: dict[str, Any]) -> None:

@@ -44,6 +44,7 @@ from estimators.ekf.kernels import (
     predict_lanes,
 )
 from estimators.ekf.monitor import IntegrityMonitor
+from estimators.ekf.ranging import RangeFusion
 from estimators.ekf.settings import (
     ACCEL_BIAS_XY,
     ACCEL_BIAS_Z,
@@ -65,7 +66,13 @@ _AR3 = np.arange(3)
 
 @register("ekf_slam")
 class EkfSlamBatch(
-    UnlabeledScans, FilterInspection, MemorySizing, WindStates, IntegrityMonitor, LandmarkFusion
+    UnlabeledScans,
+    FilterInspection,
+    MemorySizing,
+    WindStates,
+    IntegrityMonitor,
+    LandmarkFusion,
+    RangeFusion,
 ):
     """EKF-SLAM of seed 001 §2.3 with known data association, for B lanes.
 

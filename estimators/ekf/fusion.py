@@ -64,7 +64,7 @@ _SECTIONS = 80
 
 
 def ci_trace(
-    P: FloatArray, idx: np.ndarray, R: FloatArray
+    P: FloatArray, idx: np.ndarray, R: FloatArray, A: FloatArray | None = None
 ) -> tuple[float, FloatArray, FloatArray, FloatArray]:
     """The trace of the CI-fused joint covariance as a function of ω, in closed form.
 
@@ -78,11 +78,16 @@ def ci_trace(
 
     convex in ω (the matrix inverse is operator convex and its argument affine in ω). With
     ``idx`` every entry (H = I) this is the two-estimate CI, ``(ω P⁻¹ + (1 − ω) R⁻¹)⁻¹``.
+    A measurement ``H = A`` on the entries ``idx`` (zero elsewhere) is the same with
+    ``P_mm → A P_mm Aᵀ`` and ``P[idx, :] → A P[idx, :]`` (the derivation only uses ``H P Hᵀ``
+    and ``H P``).
 
     Args:
         P: (n, n) the receiver's covariance (weight ω), positive definite.
-        idx: (m,) int the measured entries.
+        idx: (q,) int the measured entries.
         R: (m, m) the measurement's covariance (weight 1 − ω), positive definite.
+        A: (m, q) the measurement's rows on the entries ``idx``; ``None``: the identity
+            (H selects them, m = q).
 
     Returns:
         ``(T, g, d, V)``: the trace, (m,) ``g`` and ``d``, and (m, m) ``V``.
@@ -91,9 +96,12 @@ def ci_trace(
         numpy.linalg.LinAlgError: ``R`` is not positive definite.
     """
     L = np.linalg.cholesky(R)
-    M = np.linalg.solve(L, np.linalg.solve(L, P[np.ix_(idx, idx)]).T)  # L⁻¹ P_mm L⁻ᵀ
+    P_mm, rows = P[np.ix_(idx, idx)], P[idx, :]
+    if A is not None:
+        P_mm, rows = A @ P_mm @ A.T, A @ rows
+    M = np.linalg.solve(L, np.linalg.solve(L, P_mm).T)  # L⁻¹ P_mm L⁻ᵀ
     d, V = np.linalg.eigh(0.5 * (M + M.T))
-    C = np.linalg.solve(L, P[idx, :]).T @ V  # (n, m): (Vᵀ L⁻¹ P[idx, :])ᵀ
+    C = np.linalg.solve(L, rows).T @ V  # (n, m): (Vᵀ L⁻¹ P[idx, :])ᵀ
     return float(np.trace(P)), np.einsum("ij,ij->j", C, C), np.maximum(d, 0.0), V
 
 
@@ -103,7 +111,7 @@ def fused_trace(omega: float, T: float, g: FloatArray, d: FloatArray) -> float:
     return float((T - np.sum(g * w / (d * w + omega))) / omega)
 
 
-def ci_weight(P: FloatArray, idx: np.ndarray, R: FloatArray) -> float:
+def ci_weight(P: FloatArray, idx: np.ndarray, R: FloatArray, A: FloatArray | None = None) -> float:
     """ω ∈ [OMEGA_MIN, 1 − OMEGA_MIN] minimising the trace of the fused joint covariance
     (Julier & Uhlmann 1997's minimum-trace rule over the receiver's whole state).
 
@@ -111,13 +119,14 @@ def ci_weight(P: FloatArray, idx: np.ndarray, R: FloatArray) -> float:
 
     Args:
         P: (n, n) covariance of the estimate weighted ω.
-        idx: (m,) int its entries measured.
+        idx: (q,) int its entries measured.
         R: (m, m) covariance of the measurement weighted 1 − ω.
+        A: (m, q) the measurement's rows on ``idx`` (``None``: the identity; :func:`ci_trace`).
 
     Returns:
         ω.
     """
-    T, g, d, _ = ci_trace(P, idx, R)
+    T, g, d, _ = ci_trace(P, idx, R, A)
     lo, hi = OMEGA_MIN, 1.0 - OMEGA_MIN
     a, b = hi - _GOLD * (hi - lo), lo + _GOLD * (hi - lo)
     fa, fb = fused_trace(a, T, g, d), fused_trace(b, T, g, d)
@@ -158,18 +167,51 @@ def fuse_lane(
         The ω used (1 for ``naive``); NaN if the update failed (nothing is changed then: the
         innovation covariance not positive definite, or a non-finite result).
     """
-    k = cols.shape[0]
     idx = (cols[:, None] + np.arange(3)).ravel()
-    P_mm = Pb[np.ix_(idx, idx)]
+    return ci_update(xb, Pb, nb, idx, means.reshape(-1) - xb[idx], R, mode)
+
+
+def ci_update(
+    xb: FloatArray,
+    Pb: FloatArray,
+    nb: int,
+    idx: np.ndarray,
+    nu: FloatArray,
+    R: FloatArray,
+    mode: str,
+    A: FloatArray | None = None,
+) -> float:
+    """The CI (or naive) update of one lane's state by a measurement of its entries ``idx``,
+    in place: the Kalman update of the prior ``(x, P / ω)`` with noise ``R / (1 − ω)``, ω of
+    :func:`ci_weight` (module docstring; Julier & Uhlmann 1997), by the filter's Cholesky gain
+    kernels (``S = L Lᵀ``, ``Wᵀ = L⁻¹ H P / ω``, ``x += W L⁻¹ ν``, ``P = P / ω − W Wᵀ``).
+
+    Args:
+        xb: (≥ nb,) the lane's total mean.
+        Pb: (≥ nb, ≥ nb) the lane's total covariance, fully symmetric (synced).
+        nb: Used size n of the lane's state.
+        idx: (q,) int the measured entries of x.
+        nu: (m,) the innovation ``z − h(x)``.
+        R: (m, m) the measurement's covariance.
+        mode: ``ci`` or ``naive`` (ω = 1).
+        A: (m, q) the measurement Jacobian on the entries ``idx`` (H = A there, zero
+            elsewhere); ``None``: the identity (H selects them).
+
+    Returns:
+        The ω used (1 for ``naive``); NaN if the update failed (nothing is changed then: the
+        innovation covariance not positive definite, or a non-finite result).
+    """
+    P_mm, HP = Pb[np.ix_(idx, idx)], Pb[idx, :nb]
+    if A is not None:
+        P_mm, HP = A @ P_mm @ A.T, A @ HP
     if mode == "ci":
-        omega = ci_weight(Pb[:nb, :nb], idx, R)
+        omega = ci_weight(Pb[:nb, :nb], idx, R, A)
         prior, noise = 1.0 / omega, R / (1.0 - omega)
     else:
         omega, prior, noise = 1.0, 1.0, R
-    U = prior * Pb[idx, :nb]  # H (P / ω)
+    U = prior * HP  # H (P / ω)
     S = prior * P_mm + noise
-    nu = means.reshape(-1) - xb[idx]
-    m = 3 * k
+    m = nu.shape[0]
     Wt, z, dx = np.empty((m, nb)), np.empty(m), np.empty(nb)
     if not stacked_gain(S, U, nu, np.arange(m), Wt, z):
         return float("nan")

@@ -11,7 +11,8 @@ Abilities that only some estimators have are protocols of their own, checked wit
 ``isinstance(estimator, Ability)`` where they are used (docs/design.md §5): of a batch,
 :class:`ReservesLandmarks`, :class:`AssociatesUnlabeled`, :class:`UsesTruth`,
 :class:`ShowsParticles`, :class:`HasFullState`, :class:`TakesVehicle`, :class:`TakesWind`,
-:class:`TakesLateScans`, :class:`MonitorsIntegrity` and :class:`FusesLandmarks`;
+:class:`TakesLateScans`, :class:`MonitorsIntegrity`, :class:`FusesLandmarks` and
+:class:`FusesRanges`;
 of one vehicle's estimator (what :class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its
 lanes), :class:`ChecksMemory`, :class:`LabelsReturns`, :class:`HasParticles`,
 :class:`UsesVehicle` and :class:`ModelsDrag`. A runtime-checkable protocol's
@@ -23,8 +24,9 @@ scenario check must know before any estimator is built is a class flag that the 
 reads instead: ``associates_unlabeled``, ``uses_truth``, ``copyable = False`` (an estimator
 the env cannot deep-copy for a slow IMU or a delayed LiDAR), ``takes_late_scans`` (one that
 takes a delayed LiDAR's scans at their own time without a copy), ``models_drag`` (a process
-model with drag, which ``wind.inform_estimator`` needs), ``monitors_integrity`` and
-``fuses_landmarks`` (the team env's map fusion).
+model with drag, which ``wind.inform_estimator`` needs), ``monitors_integrity``,
+``fuses_landmarks`` (the team env's map fusion) and ``fuses_ranges`` (its ranges between
+vehicles).
 """
 
 from __future__ import annotations
@@ -294,6 +296,27 @@ class FusesLandmarks(Protocol):
     def landmark_covariance(self, lane: int, ids: np.ndarray) -> FloatArray:
         """The joint covariance (3k, 3k) m² of lane ``lane``'s mapped landmarks ``ids`` (k,),
         in their order (what a message with ``team.message_covariance: joint`` carries)."""
+
+
+@runtime_checkable
+class FusesRanges(Protocol):
+    """A batch estimator that fuses a range to another vehicle, whose position estimate is
+    broadcast, into a lane's state (the team env's ``team.range_fusion: ci``, docs/team.md);
+    its class says ``fuses_ranges = True``, which the team settings' check reads before any
+    estimator is built."""
+
+    def fuse_range(
+        self,
+        lane: int,
+        beacon: FloatArray,
+        beacon_cov: FloatArray,
+        measured_m: float,
+        sigma_m: float,
+    ) -> tuple[float, float]:
+        """Fuse the range ``measured_m`` m (noise std ``sigma_m`` m) from lane ``lane``'s
+        vehicle to another vehicle estimated at ``beacon`` (3,) m, N frame, with covariance
+        ``beacon_cov`` (3, 3) m², by covariance intersection (the correlation between the
+        two is unknown); returns the CI weight ω (NaN if not fused) and the innovation, m."""
 
 
 # ---------------------------------------------------------- abilities of one vehicle's

@@ -173,6 +173,17 @@ def fuses_landmarks(name: str) -> bool:
     return bool(getattr(_load(name), "fuses_landmarks", False))
 
 
+def fuses_ranges(name: str) -> bool:
+    """Whether the estimator ``name`` fuses a range to another vehicle: its class says
+    ``fuses_ranges = True`` (:class:`~quadslam_env.estimation.protocol.FusesRanges`; the team
+    env's ``team.range_fusion: ci`` is refused otherwise).
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    return bool(getattr(_load(name), "fuses_ranges", False))
+
+
 def takes_late_scans(name: str) -> bool:
     """Whether the estimator ``name`` takes a delayed LiDAR's scans at their own time without
     being copied: its class says ``takes_late_scans = True``
@@ -239,7 +250,8 @@ def memory_terms(name: str, load: Workload, params: dict[str, Any]) -> list[Memo
 def estimator_flag(name: str, flag: Callable[[str], bool]) -> bool:
     """``flag(name)`` for a scenario check, with ``flag`` one of the class flags above
     (:func:`associates_unlabeled`, :func:`copyable`, :func:`models_drag`,
-    :func:`monitors_integrity`, :func:`takes_late_scans`, :func:`fuses_landmarks`).
+    :func:`monitors_integrity`, :func:`takes_late_scans`, :func:`fuses_landmarks`,
+    :func:`fuses_ranges`).
 
     Raises:
         ConfigError: Unknown name or a plug-in that cannot be loaded (the registry's message).

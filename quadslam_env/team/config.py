@@ -1,5 +1,5 @@
 """The team env's settings: how many vehicles, how the vehicles' estimates are fused, where
-each vehicle flies and when two collide (docs/team.md).
+each vehicle flies, when two collide and the ranges between them (docs/team.md).
 
 The ``team`` mapping of :func:`quadslam_env.team.parallel_env` is validated by the settings
 system (:class:`~quadslam_env.config_schema.Section`), so a bad value is a
@@ -18,7 +18,7 @@ import numpy as np
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.config_schema import ConfigError, Section
 from quadslam_env.config_schema import spec as _spec
-from quadslam_env.estimation import estimator_flag, fuses_landmarks
+from quadslam_env.estimation import estimator_flag, fuses_landmarks, fuses_ranges
 from quadslam_env.types import FloatArray
 
 FUSION_MODES = ("independent", "ci", "naive")
@@ -45,6 +45,18 @@ COMMS_KEYS = (
     "message_covariance",
 )
 """The communication settings, read only with a fusion mode of :data:`SHARING`."""
+
+RANGE_KEYS = ("range_sigma_m", "range_rate_hz", "range_dropout", "range_max_m", "range_fusion")
+"""The settings of the ranges between vehicles, read only with ``team.ranges``."""
+
+RANGE_FUSIONS = ("none", "ci")
+"""What a vehicle does with the ranges it measures: ``none``, nothing (they are only in its
+``info``); ``ci``, each fused into its estimate by covariance intersection with the other's
+broadcast position estimate (docs/team.md "Ranges between vehicles")."""
+
+BEACON_FLOATS = 3 + 6
+"""The floats of a position broadcast for the ranges: the mean (3) and the upper triangle of
+its 3×3 covariance (6)."""
 
 COVARIANCES = ("joint", "blocks")
 """What a message carries of its landmarks' covariance: ``joint``, the sender's joint (3k, 3k)
@@ -83,9 +95,10 @@ class TeamConfig(Section):
     """The team of N vehicles in one world: fusion, per-vehicle references, collisions."""
 
     SECTION: ClassVar[str] = "team"
-    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = dict.fromkeys(
-        COMMS_KEYS, ("fusion", SHARING)
-    )
+    ONLY_FOR: ClassVar[dict[str, tuple[str, tuple[Any, ...]]]] = {
+        **dict.fromkeys(COMMS_KEYS, ("fusion", SHARING)),
+        **dict.fromkeys(RANGE_KEYS, ("ranges", (True,))),
+    }
     fusion: str = _spec(
         "independent",
         kind="str",
@@ -171,6 +184,49 @@ class TeamConfig(Section):
         doc="two vehicles whose true positions come closer than this, m, both terminate "
         "(vehicle_collision); null = no collision check",
     )
+    ranges: bool = _spec(
+        False,
+        kind="bool",
+        doc="every pair of live vehicles within range_max_m measures its distance at "
+        "range_rate_hz (inter-vehicle ranging); false = no ranges",
+    )
+    range_sigma_m: float = _spec(
+        0.1,
+        lo=0.0,
+        lo_open=True,
+        hi=100.0,
+        doc="std of a range's additive Gaussian noise, m",
+    )
+    range_rate_hz: float = _spec(
+        10.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1e4,
+        doc="range epochs per second, Hz, at most episode.control_hz (at the end of the step "
+        "on which floor(t · rate) grows)",
+    )
+    range_dropout: float = _spec(
+        0.0,
+        lo=0.0,
+        hi=1.0,
+        doc="probability that a pair's range of an epoch is lost (drawn from the "
+        "lower-numbered vehicle's own generator)",
+    )
+    range_max_m: float = _spec(
+        50.0,
+        lo=0.0,
+        lo_open=True,
+        hi=1e6,
+        doc="pairs whose true distance exceeds this, m, get no range",
+    )
+    range_fusion: str = _spec(
+        "none",
+        kind="str",
+        choices=RANGE_FUSIONS,
+        doc="none: the ranges are only in info; ci: each vehicle fuses the ranges it measures "
+        "with the other's broadcast position estimate (3 + 6 floats) by covariance "
+        "intersection",
+    )
 
     @classmethod
     def from_dict(cls, data: Any) -> Any:
@@ -226,6 +282,8 @@ class TeamConfig(Section):
                 )
         if self.fusion in SHARING:
             self._check_sharing(scenario)
+        if self.ranges:
+            self._check_ranges(scenario)
         if scenario.faults.kind == "landmark_moves":
             raise ConfigError(
                 "faults.kind: got 'landmark_moves'; allowed in the team env: any other kind "
@@ -269,6 +327,35 @@ class TeamConfig(Section):
             raise ConfigError(
                 f"team.message_rate_hz: got {rate!r}; allowed: at most episode.control_hz = "
                 f"{control!r} (one message per step)"
+            )
+
+    def _check_ranges(self, scenario: ScenarioConfig) -> None:
+        """What the ranges need of the scenario: epochs the steps can hold and, to fuse them,
+        an estimator that fuses ranges and one run of it (no copies).
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        rate, control = self.range_rate_hz, scenario.episode.control_hz
+        if rate > control:
+            raise ConfigError(
+                f"team.range_rate_hz: got {rate!r}; allowed: at most episode.control_hz = "
+                f"{control!r} (one range epoch per step)"
+            )
+        if self.range_fusion == "none":
+            return
+        name, got = scenario.estimator.name, f"team.range_fusion: got {self.range_fusion!r}"
+        if not estimator_flag(name, fuses_ranges):
+            raise ConfigError(
+                f"{got} with estimator.name = {name!r}, which cannot fuse ranges; allowed: "
+                "'none', or an estimator with one (ekf_slam, or a plug-in with fuses_ranges = "
+                "True)"
+            )
+        second = scenario.second_run
+        if second is not None:
+            raise ConfigError(
+                f"{got} with {second} set (the estimator runs from copies, which a fused range "
+                f"would miss); allowed: 'none', or {second} at its default"
             )
 
     def offsets(self, n_vehicles: int, period_s: float) -> tuple[FloatArray, FloatArray]:

@@ -9,8 +9,10 @@ With ``team.fusion: independent`` nothing passes between the vehicles, so ``vehi
 single env (``gymnasium.make("QuadSLAM-v0")`` with the same seed), step for step, bit for bit.
 With ``ci`` or ``naive`` the vehicles send their landmark estimates
 (:class:`~quadslam_env.team.comms.Comms`: sent at the end of a step, fused by the estimator at
-the start of a later one). The team's map terms are read from the lane snapshots
-(:class:`~quadslam_env.team.map_metrics.MapMetrics`).
+the start of a later one). With ``team.ranges`` the vehicles measure their distances
+(:class:`~quadslam_env.team.ranging.Ranges`: at the end of a range epoch's step, fused with
+``range_fusion: ci`` at the start of the next). The team's map terms are read from the lane
+snapshots (:class:`~quadslam_env.team.map_metrics.MapMetrics`).
 The core's check across lanes ends two vehicles that collide
 (:class:`~quadslam_env.team.collision.Collisions`). A vehicle that ends leaves ``agents``
 (PettingZoo's convention); its lane is no longer stepped.
@@ -40,8 +42,9 @@ from quadslam_env.team.comms import Comms
 from quadslam_env.team.config import SHARING, TeamConfig, parse_vehicles
 from quadslam_env.team.map_metrics import MapMetrics
 from quadslam_env.team.metrics import TeamMetrics
+from quadslam_env.team.ranging import Ranges
 from quadslam_env.team.world import start_states, team_references, vehicle_generators
-from quadslam_env.types import FloatArray
+from quadslam_env.types import POS, FloatArray
 
 require("pettingzoo", "team", "quadslam_env.team (the team env)")  # a missing extra: one line
 from pettingzoo import ParallelEnv  # noqa: E402
@@ -122,6 +125,9 @@ class TeamParallelEnv(ParallelEnv):
         if self.team.fusion in SHARING:
             control_hz = self.scenario.episode.control_hz
             self._comms = Comms(self.team, n, self.scenario.lidar_every, control_hz)
+        self._ranges: Ranges | None = None
+        if self.team.ranges:
+            self._ranges = Ranges(self.team, n, self.scenario.episode.control_hz)
         self._steps_done = 0
 
     @property
@@ -179,11 +185,14 @@ class TeamParallelEnv(ParallelEnv):
         self._maps.reset()
         if self._comms is not None:
             self._comms.reset(self._rngs)
+        if self._ranges is not None:  # spawned after the messages' generators
+            self._ranges.reset(self._rngs)
         err = np.array([row.get("est_pos_err_m", math.nan) for row in infos])
         team = self._metrics.terms(err, core.vehicle.state, self._live)
         anees, team = self._map_terms(team, self._live)
+        vehicle = {"est_landmark_anees": anees} | self._range_terms()
         for i, row in enumerate(infos):
-            row |= _applying({"est_landmark_anees": float(anees[i])})
+            row |= _applying({key: float(value[i]) for key, value in vehicle.items()})
         team = _applying(team)
         observations = {agent: rows[i] for i, agent in enumerate(self.agents)}
         return observations, {agent: {**infos[i], **team} for i, agent in enumerate(self.agents)}
@@ -200,10 +209,21 @@ class TeamParallelEnv(ParallelEnv):
         counts of the vehicles ``lanes`` (N,) bool."""
         truth = self._truth()
         anees = self._maps.observe(self._core.estimator, truth, truth.shape[0], lanes)
-        team = team | self._maps.terms(truth, lanes)
-        if self._comms is not None:
-            team |= self._comms.terms()
-        return anees, team
+        return anees, team | self._maps.terms(truth, lanes) | self._link_terms()
+
+    def _link_terms(self) -> dict[str, float]:
+        """The episode's message counts so far and the bytes of the ranges' broadcasts (in
+        ``team_bytes_sent``); empty with neither."""
+        out = {} if self._comms is None else self._comms.terms()
+        ranges = self._ranges
+        if ranges is not None and ranges.fusion == "ci":
+            out["team_bytes_sent"] = out.get("team_bytes_sent", 0.0) + float(ranges.bytes_sent)
+        return out
+
+    def _range_terms(self) -> dict[str, FloatArray]:
+        """Each vehicle's range terms (N,) (:data:`~quadslam_env.team.ranging.VEHICLE_KEYS`;
+        none without ranges)."""
+        return {} if self._ranges is None else self._ranges.vehicle_terms()
 
     def step(self, actions: Any) -> Step:
         """Advance every live vehicle one control period (``dt`` s).
@@ -228,9 +248,11 @@ class TeamParallelEnv(ParallelEnv):
                 "vehicle's ended); call reset() before step()"
             )
         act = self._actions(actions)
-        core, live, comms = self._core, self._live.copy(), self._comms
+        core, live, comms, ranges = self._core, self._live.copy(), self._comms, self._ranges
         if comms is not None:  # the messages due now, fused before the step
             comms.deliver(core.estimator, self._steps_done, live)
+        if ranges is not None:  # the last epoch's ranges, fused before the step (ci)
+            ranges.deliver(core.estimator, live)
         obs, reward, terminated, truncated, info = core.step(act, live)
         self._steps_done += 1
         err = info["est_pos_err_m"]
@@ -239,11 +261,13 @@ class TeamParallelEnv(ParallelEnv):
         self._live &= ~(terminated | truncated)
         if comms is not None:  # the live vehicles due to send, from their new estimates
             comms.send(core.estimator, core.steps, self._live)
+        if ranges is not None:  # the ranges of the live vehicles, if the step ends an epoch
+            ranges.measure(core.vehicle.state[:, POS], core.est, self._live, self._steps_done)
         info["est_landmark_anees"], team = self._map_terms(team, live)
+        info |= self._range_terms()
         if not self._live.any():  # the last vehicles end: the team's episode summary
             team |= self._metrics.summary() | self._maps.summary(self._truth())
-            if comms is not None:
-                team |= {f"team_episode_{k[5:]}": v for k, v in comms.terms().items()}
+            team |= {f"team_episode_{k[5:]}": v for k, v in self._link_terms().items()}
         team = _applying(team)
         out: Step = ({}, {}, {}, {}, {})
         for agent in self.agents:
