@@ -50,6 +50,7 @@ from estimators.ekf.correction import correction, stacked_gain
 from estimators.ekf.kernels import D_DIVERGED, sync_lane
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import subtract_outer
+from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 
 FUSION_MODES = ("ci", "naive")
@@ -225,6 +226,33 @@ def ci_update(
     return float(omega)
 
 
+@kernel
+def gather_landmark_blocks(
+    P: FloatArray,
+    nv: int,
+    slot_of_id: np.ndarray,
+    mapped: np.ndarray,
+    known: np.ndarray,
+    out: FloatArray,
+) -> None:
+    """Each lane's 3×3 landmark blocks of P by id, in place.
+
+    Args:
+        P: (B, n, n) the lanes' covariances.
+        nv: Vehicle states before the first landmark.
+        slot_of_id: (B, Lmax) int each id's map slot.
+        mapped: (B, Lmax) bool the mapped ids.
+        known: (B,) bool known-map lanes (their blocks are zeros).
+        out: (B, Lmax, 3, 3) m²: the blocks of the mapped ids, zeros elsewhere.
+    """
+    for b in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            c = nv + 3 * slot_of_id[b, j]
+            for r in range(3):
+                for q in range(3):
+                    out[b, j, r, q] = P[b, c + r, c + q] if mapped[b, j] and not known[b] else 0.0
+
+
 def message_noise(covs: FloatArray, keep: np.ndarray, mode: str) -> FloatArray:
     """The covariance R (3m, 3m) m² of a message's ``keep`` (k,) bool landmarks (m of them).
 
@@ -255,6 +283,7 @@ class LandmarkFusion:
     fuses_landmarks = True
     state: EkfState
     nv: int
+    _landmark_covs: FloatArray | None = None
 
     def fuse_landmarks(
         self, lane: int, ids: np.ndarray, means: FloatArray, covs: FloatArray, mode: str
@@ -325,16 +354,15 @@ class LandmarkFusion:
     def landmark_covariances(self) -> FloatArray:
         """(B, Lmax, 3, 3) m² every lane's landmark covariances by id
         (:class:`~quadslam_env.estimation.protocol.ReportsLandmarkCovariances`): the 3×3
-        diagonal blocks of P of the mapped landmarks (zeros in known-map lanes; the rows of
-        unmapped ids are those of slot 0 and mean nothing). No sync is needed: only the ``P_mv``
-        block lags after a prediction, never a landmark's own block."""
+        diagonal blocks of P of the mapped landmarks, zeros elsewhere and in known-map lanes.
+        No sync is needed: only the ``P_mv`` block lags after a prediction, never a landmark's
+        own block."""
         st = self.state
-        cols = self.nv + 3 * np.maximum(st.slot_of_id, 0)  # (B, Lmax)
-        rows = cols[..., None] + np.arange(3)  # (B, Lmax, 3)
-        lanes = np.arange(cols.shape[0])[:, None, None, None]
-        out = st.P[lanes, rows[..., :, None], rows[..., None, :]]
-        out[st.known] = 0.0
-        return out
+        if self._landmark_covs is None or self._landmark_covs.shape[:2] != st.mapped.shape:
+            self._landmark_covs = np.zeros((*st.mapped.shape, 3, 3))
+        gather_landmark_blocks(st.P, self.nv, st.slot_of_id, st.mapped, st.known,
+                               self._landmark_covs)  # fmt: skip
+        return self._landmark_covs
 
     def _sync(self, lane: int) -> None:
         """Make lane ``lane``'s covariance fully symmetric (it may hold one triangle)."""

@@ -25,6 +25,7 @@ The episode summaries take each vehicle's map at its last step (``team_episode_*
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 
@@ -69,6 +70,43 @@ def lanes_map_errors(
             nees[b] += cholesky_nees(covs[b, j], e, L, y)[0]
 
 
+@kernel
+def team_map_errors(
+    mapped: np.ndarray, means: FloatArray, rmse: FloatArray, lanes: np.ndarray, truth: FloatArray
+) -> tuple[float, float, float]:
+    """The team's map terms over the vehicles ``lanes``.
+
+    Args:
+        mapped: (N, L) bool each vehicle's latest map, by id.
+        means: (N, L, 3) its estimates, m, N frame.
+        rmse: (N,) each vehicle's map RMSE, m (NaN: nothing mapped).
+        lanes: (N,) bool the vehicles of the step.
+        truth: (L, 3) the true positions, m, N frame.
+
+    Returns:
+        ``(team_map_rmse_m, team_union_map_rmse_m, team_n_mapped)``: the mean of the vehicles'
+        map RMSEs, the RMSE of the union of their maps (each landmark the estimate of the
+        lowest-numbered vehicle that has it), its landmarks (NaN, NaN, 0 with none mapped).
+    """
+    total, k = 0.0, 0
+    for i in range(rmse.shape[0]):
+        if lanes[i] and rmse[i] == rmse[i]:
+            total += rmse[i]
+            k += 1
+    sq, n = 0.0, 0
+    for j in range(mapped.shape[1]):
+        for i in range(mapped.shape[0]):
+            if lanes[i] and mapped[i, j]:
+                for a in range(3):
+                    d = means[i, j, a] - truth[j, a]
+                    sq += d * d
+                n += 1
+                break
+    if n == 0:
+        return math.nan, math.nan, 0.0
+    return total / k, math.sqrt(sq / n), float(n)
+
+
 class MapMetrics:
     """Each vehicle's latest map and the team's terms over them (module docstring).
 
@@ -82,6 +120,7 @@ class MapMetrics:
         self._means = np.zeros((n_vehicles, 0, 3))
         self._anees = np.full(n_vehicles, math.nan)
         self._rmse = np.full(n_vehicles, math.nan)
+        self._batched: bool | None = None  # the estimator reports every lane's covariances
 
     def reset(self) -> None:
         """Forget the maps of the last episode."""
@@ -109,11 +148,13 @@ class MapMetrics:
             self._mapped = np.zeros((self.n_vehicles, count), dtype=bool)
             self._means = np.zeros((self.n_vehicles, count, 3))
         sel = np.flatnonzero(lanes)
-        if isinstance(estimator, ReportsLandmarkCovariances):
+        if self._batched is None:  # a runtime protocol's check is slow: once per estimator
+            self._batched = isinstance(estimator, ReportsLandmarkCovariances)
+        if self._batched:
             est = estimator.estimate()
             mapped = est.landmark_mapped[sel, :count]
             means = est.landmark_means[sel, :count]
-            covs = estimator.landmark_covariances()[sel, :count]
+            covs = cast(ReportsLandmarkCovariances, estimator).landmark_covariances()[sel, :count]
         else:
             mapped = np.zeros((sel.size, count), dtype=bool)
             means, covs = np.zeros((sel.size, count, 3)), np.zeros((sel.size, count, 3, 3))
@@ -136,21 +177,11 @@ class MapMetrics:
     def terms(self, truth: FloatArray, lanes: np.ndarray) -> dict[str, float]:
         """:data:`TERMS` over the latest maps of the vehicles ``lanes`` (N,) bool (NaN where
         none has a landmark mapped)."""
-        mapped = self._mapped[lanes]
-        union = mapped.any(axis=0)  # (L,): the lowest-numbered vehicle's estimate of each
-        if not union.any():
-            return {"team_map_rmse_m": math.nan, "team_union_map_rmse_m": math.nan,
-                    "team_n_mapped": 0.0}  # fmt: skip
-        ids = np.flatnonzero(union)
-        first = self._means[lanes][np.argmax(mapped, axis=0)[ids], ids]
-        rmse = self._rmse[lanes]
-        return {
-            "team_map_rmse_m": float(np.mean(rmse[np.isfinite(rmse)])),
-            "team_union_map_rmse_m": math.sqrt(
-                float(np.mean(np.sum((first - truth[ids]) ** 2, axis=1)))
-            ),
-            "team_n_mapped": float(ids.size),
-        }
+        count = self._mapped.shape[1]
+        rmse, union, n = team_map_errors(
+            self._mapped, self._means, self._rmse, lanes, truth[:count]
+        )
+        return {"team_map_rmse_m": rmse, "team_union_map_rmse_m": union, "team_n_mapped": n}
 
     def summary(self, truth: FloatArray) -> dict[str, float]:
         """The episode's ``team_episode_*`` terms over every vehicle's last map, and
