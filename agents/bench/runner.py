@@ -86,16 +86,10 @@ def installed_version(package: str) -> str | None:
 def machine_info() -> dict[str, Any]:
     """What the numbers were measured on (CPU model, cores, load, the installed packages'
     versions: those of :data:`VERSIONED` that are installed, no key for the others)."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    from agents.io.cpus import cpu_model
+
     return {
-        "cpu": cpu,
+        "cpu": cpu_model(),
         "cores": os.cpu_count(),
         "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
         "python": platform.python_version(),
