@@ -19,13 +19,18 @@ pytest.importorskip("pettingzoo")
 def test_tiny_study_against_the_single_env_and_its_definitions(
     tmp_path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(study, "ROWS", {k: study.ROWS[k] for k in ("independent", "ci")})
+    monkeypatch.setattr(study, "ROWS", {k: study.ROWS[k] for k in ("independent", "ci_every_scan")})
+    monkeypatch.setattr(study, "RANGE_ROWS", {"ranges": study.RANGE_ROWS["independent_ranges"]})
     result = study.run_study(seeds=2, first_seed=5, quick=True, sizes=(1, 2), duration_s=4.0)
     assert [(r["n_vehicles"], r["row"]) for r in result["rows"]] == [
         (1, "independent"),
         (2, "independent"),
-        (2, "ci"),
+        (2, "ci_every_scan"),
+        (2, "ranges"),  # the largest team's rows with ranges
     ]
+    omega = result["rows"][3]["summary"]["range_omega_median"]
+    assert omega is not None and 0.0 < omega < 1.0
+    assert result["rows"][2]["summary"]["range_omega_median"] is None
     # A team of one is the single env: its position RMSE and final map RMSE, seed for seed.
     env = gym.make("QuadSLAM-v0", scenario=study.SCENARIO, episode={"duration_s": 4.0})
     policy = DFLQRPolicy.from_env(env)
@@ -54,7 +59,7 @@ def test_tiny_study_against_the_single_env_and_its_definitions(
     assert ci["vs_independent"] == pytest.approx(ci["map_rmse_m"] / independent["map_rmse_m"])
     assert ci["kb_sent"] > 0 == independent["kb_sent"]
     text = study.format_study(result)
-    assert "| 2 | ci |" in text
+    assert "| 2 | ci_every_scan |" in text
     study.write_json(result, tmp_path / "coop.json")
     assert json.loads((tmp_path / "coop.json").read_text())["settings"]["team_sizes"] == [1, 2]
     assert study.plot_study(result, tmp_path).stat().st_size > 10_000

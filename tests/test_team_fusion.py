@@ -179,7 +179,8 @@ def independent() -> tuple[Any, dict[str, Any]]:
 
 def test_ci_changes_the_maps_finitely_and_repeats_with_the_seed(independent: Any) -> None:
     env0, infos0 = independent
-    blocks = {"fusion": "ci", "landmarks_per_message": 4, "message_covariance": "blocks"}
+    blocks = {"fusion": "ci", "landmarks_per_message": 4, "message_covariance": "blocks",
+              "message_rate_hz": None}  # fmt: skip
     env, infos = _flown(blocks)
     again, _ = _flown(blocks)
     for a, b, c in zip(_maps(env), _maps(again), _maps(env0), strict=True):
@@ -197,7 +198,7 @@ def test_ci_changes_the_maps_finitely_and_repeats_with_the_seed(independent: Any
 
 
 def test_joint_messages_carry_the_senders_covariance_and_count_its_bytes() -> None:
-    env, infos = _flown({"fusion": "ci", "landmarks_per_message": 4})
+    env, infos = _flown({"fusion": "ci", "landmarks_per_message": 4, "message_rate_hz": None})
     info = infos["vehicle_1"]
     # 58 messages of 4 landmarks once both have mapped 4: 16 + 78 floats of 8 bytes each.
     assert info["team_messages_sent"] == 58
@@ -213,7 +214,7 @@ def test_joint_messages_carry_the_senders_covariance_and_count_its_bytes() -> No
 
 def test_drop_probability_one_delivers_nothing_and_changes_nothing(independent: Any) -> None:
     env0, infos0 = independent
-    env, infos = _flown({"fusion": "ci", "drop_probability": 1.0})
+    env, infos = _flown({"fusion": "ci", "drop_probability": 1.0, "message_rate_hz": None})
     for a, b in zip(_maps(env), _maps(env0), strict=True):
         np.testing.assert_array_equal(a, b)
     info = infos["vehicle_0"]
@@ -288,7 +289,12 @@ def test_batched_map_terms_equal_those_of_the_lane_snapshots() -> None:
         ),
         (
             {"team": {"fusion": "ci", "message_every_scans": 2, "message_rate_hz": 1.0}},
-            "team.message_rate_hz: got 1.0 with team.message_every_scans = 2",
+            "team.message_every_scans: got 2 with team.message_rate_hz = 1.0",
+        ),
+        (
+            {"team": {"fusion": "ci", "message_every_scans": 2}},
+            "team.message_every_scans: got 2 with team.message_rate_hz = 0.2 (its default is "
+            "0.2); allowed: message_rate_hz null",
         ),
         (
             {"team": {"fusion": "ci", "message_rate_hz": 500.0}},

@@ -166,7 +166,7 @@ def _without_ranges(info: dict[str, Any]) -> dict[str, Any]:
 def test_ranges_without_fusion_only_reach_the_info(fusion: str) -> None:
     """With ``range_fusion: none`` every vehicle's observations and every other info term,
     the messages' drop counts among them, are those without ranges, bit for bit."""
-    comms = {"drop_probability": 0.4} if fusion == "ci" else {}
+    comms = {"drop_probability": 0.4, "message_rate_hz": None} if fusion == "ci" else {}
     off_obs, off_infos = _run({"fusion": fusion, **comms})
     on_obs, on_infos = _run({"fusion": fusion, **comms, "ranges": True, "range_dropout": 0.2})
     assert len(off_obs) == len(on_obs)

@@ -7,8 +7,8 @@ terms and, with fusion, the messages. Its target is a per-vehicle speed of at le
 single-vehicle EKF-SLAM vector env's with N lanes (docs/team.md "Speed"). Both are timed in
 alternation in one process (:func:`agents.bench.paired.alternate`), so that each round's ratio
 compares them on the same machine state: the team with ``independent`` fusion, with ``ci``
-(the default messages: after every scan, every mapped landmark with the joint covariance) and
-with ``ci`` at 0.2 messages/s, and the vector env.
+(the default messages: 0.2 per second, every mapped landmark with the joint covariance) and
+with ``ci`` after every scan, and the vector env.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ SCENARIO = "paper_ekf_figure8"
 TEAMS: dict[str, dict[str, Any]] = {
     "team_independent": {"fusion": "independent"},
     "team_ci": {"fusion": "ci"},
-    "team_ci_0.2hz": {"fusion": "ci", "message_rate_hz": 0.2},
+    "team_ci_every_scan": {"fusion": "ci", "message_rate_hz": None},
 }
 """The teams timed: label → ``team`` settings."""
 VECTOR = "vector"

@@ -5,11 +5,12 @@ Teams of N = 1, 2 and 4 vehicles on the paper's figure-8 (``paper_ekf_figure8``,
 map, the vehicles phase-shifted by the team's default offsets), each flown by DF-LQR on its own
 EKF-SLAM estimate, on held-out seeds, every vehicle of a seed in the same world. The rows of a
 team size are the fusion modes on the same seeds (:data:`ROWS`): ``independent`` (the baseline),
-covariance intersection with the messages' defaults (every scan, the sender's joint landmark
-covariance), CI at 0.2 messages per second, CI with the block covariances only (the ``k ·
-blockdiag`` bound), and the naive fusion of the default messages. A team of one has only
-``independent`` (no one to talk to). ``centralised`` fusion is not implemented, so it has no
-row.
+covariance intersection with the messages' defaults (0.2 messages per second, the sender's
+joint landmark covariance), CI after every scan, CI with the block covariances only (the ``k ·
+blockdiag`` bound), and the naive fusion of the default messages; the largest team also
+flies ``independent`` and CI with the ranges between vehicles fused by CI
+(:data:`RANGE_ROWS`). A team of one has only ``independent`` (no one to talk to).
+``centralised`` fusion is not implemented, so it has no row.
 
 Per row: the team map RMSE (the mean over the vehicles of each one's map RMSE at its last step;
 mean over seeds) and its ratio to ``independent``'s of the same N, the union map RMSE, the team
@@ -17,7 +18,8 @@ position RMSE of the vehicles' estimates, the landmark ANEES pooled over every v
 landmarks of every seed at its last step, with the two-sided 95% χ² interval of that many 3-DOF
 samples (:func:`~quadslam_env.metrics.anees_bounds`; it treats a vehicle's landmarks as
 independent, which they are not, so the interval is narrower than it should be), the vehicles
-that ended early, and the kB broadcast per episode. The figure: one seed's map of vehicle 0 at
+that ended early, the kB broadcast per episode and the median CI weight ω of the fused ranges
+(ω → 1: a range fused with almost no weight). The figure: one seed's map of vehicle 0 at
 the end in each mode of the largest team, the error of each landmark and its 2σ ellipse
 magnified (86% of the errors inside for a consistent 2-D estimate). ``--quick`` flies 3 seeds
 of 20 s (a smoke run, not a result).
@@ -28,7 +30,6 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing as mp
-import platform
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from agents.evaluation.episodes import json_float
+from agents.io.cpus import cpu_model
 from agents.io.outputs import atomic_produce, write_text_atomic
 
 SCENARIO = "paper_ekf_figure8"
@@ -43,12 +45,19 @@ TEAM_SIZES = (1, 2, 4)
 ROWS: dict[str, dict[str, Any]] = {
     "independent": {"fusion": "independent"},
     "ci": {"fusion": "ci"},
-    "ci_0.2hz": {"fusion": "ci", "message_rate_hz": 0.2},
+    "ci_every_scan": {"fusion": "ci", "message_rate_hz": None},
     "ci_blocks": {"fusion": "ci", "message_covariance": "blocks"},
     "naive": {"fusion": "naive"},
 }
-"""The rows of a team of N ≥ 2: the ``team`` settings of each. The 0.2 Hz rate was chosen on
-seeds 0–2 (30 s; 1, 0.5, 0.2 and 0.1 Hz and every scan measured), not on the study's seeds."""
+"""The rows of a team of N ≥ 2: the ``team`` settings of each. The default message rate, 0.2
+Hz, was chosen on seeds 0–2 (30 s; every scan, 1, 0.5, 0.2 and 0.1 Hz measured), not on the
+study's seeds."""
+RANGE_ROWS: dict[str, dict[str, Any]] = {
+    "independent_ranges": {"fusion": "independent", "ranges": True, "range_fusion": "ci"},
+    "ci_ranges": {"fusion": "ci", "ranges": True, "range_fusion": "ci"},
+}
+"""The rows of the largest team only: with the ranges between vehicles fused by CI (the range
+defaults: σ 0.1 m at 10 Hz)."""
 MAGNIFY = 50.0
 """The figure's errors and ellipses are drawn this many times their size (errors are cm in a
 field of tens of m)."""
@@ -56,7 +65,8 @@ field of tens of m)."""
 
 def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[str, Any]:
     """One episode of a team of ``n_vehicles`` with ``ROWS[row]``; its end-of-episode terms and
-    vehicle 0's final map (ids, means, covariances, truth)."""
+    vehicle 0's final map (ids, means, covariances, truth; :func:`run_study` keeps it for the
+    first seed of each row, the figure's)."""
     import gymnasium as gym
 
     from agents.control.dflqr import DFLQRPolicy
@@ -64,12 +74,14 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
 
     episode = {} if duration_s is None else {"duration_s": duration_s}
     policy = DFLQRPolicy.from_env(gym.make("QuadSLAM-v0", scenario=SCENARIO, episode=episode))
-    env = parallel_env(n_vehicles=n_vehicles, scenario=SCENARIO, team=ROWS[row], episode=episode)
+    env = parallel_env(n_vehicles=n_vehicles, scenario=SCENARIO, team=_team(row), episode=episode)
     obs, _ = env.reset(seed=seed)
     last: dict[str, dict[str, Any]] = {}
+    omegas: list[float] = []  # the CI weights of the fused ranges
     while env.agents:
         obs, _, _, _, infos = env.step({a: policy.predict(obs[a])[0] for a in env.agents})
         last.update(infos)
+        omegas += [i["team_range_ci_weight"] for i in infos.values() if "team_range_ci_weight" in i]
     final = last[max(last, key=lambda a: env.core.steps[env.possible_agents.index(a)])]
     ids, means, covs = env.core.estimator.lane_estimate(0).mapped_landmarks(0)
     truth, ends = env.core.landmarks[0, ids], list(last.values())
@@ -82,9 +94,24 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
         "landmarks": int(sum(i["est_n_mapped"] for i in ends)),
         "ended_early": int(sum(bool(i.get("termination_reason")) for i in ends)),
         "bytes": float(final.get("team_episode_bytes_sent", 0.0)),
+        "range_omega_median": float(np.median(omegas)) if omegas else None,
+        "range_omega_below_0.99": float(np.mean(np.less(omegas, 0.99))) if omegas else None,
         "map0": {"ids": ids.tolist(), "means": means.tolist(), "covs": covs.tolist(),
                  "truth": truth.tolist()},
     }  # fmt: skip
+
+
+def _rows(n_vehicles: int, largest: int) -> tuple[str, ...]:
+    """The rows of a team of ``n_vehicles``: ``independent`` alone for one vehicle, else
+    :data:`ROWS`, and :data:`RANGE_ROWS` too for the ``largest`` team."""
+    if n_vehicles == 1:
+        return ("independent",)
+    return (*ROWS, *RANGE_ROWS) if n_vehicles == largest else tuple(ROWS)
+
+
+def _team(row: str) -> dict[str, Any]:
+    """The ``team`` settings of ``row`` (:data:`ROWS`, :data:`RANGE_ROWS`)."""
+    return ROWS[row] if row in ROWS else RANGE_ROWS[row]
 
 
 def _fly_task(task: tuple[int, str, int, float | None]) -> dict[str, Any]:
@@ -111,7 +138,7 @@ def run_study(
         duration_s: The episodes' length, s (default: 20 s quick, else the scenario's 50 s).
     """
     duration = duration_s if duration_s is not None else 20.0 if quick else None
-    cells = [(n, row) for n in sizes for row in (ROWS if n > 1 else ("independent",))]
+    cells = [(n, row) for n in sizes for row in _rows(n, max(sizes))]
     tasks = [
         (n, row, s, duration) for n, row in cells for s in range(first_seed, first_seed + seeds)
     ]
@@ -120,9 +147,12 @@ def run_study(
             flown = list(pool.map(_fly_task, tasks))
     else:
         flown = [_fly_task(t) for t in tasks]
+    for i in range(len(cells)):  # the figure's map: each row's first seed only
+        for episode in flown[i * seeds + 1 : (i + 1) * seeds]:
+            del episode["map0"]
     rows: list[dict[str, Any]] = []
     for i, (n, row) in enumerate(cells):
-        rows.append({"n_vehicles": n, "row": row, "team": ROWS[row],
+        rows.append({"n_vehicles": n, "row": row, "team": _team(row),
                      "summary": row_summary(flown[i * seeds : (i + 1) * seeds]),
                      "episodes": flown[i * seeds : (i + 1) * seeds]})  # fmt: skip
     base = {r["n_vehicles"]: r["summary"]["map_rmse_m"] for r in rows if r["row"] == "independent"}
@@ -130,7 +160,7 @@ def run_study(
         r["summary"]["vs_independent"] = _ratio(r["summary"]["map_rmse_m"], base[r["n_vehicles"]])
     settings = {"scenario": SCENARIO, "seeds": seeds, "first_seed": first_seed, "quick": quick,
                 "duration_s": duration, "team_sizes": list(sizes),
-                "machine": platform.processor() or platform.machine()}  # fmt: skip
+                "machine": cpu_model()}  # fmt: skip
     return {"settings": settings, "rows": rows}
 
 
@@ -150,6 +180,7 @@ def row_summary(episodes: list[dict[str, Any]]) -> dict[str, Any]:
         "anees_95": [lo, hi],
         "ended_early": int(sum(e["ended_early"] for e in episodes)),
         "kb_sent": float(np.mean([e["bytes"] for e in episodes])) / 1e3,
+        "range_omega_median": _median(e["range_omega_median"] for e in episodes),
     }
 
 
@@ -157,6 +188,12 @@ def _mean(values: Any) -> float | None:
     """The mean, or None when a value is missing (a non-finite one)."""
     got = list(values)
     return None if any(v is None for v in got) else float(np.mean(got))
+
+
+def _median(values: Any) -> float | None:
+    """The median of the values that are there (None: none is)."""
+    got = [v for v in values if v is not None]
+    return float(np.median(got)) if got else None
 
 
 def _ratio(num: float | None, den: float | None) -> float | None:
@@ -168,7 +205,7 @@ def format_study(result: dict[str, Any]) -> str:
     s = result["settings"]
     head = ("N", "fusion", "team map RMSE (m)", "× independent", "union map RMSE (m)",
             "position RMSE (m)", "landmark ANEES", "95% interval", "ended early",
-            "kB per episode")  # fmt: skip
+            "kB per episode", "ranges' ω (median)")  # fmt: skip
     out = [f"{s['scenario']}, seeds {s['first_seed']}–{s['first_seed'] + s['seeds'] - 1}"
            f"{' (quick: 20 s)' if s['quick'] else ''}", "",
            "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
@@ -185,7 +222,7 @@ def format_study(result: dict[str, Any]) -> str:
             cell(m["vs_independent"], "{:.2f}"), cell(m["union_map_rmse_m"], "{:.4f}"),
             cell(m["pos_rmse_m"], "{:.4f}"), cell(m["landmark_anees"], "{:.3g}"),
             f"[{lo:.2f}, {hi:.2f}]", f"{m['ended_early']} of {vehicles}",
-            f"{m['kb_sent']:.0f}",
+            f"{m['kb_sent']:.0f}", cell(m["range_omega_median"], "{:.6f}"),
         )) + " |")  # fmt: skip
     return "\n".join(out)
 
@@ -204,7 +241,7 @@ def plot_study(result: dict[str, Any], folder: Path) -> Path:
     from matplotlib.patches import Ellipse
 
     n = max(result["settings"]["team_sizes"])
-    rows = [r for r in result["rows"] if r["n_vehicles"] == n]
+    rows = [r for r in result["rows"] if r["n_vehicles"] == n and r["row"] in ROWS]
     fig = Figure(figsize=(4.0 * len(rows), 4.2), constrained_layout=True)
     axes = fig.subplots(1, len(rows), squeeze=False)[0]
     for ax, r in zip(axes, rows, strict=True):

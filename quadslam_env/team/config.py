@@ -113,17 +113,18 @@ class TeamConfig(Section):
         optional=True,
         lo=1,
         hi=100000,
-        doc="a vehicle sends a message after every m-th of its scans; null = every scan "
-        "(unless message_rate_hz)",
+        doc="with message_rate_hz null: a vehicle sends a message after every m-th of its "
+        "scans; null = every scan",
     )
     message_rate_hz: float | None = _spec(
-        None,
+        0.2,
         optional=True,
         lo=0.0,
         lo_open=True,
         hi=1e4,
         doc="messages per second of each vehicle, Hz, at most episode.control_hz (sent at the "
-        "end of the step on which floor(t · rate) grows); null = by scans",
+        "end of the step on which floor(t · rate) grows); null = by scans "
+        "(message_every_scans)",
     )
     latency_steps: int = _spec(
         0,
@@ -251,9 +252,10 @@ class TeamConfig(Section):
         """
         if self.message_every_scans is not None and self.message_rate_hz is not None:
             raise ConfigError(
-                f"team.message_rate_hz: got {self.message_rate_hz!r} with "
-                f"team.message_every_scans = {self.message_every_scans!r}; allowed: one of the "
-                "two (the other null)"
+                f"team.message_every_scans: got {self.message_every_scans!r} with "
+                f"team.message_rate_hz = {self.message_rate_hz!r} (its default is 0.2); allowed: "
+                "message_rate_hz null, to time the messages by scans, or message_every_scans "
+                "null"
             )
 
     def check(self, n_vehicles: int, scenario: ScenarioConfig) -> None:
