@@ -1,5 +1,5 @@
 """Map fusion of EKF-SLAM: another vehicle's landmark estimates fused into one lane's state
-(docs/team.md "Fusion").
+(docs/team-fusion.md).
 
 A message is k landmark estimates of another vehicle, by landmark id: means ``y_j`` (k, 3) and
 either the sender's joint covariance ``Q`` (3k, 3k) of them or only its 3×3 blocks ``Q_jj``

@@ -1,5 +1,5 @@
-"""A range to another vehicle fused into one lane's EKF-SLAM state (docs/team.md "Ranges
-between vehicles").
+"""A range to another vehicle fused into one lane's EKF-SLAM state (docs/team-fusion.md
+"Ranges between vehicles").
 
 Vehicle i measures its distance to vehicle j, ``r = ‖ρ_i − ρ_j‖ + n``, ``n ~ N(0, σ²)``, and
 vehicle j broadcasts its position estimate ``b = ρ̂_j`` with its 3×3 covariance ``P_b``. To

@@ -52,7 +52,7 @@ RANGE_KEYS = ("range_sigma_m", "range_rate_hz", "range_dropout", "range_max_m", 
 RANGE_FUSIONS = ("none", "ci")
 """What a vehicle does with the ranges it measures: ``none``, nothing (they are only in its
 ``info``); ``ci``, each fused into its estimate by covariance intersection with the other's
-broadcast position estimate (docs/team.md "Ranges between vehicles")."""
+broadcast position estimate (docs/team-fusion.md "Ranges between vehicles")."""
 
 BEACON_FLOATS = 3 + 6
 """The floats of a position broadcast for the ranges: the mean (3) and the upper triangle of

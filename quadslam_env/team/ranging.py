@@ -1,5 +1,5 @@
 """The ranges between the team's vehicles: who measures which distance when, and whom each
-range reaches (docs/team.md "Ranges between vehicles").
+range reaches (docs/team-fusion.md "Ranges between vehicles").
 
 With ``team.ranges``, at each range epoch (the end of a step on which ⌊t · rate⌋ grows,
 ``team.range_rate_hz``) every pair (i, j), i < j, of vehicles live after the step whose true
