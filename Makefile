@@ -50,9 +50,9 @@ $(RLLIB_STAMP): pyproject.toml constraints.txt
 	$(RLLIB_VENV)/bin/pip install --quiet -c constraints.txt -e ".[test,rllib]"
 	touch $(RLLIB_STAMP)
 
-# RLlib's PPO on the env ids (tests/test_rllib.py), in .venv-rllib.
+# RLlib's PPO on the env ids (tests/rl/test_rllib.py), in .venv-rllib.
 test-rllib: $(RLLIB_STAMP)
-	MPLBACKEND=Agg $(RLLIB_VENV)/bin/python -m pytest -q tests/test_rllib.py
+	MPLBACKEND=Agg $(RLLIB_VENV)/bin/python -m pytest -q tests/rl/test_rllib.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check . && $(BIN)/ruff format --check .

@@ -17,12 +17,12 @@ software that keeps a short buffer of its inputs):
   scans in that window have not arrived). Between arrivals it predicts one period a step.
 
 So at a step with no scan in flight the output has done exactly the operations, in the same
-order, that an undelayed filter would have done: the same belief (tests/test_latency.py). With
+order, that an undelayed filter would have done: the same belief (tests/env/test_latency.py). With
 unknown association (``lidar.association: unknown``) the logged scans are unlabeled returns,
 which the filter associates (χ²/JCBB) against its belief of their time, as the undelayed filter
 would; the scans that arrived in a step are :attr:`ScanDelay.applied`, so the association
 bookkeeping scores the estimator's labels of those returns and re-matches the lanes rebuilt
-from the filter (:attr:`ScanDelay.refreshed`; tests/test_latency_unknown.py).
+from the filter (:attr:`ScanDelay.refreshed`; tests/env/test_latency_unknown.py).
 Scans still in flight when an episode ends are dropped with the lane's log. Every lane keeps
 its own phase (its own step count since reset), so lane i of a vector env equals the scalar
 env. The estimator must be deep-copyable: the scenario check refuses a delay with one whose class
@@ -34,7 +34,7 @@ A smoother needs no copy (:class:`LateScans`): an estimator that
 ``takes_late_scans = True``) predicts every period as it comes, and each lane's scan is held d
 steps and then handed to it with its measurement time; the smoother puts the scan's factors
 on a keyframe at that time and carries its present (the IMU samples since) forward from there
-(docs/isam2.md "A delayed LiDAR"; tests/test_isam2_latency.py).
+(docs/isam2.md "A delayed LiDAR"; tests/isam2/test_isam2_latency.py).
 """
 
 from __future__ import annotations

@@ -1,9 +1,15 @@
 """Fixtures and helpers shared by the test modules (helpers imported as ``from conftest import
-...``)."""
+...``): flying DF-LQR, one vehicle's data into lane 0 of a batch estimator, finite
+differences, and the hostile file systems of the CLI's tests (read-only folders, full disks,
+failing renames)."""
 
 from __future__ import annotations
 
+import errno
+import os
+import stat
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +39,10 @@ def fly_dflqr(
         assert np.isfinite(obs).all() and np.isfinite(reward)
         infos.append(info)
     return infos, bool(terminated)
+
+
+AHEAD = [[6, -2, -1], [8, 1, 0.5], [10, 3, -2], [12, -4, 1], [7, 0, 2], [9, -1, -3]]
+"""Six well-separated landmarks ahead of the hovering vehicle (NED, m), all in the FOV."""
 
 
 @pytest.fixture
@@ -178,3 +188,108 @@ def assert_lanes_equal_scalar_env(
         finally:
             env.close()
     return policy, state
+
+
+# ------------------------------------------ mistakes and hostile file systems (the CLI tests)
+RUN = ["run", "--duration", "0.3"]
+"""A one-scan run of the CLI."""
+
+
+def cli(capsys: pytest.CaptureFixture[str], argv: list[str]) -> tuple[int, str, str]:
+    """Run the CLI; return (status, stdout, last stderr line)."""
+    from agents.cli.main import main
+
+    code = main(argv)
+    out, err = capsys.readouterr()
+    lines = [line for line in err.replace("\r", "\n").splitlines() if line.strip()]
+    return code, out, lines[-1] if lines else ""
+
+
+@pytest.fixture
+def no_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Any flight, benchmark, study or training fails the test: errors must come first."""
+
+    def forbidden(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the work started before the output paths were checked")
+
+    import agents.bench.runner
+    import agents.evaluation.episodes
+    import agents.rl.policies
+    import agents.rl.training
+    import agents.studies.cost
+
+    monkeypatch.setattr(agents.evaluation.episodes, "run_episodes", forbidden)
+    monkeypatch.setattr(agents.rl.policies, "load_policy", forbidden)
+    monkeypatch.setattr(agents.bench.runner, "run_bench", forbidden)
+    monkeypatch.setattr(agents.studies.cost, "run_study", forbidden)
+    monkeypatch.setattr(agents.rl.training, "train", forbidden)
+
+
+def _inside(path: Any, folder: Path) -> bool:
+    return Path(os.path.abspath(path)).is_relative_to(folder.resolve())
+
+
+@pytest.fixture
+def read_only(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
+    """A folder that refuses new files, even for root (the probe fails like EACCES)."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    real: Any = tempfile.mkstemp
+
+    def mkstemp(*args: Any, dir: Any = None, **kwargs: Any) -> Any:
+        if dir is not None and _inside(dir, folder):
+            raise PermissionError(errno.EACCES, "Permission denied")
+        return real(*args, dir=dir, **kwargs)
+
+    import agents.io.outputs as outputs
+
+    monkeypatch.setattr(outputs.tempfile, "mkstemp", mkstemp)
+    return folder
+
+
+@pytest.fixture
+def chmod_read_only(tmp_path: Path) -> Iterator[Path]:
+    folder = tmp_path / "chmod_ro"
+    folder.mkdir()
+    folder.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    if os.access(folder, os.W_OK):
+        folder.chmod(0o700)
+        pytest.skip("chmod does not make folders read-only here (running as root)")
+    yield folder
+    folder.chmod(0o700)
+
+
+def full_disk(monkeypatch: pytest.MonkeyPatch, folder: Path) -> None:
+    """Writing any file inside ``folder`` fails with ENOSPC (a full file system): files can
+    still be created (the early check passes), but no data can be written to them."""
+    import builtins
+    import io
+
+    real = builtins.open
+
+    def guarded(file: Any, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
+        writing = any(c in mode for c in "wax+")
+        if writing and isinstance(file, str | os.PathLike) and _inside(file, folder):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(file, mode, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", guarded)
+    monkeypatch.setattr(io, "open", guarded)  # pathlib's write_text opens through io
+
+
+def failing_rename(monkeypatch: pytest.MonkeyPatch, folder: Path) -> None:
+    """``os.replace`` into ``folder`` fails (the last step of every atomic write)."""
+    real = os.replace
+
+    def replace(src: Any, dst: Any) -> None:
+        if _inside(dst, folder):
+            raise OSError(errno.EIO, "Input/output error")
+        real(src, dst)
+
+    import agents.io.outputs as outputs
+
+    monkeypatch.setattr(outputs.os, "replace", replace)
+
+
+def no_temp_files(folder: Path) -> bool:
+    return not [p for p in folder.rglob(".*") if ".tmp-" in p.name or "probe" in p.name]

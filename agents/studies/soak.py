@@ -4,7 +4,7 @@ One long episode of the DF-LQR baseline flying on the estimate, with per-step ch
 estimate stays finite and periodic checks (every ``sample_every`` steps) that the covariances
 stay symmetric and positive semi-definite, plus resident memory (RSS) samples from which the
 growth per 1000 steps is fitted. Not part of the default tests (an hour of simulated flight
-takes tens of minutes); ``tests/test_soak.py`` runs a short version.
+takes tens of minutes); ``tests/studies/test_soak.py`` runs a short version.
 
 Scenarios:
 

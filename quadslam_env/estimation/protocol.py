@@ -19,7 +19,7 @@ lanes), :class:`ChecksMemory`, :class:`LabelsReturns`, :class:`HasParticles`,
 ``isinstance`` only checks that the names exist, not their signatures or types, and no
 estimator names these protocols as bases, so nothing checks an implementation's signature
 against them; the call sites are typed by the protocol, and
-``tests/test_estimator_abilities.py`` checks which built-in has which ability. What the
+``tests/estimators/test_estimator_abilities.py`` checks which built-in has which ability. What the
 scenario check must know before any estimator is built is a class flag that the registry
 reads instead: ``associates_unlabeled``, ``uses_truth``, ``copyable = False`` (an estimator
 the env cannot deep-copy for a slow IMU or a delayed LiDAR), ``takes_late_scans`` (one that

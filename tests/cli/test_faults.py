@@ -1,7 +1,7 @@
 """Faults that must not cost work or memory (the remaining cases of "every fault keeps the
 work"): FastSLAM lanes that cannot fit fail before they are built, the analyses' ``--json``
 files are written atomically and kept on a full disk. The fault injection (a full disk, the
-CLI runner) is the one of ``test_chaos.py``.
+CLI runner) is the one of ``tests/conftest.py``.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any
 
 import gymnasium as gym
 import pytest
-from test_chaos import full_disk
+from conftest import full_disk
 
 import quadslam_env  # noqa: F401  (registers the ids)
 

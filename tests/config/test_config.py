@@ -26,7 +26,7 @@ from quadslam_env.config import (
     load_yaml,
 )
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent / "configs" / "scenarios"
+SCENARIO_DIR = Path(__file__).resolve().parents[2] / "configs" / "scenarios"
 SCENARIO_FILES = sorted(SCENARIO_DIR.glob("*.yaml"))
 MICRO_G = 1e-6 * 9.81
 

@@ -28,7 +28,7 @@ from agents.rl.training import resume, train
 from agents.sweep.spec import SweepSpecError, parse_spec
 from quadslam_env.config import ConfigError
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 ENV = "QuadSLAM-Oracle-v0"  # no estimator: the cheapest env to build
 
 

@@ -15,9 +15,9 @@ from __future__ import annotations
 import dataclasses
 
 import gymnasium as gym
+import lane_cases as tve
 import numpy as np
 import pytest
-import test_vector_env as tve
 from gymnasium.vector import AutoresetMode
 
 import quadslam_env  # noqa: F401  (registers the ids)
@@ -114,9 +114,7 @@ def test_scalar_env_equals_every_vector_lane_with_both_settings_on(monkeypatch, 
         "vehicle": DRAG,
     }
     monkeypatch.setitem(tve.CASES, "QuadSLAM-FastSLAM-v0-informed", case)
-    tve.test_lane_i_equals_the_scalar_env_seeded_s_plus_i_through_autoresets(
-        "QuadSLAM-FastSLAM-v0-informed", mode
-    )
+    tve.assert_lanes_equal_scalar_rollouts("QuadSLAM-FastSLAM-v0-informed", mode)
 
 
 def _ekf_rollout(inform: bool) -> list:

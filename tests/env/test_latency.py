@@ -1,7 +1,7 @@
 """Sensor and action latency (docs/timing.md "Latency"): a delayed scan updates the belief of its
 own time and the output is re-propagated (:mod:`quadslam_env.scan_delay`); a delayed action is
 applied d steps after the agent gave it (``SimCore``). Lane-versus-scalar equality with both
-delays through autoresets is in tests/test_vector_env.py (the ``-latency`` cases)."""
+delays through autoresets is in tests/env/test_vector_env.py (the ``-latency`` cases)."""
 
 from __future__ import annotations
 
@@ -165,7 +165,7 @@ def test_bad_delays_name_the_key_the_value_and_the_range(
 
 def test_delayed_lidar_refuses_what_it_cannot_run() -> None:
     """A slow IMU (iSAM2, which cannot be copied but takes late scans itself, is accepted:
-    tests/test_isam2_latency.py)."""
+    tests/isam2/test_isam2_latency.py)."""
     with pytest.raises(ConfigError, match=r"lidar\.delay_steps: got 2") as err:
         load_scenario("paper_ekf_figure8", {"imu": {"rate_hz": 10.0}, "lidar": {"delay_steps": 2}})
     assert "imu.rate_hz" in str(err.value)

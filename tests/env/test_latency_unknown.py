@@ -1,7 +1,7 @@
 """A delayed LiDAR with unknown data association (docs/timing.md "Latency"): the lagging filter
 associates and applies each unlabeled scan at its own time (:mod:`quadslam_env.scan_delay`),
 and the association's counts score the scan that arrived (``EstimatorCopies.applied``).
-Lane-versus-scalar equality through autoresets is in tests/test_vector_env.py (the
+Lane-versus-scalar equality through autoresets is in tests/env/test_vector_env.py (the
 ``-unknown-latency`` cases)."""
 
 from __future__ import annotations

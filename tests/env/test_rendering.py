@@ -27,7 +27,7 @@ from quadslam_env.render.history import LaneHistory
 from quadslam_env.render.scene import ellipse_lines, plane_cov
 from quadslam_env.render.spatial import nice_ceil
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SHORT = {"episode": {"duration_s": 3.0}}
 
 

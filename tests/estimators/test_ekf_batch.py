@@ -3,7 +3,7 @@
 Every lane of an :class:`EkfSlamBatch` must behave like the one lane of an
 :class:`EkfSlamBatch` with B = 1 fed the same inputs, whatever the other lanes do (different
 maps, scan timings, known-map mode, inactive steps, resets). The one-lane filter itself is
-tested against independent facts in tests/test_ekf_slam.py.
+tested against independent facts in tests/estimators/test_ekf_slam.py.
 """
 
 from __future__ import annotations

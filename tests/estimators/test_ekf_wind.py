@@ -210,7 +210,7 @@ def test_flown_in_dryden_wind_the_wind_is_tracked_and_not_read_as_tilt() -> None
     (√2 · σ_u = √2 · 0.59 ≈ 0.83 m/s at 2 m for W20 = 3 m/s), so only an estimate that follows
     the gusts passes (knowing the steady 2.2 m/s exactly would not). The bound on the attitude:
     0.5°, an eighth of the tilt the thrust-axis model reads the drag as, atan(0.3 · 2.2 / g)
-    ≈ 3.9° (tests/test_ekf_specific_force.py)."""
+    ≈ 3.9° (tests/estimators/test_ekf_specific_force.py)."""
     for seed in (0, 1):
         env = gym.make("QuadSLAM-EKF-v0", scenario="ekf_figure8_wind_states",
                        episode={"duration_s": 30.0})  # fmt: skip

@@ -238,7 +238,7 @@ def test_a_plugin_that_cannot_be_copied_is_refused_like_isam2(
 ) -> None:
     """The slow IMU and the delayed LiDAR ask the registry's one question (``copyable``) of a
     plug-in as of a built-in, before any estimator is built (iSAM2 takes a delayed LiDAR's
-    scans itself: tests/test_isam2_latency.py)."""
+    scans itself: tests/isam2/test_isam2_latency.py)."""
     monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
     registry.register("uncopyable")(_Uncopyable)
     refused = ("uncopyable", "isam2") if "imu" in over else ("uncopyable",)

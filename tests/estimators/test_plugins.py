@@ -19,7 +19,7 @@ from agents.control.dflqr import DFLQRPolicy
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.estimation import registry as base
 
-EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
 
 @pytest.fixture

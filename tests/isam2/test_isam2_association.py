@@ -10,7 +10,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
-from test_unlabeled_scans import AHEAD
+from conftest import AHEAD
 
 import quadslam_env  # noqa: F401  (registers the env ids)
 from agents.control.dflqr import DFLQRPolicy

@@ -25,7 +25,7 @@ import pytest
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 
 

@@ -16,7 +16,7 @@ import pytest
 pytest.importorskip("ray.rllib.algorithms.ppo", exc_type=ImportError)
 import ray
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "rllib_ppo.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "rllib_ppo.py"
 
 
 def _example() -> object:
@@ -73,7 +73,7 @@ def test_ppo_one_iteration(local_ray, env_id, runners, vectorize):
 
 
 def test_readme_rllib_block_trains_one_iteration(local_ray):
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text(encoding="utf-8")
     section = text.split("## Other RL libraries", 1)[1]
     block = section.split("```python\n", 1)[1].split("```", 1)[0]
     scope: dict[str, object] = {}

@@ -26,7 +26,7 @@ from quadslam_env.extras import MissingExtraError
 
 ENV = "QuadSLAM-EKF-v0"
 SCENARIO = "ekf_figure8_biased_imu"  # the scenario of its PPO entry (no mismatch warning)
-# Tiny networks and episodes (as tests/test_training.py), no gSDE (the sbx backend refuses it).
+# Tiny networks and episodes (as tests/rl/test_training.py), no gSDE (the sbx backend refuses it).
 TINY: dict[str, Any] = {
     "use_sde": False,
     "n_steps": 64,

@@ -26,7 +26,7 @@ SHORT = {"episode": {"duration_s": 0.3}}
 ORACLE = "QuadSLAM-Oracle-v0"
 EKF = "QuadSLAM-EKF-v0"
 VOLATILE = {"est_step_time_ms"}  # wall-clock timing: differs between any two runs
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def noisy_hover(env_id: str, lanes: int, steps: int, seed: int = 3) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The LiDAR kernels of :mod:`quadslam_env.models.lidar` over leading axes (seed 001 eq. 31–50).
 
-tests/test_models.py checks the one-pose functions against reference formulas and finite
+tests/sim/test_models.py checks the one-pose functions against reference formulas and finite
 differences; here the gufunc Jacobians are checked by finite differences with batch axes
 (N particles × k landmarks, as FastSLAM calls them), and the per-landmark kernels the EKF calls
 against the NumPy-facing functions.

@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 
 import gymnasium as gym
+import lane_cases as tve
 import numpy as np
 import pytest
-import test_vector_env as tve
 from gymnasium.vector import AutoresetMode
 from scipy.stats import kstest
 
@@ -128,9 +128,7 @@ def test_same_seed_same_draws_and_rollout_and_new_draws_each_episode() -> None:
 )
 def test_vector_lanes_equal_the_scalar_env_through_autoresets(monkeypatch, case) -> None:
     monkeypatch.setitem(tve.CASES, "QuadSLAM-EKF-v0-randomized", {**tve.SHORT, **case})
-    tve.test_lane_i_equals_the_scalar_env_seeded_s_plus_i_through_autoresets(
-        "QuadSLAM-EKF-v0-randomized", AutoresetMode.NEXT_STEP
-    )
+    tve.assert_lanes_equal_scalar_rollouts("QuadSLAM-EKF-v0-randomized", AutoresetMode.NEXT_STEP)
 
 
 def test_one_lane_seed_never_moves_another_lanes_draws() -> None:

@@ -5,7 +5,7 @@ Independent facts: each body axis's scale lies in ``inertia_scale``'s range and 
 (Kolmogorov–Smirnov), the axes and the lanes are independent; J' = D^½ J D^½ (an analytic
 matrix, SPD, its stored inverse the inverse) and Euler's equation at rest, ω̇ = J'⁻¹ τ, gives
 the pinned axes' angular accelerations; the option leaves every other draw of the same seed
-unchanged (so with it off nothing moves: tests/test_randomize.py); vector lane i equals the
+unchanged (so with it off nothing moves: tests/sim/test_randomize.py); vector lane i equals the
 scalar env; bad pins are ConfigErrors naming the key.
 """
 
@@ -14,9 +14,9 @@ from __future__ import annotations
 import dataclasses
 
 import gymnasium as gym
+import lane_cases as tve
 import numpy as np
 import pytest
-import test_vector_env as tve
 from gymnasium.vector import AutoresetMode
 from scipy.stats import kstest
 
@@ -143,9 +143,7 @@ def test_lanes_draw_their_axes_from_their_own_seeds() -> None:
 def test_vector_lanes_equal_the_scalar_env_through_autoresets(monkeypatch) -> None:
     case = {**tve.SHORT, "randomize": PER_AXIS}
     monkeypatch.setitem(tve.CASES, "QuadSLAM-EKF-v0-axes", case)
-    tve.test_lane_i_equals_the_scalar_env_seeded_s_plus_i_through_autoresets(
-        "QuadSLAM-EKF-v0-axes", AutoresetMode.NEXT_STEP
-    )
+    tve.assert_lanes_equal_scalar_rollouts("QuadSLAM-EKF-v0-axes", AutoresetMode.NEXT_STEP)
 
 
 def test_pins_apply_to_their_axes_and_inertia_scale_pins_all_three() -> None:

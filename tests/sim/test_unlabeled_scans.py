@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import AHEAD
 from scipy.stats import binomtest, kstest, poisson
 from test_sensors import NOISE_FREE_LIDAR, POSE_EULER, POSE_POS, _scan, c3c2c1, lidar_point
 
@@ -165,10 +166,6 @@ def test_landmark_matching_and_association_counts_on_a_hand_case() -> None:
         "assoc_n_true": 3.0,
         "assoc_n_missed": 1.0,
     }
-
-
-# Six well-separated landmarks ahead of the hovering vehicle (NED, m), all in the FOV.
-AHEAD = [[6, -2, -1], [8, 1, 0.5], [10, 3, -2], [12, -4, 1], [7, 0, 2], [9, -1, -3]]
 
 
 def _hover_run(overrides: dict, steps: int = 150) -> tuple[np.ndarray, list[dict]]:

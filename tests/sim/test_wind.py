@@ -14,9 +14,9 @@ import math
 from pathlib import Path
 
 import gymnasium as gym
+import lane_cases as tve
 import numpy as np
 import pytest
-import test_vector_env as tve
 from gymnasium.vector import AutoresetMode
 from scipy.linalg import expm
 from scipy.signal import welch
@@ -241,9 +241,7 @@ def test_vector_lanes_with_gusts_equal_the_scalar_env(monkeypatch, mode) -> None
         "imu": {"rate_hz": 10.0},  # the slower IMU's first sample takes the air velocity too
     }
     monkeypatch.setitem(tve.CASES, "QuadSLAM-EKF-v0-wind", case)
-    tve.test_lane_i_equals_the_scalar_env_seeded_s_plus_i_through_autoresets(
-        "QuadSLAM-EKF-v0-wind", mode
-    )
+    tve.assert_lanes_equal_scalar_rollouts("QuadSLAM-EKF-v0-wind", mode)
 
 
 def test_defaults_leave_the_air_still() -> None:
@@ -278,7 +276,7 @@ def test_bad_wind_settings_name_the_key_before_the_episode(section, value, key) 
 
 
 def test_wind_info_keys_are_documented_with_a_unit() -> None:
-    page = (Path(__file__).resolve().parent.parent / "docs" / "env.md").read_text()
+    page = (Path(__file__).resolve().parents[2] / "docs" / "env.md").read_text()
     rows = [line for line in page.splitlines() if line.startswith("| `")]
     for key in WIND_KEYS:
         row = next((r for r in rows if f"`{key}`" in r.split("|")[1]), None)

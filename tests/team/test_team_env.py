@@ -234,7 +234,7 @@ def test_too_many_vehicles_are_refused_before_anything_is_allocated() -> None:
 
 
 def test_team_settings_are_documented() -> None:
-    page = (Path(__file__).resolve().parent.parent / "docs" / "team.md").read_text()
+    page = (Path(__file__).resolve().parents[2] / "docs" / "team.md").read_text()
     for name in TeamConfig.defaults():
         assert f"`team.{name}`" in page, name
 
