@@ -47,7 +47,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimators.ekf.correction import correction, stacked_gain
-from estimators.ekf.kernels import D_DIVERGED, sync_lane
+from estimators.ekf.kernels import D_DIVERGED
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import subtract_outer
 from quadslam_env.models.jit import kernel
@@ -325,7 +325,7 @@ class LandmarkFusion:
         keep[inside] = st.mapped[lane, ids[inside]] & ~st.tentative[lane, ids[inside]]
         if not keep.any():
             return 0, float("nan")
-        self._sync(lane)
+        self.state.sync(lane, self.nv)
         cols = self.nv + 3 * st.slot_of_id[lane, ids[keep]]
         R = message_noise(covs, keep, mode)
         omega = fuse_lane(st.x[lane], st.P[lane], int(st.n[lane]), cols, means[keep], R, mode)
@@ -347,7 +347,7 @@ class LandmarkFusion:
             raise ValueError(
                 f"landmark_covariance: ids {ids.tolist()} not all mapped in lane {lane}"
             )
-        self._sync(lane)
+        self.state.sync(lane, self.nv)
         rows = ((self.nv + 3 * st.slot_of_id[lane, ids])[:, None] + np.arange(3)).ravel()
         return np.array(st.P[lane][np.ix_(rows, rows)])
 
@@ -363,10 +363,3 @@ class LandmarkFusion:
         gather_landmark_blocks(st.P, self.nv, st.slot_of_id, st.mapped, st.known,
                                self._landmark_covs)  # fmt: skip
         return self._landmark_covs
-
-    def _sync(self, lane: int) -> None:
-        """Make lane ``lane``'s covariance fully symmetric (it may hold one triangle)."""
-        st = self.state
-        if st.stale[lane]:
-            sync_lane(st.P[lane], int(st.n[lane]), self.nv)
-            st.stale[lane] = False

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimators.ekf.kernels import sync_lane
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import stacked_model
 from quadslam_env.types import FloatArray
@@ -24,7 +23,7 @@ class FilterInspection:
         """Copies of one lane's total mean x (n,), covariance P (n, n) and the mapped ids in
         slot order (landmark slot j occupies ``x[nv + 3j : nv + 3j + 3]``)."""
         n = int(self.state.n[lane])
-        self._sync(lane)
+        self.state.sync(lane, self.nv)
         n_mapped = (n - self.nv) // 3
         return (
             self.state.x[lane, :n].copy(),
@@ -77,9 +76,3 @@ class FilterInspection:
             lm_cols = (self.nv + 3 * self.state.slot_of_id[lane, ids][:, None] + _AR3).ravel()
             lms = x[lm_cols].reshape(-1, 3)
         return stacked_model(x, lms, lm_cols)
-
-    def _sync(self, lane: int) -> None:
-        """Make one lane's P fully symmetric again (see :func:`predict_lanes`)."""
-        if self.state.stale[lane]:
-            sync_lane(self.state.P[lane], int(self.state.n[lane]), self.nv)
-            self.state.stale[lane] = False

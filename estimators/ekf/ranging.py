@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from estimators.ekf.fusion import ci_update
-from estimators.ekf.kernels import D_DIVERGED, sync_lane
+from estimators.ekf.kernels import D_DIVERGED
 from estimators.ekf.state import EkfState
 from quadslam_env.types import POS, FloatArray
 
@@ -139,9 +139,7 @@ class RangeFusion:
                 "allowed: (3,) and (3, 3)"
             )
         st = self.state
-        if st.stale[lane]:
-            sync_lane(st.P[lane], int(st.n[lane]), self.nv)
-            st.stale[lane] = False
+        st.sync(lane, self.nv)
         xb, Pb = st.x[lane], st.P[lane]
         omega, nu = fuse_range(xb, Pb, int(st.n[lane]), beacon, beacon_cov, measured_m, sigma_m)
         if omega != omega and range_model(xb[POS], beacon)[0] >= MIN_RANGE_M:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from estimators.ekf.kernels import D_NIS
+from estimators.ekf.kernels import D_NIS, sync_lane
 from quadslam_env.types import FloatArray
 
 _FILL = {"slot_of_id": -1, "id_of_slot": -1, "readmit_at": -math.inf}
@@ -137,6 +137,13 @@ class EkfState:
             corner = tuple(slice(0, min(e, f)) for e, f in zip(old.shape, shape, strict=True))
             new[corner] = old[corner]
             setattr(self, field.name, new)
+
+    def sync(self, lane: int, nv: int) -> None:
+        """Make lane ``lane``'s P fully symmetric again, if its ``P_mv`` block lags (after a
+        prediction, which updates ``P_vv`` and ``P_vm`` only; ``nv`` vehicle states)."""
+        if self.stale[lane]:
+            sync_lane(self.P[lane], int(self.n[lane]), nv)
+            self.stale[lane] = False
 
     def clear_lane(self, lane: int, nv: int, unassociated: int) -> None:
         """Start lane ``lane`` afresh: nv vehicle states, no landmarks, no diagnostics (NaN NIS),
