@@ -98,13 +98,13 @@ def test_performance_page_shows_the_bench_json_as_measured() -> None:
     and the page asks for them (its figures cannot drift from the measured ones)."""
     import json
 
-    from agents.bench.report import figure
+    from agents.bench.report import bench_markdown, figure
 
     page = (DOCS / "performance.md").read_text()
     assert "<!-- generated: bench-latest -->" in page
     assert "<!-- generated: bench-physics -->" in page
     doc = json.loads((DOCS / "results" / "bench_latest.json").read_text())
-    text = reference.bench_latest_markdown()
+    text = bench_markdown(DOCS / "results" / "bench_latest.json")
     vector = [e for e in doc["results"] if e["group"] == "vector"]
     assert vector
     for name in {e["name"] for e in vector}:
@@ -117,7 +117,7 @@ def test_performance_page_shows_the_bench_json_as_measured() -> None:
     physics = json.loads((DOCS / "results" / "bench_physics.json").read_text())
     ratio = next(e for e in physics["results"] if e["name"] == "full_over_nominal")
     assert f"| `full_over_nominal` | {figure(ratio['median'])} (" in (
-        reference.bench_physics_markdown()
+        bench_markdown(DOCS / "results" / "bench_physics.json")
     )
 
 

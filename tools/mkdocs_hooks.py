@@ -2,13 +2,15 @@
 
 A page asks for a generated section with an HTML comment marker (see ``MARKERS``); the content
 comes from :mod:`agents.cli.reference`, i.e. from the validated config specs, the estimators'
-validators and the CLI's argument parser, so the pages cannot go stale.
+validators and the CLI's argument parser, and from the bench JSON files of ``docs/results``
+(:func:`agents.bench.report.bench_markdown`), so the pages cannot go stale.
 """
 
 from __future__ import annotations
 
 import sys
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -18,15 +20,19 @@ ROOT = str(Path(__file__).resolve().parent.parent)
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
-from agents.cli import reference  # noqa: E402  (after the path above)
+from agents.bench.report import bench_markdown  # noqa: E402  (after the path above)
+from agents.cli import reference  # noqa: E402
+
+RESULTS = Path(ROOT) / "docs" / "results"
+"""The measured results the pages show (this checkout's; an installed package reads none)."""
 
 MARKERS: dict[str, Callable[[], str]] = {
     "<!-- generated: scenario-settings -->": reference.scenario_settings_markdown,
     "<!-- generated: shipped-scenarios -->": reference.shipped_scenarios_markdown,
     "<!-- generated: estimator-params -->": reference.estimator_params_markdown,
     "<!-- generated: cli -->": reference.cli_markdown,
-    "<!-- generated: bench-latest -->": reference.bench_latest_markdown,
-    "<!-- generated: bench-physics -->": reference.bench_physics_markdown,
+    "<!-- generated: bench-latest -->": partial(bench_markdown, RESULTS / "bench_latest.json"),
+    "<!-- generated: bench-physics -->": partial(bench_markdown, RESULTS / "bench_physics.json"),
 }
 
 

@@ -16,7 +16,6 @@ import inspect
 import json
 import os
 import re
-from pathlib import Path
 from typing import Any
 
 from quadslam_env.config import SECTIONS, field_rows, scenario_descriptions
@@ -151,21 +150,3 @@ def cli_markdown() -> str:
         else:
             os.environ["COLUMNS"] = previous
     return "\n".join(out)
-
-
-RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
-"""The measured results the documentation shows (a source checkout's ``docs/results``)."""
-
-
-def bench_latest_markdown() -> str:
-    """The latest full ``quadslam bench --only env vector`` run as tables."""
-    from agents.bench.report import bench_markdown
-
-    return bench_markdown(RESULTS / "bench_latest.json")
-
-
-def bench_physics_markdown() -> str:
-    """The latest ``quadslam bench --only physics`` run as a table."""
-    from agents.bench.report import bench_markdown
-
-    return bench_markdown(RESULTS / "bench_physics.json")
