@@ -310,7 +310,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from agents.io.signals import Terminated, sigterm_as_interrupt, sigterm_received
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if getattr(args, "analysis", None) is not None:
+        args.options = unknown  # an analysis parses its own options (quadslam study soak …)
+    elif unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     args.started = started
     # A command may build EKF-SLAM envs: on a cold numba cache, compile its update in a second
     # process meanwhile (a library user asks for that explicitly).

@@ -155,6 +155,26 @@ def cmd_study_cooperative(args: argparse.Namespace) -> int:
     return _flown_study(args, cooperative, "cooperative_map.png", run)
 
 
+ANALYSES = {
+    "degradation": ("degradation", "how EKF-SLAM's error grows and recovers over long gaps "
+                    "without landmarks (the 600 s out-of-view scenarios)"),
+    "imu-instants": ("imu_instants", "a slow IMU: the filter at its own instants against the "
+                     "control rate's output"),
+    "particle-nees": ("particle_nees", "FastSLAM's NEES against its particle count"),
+    "soak": ("soak", "a long flight (an hour by default): finite, symmetric, bounded, healthy"),
+}  # fmt: skip
+"""The analyses of ``quadslam study``: CLI name → (module of :mod:`agents.studies`, help); each
+parses its own options (``quadslam study NAME --help``)."""
+
+
+def cmd_study_analysis(args: argparse.Namespace) -> int:
+    """Run the analysis ``args.analysis`` with the options after its name."""
+    import importlib
+
+    module = importlib.import_module(f"agents.studies.{ANALYSES[args.analysis][0]}")
+    return int(module.main(args.options))
+
+
 def cmd_study_bound(args: argparse.Namespace) -> int:
     """The posterior Cramér–Rao bound of a scenario next to its estimator's errors."""
     from agents.studies.bound_report import cli_bound
@@ -333,6 +353,9 @@ def add_study_parser(
     )
     bound.set_defaults(func=cmd_study_bound)
     _add_estimators_parser(studies, positive_int, positive_float)
+    for name, (_, help_text) in ANALYSES.items():
+        analysis = studies.add_parser(name, help=help_text, add_help=False)
+        analysis.set_defaults(func=cmd_study_analysis, analysis=name)  # options: its own
 
 
 def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> None:

@@ -1,5 +1,5 @@
 """``--set section.key=value`` overrides as nested mappings: the scenario overrides of
-``quadslam run``/``study`` and of the studies run as ``python -m agents.studies.<name>``."""
+``quadslam run`` and ``quadslam study``."""
 
 from __future__ import annotations
 

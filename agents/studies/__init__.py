@@ -1,2 +1,1 @@
-"""The studies (``quadslam study …``) and the analyses run as
-``python -m agents.studies.<name>``."""
+"""The studies and analyses of ``quadslam study …``."""

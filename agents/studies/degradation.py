@@ -1,6 +1,6 @@
 """Graceful degradation: an estimator with the landmarks out of view and back.
 
-``python -m agents.studies.degradation --scenario ekf_out_of_view_600s --seeds 5 --json FILE``
+``quadslam study degradation --scenario ekf_out_of_view_600s --seeds 5 --json FILE``
 
 The DF-LQR flies on the estimate, each seed a lane of one vector env. Per lane and step it
 records whether the last scan returned a landmark, the position error and the position NEES
@@ -68,7 +68,7 @@ def save_json(path: Path, result: dict[str, Any], prog: str) -> int:
     Args:
         path: The ``--json`` file.
         result: The result document.
-        prog: The command's name for the error line (``python -m agents.studies.degradation``).
+        prog: The command's name for the error line (``quadslam study degradation``).
 
     Returns:
         0, or 2 after one line on stderr naming the file and where the result went instead.
@@ -208,10 +208,8 @@ def format_summary(summary: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m agents.studies.degradation``: record, summarise, print, write ``--json``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m agents.studies.degradation", description=__doc__
-    )
+    """``quadslam study degradation``: record, summarise, print, write ``--json``."""
+    parser = argparse.ArgumentParser(prog="quadslam study degradation", description=__doc__)
     from agents.io.paths import check_output_file
 
     parser.add_argument("--scenario", default="ekf_out_of_view_600s")
@@ -230,7 +228,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json is not None:
         return save_json(args.json, summary, parser.prog)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """An IMU slower than the control: the estimate at the IMU instants and between them.
 
-``python -m agents.studies.imu_instants --scenario paper_ekf_figure8 --seeds 10 \
+``quadslam study imu-instants --scenario paper_ekf_figure8 --seeds 10 \
 --set imu.rate_hz=10``
 
 With a slow IMU the env reports, between two IMU samples, the filter's belief carried forward
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -62,10 +61,8 @@ def split_at_instants(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m agents.studies.imu_instants``: print (and with ``--json`` write) the split."""
-    parser = argparse.ArgumentParser(
-        prog="python -m agents.studies.imu_instants", description=__doc__
-    )
+    """``quadslam study imu-instants``: print (and with ``--json`` write) the split."""
+    parser = argparse.ArgumentParser(prog="quadslam study imu-instants", description=__doc__)
     from agents.io.paths import check_output_file
 
     parser.add_argument("--scenario", default="paper_ekf_figure8")
@@ -81,7 +78,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json is not None:
         return save_json(args.json, result, parser.prog)  # atomic; kept on a full disk
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Consistency of a particle filter in the loop: NEES per block, lineages, gauge share.
 
-``python -m agents.studies.particle_nees --scenario paper_fastslam_helix --seeds 10 --duration 30
+``quadslam study particle-nees --scenario paper_fastslam_helix --seeds 10 --duration 30
 [--n 100,250,500,1000] [--set SECTION.KEY=VALUE ...] --json FILE``
 
 The DF-LQR flies on the estimate, each seed a lane of one vector env (as ``quadslam run``). Per
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -181,10 +180,8 @@ HEADER = (
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m agents.studies.particle_nees``: record, summarise, print, write ``--json``."""
-    parser = argparse.ArgumentParser(
-        prog="python -m agents.studies.particle_nees", description=__doc__
-    )
+    """``quadslam study particle-nees``: record, summarise, print, write ``--json``."""
+    parser = argparse.ArgumentParser(prog="quadslam study particle-nees", description=__doc__)
     from agents.io.paths import check_output_file
 
     parser.add_argument("--scenario", default="paper_fastslam_helix")
@@ -229,7 +226,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         }
         return save_json(args.json, out, parser.prog)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

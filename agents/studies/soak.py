@@ -19,9 +19,9 @@ Scenarios:
 
 Usage::
 
-    OPENBLAS_NUM_THREADS=1 python -m agents.studies.soak --estimator ekf_slam --hours 1 \\
+    OPENBLAS_NUM_THREADS=1 quadslam study soak --estimator ekf_slam --hours 1 \\
         --json docs/results/soak_ekf_slam.json
-    OPENBLAS_NUM_THREADS=1 python -m agents.studies.soak --estimator fastslam --particles 200 \\
+    OPENBLAS_NUM_THREADS=1 quadslam study soak --estimator fastslam --particles 200 \\
         --hours 1 --json docs/results/soak_fastslam.json
 """
 
@@ -370,9 +370,9 @@ def format_report(rep: dict[str, Any]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m agents.studies.soak``: exit 0 when the flight ended healthy, 1 otherwise."""
+    """``quadslam study soak``: exit 0 when the flight ended healthy, 1 otherwise."""
     parser = argparse.ArgumentParser(
-        prog="python -m agents.studies.soak",
+        prog="quadslam study soak",
         description="Long-flight soak test of the QuadSLAM env.",
     )
     parser.add_argument("--estimator", required=True, choices=sorted(SCENARIOS))
@@ -407,9 +407,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:
         print(f"quadslam soak: error: {exc}", file=sys.stderr)
         return 2
-    rep["command"] = "python -m agents.studies.soak " + " ".join(
-        argv if argv is not None else sys.argv[1:]
-    )
+    rep["command"] = "quadslam study soak " + " ".join(argv if argv is not None else sys.argv[1:])
     print(format_report(rep))
     if args.json is not None:
         saver = Saver()
@@ -421,7 +419,3 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
     healthy = not rep["terminated"] and not rep["any_non_finite"] and not rep["health_problem"]
     return 0 if healthy else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())

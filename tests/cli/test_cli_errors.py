@@ -382,3 +382,20 @@ def test_drag_feedforward_needs_lqi_or_se3_and_the_air_velocity(
     line = _one_line_error(capsys, argv)
     assert "se3.drag_feedforward: got true with air_velocity_index = None" in line
     assert "observation.air_velocity: true" in line
+
+
+@pytest.mark.parametrize("name", ["degradation", "imu-instants", "particle-nees", "soak"])
+def test_each_analysis_is_a_study_subcommand_with_its_own_options(
+    capsys: pytest.CaptureFixture[str], name: str
+) -> None:
+    with pytest.raises(SystemExit) as done:
+        main(["study", name, "--help"])
+    assert done.value.code == 0
+    assert f"usage: quadslam study {name}" in capsys.readouterr().out
+    line = _argparse_error(capsys, ["study", name, "--seed", "0", "--no-such-option"])
+    assert line.startswith(f"quadslam study {name}: error: ")
+    assert "--no-such-option" in line or "--estimator" in line  # soak asks for it first
+
+
+def test_options_no_command_knows_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    assert "unrecognized arguments: --bogus" in _argparse_error(capsys, [*RUN, "--bogus"])

@@ -82,10 +82,10 @@ def test_analysis_json_on_a_full_disk_is_kept_elsewhere(
     out = tmp_path / "results"
     out.mkdir()
     full_disk(monkeypatch, out)
-    assert save_json(out / "r.json", RESULT, "python -m agents.studies.degradation") == 2
+    assert save_json(out / "r.json", RESULT, "quadslam study degradation") == 2
     captured = capsys.readouterr()
     (line,) = [x for x in captured.err.splitlines() if x.strip()]
-    assert line.startswith("python -m agents.studies.degradation: error: --json: could not write")
+    assert line.startswith("quadslam study degradation: error: --json: could not write")
     assert "No space left on device" in line
     saved = _saved_to(line)
     assert saved.is_relative_to(temp_root) and json.loads(saved.read_text()) == RESULT
@@ -153,7 +153,7 @@ def test_imu_instants_json_torn_by_a_full_disk_keeps_the_old_file(
     assert code == 2
     assert json.loads(target.read_text()) == {"old": True}  # never truncated
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err.startswith("python -m agents.studies.imu_instants: error: --json: could not write")
+    assert err.startswith("quadslam study imu-instants: error: --json: could not write")
     saved = _saved_to(err)
     assert saved.is_relative_to(temp_root) and json.loads(saved.read_text())["steps"] == 7
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json", "tmp"]  # no leftovers

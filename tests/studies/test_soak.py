@@ -1,4 +1,4 @@
-"""Shortened soak runs (the hour-long version is ``python -m agents.studies.soak``, see its
+"""Shortened soak runs (the hour-long version is ``quadslam study soak``, see its
 docstring): long flights stay finite, covariances stay symmetric PSD, and memory does not grow
 per step beyond the map."""
 
