@@ -353,9 +353,14 @@ def add_study_parser(
     )
     bound.set_defaults(func=cmd_study_bound)
     _add_estimators_parser(studies, positive_int, positive_float)
+    _add_analysis_parsers(studies)
+
+
+def _add_analysis_parsers(studies: Any) -> None:
+    """The parsers of the analyses (:data:`ANALYSES`): each parses its own options."""
     for name, (_, help_text) in ANALYSES.items():
         analysis = studies.add_parser(name, help=help_text, add_help=False)
-        analysis.set_defaults(func=cmd_study_analysis, analysis=name)  # options: its own
+        analysis.set_defaults(func=cmd_study_analysis, analysis=name)
 
 
 def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> None:
