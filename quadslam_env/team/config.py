@@ -10,6 +10,7 @@ allowed; the checks that need the number of vehicles or the scenario follow in
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -300,13 +301,8 @@ class TeamConfig(Section):
         Raises:
             ConfigError: Naming the key, the value and what is allowed.
         """
-        name, got = scenario.estimator.name, f"team.fusion: got {self.fusion!r}"
-        if not estimator_flag(name, fuses_landmarks):
-            raise ConfigError(
-                f"{got} with estimator.name = {name!r}, which cannot fuse landmark estimates; "
-                "allowed: 'independent', or an estimator with one (ekf_slam, or a plug-in with "
-                "fuses_landmarks = True)"
-            )
+        got = f"team.fusion: got {self.fusion!r}"
+        _needs_fuser(got, "'independent'", scenario, fuses_landmarks, "landmark estimates")
         if scenario.lidar.association != "known":
             raise ConfigError(
                 f"{got} with lidar.association = {scenario.lidar.association!r}; allowed: "
@@ -318,18 +314,9 @@ class TeamConfig(Section):
                 f"{got} with estimator.known_map = true (no map to fuse); allowed: "
                 "'independent', or estimator.known_map false"
             )
-        second = scenario.second_run
-        if second is not None:
-            raise ConfigError(
-                f"{got} with {second} set (the estimator runs from copies, which a fused "
-                f"message would miss); allowed: 'independent', or {second} at its default"
-            )
-        rate, control = self.message_rate_hz, scenario.episode.control_hz
-        if rate is not None and rate > control:
-            raise ConfigError(
-                f"team.message_rate_hz: got {rate!r}; allowed: at most episode.control_hz = "
-                f"{control!r} (one message per step)"
-            )
+        _needs_one_run(got, "'independent'", scenario, "message")
+        if self.message_rate_hz is not None:
+            _at_most_one_per_step("message_rate_hz", self.message_rate_hz, scenario, "message")
 
     def _check_ranges(self, scenario: ScenarioConfig) -> None:
         """What the ranges need of the scenario: epochs the steps can hold and, to fuse them,
@@ -338,27 +325,12 @@ class TeamConfig(Section):
         Raises:
             ConfigError: Naming the key, the value and what is allowed.
         """
-        rate, control = self.range_rate_hz, scenario.episode.control_hz
-        if rate > control:
-            raise ConfigError(
-                f"team.range_rate_hz: got {rate!r}; allowed: at most episode.control_hz = "
-                f"{control!r} (one range epoch per step)"
-            )
+        _at_most_one_per_step("range_rate_hz", self.range_rate_hz, scenario, "range epoch")
         if self.range_fusion == "none":
             return
-        name, got = scenario.estimator.name, f"team.range_fusion: got {self.range_fusion!r}"
-        if not estimator_flag(name, fuses_ranges):
-            raise ConfigError(
-                f"{got} with estimator.name = {name!r}, which cannot fuse ranges; allowed: "
-                "'none', or an estimator with one (ekf_slam, or a plug-in with fuses_ranges = "
-                "True)"
-            )
-        second = scenario.second_run
-        if second is not None:
-            raise ConfigError(
-                f"{got} with {second} set (the estimator runs from copies, which a fused range "
-                f"would miss); allowed: 'none', or {second} at its default"
-            )
+        got = f"team.range_fusion: got {self.range_fusion!r}"
+        _needs_fuser(got, "'none'", scenario, fuses_ranges, "ranges")
+        _needs_one_run(got, "'none'", scenario, "range")
 
     def offsets(self, n_vehicles: int, period_s: float) -> tuple[FloatArray, FloatArray]:
         """The vehicles' time offsets (N,) s and position offsets (N, 3) N frame m, the
@@ -372,6 +344,52 @@ class TeamConfig(Section):
         else:
             positions = np.array(self.position_offsets_m, dtype=float)
         return times, positions
+
+
+def _needs_fuser(
+    got: str, off: str, scenario: ScenarioConfig, flag: Callable[[str], bool], what: str
+) -> None:
+    """Refuse a fusion setting (``got``, turned off by ``off``) with an estimator whose class
+    lacks ``flag`` (``fuses_landmarks``, ``fuses_ranges``), the ability to fuse ``what``.
+
+    Raises:
+        ConfigError: Naming the setting, the estimator and what is allowed.
+    """
+    name = scenario.estimator.name
+    if not estimator_flag(name, flag):
+        raise ConfigError(
+            f"{got} with estimator.name = {name!r}, which cannot fuse {what}; allowed: {off}, or "
+            f"an estimator with one (ekf_slam, or a plug-in with {flag.__name__} = True)"
+        )
+
+
+def _needs_one_run(got: str, off: str, scenario: ScenarioConfig, item: str) -> None:
+    """Refuse a fusion setting (``got``, turned off by ``off``) when the estimator runs from
+    copies (:attr:`ScenarioConfig.second_run`), which a fused ``item`` would miss.
+
+    Raises:
+        ConfigError: Naming the setting, the one that makes the copies and what is allowed.
+    """
+    second = scenario.second_run
+    if second is not None:
+        raise ConfigError(
+            f"{got} with {second} set (the estimator runs from copies, which a fused {item} "
+            f"would miss); allowed: {off}, or {second} at its default"
+        )
+
+
+def _at_most_one_per_step(key: str, rate: float, scenario: ScenarioConfig, item: str) -> None:
+    """Refuse ``team.<key>`` = ``rate`` Hz above the control rate (one ``item`` per step).
+
+    Raises:
+        ConfigError: Naming the key, the value and the control rate.
+    """
+    control = scenario.episode.control_hz
+    if rate > control:
+        raise ConfigError(
+            f"team.{key}: got {rate!r}; allowed: at most episode.control_hz = {control!r} (one "
+            f"{item} per step)"
+        )
 
 
 def _plain(value: Any) -> Any:
