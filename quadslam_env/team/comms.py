@@ -39,6 +39,15 @@ COUNT_KEYS = (
 receiver's copy once in ``delivered`` or ``dropped``)."""
 
 
+def rate_ticks(steps: np.ndarray, per_step: float) -> np.ndarray:
+    """(…,) bool: whether the end of step ``steps`` (…,) int is an event of a rate of
+    ``per_step`` events per control step: the step on which ⌊t · rate⌋ grows (never step 0).
+    The team's messages at ``team.message_rate_hz`` and its range epochs use it."""
+    ticks = np.floor(steps * per_step + 1e-9)
+    before = np.floor((steps - 1) * per_step + 1e-9)
+    return (ticks > before) & (steps > 0)
+
+
 @dataclass(frozen=True)
 class Message:
     """One vehicle's landmark estimates for one receiver.
@@ -100,9 +109,7 @@ class Comms:
         if self._rate is None:
             scans = steps // self._lidar_every
             return (steps % self._lidar_every == 0) & (scans % self._every == 0) & (steps > 0)
-        ticks = np.floor(steps * (self._rate / self._control_hz) + 1e-9)
-        before = np.floor((steps - 1) * (self._rate / self._control_hz) + 1e-9)
-        return (ticks > before) & (steps > 0)
+        return rate_ticks(steps, self._rate / self._control_hz)
 
     def send(self, estimator: BatchEstimator, steps: np.ndarray, live: np.ndarray) -> None:
         """At the end of a step: the ``live`` (N,) vehicles due after ``steps`` (N,) send.

@@ -29,6 +29,7 @@ from typing import cast
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, FusesRanges
+from quadslam_env.team.comms import rate_ticks
 from quadslam_env.team.config import BEACON_FLOATS, FLOAT_BYTES, TeamConfig
 from quadslam_env.types import FloatArray
 
@@ -108,8 +109,7 @@ class Ranges:
 
     def due(self, steps_done: int) -> bool:
         """Whether the end of step ``steps_done`` (≥ 1) is a range epoch (⌊t · rate⌋ grows)."""
-        ticks = math.floor(steps_done * self._per_step + 1e-9)
-        return steps_done > 0 and ticks > math.floor((steps_done - 1) * self._per_step + 1e-9)
+        return bool(rate_ticks(np.asarray(steps_done), self._per_step))
 
     def measure(
         self, positions: FloatArray, est: BatchEstimate, live: np.ndarray, steps_done: int
