@@ -237,6 +237,20 @@ def _first_seed(text: str) -> int:
     return value
 
 
+def _flown_study_args(
+    parser: argparse.ArgumentParser,
+    positive_int: Callable[[str], int],
+    quick_help: str,
+    plots_help: str,
+    seeds_help: str = "episodes per row (default 20)",
+) -> None:
+    """The options :func:`_flown_study` reads: ``--quick``, ``--seeds``, ``--json``, ``--plots``."""
+    parser.add_argument("--quick", action="store_true", help=quick_help)
+    parser.add_argument("--seeds", type=positive_int, help=seeds_help)
+    parser.add_argument("--json", type=Path, help="write the table and episodes as JSON")
+    parser.add_argument("--plots", type=Path, help=plots_help)
+
+
 def _training_study_args(
     parser: argparse.ArgumentParser,
     positive_int: Callable[[str], int],
@@ -320,10 +334,8 @@ def add_study_parser(
         help="unknown data association: known vs NN vs JCBB (EKF-SLAM), known vs ML "
         "(FastSLAM), a held-out closely spaced map, and RMSE/wrong rate against clutter",
     )
-    assoc.add_argument("--quick", action="store_true", help="3 seeds of 10 s, 3 clutter rates")
-    assoc.add_argument("--seeds", type=positive_int, help="episodes per row (default 20)")
-    assoc.add_argument("--json", type=Path, help="write the table and episodes as JSON")
-    assoc.add_argument("--plots", type=Path, help="write the clutter figure (PNG) here")
+    _flown_study_args(assoc, positive_int, "3 seeds of 10 s, 3 clutter rates",
+                      "write the clutter figure (PNG) here")  # fmt: skip
     assoc.set_defaults(func=cmd_study_association)
     _add_integrity_parser(studies, positive_int)
     bound = studies.add_parser(
@@ -370,14 +382,12 @@ def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> N
         help="EKF-SLAM's integrity monitor, detecting and excluding, fault-free and with each "
         "fault kind: false alarms, protection levels, detection, errors, Stanford diagrams",
     )
-    integ.add_argument("--quick", action="store_true", help="3 seeds of 20 s")
-    integ.add_argument("--seeds", type=positive_int, help="episodes per fault row (default 20)")
+    _flown_study_args(integ, positive_int, "3 seeds of 20 s", "write the Stanford diagrams "
+                      "(PNG) here", seeds_help="episodes per fault row (default 20)")  # fmt: skip
     integ.add_argument(
         "--free-seeds", type=positive_int, help="fault-free episodes (default 50; quick 3)"
     )
     integ.add_argument("--seed", type=int, default=1000, help="first held-out seed (1000)")
-    integ.add_argument("--json", type=Path, help="write the table and episodes as JSON")
-    integ.add_argument("--plots", type=Path, help="write the Stanford diagrams (PNG) here")
     integ.set_defaults(func=cmd_study_integrity)
     task = studies.add_parser(
         "integrity-task",
@@ -391,8 +401,7 @@ def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> N
         help="teams of 1, 2 and 4 vehicles sharing maps: independent, covariance intersection "
         "and naive fusion; team map RMSE, landmark ANEES, bytes sent; the map figure",
     )
-    coop.add_argument("--quick", action="store_true", help="3 seeds of 20 s")
-    coop.add_argument("--seeds", type=positive_int, help="episodes per row (default 20)")
+    _flown_study_args(coop, positive_int, "3 seeds of 20 s", "write the team map figure (PNG) here")
     coop.add_argument("--seed", type=int, default=1000, help="first held-out seed (1000)")
     coop.add_argument(
         "--jobs",
@@ -400,8 +409,6 @@ def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> N
         help="episodes at a time, each in its own process (default: the CPU cores available; "
         "1: in this process); the results do not depend on it",
     )
-    coop.add_argument("--json", type=Path, help="write the table and episodes as JSON")
-    coop.add_argument("--plots", type=Path, help="write the team map figure (PNG) here")
     coop.set_defaults(func=cmd_study_cooperative)
 
 
