@@ -45,6 +45,7 @@ zero cross-covariance would be inconsistent; the lane maps it when it sees it.
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from estimators.ekf.correction import correction, stacked_gain
 from estimators.ekf.kernels import D_DIVERGED
@@ -268,11 +269,8 @@ def message_noise(covs: FloatArray, keep: np.ndarray, mode: str) -> FloatArray:
         rows = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
         return np.array(covs[np.ix_(rows, rows)])
     blocks = covs[keep]
-    m = blocks.shape[0]
-    R = np.zeros((3 * m, 3 * m))
-    for j in range(m):
-        R[3 * j : 3 * j + 3, 3 * j : 3 * j + 3] = blocks[j]
-    return R * m if mode == "ci" else R
+    R = block_diag(*blocks)
+    return R * blocks.shape[0] if mode == "ci" else R
 
 
 class LandmarkFusion:
