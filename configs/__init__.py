@@ -5,5 +5,5 @@ hyperparameters per env id) and ``sweeps/*.yaml`` (the example sweep specs). The
 the top of the repository (docs/design.md §1); ``pyproject.toml`` maps it to
 ``quadslam_env.configs`` (``package-dir``) and ships the YAML files as its package data, so an
 installed wheel and an editable install both read them through :mod:`importlib.resources`.
-:func:`quadslam_env.config_files.config_dir` is the one place that locates them.
+:func:`quadslam_env.config.files.config_dir` is the one place that locates them.
 """

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from estimators.association import chi2_threshold
-from quadslam_env.config_schema import ConfigError, Section, spec
+from quadslam_env.schema import ConfigError, Section, spec
 
 ASSOCIATION_METHODS = ("nn", "jcbb")
 """``estimator.params.association`` choices: nearest neighbour, joint compatibility B&B."""

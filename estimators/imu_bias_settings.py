@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from quadslam_env.config_schema import Section, spec
+from quadslam_env.schema import Section, spec
 
 GYRO_BIAS_MAX = 1.0
 """Largest gyro-bias std or walk density, rad/s (/√s): the bound of ``imu.gyro_bias``."""

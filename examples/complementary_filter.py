@@ -24,7 +24,7 @@ import numpy as np
 
 import estimators
 from estimators import BatchEstimate
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import dcm_from_euler, euler_rate_matrix, lidar_inverse
 from quadslam_env.types import GRAVITY, FloatArray
 

@@ -8,12 +8,12 @@ seeded with s + i is the scalar env seeded with s + i.
 
 Randomness: each lane has its own generator (the scalar env's ``np_random``), which spawns five
 children at every reset — landmarks, IMU, LiDAR, estimator, initial estimation error — exactly
-as the scalar env always has. The wind (:mod:`quadslam_env.wind`: held over each step, reported
+as the scalar env always has. The wind (:mod:`quadslam_env.sim.wind`: held over each step, reported
 in ``info``, advanced after the step; told to the estimator only with ``wind.inform_estimator``)
 spawns its gusts' generator from the world child, and domain randomisation
-(:mod:`quadslam_env.randomize`, the truth's parameters scaled per lane and episode; told with
+(:mod:`quadslam_env.sim.randomize`, the truth's parameters scaled per lane and episode; told with
 ``randomize.inform_estimator``) its generator from the initial-error child, and a fault of
-the world (:mod:`quadslam_env.faults`: held over each step, applied before the vehicle flies
+the world (:mod:`quadslam_env.sim.faults`: held over each step, applied before the vehicle flies
 it) its generator from the world child after the wind's, so no other stream changes when any of
 them is on.
 
@@ -23,17 +23,18 @@ inputs over its own period, and each prediction gets the input's white-noise std
 and one prediction over dt per step. An IMU m times faster: the vehicle is integrated over m
 sub-periods (command held), the IMU samples after each, and the estimator predicts m times over
 dt/m. An IMU m times slower: it samples every m-th step and the estimator runs as a filter at
-the IMU instants plus an output predicted at the control rate (:mod:`quadslam_env.imu_replay`).
+the IMU instants plus an output predicted at the control rate
+(:mod:`quadslam_env.runtime.imu_replay`).
 
 Latency (docs/timing.md "Latency"): an action is applied ``action.delay_steps`` steps after the
-agent gives it (:class:`~quadslam_env.actions.ActionDelay`; the estimator is told the thrust and
-torque applied), and a scan reaches the estimator ``lidar.delay_steps`` steps after it is
-measured, which then updates the belief of the scan's time (:mod:`quadslam_env.scan_delay`).
+agent gives it (:class:`~quadslam_env.episode.actions.ActionDelay`; the estimator is told the thrust
+and torque applied), and a scan reaches the estimator ``lidar.delay_steps`` steps after it is
+measured, which then updates the belief of the scan's time (:mod:`quadslam_env.runtime.scan_delay`).
 
 Association (docs/design.md §4): scans are typed by what the estimator is told
-(:mod:`quadslam_env.scans`), and the component of ``lidar.association``
-(:mod:`quadslam_env.association`) takes them and keeps the unknown association's bookkeeping;
-the step calls it the same way in either mode.
+(:mod:`quadslam_env.sim.scans`), and the component of ``lidar.association``
+(:mod:`quadslam_env.runtime.association`) takes them and keeps the unknown association's
+bookkeeping; the step calls it the same way in either mode.
 """
 
 from __future__ import annotations
@@ -47,31 +48,32 @@ from typing import Any, cast
 
 import numpy as np
 
-from quadslam_env.actions import ActionDelay, ActionMap
-from quadslam_env.association import association_for
 from quadslam_env.config import ScenarioConfig
-from quadslam_env.episode_start import initial_state, settle_time
+from quadslam_env.episode.actions import ActionDelay, ActionMap
+from quadslam_env.episode.observation import ObservationBuilder
+from quadslam_env.episode.reward import REWARD_KEYS, Reward, tracking_errors
+from quadslam_env.episode.start import initial_state, settle_time
+from quadslam_env.episode.termination import OutputGuard, Termination
 from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
 from quadslam_env.estimation.protocol import ReservesLandmarks, UsesTruth
-from quadslam_env.faults import FaultBatch
-from quadslam_env.imu_period import fast_period_samples, period_sample
-from quadslam_env.integrity import IntegrityTerms
 from quadslam_env.metrics import METRIC_KEYS, EpisodeMetrics, input_columns
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
-from quadslam_env.observation import ObservationBuilder
-from quadslam_env.period_log import Sample, predict_samples
-from quadslam_env.randomize import Randomizer
-from quadslam_env.reward import REWARD_KEYS, Reward, tracking_errors
-from quadslam_env.scan_delay import copies_for
-from quadslam_env.scans import Scans
-from quadslam_env.sensors import ImuBatch, LidarBatch
-from quadslam_env.termination import OutputGuard, Termination
-from quadslam_env.trajectories import FlatOutputs, Trajectory
+from quadslam_env.runtime.association import association_for
+from quadslam_env.runtime.imu_period import fast_period_samples, period_sample
+from quadslam_env.runtime.integrity import IntegrityTerms
+from quadslam_env.runtime.period_log import Sample, predict_samples
+from quadslam_env.runtime.scan_delay import copies_for
+from quadslam_env.sim.faults import FaultBatch
+from quadslam_env.sim.imu import ImuBatch
+from quadslam_env.sim.lidar import LidarBatch
+from quadslam_env.sim.randomize import Randomizer
+from quadslam_env.sim.scans import Scans
+from quadslam_env.sim.trajectories import FlatOutputs, Trajectory
+from quadslam_env.sim.vehicle import VehicleBatch
+from quadslam_env.sim.wind import WindBatch
+from quadslam_env.sim.world import landmark_capacity, make_landmarks, put_landmarks
 from quadslam_env.types import EUL, POS, RATE, STATE_DIM, FloatArray
-from quadslam_env.vehicle import VehicleBatch
-from quadslam_env.wind import WindBatch
-from quadslam_env.world import landmark_capacity, make_landmarks, put_landmarks
 
 # The rows of a step's (K, B) array of per-lane terms: the metrics, then the terms the core
 # adds, then the reward terms and the reward. ``info`` maps each key to its row (a contiguous
@@ -99,7 +101,7 @@ class SimCore:
         scenario: The validated scenario (every lane runs the same one).
         num_lanes: B ≥ 1.
         references: The lanes' references (default: the scenario's trajectory in every
-            lane; a :class:`~quadslam_env.trajectories.LaneTrajectory` shifts each lane's).
+            lane; a :class:`~quadslam_env.sim.trajectories.LaneTrajectory` shifts each lane's).
         lane_check: Run after the termination checks of each step (:data:`LaneCheck`).
 
     Attributes:
@@ -108,9 +110,9 @@ class SimCore:
         landmarks: (B, Lmax, 3) true landmark positions (NED, m); lane i uses the first
             ``n_landmarks[i]`` rows, whose ids are their row indices.
         est: The estimator's belief after the last reset or step.
-        association: The data-association component (:mod:`quadslam_env.association`):
+        association: The data-association component (:mod:`quadslam_env.runtime.association`):
             labeled scans, or unlabeled returns and the association bookkeeping.
-        last_scan: The scans taken in the last step (:class:`~quadslam_env.scans.Scans`: the
+        last_scan: The scans taken in the last step (:class:`~quadslam_env.sim.scans.Scans`: the
             lanes that scanned, the rows of ``meas`` that hold a return), or ``None`` when no
             lane scanned then; references, not copies (for the renderer).
         last_rates: (B, 3) true body rates in rad/s averaged over the last step (the IMU's
@@ -205,7 +207,7 @@ class SimCore:
             lanes: Lane indices.
             rngs: Each lane's generator (k,); five children are spawned from it.
             options: Parsed options (:func:`parse_reset_options`) applied to every lane
-                (``randomized``: scales pinned, :mod:`quadslam_env.randomize`).
+                (``randomized``: scales pinned, :mod:`quadslam_env.sim.randomize`).
 
         Returns:
             ``(obs (k, n) float32, info)`` with info values (k,) (NaN where a term does not
@@ -375,7 +377,7 @@ class SimCore:
         """Integrate the ``active`` lanes over the control period and advance their clocks.
 
         Returns:
-            The period's IMU samples (:data:`~quadslam_env.period_log.Sample`): one at or
+            The period's IMU samples (:data:`~quadslam_env.runtime.period_log.Sample`): one at or
             below the control rate, m with an IMU m times faster.
         """
         vehicle, imu = self.vehicle, self.imu

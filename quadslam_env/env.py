@@ -14,13 +14,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from quadslam_env.actions import ActionError, validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
+from quadslam_env.episode.actions import ActionError, validate_actions
+from quadslam_env.episode.reset_options import parse_reset_options, parse_seed
 from quadslam_env.estimation import BatchEstimate, BatchEstimator
 from quadslam_env.memory import check_env_memory
-from quadslam_env.reset_options import parse_reset_options, parse_seed
-from quadslam_env.trajectories import FlatOutputs
+from quadslam_env.sim.trajectories import FlatOutputs
 from quadslam_env.types import TEXT_INFO_KEYS, FloatArray
 
 if TYPE_CHECKING:

@@ -19,6 +19,7 @@ import math
 from collections.abc import Sequence
 
 from quadslam_env.config import ScenarioConfig
+from quadslam_env.episode.observation import observation_size
 from quadslam_env.estimation import registry
 from quadslam_env.estimation.memory import (
     LANES,
@@ -27,12 +28,11 @@ from quadslam_env.estimation.memory import (
     format_bytes,
     refuse_unless_fits,
 )
-from quadslam_env.imu import ImuBatch
 from quadslam_env.models.wind import GUST_STATES
-from quadslam_env.observation import observation_size
+from quadslam_env.sim.imu import ImuBatch
+from quadslam_env.sim.wind import WindBatch
+from quadslam_env.sim.world import landmark_capacity
 from quadslam_env.types import IMU_DIM
-from quadslam_env.wind import WindBatch
-from quadslam_env.world import landmark_capacity
 
 __all__ = ["check_env_memory", "env_memory_terms", "format_bytes", "workload"]
 
@@ -148,7 +148,7 @@ def _second_run(
     scenario: ScenarioConfig, b: int, lmax: int, estimator: list[MemoryTerm]
 ) -> list[MemoryTerm]:
     """A delayed LiDAR's or a slow IMU's period log and the estimator's copies run beside it
-    (``ScanDelay``, ``LateScans``, ``ImuReplay``: :mod:`quadslam_env.scan_delay`)."""
+    (``ScanDelay``, ``LateScans``, ``ImuReplay``: :mod:`quadslam_env.runtime.scan_delay`)."""
     d, m = scenario.lidar.delay_steps, scenario.imu_per_step
     late = d > 0 and registry.estimator_flag(scenario.estimator.name, registry.takes_late_scans)
     if d > 0:  # the log holds d + 1 periods (late scans), or a scan period and d

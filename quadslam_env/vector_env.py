@@ -34,17 +34,17 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from quadslam_env.actions import validate_actions
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import step_rate
-from quadslam_env.memory import check_env_memory
-from quadslam_env.reset_options import (
+from quadslam_env.episode.actions import validate_actions
+from quadslam_env.episode.reset_options import (
     parse_lane_seeds,
     parse_reset_options,
     parse_seed,
     split_reset_mask,
 )
+from quadslam_env.memory import check_env_memory
 from quadslam_env.types import TEXT_INFO_KEYS
 
 if TYPE_CHECKING:

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 
 
 def fly_dflqr(

@@ -32,7 +32,7 @@ METHODS: tuple[tuple[str, dict[str, Any]], ...] = (
 
 
 def _merge(*parts: dict[str, Any]) -> dict[str, Any]:
-    from quadslam_env.config_files import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     out: dict[str, Any] = {}
     for part in parts:

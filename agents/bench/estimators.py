@@ -24,7 +24,7 @@ import numpy as np
 from agents.bench.plan import Plan, Results
 from estimators.ekf import EkfSlamBatch
 from estimators.fastslam import DynamicFastSLAM
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.lidar import lidar_measure
 from quadslam_env.models.params import vehicle_preset

@@ -31,7 +31,7 @@ BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"
 
 def cmd_scenarios(args: argparse.Namespace) -> int:
     """List the shipped scenarios with their one-line descriptions."""
-    from quadslam_env.config_files import config_dir, scenario_descriptions
+    from quadslam_env.config.files import config_dir, scenario_descriptions
 
     rows = scenario_descriptions()
     width = max((len(name) for name in rows), default=0)
@@ -68,7 +68,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from agents.io.signals import Terminated
     from agents.rl.hyperparams import parse_hyperparam_overrides
     from agents.rl.training import resume, train
-    from quadslam_env.config_files import check_config_file
+    from quadslam_env.config.files import check_config_file
 
     try:
         if args.resume is not None:

@@ -19,8 +19,8 @@ import re
 from typing import Any
 
 from quadslam_env.config import SECTIONS, field_rows, scenario_descriptions
-from quadslam_env.config_schema import Section
 from quadslam_env.models.params import VEHICLE_PRESETS
+from quadslam_env.schema import Section
 
 
 def _cell(value: Any) -> str:

@@ -71,7 +71,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from quadslam_env.observation import BASE_LAYOUT
+from quadslam_env.episode.observation import BASE_LAYOUT
 from quadslam_env.types import GRAVITY, FloatArray
 
 RATIO_BOUNDS = (0.5, 2.0)

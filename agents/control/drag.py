@@ -29,16 +29,16 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.episode.observation import observation_layout
 from quadslam_env.models.frames import dcm_from_trig
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import aero_specific_force
-from quadslam_env.observation import observation_layout
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import FloatArray
 
 AIR_BLOCK = "air_velocity"
-"""The observation block (:func:`quadslam_env.observation.observation_layout`) the
+"""The observation block (:func:`quadslam_env.episode.observation.observation_layout`) the
 feed-forward reads: ``v̂_a`` (3,) in B, m/s."""
 
 

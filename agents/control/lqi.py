@@ -73,8 +73,8 @@ from agents.control.dflqr import (
     lqr_gain,
 )
 from agents.control.drag import DragFeedforward, check_flag
-from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.params import VehicleParams
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import FloatArray
 
 INTEGRATED = (0, 1, 2, 6)

@@ -52,10 +52,10 @@ from agents.control.dflqr import (
 )
 from agents.control.drag import DragFeedforward, check_flag
 from agents.control.lqi import MAX_TILT_DEG, check_separation, lqi_gain, saturated
-from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.frames import dcm_from_trig
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import GRAVITY, FloatArray
 
 

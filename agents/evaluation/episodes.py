@@ -18,9 +18,9 @@ import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
 
 from agents.evaluation.step_clock import StepClock
-from quadslam_env.actions import validate_actions
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.env import lane_info
+from quadslam_env.episode.actions import validate_actions
 from quadslam_env.estimation import MemoryTerm
 from quadslam_env.memory import check_env_memory
 from quadslam_env.metrics import phase_key

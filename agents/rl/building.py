@@ -181,9 +181,9 @@ def check_training_memory(algo: str, settings: dict[str, Any], env_id: str) -> N
         quadslam_env.estimation.MemoryLimitError: One line naming the setting that
             dominates, its size and what fits.
     """
+    from quadslam_env.episode.observation import observation_size
     from quadslam_env.estimation import MemoryTerm
     from quadslam_env.memory import check_env_memory, env_memory_terms
-    from quadslam_env.observation import observation_size
 
     scenario = registered_scenario(env_id, settings["env_kwargs"])
     if scenario is None:

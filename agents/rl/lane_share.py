@@ -19,7 +19,7 @@ import numpy as np
 
 from agents.rl.wrappers import ResidualDFLQR, parse_wrapper_spec
 from quadslam_env.env import lane_info
-from quadslam_env.reset_options import parse_reset_options
+from quadslam_env.episode.reset_options import parse_reset_options
 from quadslam_env.types import TEXT_INFO_KEYS
 from quadslam_env.vector_env import QuadSLAMVectorEnv
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import yaml
 
-from quadslam_env.config_files import parse_yaml, read_text_file
+from quadslam_env.config.files import parse_yaml, read_text_file
 
 
 def versions() -> dict[str, str]:

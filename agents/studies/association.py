@@ -170,7 +170,7 @@ def _sweep_entry(
 
 
 def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
-    from quadslam_env.config_files import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     return deep_merge(a, b)
 

@@ -7,7 +7,7 @@ so that the estimator's time per step is one vehicle's. Per cell it reports:
 
 - **RMSE** of the position, inertial velocity and attitude (rotation angle) over the whole
   flight and over the steady state ``t > episode.settle_s`` (the env's own transient, see
-  ``quadslam_env.episode_start``), pooled over seeds (``√(mean over seeds of MSE)``, what the
+  ``quadslam_env.episode.start``), pooled over seeds (``√(mean over seeds of MSE)``, what the
   bound bounds), next to the bound's RMSE-equivalent pooled the same way, and their ratio.
   Every row has its own bound: DF-LQR flies on the estimate, so each row's true
   trajectories (and bounds) differ slightly.
@@ -113,7 +113,7 @@ def run_cell(
 ) -> dict[str, Any]:
     """Fly one cell (a key of :data:`SCENARIOS`) and summarise it (module docstring);
     ``{"applies": False, "reason"}`` when the estimator cannot run there."""
-    from quadslam_env.config_schema import ConfigError
+    from quadslam_env.schema import ConfigError
 
     if row.name == "isam2" and importlib.util.find_spec("gtsam") is None:
         return {"applies": False, "reason": "GTSAM not installed (pip install 'quadslam[gtsam]')"}

@@ -4,7 +4,7 @@
 --set imu.rate_hz=10``
 
 With a slow IMU the env reports, between two IMU samples, the filter's belief carried forward
-with the last sample held (:mod:`quadslam_env.imu_replay`). This flies the DF-LQR on the
+with the last sample held (:mod:`quadslam_env.runtime.imu_replay`). This flies the DF-LQR on the
 estimate (each seed a lane of one vector env, as ``quadslam run``) and splits the steps into
 those at an IMU instant (every m-th step, where the output is the filter itself) and those
 between: per seed the position and attitude RMSE, and the pose ANEES (9 DOF) pooled over the

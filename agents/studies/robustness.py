@@ -64,7 +64,7 @@ from agents.studies.learned_rows import (
     write_json,
 )
 from agents.studies.training_pool import train_all
-from quadslam_env.randomize import AXIS_INFO_KEYS, RANDOMIZED_KEYS
+from quadslam_env.sim.randomize import AXIS_INFO_KEYS, RANDOMIZED_KEYS
 
 __all__ = [
     "CONDITIONS",
@@ -107,7 +107,7 @@ of the LQI it sits on, both on ``ekf_full``, on each training seed."""
 
 def _scenario_sections(name: str) -> dict[str, Any]:
     """The sections of ``configs/scenarios/<name>.yaml`` as the config loader reads them."""
-    from quadslam_env.config_files import config_dir, load_yaml
+    from quadslam_env.config.files import config_dir, load_yaml
 
     return load_yaml(config_dir() / "scenarios" / f"{name}.yaml")
 
@@ -170,7 +170,7 @@ def cell_kwargs(
 def drawn_scales(kwargs: dict[str, Any], seeds: list[int]) -> list[dict[str, float]]:
     """Each seed's randomised scales (``info["rand_*"]`` at its reset; empty without
     randomisation). Every estimator's env of a condition, and every lane of a vector env seeded
-    the same, draws the same (:mod:`quadslam_env.randomize`)."""
+    the same, draws the same (:mod:`quadslam_env.sim.randomize`)."""
     import gymnasium as gym
 
     env = gym.make(ORACLE, **kwargs)

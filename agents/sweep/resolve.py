@@ -201,7 +201,7 @@ class Resolver:
         config = point.get("config")
         source = Path(config).resolve() if config is not None else default_config_path(algo)
         if config is not None:
-            from quadslam_env.config_files import check_config_file
+            from quadslam_env.config.files import check_config_file
 
             check_config_file(source, "config")  # exists, a file, at most 1 MiB: before reading
         for key in ("timesteps", "n_envs"):

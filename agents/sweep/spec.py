@@ -135,7 +135,7 @@ class Job:
 # ----------------------------------------------------------------------------- reading
 def shipped_specs_dir() -> Path:
     """``configs/sweeps`` (the example specs; ``QUADSLAM_CONFIG_DIR`` overrides)."""
-    from quadslam_env.config_files import config_dir
+    from quadslam_env.config.files import config_dir
 
     return config_dir() / "sweeps"
 
@@ -170,7 +170,7 @@ def load_spec(spec: str | Path) -> list[Job]:
         SweepSpecError: Unreadable file, malformed YAML or any invalid entry (see the module
             docstring); nothing has run yet.
     """
-    from quadslam_env.config_files import (
+    from quadslam_env.config.files import (
         DuplicateKeyError,
         YamlLimitError,
         parse_yaml,

@@ -9,8 +9,8 @@ import numpy as np
 
 from estimators.association_settings import AssociationFields
 from estimators.imu_bias_settings import ImuBiasFields
-from quadslam_env.config_schema import ConfigError, spec
 from quadslam_env.models.params import VehicleParams
+from quadslam_env.schema import ConfigError, spec
 from quadslam_env.types import POSE_DIM, FloatArray
 
 BIAS_DIM = 4
@@ -44,7 +44,7 @@ class EkfSlamSettings(ImuBiasFields, AssociationFields):
     """EKF-SLAM settings (``estimator.params`` of ``ekf_slam``), built by :meth:`from_dict`.
 
     Every key, its default, what it accepts and its meaning is declared below with
-    :func:`~quadslam_env.config_schema.spec` (the docs' ``estimator.params`` table of
+    :func:`~quadslam_env.schema.spec` (the docs' ``estimator.params`` table of
     ``ekf_slam`` is generated from these declarations). The bias keys come from
     :class:`~estimators.imu_bias_settings.ImuBiasFields` (b_ω (3) and b_az (1): the only IMU
     axes the model uses, λ = (ã_z, ω̃), seed 001 eq. 25) and the association keys, read with

@@ -52,7 +52,7 @@ from estimators.fastslam.landmarks import (
 )
 from estimators.fastslam.settings import AssociationSettings, scan_noise
 from estimators.tentative import Candidates, age_candidates, observe_candidate
-from quadslam_env.measurements import LidarScan
+from quadslam_env.estimation.measurements import LidarScan
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import body_from_measure

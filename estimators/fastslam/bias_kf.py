@@ -242,7 +242,7 @@ def imu_bias_step(
     drag, :func:`~quadslam_env.models.rigid_body.state_specific_force`).
     ``ω̄ = (ω_start + ω_end) / 2`` is the particle's mean body rate over the
     IMU period (trapezoid), not eq. 12's rate at its end: the gyro reports the mean rate over
-    its period (:mod:`quadslam_env.imu`), and during a manoeuvre the two differ by about
+    its period (:mod:`quadslam_env.sim.imu`), and during a manoeuvre the two differ by about
     ``ω̇ Δt / 2``, a systematic innovation the bias KF would otherwise learn as gyro bias.
 
     Args:

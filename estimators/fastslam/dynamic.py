@@ -20,13 +20,13 @@ from estimators.fastslam.process import DynamicsModel
 from estimators.fastslam.settings import SIGMA_FLOOR, DynamicFastSlamSettings
 from estimators.fastslam.state import BiasKFState
 from estimators.inertia import GyroTorqueRegression
-from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation import register
-from quadslam_env.measurements import Control, ImuSample
+from quadslam_env.estimation.measurements import Control, ImuSample
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.linalg import chol3, inv3_sym, mv
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import NO_AIR, AirTuple
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import EUL, POS, RATE, FloatArray
 
 

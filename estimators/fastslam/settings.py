@@ -2,7 +2,7 @@
 ``fastslam_kinematic``).
 
 Every key, its default, what it accepts and its meaning is declared here with
-:func:`~quadslam_env.config_schema.spec`; the docs' ``estimator.params`` tables are generated
+:func:`~quadslam_env.schema.spec`; the docs' ``estimator.params`` tables are generated
 from these declarations. :class:`FastSlamSettings` holds the keys both filters read (the gate
 and the M-of-N rule from :class:`~estimators.association_settings.GatedFields`);
 :class:`DynamicFastSlamSettings` and :class:`KinematicFastSlamSettings` add each filter's own
@@ -20,7 +20,7 @@ import numpy as np
 from estimators.association import chi2_threshold
 from estimators.association_settings import GatedFields
 from estimators.imu_bias_settings import ACCEL_BIAS_MAX, GYRO_BIAS_MAX
-from quadslam_env.config_schema import spec
+from quadslam_env.schema import spec
 from quadslam_env.types import MEAS_DIM, STATE_DIM, FloatArray
 
 SIGMA_FLOOR = 1e-9

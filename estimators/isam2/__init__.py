@@ -16,7 +16,7 @@
 * :mod:`estimators.isam2.settings` — :class:`Isam2Settings`, the validated parameters.
 
 Importing this package does not import GTSAM: building the estimator does, and fails with a
-:class:`~quadslam_env.config_schema.ConfigError` naming the extra when it is missing.
+:class:`~quadslam_env.schema.ConfigError` naming the extra when it is missing.
 """
 
 from estimators.isam2.estimator import Isam2Slam

@@ -17,8 +17,8 @@ from estimators.isam2.settings import (
     Isam2Settings,
 )
 from estimators.isam2.tangent import tangent_covariance
-from quadslam_env.config_schema import ConfigError
 from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import EUL, GRAVITY, POS, POSE_DIM, VEL, FloatArray
 
 GTSAM_INSTALL = "pip install 'quadslam[gtsam]'"

@@ -19,7 +19,7 @@ import numpy as np
 from estimators.association import chi2_threshold
 from estimators.association_settings import AssociationFields
 from estimators.imu_bias_settings import ImuBiasFields
-from quadslam_env.config_schema import spec
+from quadslam_env.schema import spec
 from quadslam_env.types import POSE_DIM, FloatArray
 
 FIXED_BIAS_SIGMA = 1e-5
@@ -60,7 +60,7 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
     """iSAM2 settings (``estimator.params`` of ``isam2``), built by :meth:`from_dict`.
 
     Every key, its default, what it accepts and its meaning is declared below with
-    :func:`~quadslam_env.config_schema.spec` (the docs' ``estimator.params`` table of
+    :func:`~quadslam_env.schema.spec` (the docs' ``estimator.params`` table of
     ``isam2`` is generated from these declarations); the bias and association keys are the
     EKF's (see the module docstring).
 
@@ -81,8 +81,8 @@ class Isam2Settings(ImuBiasFields, AssociationFields):
     information directly (same solution, ~15% more time per scan).
 
     The measurement noise (LiDAR σ per return, IMU white noise per sample) comes with the
-    data, as for the EKF (:class:`~quadslam_env.measurements.LidarScan`,
-    :class:`~quadslam_env.measurements.ImuSample`).
+    data, as for the EKF (:class:`~quadslam_env.estimation.measurements.LidarScan`,
+    :class:`~quadslam_env.estimation.measurements.ImuSample`).
     """
 
     window_s: float | None = spec(

@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.estimation.protocol import (
     ChecksMemory,
     EstimatesState,
@@ -19,7 +20,6 @@ from quadslam_env.estimation.protocol import (
     UsesVehicle,
 )
 from quadslam_env.estimation.snapshot import BatchEstimate, empty_batch, id_width, stack_lanes
-from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import FloatArray
 

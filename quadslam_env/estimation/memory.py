@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.schema import ConfigError
 
 LIMIT_VARIABLE = "QUADSLAM_MEMORY_LIMIT_BYTES"
 """Environment variable that overrides the available memory (bytes), e.g. for tests."""

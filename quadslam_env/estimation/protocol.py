@@ -37,8 +37,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from quadslam_env.estimation.integrity import MonitorSettings
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.estimation.snapshot import BatchEstimate
-from quadslam_env.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import FloatArray
 
@@ -118,7 +118,8 @@ class BatchEstimator(Protocol):
         std of that input per step of ``dt``, ``ND/√dt`` (the per-sample std when the IMU
         samples every ``dt``; with an IMU slower than the control, the held sample's std
         scaled so that the steps between two samples add up its variance:
-        :mod:`quadslam_env.imu_replay`); ``thrust`` (B,) N and ``torque`` (B, 3) N·m applied.
+        :mod:`quadslam_env.runtime.imu_replay`); ``thrust`` (B,) N and ``torque`` (B, 3) N·m
+        applied.
         """
 
     def update(

@@ -17,10 +17,10 @@ import importlib.metadata
 from collections.abc import Callable
 from typing import Any
 
-from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation.lane_loop import LaneLoop
 from quadslam_env.estimation.memory import LANE_OBJECT_BYTES, LANES, MemoryTerm, Workload
 from quadslam_env.estimation.protocol import BatchEstimator, UsesTruth
+from quadslam_env.schema import ConfigError
 
 Factory = Callable[..., Any]
 """A class or factory called as ``factory(vehicle=VehicleParams, **estimator.params)`` (plus
@@ -125,8 +125,8 @@ def associates_unlabeled(name: str) -> bool:
 
     Its class says so with ``associates_unlabeled = True``: a batched one then implements
     ``update_unlabeled`` (see :class:`~quadslam_env.estimation.protocol.BatchEstimator`), one
-    vehicle's takes a :class:`~quadslam_env.measurements.LidarScan` with ``ids=None`` and sets
-    ``last_association`` (k,), the landmark id each return was paired with (-1: none).
+    vehicle's takes a :class:`~quadslam_env.estimation.measurements.LidarScan` with ``ids=None`` and
+    sets ``last_association`` (k,), the landmark id each return was paired with (-1: none).
     Estimators that use the truth (the oracle) need no association and accept them too.
 
     Raises:
@@ -139,8 +139,8 @@ def associates_unlabeled(name: str) -> bool:
 def copyable(name: str) -> bool:
     """Whether the env may deep-copy the estimator ``name`` (:func:`copy.deepcopy`).
 
-    An IMU slower than the control (:mod:`quadslam_env.imu_replay`) and a delayed LiDAR
-    (:mod:`quadslam_env.scan_delay`) run a copy of the env's estimator beside it. Every
+    An IMU slower than the control (:mod:`quadslam_env.runtime.imu_replay`) and a delayed LiDAR
+    (:mod:`quadslam_env.runtime.scan_delay`) run a copy of the env's estimator beside it. Every
     estimator is copyable unless its class says ``copyable = False`` (one that holds native
     state with no copy, such as a factor-graph library's smoother); the scenario check reads the
     flag before any estimator is built.
@@ -187,9 +187,9 @@ def fuses_ranges(name: str) -> bool:
 def takes_late_scans(name: str) -> bool:
     """Whether the estimator ``name`` takes a delayed LiDAR's scans at their own time without
     being copied: its class says ``takes_late_scans = True``
-    (:class:`~quadslam_env.estimation.protocol.TakesLateScans`; :mod:`quadslam_env.scan_delay`
-    then hands it each scan when it arrives, with its measurement time). A copyable estimator
-    without the flag is run from copies instead.
+    (:class:`~quadslam_env.estimation.protocol.TakesLateScans`;
+    :mod:`quadslam_env.runtime.scan_delay` then hands it each scan when it arrives, with its
+    measurement time). A copyable estimator without the flag is run from copies instead.
 
     Raises:
         ValueError: Unknown name or a plug-in that cannot be loaded.

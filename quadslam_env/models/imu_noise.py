@@ -1,6 +1,6 @@
 """IMU noise parameters: white-noise density → per-sample σ, exact Gauss–Markov drift.
 
-Seed 000 eq. 5–11 and docs/design.md §3. The simulated IMU (:mod:`quadslam_env.imu`) and the
+Seed 000 eq. 5–11 and docs/design.md §3. The simulated IMU (:mod:`quadslam_env.sim.imu`) and the
 FastSLAM bias Kalman filter (:mod:`estimators.fastslam.bias_kf`) both discretise with these
 functions, so the filter's model is the simulator's model.
 """

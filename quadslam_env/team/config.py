@@ -2,8 +2,8 @@
 each vehicle flies, when two collide and the ranges between them (docs/team.md).
 
 The ``team`` mapping of :func:`quadslam_env.team.parallel_env` is validated by the settings
-system (:class:`~quadslam_env.config_schema.Section`), so a bad value is a
-:class:`~quadslam_env.config_schema.ConfigError` naming ``team.<key>``, the value and what is
+system (:class:`~quadslam_env.schema.Section`), so a bad value is a
+:class:`~quadslam_env.schema.ConfigError` naming ``team.<key>``, the value and what is
 allowed; the checks that need the number of vehicles or the scenario follow in
 :meth:`TeamConfig.check`.
 """
@@ -17,9 +17,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from quadslam_env.config import ScenarioConfig
-from quadslam_env.config_schema import ConfigError, Section
-from quadslam_env.config_schema import spec as _spec
 from quadslam_env.estimation import estimator_flag, fuses_landmarks, fuses_ranges
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 from quadslam_env.types import FloatArray
 
 FUSION_MODES = ("independent", "ci", "naive")

@@ -3,7 +3,7 @@
 
 The N vehicles are N lanes of one :class:`~quadslam_env.core.SimCore`. Vehicle i flies the
 scenario's trajectory shifted by its time offset τ_i and position offset p_i
-(:class:`~quadslam_env.trajectories.LaneTrajectory`), and starts where vehicle 0 would start
+(:class:`~quadslam_env.sim.trajectories.LaneTrajectory`), and starts where vehicle 0 would start
 relative to its own reference: on it with ``trajectory.start_on_reference``, else at the
 scenario's start moved by ``ρ_d,i(0) − ρ_d,0(0)``. Vehicle 0 has no offset, so it is the
 single env's vehicle.
@@ -19,10 +19,10 @@ import numpy as np
 from gymnasium.utils import seeding
 
 from quadslam_env.config import ScenarioConfig
-from quadslam_env.episode_start import initial_state
+from quadslam_env.episode.start import initial_state
 from quadslam_env.models.flatness import state_on_reference
+from quadslam_env.sim.trajectories import LaneTrajectory
 from quadslam_env.team.config import TeamConfig
-from quadslam_env.trajectories import LaneTrajectory
 from quadslam_env.types import POS, FloatArray
 
 

@@ -295,7 +295,7 @@ def test_a_scenario_from_a_pipe_is_read(tmp_path: Path) -> None:
 
 
 def test_a_pipe_is_read_up_to_the_cap_only(tmp_path: Path) -> None:
-    from quadslam_env.config_files import MAX_CONFIG_BYTES
+    from quadslam_env.config.files import MAX_CONFIG_BYTES
 
     thread = _fifo_with(tmp_path / "endless.yaml", b"#" * (3 * MAX_CONFIG_BYTES))
     with pytest.raises(ConfigError, match=r"endless\.yaml'.*more than 1 MiB; allowed: at most"):
@@ -304,7 +304,7 @@ def test_a_pipe_is_read_up_to_the_cap_only(tmp_path: Path) -> None:
 
 
 def test_a_file_at_the_cap_is_read_and_one_byte_more_is_not(tmp_path: Path) -> None:
-    from quadslam_env.config_files import MAX_CONFIG_BYTES
+    from quadslam_env.config.files import MAX_CONFIG_BYTES
 
     path = tmp_path / "padded.yaml"
     head = b"episode: {duration_s: 2.0}\n"

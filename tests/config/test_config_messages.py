@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.config_schema import shown_value
+from quadslam_env.schema import shown_value
 
 
 @pytest.mark.parametrize(

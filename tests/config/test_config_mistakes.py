@@ -12,7 +12,7 @@ from conftest import RUN, cli
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.config_files import available_scenarios
+from quadslam_env.config.files import available_scenarios
 
 # ---------------------------------------------------------------------- configuration files
 

@@ -20,9 +20,9 @@ from agents.control.lqi import LQIPolicy
 from agents.control.named import build_controller
 from agents.control.se3 import SE3Policy
 from agents.rl.wrappers import parse_wrapper_spec
-from quadslam_env.config_files import config_dir, load_yaml
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.config.files import config_dir, load_yaml
 from quadslam_env.models.params import vehicle_preset
+from quadslam_env.schema import ConfigError
 
 WIND_OBS = {"estimated_wind": True, "air_velocity": True}
 AIR = 16 + 2  # the air velocity's first entry with both blocks

@@ -15,7 +15,7 @@ import quadslam_env  # noqa: F401
 from agents.control.dflqr import Q_TILDE, R_TILDE, DFLQRPolicy, lqr_gain
 from agents.control.lqi import INTEGRAL_WEIGHTS, STATE_WEIGHTS, LQIPolicy, lqi_gain
 from agents.control.named import build_controller
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.schema import ConfigError
 
 
 def _hamiltonian_care(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from test_lqi import _hover_in_wind
 
 import quadslam_env  # noqa: F401
 from agents.control.se3 import SE3Policy
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import GRAVITY
 
 

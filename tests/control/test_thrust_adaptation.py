@@ -22,7 +22,7 @@ from agents.control.lqi import LQIPolicy
 from agents.control.named import build_controller
 from agents.control.se3 import SE3Policy
 from agents.rl.wrappers import ResidualDFLQRVectorWrapper, parse_wrapper_spec
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import GRAVITY
 
 POLICIES: dict[str, Any] = {"lqi": LQIPolicy, "se3": SE3Policy}

@@ -20,7 +20,7 @@ import quadslam_env  # noqa: F401  (registers the ids)
 from quadslam_env.config import ConfigError, ImuConfig, load_scenario
 from quadslam_env.estimation import HEALTH_PROBLEMS, BatchEstimate, health_codes
 from quadslam_env.models import GRAVITY, VEHICLE_PRESETS
-from quadslam_env.sensors import Imu
+from quadslam_env.sim.imu import Imu
 from quadslam_env.types import DEG
 
 RELAXED = {"max_pos_err_m": 1e6, "nees_threshold": None}

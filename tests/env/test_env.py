@@ -17,7 +17,7 @@ import quadslam_env
 from quadslam_env.config import ConfigError, LandmarksConfig
 from quadslam_env.env import ActionError
 from quadslam_env.models import VEHICLE_PRESETS
-from quadslam_env.world import make_landmarks
+from quadslam_env.sim.world import make_landmarks
 
 SHORT = {"episode": {"duration_s": 2.0}}
 FAST_KW: dict[str, dict[str, Any]] = {

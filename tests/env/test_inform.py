@@ -25,7 +25,7 @@ from agents.control.dflqr import DFLQRPolicy
 from estimators.fastslam.process import DynamicsModel
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.models import VEHICLE_PRESETS
-from quadslam_env.randomize import scaled_vehicle
+from quadslam_env.sim.randomize import scaled_vehicle
 from quadslam_env.types import GRAVITY, VEL
 
 RANGES = {

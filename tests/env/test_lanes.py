@@ -17,9 +17,10 @@ from quadslam_env.config import ImuConfig, LidarConfig
 from quadslam_env.models import VEHICLE_PRESETS, VehicleParams, dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.integrators import RigidBodyLanes, vehicle_step_lanes
 from quadslam_env.models.rigid_body import pack_bodies
-from quadslam_env.sensors import Imu, ImuBatch, Lidar, LidarBatch
+from quadslam_env.sim.imu import Imu, ImuBatch
+from quadslam_env.sim.lidar import Lidar, LidarBatch
+from quadslam_env.sim.vehicle import Vehicle, VehicleBatch
 from quadslam_env.types import GRAVITY
-from quadslam_env.vehicle import Vehicle, VehicleBatch
 
 _HECTOR = VEHICLE_PRESETS["sadeghzadeh2021"]
 # Products of inertia and drag, so every term of the model is exercised.

@@ -1,6 +1,6 @@
 """Sensor and action latency (docs/timing.md "Latency"): a delayed scan updates the belief of its
-own time and the output is re-propagated (:mod:`quadslam_env.scan_delay`); a delayed action is
-applied d steps after the agent gave it (``SimCore``). Lane-versus-scalar equality with both
+own time and the output is re-propagated (:mod:`quadslam_env.runtime.scan_delay`); a delayed action
+is applied d steps after the agent gave it (``SimCore``). Lane-versus-scalar equality with both
 delays through autoresets is in tests/env/test_vector_env.py (the ``-latency`` cases)."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import QuadSLAMEnv
 from quadslam_env.metrics import METRIC_KEYS, metric_columns
-from quadslam_env.period_log import predict_samples
-from quadslam_env.scan_delay import ScanDelay
+from quadslam_env.runtime.period_log import predict_samples
+from quadslam_env.runtime.scan_delay import ScanDelay
 
 LIDAR_EVERY = 10  # paper_ekf_figure8: 10 Hz LiDAR at 100 Hz control
 STEPS = 130

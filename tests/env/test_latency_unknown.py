@@ -1,5 +1,5 @@
 """A delayed LiDAR with unknown data association (docs/timing.md "Latency"): the lagging filter
-associates and applies each unlabeled scan at its own time (:mod:`quadslam_env.scan_delay`),
+associates and applies each unlabeled scan at its own time (:mod:`quadslam_env.runtime.scan_delay`),
 and the association's counts score the scan that arrived (``EstimatorCopies.applied``).
 Lane-versus-scalar equality through autoresets is in tests/env/test_vector_env.py (the
 ``-unknown-latency`` cases)."""
@@ -16,7 +16,7 @@ from quadslam_env.config import load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import QuadSLAMEnv
 from quadslam_env.metrics import ASSOCIATION_KEYS
-from quadslam_env.scan_delay import ScanDelay
+from quadslam_env.runtime.scan_delay import ScanDelay
 
 LIDAR_EVERY = 10  # paper_ekf_figure8: 10 Hz LiDAR at 100 Hz control
 STEPS = 130

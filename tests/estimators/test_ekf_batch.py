@@ -18,7 +18,7 @@ from conftest import lane_predict, lane_reset, lane_update
 
 from estimators.ekf import EkfSlamBatch
 from quadslam_env.estimation import make
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
 from quadslam_env.models.strapdown import process_derivative
 

@@ -15,7 +15,7 @@ from scipy.stats import chi2
 
 import estimators
 from estimators.ekf import EkfSlamBatch
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import (
     GRAVITY,
     dcm_from_euler,

@@ -12,10 +12,10 @@ from conftest import fd_jacobian, lane_predict, lane_reset, random_spd
 import quadslam_env  # noqa: F401
 from estimators.ekf import EkfSlamBatch
 from estimators.ekf.settings import PAPER_Q_UNKNOWN
-from quadslam_env.config_schema import ConfigError
-from quadslam_env.measurements import Control, ImuSample
+from quadslam_env.estimation.measurements import Control, ImuSample
 from quadslam_env.models import GRAVITY
 from quadslam_env.models.strapdown import process_derivative, process_jacobians
+from quadslam_env.schema import ConfigError
 
 NO_CONTROL = Control(0.0, np.zeros(3))
 

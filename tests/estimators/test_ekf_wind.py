@@ -16,8 +16,7 @@ from conftest import fd_jacobian, lane_predict, lane_reset, lane_update, random_
 import quadslam_env  # noqa: F401
 from agents.control.named import build_controller
 from estimators.ekf import EkfSlamBatch
-from quadslam_env.config_schema import ConfigError
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, vehicle_preset
 from quadslam_env.models.strapdown import (
     drag_measurement,
@@ -25,6 +24,7 @@ from quadslam_env.models.strapdown import (
     process_derivative,
     process_jacobians,
 )
+from quadslam_env.schema import ConfigError
 
 NO_CONTROL = Control(0.0, np.zeros(3))
 MU, CQ = 0.3, np.array([0.02, 0.02, 0.04])

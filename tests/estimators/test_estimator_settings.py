@@ -1,5 +1,5 @@
 """Every estimator's ``estimator.params`` go through the one validator of the scenario sections
-(:class:`~quadslam_env.config_schema.Section`): bad settings raise a ``ConfigError`` naming the
+(:class:`~quadslam_env.schema.Section`): bad settings raise a ``ConfigError`` naming the
 key, the value and what is allowed when the env is built, before any episode starts."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from estimators.ekf.settings import EkfSlamSettings
 from estimators.fastslam.settings import DynamicFastSlamSettings, KinematicFastSlamSettings
 from estimators.isam2 import GTSAM_INSTALL
 from estimators.isam2.settings import Isam2Settings
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import STATE_DIM
 
 # (estimator, key, bad value, a fragment of what the message says is allowed)

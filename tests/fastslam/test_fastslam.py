@@ -25,7 +25,7 @@ from estimators.fastslam import (
     systematic_resample,
 )
 from quadslam_env.estimation import LaneLoop
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import (
     VehicleParams,
     dcm_from_euler,

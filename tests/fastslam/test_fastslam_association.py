@@ -17,7 +17,7 @@ from estimators.fastslam.associate import ParticleMaps
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.settings import AssociationSettings
 from quadslam_env.estimation import associates_unlabeled
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import dcm_from_euler, lidar_measure, specific_force, vehicle_preset
 
 LIDAR_SIGMA = np.array([math.radians(0.33), math.radians(0.30), 0.1])

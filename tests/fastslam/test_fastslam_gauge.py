@@ -13,7 +13,7 @@ from estimators.fastslam.gauge import (
     landmark_gauge_cov,
     pose_gauge_cov,
 )
-from quadslam_env.measurements import LidarScan
+from quadslam_env.estimation.measurements import LidarScan
 from quadslam_env.models import (
     dcm_from_euler,
     lidar_measure,

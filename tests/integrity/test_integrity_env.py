@@ -1,4 +1,4 @@
-"""The integrity monitor in the env (quadslam_env/integrity.py, metrics/integrity.py): the
+"""The integrity monitor in the env (quadslam_env/runtime/integrity.py, metrics/integrity.py): the
 ``integrity`` section's checks, its info terms, the episode summaries recomputed from the
 per-step terms, and the vector env's lanes against the scalar env."""
 

@@ -1,4 +1,4 @@
-"""Faults of the simulated world (the ``faults`` section, :mod:`quadslam_env.faults`): each
+"""Faults of the simulated world (the ``faults`` section, :mod:`quadslam_env.sim.faults`): each
 kind against its analytic effect on the truth or the scans, the same seed without the fault,
 the lanes of a vector env against the scalar env, and every bad setting.
 
@@ -20,7 +20,7 @@ import quadslam_env  # noqa: F401  (registers the ids)
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.models.frames import dcm_from_euler
-from quadslam_env.scans import LabeledScans, UnlabeledScans
+from quadslam_env.sim.scans import LabeledScans, UnlabeledScans
 from quadslam_env.types import DEG
 
 EKF = "QuadSLAM-EKF-v0"

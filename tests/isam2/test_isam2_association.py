@@ -18,7 +18,7 @@ from estimators.association import chi2_threshold
 from estimators.isam2 import Isam2Slam
 from estimators.isam2.associate import PosePrediction, ScanAssociation
 from estimators.isam2.settings import Isam2Settings
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
 
 gtsam = pytest.importorskip("gtsam")

@@ -25,7 +25,7 @@ import pytest
 
 from estimators.isam2 import Isam2Slam
 from estimators.isam2.settings import FIXED_BIAS_SIGMA
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.types import EUL, GRAVITY
 
 pytest.importorskip("gtsam")

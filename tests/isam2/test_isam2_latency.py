@@ -1,6 +1,6 @@
 """A delayed LiDAR with the iSAM2 smoother (docs/isam2.md "A delayed LiDAR"; docs/timing.md
 "Latency"): the smoother is not copied; each scan reaches it d steps late and gets a keyframe at
-its own time (:class:`quadslam_env.scan_delay.LateScans`, :mod:`estimators.isam2.history`).
+its own time (:class:`quadslam_env.runtime.scan_delay.LateScans`, :mod:`estimators.isam2.history`).
 
 Two cores see the same truth, IMU and scans (open-loop torque actions, same seeds), one with
 the LiDAR undelayed and one with it d steps late. The delayed smoother must reach, scan by
@@ -19,7 +19,7 @@ import pytest
 import quadslam_env  # noqa: F401  (registers the env ids)
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.core import SimCore
-from quadslam_env.scan_delay import LateScans
+from quadslam_env.runtime.scan_delay import LateScans
 
 pytest.importorskip("gtsam")
 

@@ -17,7 +17,7 @@ import pytest
 
 from estimators.isam2 import Isam2Slam
 from estimators.isam2.settings import HORIZONTAL_ACCEL_VARIANCE
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.types import GRAVITY, VEL
 
 pytest.importorskip("gtsam")

@@ -182,7 +182,7 @@ def test_fast_imu_noise_at_its_rate_every_sample_predicted() -> None:
 def test_slow_imu_drift_steps_at_the_imu_period() -> None:
     core, _ = _hover_inputs(10.0, 0.1)
     cfg = load_scenario("ekf_figure8_biased_imu", {"imu": {"rate_hz": 10.0}})
-    from quadslam_env.imu import ImuBatch
+    from quadslam_env.sim.imu import ImuBatch
 
     imu = ImuBatch(cfg.imu, core.vehicle_params, cfg.imu_rate_hz, 1)
     assert imu.period == pytest.approx(0.1)

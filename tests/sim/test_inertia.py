@@ -12,9 +12,9 @@ from scipy.stats import chi2
 import estimators
 from estimators.fastslam import DynamicFastSLAM
 from estimators.inertia import GyroTorqueRegression
-from quadslam_env.measurements import Control, ImuSample
+from quadslam_env.estimation.measurements import Control, ImuSample
 from quadslam_env.models import vehicle_preset
-from quadslam_env.vehicle import Vehicle
+from quadslam_env.sim.vehicle import Vehicle
 
 
 def test_kalman_update_equals_regularised_least_squares() -> None:

@@ -38,7 +38,7 @@ from quadslam_env.models import (
     wrap_angle,
 )
 from quadslam_env.models.frames import rot1, rot2, rot3
-from quadslam_env.vehicle import Vehicle
+from quadslam_env.sim.vehicle import Vehicle
 
 N3 = np.array([0.0, 0.0, 1.0])
 B3 = np.array([0.0, 0.0, 1.0])

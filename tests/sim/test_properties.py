@@ -16,7 +16,7 @@ import quadslam_env
 from estimators.ekf import EkfSlamBatch
 from estimators.fastslam import DynamicFastSLAM
 from quadslam_env.estimation import LaneLoop
-from quadslam_env.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models import (
     GRAVITY,
     VEHICLE_PRESETS,

@@ -21,11 +21,11 @@ from scipy.stats import kstest
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from quadslam_env.config import ConfigError, RandomizeConfig, load_scenario
-from quadslam_env.config_randomize import SCALE_KEYS
+from quadslam_env.config.randomize import SCALE_KEYS
 from quadslam_env.models import VEHICLE_PRESETS
-from quadslam_env.randomize import RANDOMIZED_KEYS, Randomizer
+from quadslam_env.sim.randomize import RANDOMIZED_KEYS, Randomizer
+from quadslam_env.sim.vehicle import VehicleBatch
 from quadslam_env.types import GRAVITY
-from quadslam_env.vehicle import VehicleBatch
 
 RANGES = {
     "mass_scale": [0.8, 1.25],

@@ -22,10 +22,10 @@ from scipy.stats import kstest
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from quadslam_env.config import ConfigError, RandomizeConfig
-from quadslam_env.config_randomize import AXIS_KEYS
+from quadslam_env.config.randomize import AXIS_KEYS
 from quadslam_env.models import VEHICLE_PRESETS
-from quadslam_env.randomize import AXIS_INFO_KEYS, RANDOMIZED_KEYS, Randomizer, scaled_vehicle
-from quadslam_env.vehicle import VehicleBatch
+from quadslam_env.sim.randomize import AXIS_INFO_KEYS, RANDOMIZED_KEYS, Randomizer, scaled_vehicle
+from quadslam_env.sim.vehicle import VehicleBatch
 
 INERTIA = [0.6, 1.4]
 RANGES = {"mass_scale": [0.9, 1.1], "inertia_scale": INERTIA, "lidar_noise_scale": [0.5, 2.0]}

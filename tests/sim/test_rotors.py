@@ -24,8 +24,8 @@ from quadslam_env.models.rotors import (
     mixer_inverse,
     mixer_matrix,
 )
+from quadslam_env.sim.vehicle import VehicleBatch
 from quadslam_env.types import GRAVITY
-from quadslam_env.vehicle import VehicleBatch
 
 
 @pytest.mark.parametrize("layout", LAYOUTS)

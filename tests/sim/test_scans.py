@@ -1,15 +1,16 @@
-"""Typed scans (quadslam_env/scans.py): what the log keeps of a step's scans comes back intact."""
+"""Typed scans (quadslam_env/sim/scans.py): what the log keeps of a step's scans comes back
+intact."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from quadslam_env.association import association_for
 from quadslam_env.config import LidarConfig
 from quadslam_env.models.frames import dcm_from_euler_batch
-from quadslam_env.scans import UnlabeledScans
-from quadslam_env.sensors import LidarBatch
+from quadslam_env.runtime.association import association_for
+from quadslam_env.sim.lidar import LidarBatch
+from quadslam_env.sim.scans import UnlabeledScans
 
 B, LMAX = 5, 30
 

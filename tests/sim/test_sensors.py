@@ -11,7 +11,8 @@ from scipy.stats import chi2
 
 from quadslam_env.config import ImuConfig, LidarConfig
 from quadslam_env.models import GRAVITY, VEHICLE_PRESETS
-from quadslam_env.sensors import Imu, Lidar
+from quadslam_env.sim.imu import Imu
+from quadslam_env.sim.lidar import Lidar
 
 VEHICLE = VEHICLE_PRESETS["rauniyar2023"]
 HOVER = VEHICLE.mass * GRAVITY

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from quadslam_env.config import TrajectoryConfig
-from quadslam_env.trajectories import Trajectory
+from quadslam_env.sim.trajectories import Trajectory
 
 CASES = {
     "figure8": {"kind": "figure8", "amplitude_x_m": 4.0, "amplitude_y_m": 2.0, "period_s": 12.0},

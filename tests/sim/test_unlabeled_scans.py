@@ -13,7 +13,7 @@ from test_sensors import NOISE_FREE_LIDAR, POSE_EULER, POSE_POS, _scan, c3c2c1, 
 import estimators
 from quadslam_env.config import ConfigError, LidarConfig, load_scenario
 from quadslam_env.metrics import association_counts, match_landmarks
-from quadslam_env.sensors import Lidar
+from quadslam_env.sim.lidar import Lidar
 
 NOISY = {**NOISE_FREE_LIDAR, "sigma_azimuth_deg": 0.3, "sigma_elevation_deg": 0.3,
          "sigma_range_m": 0.1}  # fmt: skip
@@ -199,7 +199,7 @@ def test_ekf_with_unlabeled_returns_equals_the_labeled_filter_when_association_i
     from conftest import lane_predict, lane_reset, lane_update
 
     from estimators.ekf import EkfSlamBatch
-    from quadslam_env.measurements import Control, ImuSample, LidarScan
+    from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
     from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
 
     rng = np.random.default_rng(4)

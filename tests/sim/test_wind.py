@@ -34,10 +34,10 @@ from quadslam_env.models.wind import (
     dryden_psd,
     dryden_series,
 )
-from quadslam_env.sensors import ImuBatch
+from quadslam_env.sim.imu import ImuBatch
+from quadslam_env.sim.vehicle import VehicleBatch
+from quadslam_env.sim.wind import WIND_KEYS
 from quadslam_env.types import GRAVITY
-from quadslam_env.vehicle import VehicleBatch
-from quadslam_env.wind import WIND_KEYS
 
 SIGMA = np.array([1.5, 1.2, 0.8])
 LENGTH = np.array([10.0, 10.0, 5.0])

@@ -22,7 +22,7 @@ from agents.studies.cost import SCENARIO, scenario_kwargs
 from agents.studies.robustness import CONDITIONS, cell_kwargs, condition_kwargs
 from estimators.ekf.settings import PAPER_Q_UNKNOWN
 from quadslam_env.config import load_scenario
-from quadslam_env.config_randomize import SCALE_KEYS
+from quadslam_env.config.randomize import SCALE_KEYS
 
 QUICK_ESTIMATORS = ("oracle", "ekf_full")
 

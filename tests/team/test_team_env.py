@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from quadslam_env.actions import ActionError
 from quadslam_env.config import ConfigError
+from quadslam_env.episode.actions import ActionError
 from quadslam_env.estimation.memory import MemoryLimitError
 
 pytest.importorskip("pettingzoo")

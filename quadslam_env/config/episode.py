@@ -1,7 +1,7 @@
 """The scenario sections of an episode: its timing, start and limits, the reward, the optional
 observation features, and the rendered frames (docs/design.md §4).
 
-Each is a frozen :class:`~quadslam_env.config_schema.Section`; :mod:`quadslam_env.config`
+Each is a frozen :class:`~quadslam_env.schema.Section`; :mod:`quadslam_env.config`
 assembles them with the others into a scenario.
 """
 
@@ -11,8 +11,8 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from quadslam_env.config_schema import ConfigError, Section
-from quadslam_env.config_schema import spec as _spec
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 
 SUBSTEP_TOLERANCE = 1e-9
 """Relative rounding allowed in ``control period / vehicle.physics_dt_s`` being whole."""

@@ -1,5 +1,5 @@
-"""Lane bookkeeping shared by the simulated sensors (:mod:`quadslam_env.imu`,
-:mod:`quadslam_env.sensors`): lane index arrays and each lane's generator."""
+"""Lane bookkeeping shared by the simulated sensors (:mod:`quadslam_env.sim.imu`,
+:mod:`quadslam_env.sim.lidar`): lane index arrays and each lane's generator."""
 
 from __future__ import annotations
 

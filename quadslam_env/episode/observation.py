@@ -12,13 +12,13 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from quadslam_env.config_episode import ObservationConfig
+from quadslam_env.config.episode import ObservationConfig
 from quadslam_env.estimation import BatchEstimate
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_measure
 from quadslam_env.models.rigid_body import air_velocity_lanes
-from quadslam_env.trajectories import FlatOutputs, Trajectory
+from quadslam_env.sim.trajectories import FlatOutputs, Trajectory
 from quadslam_env.types import EUL, VEL, FloatArray
 
 BASE_LAYOUT: tuple[tuple[str, int], ...] = (
@@ -221,7 +221,7 @@ class ObservationBuilder:
             t: (B,) lane times in s.
             n_visible: (B,) landmarks returned by each lane's last scan.
             levels: ``(hpl, vpl)`` (B,) each, the step's protection levels in m
-                (:mod:`quadslam_env.integrity`); ``None``: zeros.
+                (:mod:`quadslam_env.runtime.integrity`); ``None``: zeros.
             wind: (B, ≥2) wind in N, m/s for the wind blocks instead of ``est.wind`` (the true
                 wind of a privileged observation); ``None``: the estimate's.
         """

@@ -26,8 +26,8 @@ from the filter (:attr:`ScanDelay.refreshed`; tests/env/test_latency_unknown.py)
 Scans still in flight when an episode ends are dropped with the lane's log. Every lane keeps
 its own phase (its own step count since reset), so lane i of a vector env equals the scalar
 env. The estimator must be deep-copyable: the scenario check refuses a delay with one whose class
-says ``copyable = False`` (:func:`quadslam_env.config.check_copyable`), unless it takes late
-scans itself.
+says ``copyable = False`` (:func:`quadslam_env.config.scenario.check_copyable`), unless it takes
+late scans itself.
 
 A smoother needs no copy (:class:`LateScans`): an estimator that
 :class:`~quadslam_env.estimation.protocol.TakesLateScans` (iSAM2, whose class says
@@ -48,9 +48,9 @@ import numpy as np
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.estimation import BatchEstimator
 from quadslam_env.estimation.protocol import TakesLateScans
-from quadslam_env.imu_replay import ImuReplay
-from quadslam_env.period_log import EstimatorCopies, PeriodLog, Sample, predict_samples
-from quadslam_env.scans import Scans
+from quadslam_env.runtime.imu_replay import ImuReplay
+from quadslam_env.runtime.period_log import EstimatorCopies, PeriodLog, Sample, predict_samples
+from quadslam_env.sim.scans import Scans
 from quadslam_env.types import FloatArray
 
 
@@ -69,7 +69,7 @@ def copies_for(
     Returns:
         A :class:`LateScans` (``lidar.delay_steps`` > 0 and an estimator that
         :class:`~quadslam_env.estimation.protocol.TakesLateScans`), a :class:`ScanDelay`
-        (``lidar.delay_steps`` > 0), an :class:`~quadslam_env.imu_replay.ImuReplay`
+        (``lidar.delay_steps`` > 0), an :class:`~quadslam_env.runtime.imu_replay.ImuReplay`
         (``imu.rate_hz`` below the control rate) or ``None``; the core steps any of them
         through its ``step``.
     """

@@ -1,6 +1,6 @@
 """Faults of the simulated world of B lanes: one per episode (docs/integrity.md "Faults").
 
-The ``faults`` section (:class:`~quadslam_env.config_faults.FaultsConfig`) picks the kind;
+The ``faults`` section (:class:`~quadslam_env.config.faults.FaultsConfig`) picks the kind;
 :class:`FaultBatch` holds each lane's fault and applies it to the truth and the scans:
 
 - ``landmark_moves``: the true landmark (a row of ``SimCore.landmarks``) moves horizontally at
@@ -41,13 +41,13 @@ import numpy as np
 
 from quadslam_env.config import ConfigError, ScenarioConfig
 from quadslam_env.estimation import BatchEstimate
-from quadslam_env.imu import ImuBatch
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.lidar import lidar_measure
-from quadslam_env.scans import Scans
-from quadslam_env.sensor_lanes import lane_indices
-from quadslam_env.trajectories import Trajectory
+from quadslam_env.sim.imu import ImuBatch
+from quadslam_env.sim.scans import Scans
+from quadslam_env.sim.sensor_lanes import lane_indices
+from quadslam_env.sim.trajectories import Trajectory
 from quadslam_env.types import DEG, EUL, POS, FloatArray
 
 FAULT_KEYS = ("fault_active", "fault_kind", "fault_landmark", "fault_in_view")

@@ -21,7 +21,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from quadslam_env.config_integrity import IntegrityConfig
+from quadslam_env.config.integrity import IntegrityConfig
 from quadslam_env.estimation import BatchEstimate, MonitorsIntegrity
 from quadslam_env.estimation.integrity import (
     COUNT_KEYS,

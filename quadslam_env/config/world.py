@@ -7,9 +7,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from quadslam_env.config_schema import ConfigError, Section
-from quadslam_env.config_schema import spec as _spec
 from quadslam_env.models.wind import W20_MPS, dryden_low_altitude
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 
 MIN_AIRSPEED_MPS = 0.1
 """Slowest speed V at which Dryden turbulence may pass the vehicle, m/s: its time scales L/V

@@ -12,9 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from quadslam_env.config_schema import ConfigError, Section
-from quadslam_env.config_schema import spec as _spec
 from quadslam_env.estimation.integrity import MonitorSettings
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 
 MONITOR_MODES = ("off", "detect", "exclude")
 """The values of ``integrity.monitor``."""

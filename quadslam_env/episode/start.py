@@ -14,7 +14,7 @@ import numpy as np
 from quadslam_env.config import ScenarioConfig
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.models.frames import dcm_from_euler
-from quadslam_env.trajectories import Trajectory
+from quadslam_env.sim.trajectories import Trajectory
 from quadslam_env.types import EUL, POS, STATE_DIM, VEL, FloatArray
 
 DEFAULT_SETTLE_S = 10.0

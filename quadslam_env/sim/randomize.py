@@ -1,7 +1,7 @@
 """Domain randomisation: per-lane, per-episode scales of the true vehicle, sensors and wind.
 
 docs/physics.md "Domain randomisation". The ``randomize`` section
-(:class:`~quadslam_env.config_randomize.RandomizeConfig`) gives a range ``[lo, hi]`` per scale;
+(:class:`~quadslam_env.config.randomize.RandomizeConfig`) gives a range ``[lo, hi]`` per scale;
 at every reset of a lane (autoresets included) each scale of :data:`SCALE_KEYS` is drawn
 uniformly on its range, or pinned by ``reset(options={"randomized": {...}})``. The scales act on
 the truth only: the vehicle kernels, the IMU, the LiDAR and the wind take per-lane parameter
@@ -30,20 +30,20 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from quadslam_env.config_randomize import (
+from quadslam_env.config.randomize import (
     AXIS_KEYS,
     SCALE_KEYS,
     RandomizeConfig,
     check_thrust_to_weight,
 )
-from quadslam_env.config_schema import ConfigError
 from quadslam_env.estimation.protocol import TakesVehicle
-from quadslam_env.imu import ImuBatch
 from quadslam_env.models.params import VehicleParams
-from quadslam_env.sensors import LidarBatch
+from quadslam_env.schema import ConfigError
+from quadslam_env.sim.imu import ImuBatch
+from quadslam_env.sim.lidar import LidarBatch
+from quadslam_env.sim.vehicle import VehicleBatch, inertia_factor
+from quadslam_env.sim.wind import WindBatch
 from quadslam_env.types import FloatArray
-from quadslam_env.vehicle import VehicleBatch, inertia_factor
-from quadslam_env.wind import WindBatch
 
 RANDOMIZED_KEYS = tuple(f"rand_{key}" for key in SCALE_KEYS)
 """``info`` terms of the episode's scales (where randomisation applies), in :data:`SCALE_KEYS`
@@ -252,7 +252,7 @@ def scaled_vehicle(
     """The parameters of the vehicle :meth:`VehicleBatch.set_scales` simulates with these scales.
 
     The mass and the inertia are scaled (the inertia by one scale or per body axis,
-    :func:`~quadslam_env.vehicle.inertia_factor`); the thrust scale is a gain on the saturated
+    :func:`~quadslam_env.sim.vehicle.inertia_factor`); the thrust scale is a gain on the saturated
     command, so the thrust and torque limits scale with it (and, with rotors, ``k_f`` and
     ``k_m``); the lag scale multiplies ``actuator_tau`` (rotors: ``motor_tau``). All ones give
     ``vehicle``.

@@ -24,10 +24,10 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from quadslam_env.config_episode import EpisodeConfig
+from quadslam_env.config.episode import EpisodeConfig
+from quadslam_env.episode.reward import REWARD_KEYS
 from quadslam_env.estimation import HEALTH_PROBLEMS
 from quadslam_env.models.jit import kernel
-from quadslam_env.reward import REWARD_KEYS
 from quadslam_env.types import FloatArray
 
 REASONS = (
@@ -225,7 +225,7 @@ class OutputGuard:
 
     Args:
         rows: The row of each term's ``info`` key in the step's terms (K, B), in row order:
-            the reward terms (:data:`~quadslam_env.reward.REWARD_KEYS`) in a block, then
+            the reward terms (:data:`~quadslam_env.episode.reward.REWARD_KEYS`) in a block, then
             ``reward``.
         penalty: ``reward.termination_penalty``.
     """

@@ -5,7 +5,7 @@ A fault is a landmark that moves (``landmark_moves``), a false return that moves
 vehicle and looks like a landmark (``phantom_landmark``), a bias on the LiDAR's ranges
 (``range_bias``) or a step in one IMU axis's constant bias (``imu_bias_step``), active from its
 onset for its duration. ``kind: none`` (the default) is no fault: nothing is drawn and every
-result is the one without the section. :mod:`quadslam_env.faults` applies it to the lanes.
+result is the one without the section. :mod:`quadslam_env.sim.faults` applies it to the lanes.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
-from quadslam_env.config_hardware import LidarConfig
-from quadslam_env.config_schema import ConfigError, Section
-from quadslam_env.config_schema import spec as _spec
+from quadslam_env.config.hardware import LidarConfig
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 from quadslam_env.types import DEG
 
 FAULT_KINDS = ("none", "landmark_moves", "phantom_landmark", "range_bias", "imu_bias_step")
@@ -192,7 +192,7 @@ class FaultsConfig(Section):
 
     def _check_phantom(self, lidar: LidarConfig) -> None:
         """The phantom's offset inside the LiDAR's field of view and range (the test of
-        :class:`~quadslam_env.sensors.LidarBatch`'s in-view kernel)."""
+        :class:`~quadslam_env.sim.lidar.LidarBatch`'s in-view kernel)."""
         x, y, z = self.offset_m
         horiz = math.hypot(x, y)
         az, el, rng = math.atan2(y, x), math.atan2(z, horiz), math.hypot(horiz, z)

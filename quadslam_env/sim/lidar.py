@@ -3,8 +3,8 @@
 docs/design.md §3, §9. Each lane's sensor owns one ``numpy.random.Generator`` handed to it at reset
 (a child of that lane's env generator), so lane i with seed s is the single env with seed s,
 bit for bit. Generators are called in a Python loop over lanes (draws cannot be shared between
-lanes); the arithmetic is batched. :class:`Lidar` is the one-lane case. The IMU lives in
-:mod:`quadslam_env.imu` (re-exported here).
+lanes); the arithmetic is batched. :class:`Lidar` is the one-lane case. The IMU is
+:mod:`quadslam_env.sim.imu`.
 """
 
 from __future__ import annotations
@@ -16,17 +16,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from quadslam_env.config import LidarConfig
-from quadslam_env.imu import Imu, ImuBatch
-from quadslam_env.measurements import LidarScan, ScanReturns
+from quadslam_env.estimation.measurements import LidarScan, ScanReturns
 from quadslam_env.models.frames import wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import measure_landmark
-from quadslam_env.sensor_lanes import LANE0 as _LANE0
-from quadslam_env.sensor_lanes import lane_generators as _generators
-from quadslam_env.sensor_lanes import lane_indices as _lanes
+from quadslam_env.sim.sensor_lanes import LANE0 as _LANE0
+from quadslam_env.sim.sensor_lanes import lane_generators as _generators
+from quadslam_env.sim.sensor_lanes import lane_indices as _lanes
 from quadslam_env.types import DEG, MEAS_DIM, FloatArray
-
-__all__ = ["Imu", "ImuBatch", "Lidar", "LidarBatch"]
 
 
 @kernel

@@ -13,10 +13,10 @@ import math
 
 import numpy as np
 
-from quadslam_env.config_episode import RewardConfig
+from quadslam_env.config.episode import RewardConfig
 from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
-from quadslam_env.trajectories import FlatOutputs
+from quadslam_env.sim.trajectories import FlatOutputs
 from quadslam_env.types import FloatArray
 
 REWARD_KEYS = (

@@ -52,7 +52,7 @@ class VehicleBatch:
         applied_thrust: (B,) thrust acting on each body in N (after saturation and lag).
         applied_torque: (B, 3) torque acting on each body in N·m.
         wind_n: (B, 3) wind in N (m/s) held over the next step, or ``None`` (still air). The
-            simulator sets it to its wind's array (:class:`quadslam_env.wind.WindBatch`).
+            simulator sets it to its wind's array (:class:`quadslam_env.sim.wind.WindBatch`).
         rotor_speed: (B, 4) rotor speeds in rad/s (rotors 1–4 of
             :mod:`~quadslam_env.models.rotors`), or ``None`` for a vehicle without rotors.
 
@@ -117,7 +117,7 @@ class VehicleBatch:
         """Set the true parameters of ``lanes`` (k,) to the nominal ones times the scales.
 
         Applies until the next call for those lanes (the simulator calls it at every reset
-        with domain randomisation, :mod:`quadslam_env.randomize`). Call before :meth:`reset`:
+        with domain randomisation, :mod:`quadslam_env.sim.randomize`). Call before :meth:`reset`:
         the actuators start at the lane's own hover thrust.
 
         Args:

@@ -1,9 +1,9 @@
 """The IMU samples of one control period of B lanes (docs/timing.md "IMU rate").
 
 :class:`~quadslam_env.core.SimCore` flies the vehicle over a control period and hands the
-estimator that period's IMU samples (:data:`~quadslam_env.period_log.Sample`): at or below the
-control rate one sample, taken after the period (an IMU m times slower samples every m-th step
-and holds it, :meth:`~quadslam_env.imu.ImuBatch.sample_held`); an IMU m times faster is sampled
+estimator that period's IMU samples (:data:`~quadslam_env.runtime.period_log.Sample`): at or below
+the control rate one sample, taken after the period (an IMU m times slower samples every m-th step
+and holds it, :meth:`~quadslam_env.sim.imu.ImuBatch.sample_held`); an IMU m times faster is sampled
 after each of the m sub-periods the vehicle is integrated over (command held).
 """
 
@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from quadslam_env.imu import ImuBatch
-from quadslam_env.period_log import Sample
+from quadslam_env.runtime.period_log import Sample
+from quadslam_env.sim.imu import ImuBatch
+from quadslam_env.sim.vehicle import VehicleBatch
 from quadslam_env.types import FloatArray
-from quadslam_env.vehicle import VehicleBatch
 
 
 def period_sample(

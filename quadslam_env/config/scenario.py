@@ -1,10 +1,7 @@
-"""Typed, frozen, validated scenario settings (docs/design.md §4 "Config flow").
-
-A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the sections ``vehicle``,
-``imu``, ``lidar``, ``landmarks``, ``trajectory``, ``estimator``, ``reward``, ``observation``,
-``action``, ``episode``, ``render``, ``wind``, ``randomize``, ``faults`` and ``integrity``.
-Per-call overrides (``gymnasium.make(id, episode={...})``) are merged into it key by key.
-Sections with a ``preset`` key start from that preset's values; keys given explicitly win.
+"""The scenario: the estimator and action sections, the whole settings of one env
+(:class:`ScenarioConfig`), the checks across sections, and :func:`load_scenario`, which reads a
+scenario file, applies the presets and the per-call overrides and validates every section
+(docs/design.md §4 "Config flow").
 
 Every unknown key, wrong type or out-of-range value raises :class:`ConfigError` (a
 ``ValueError``) whose message names the dotted key, the bad value and what is allowed.
@@ -17,57 +14,26 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar
 
-from quadslam_env.config_episode import EpisodeConfig, ObservationConfig, RenderConfig, RewardConfig
-from quadslam_env.config_faults import FaultsConfig
-from quadslam_env.config_files import (
+from quadslam_env.config.episode import EpisodeConfig, ObservationConfig, RenderConfig, RewardConfig
+from quadslam_env.config.faults import FaultsConfig
+from quadslam_env.config.files import (
     available_scenarios,
     check_description,
     config_dir,
     deep_merge,
     load_yaml,
-    parse_yaml,
-    scenario_descriptions,
 )
-from quadslam_env.config_hardware import (
+from quadslam_env.config.hardware import (
     ImuConfig,
     LidarConfig,
     VehicleConfig,
     check_rotor_action,
 )
-from quadslam_env.config_integrity import IntegrityConfig
-from quadslam_env.config_randomize import RandomizeConfig
-from quadslam_env.config_schema import ConfigError, FieldRow, Section, field_rows
-from quadslam_env.config_schema import spec as _spec
-from quadslam_env.config_world import LandmarksConfig, TrajectoryConfig, WindConfig
-
-__all__ = [
-    "SECTIONS",
-    "ActionConfig",
-    "ConfigError",
-    "EpisodeConfig",
-    "EstimatorConfig",
-    "FaultsConfig",
-    "FieldRow",
-    "ImuConfig",
-    "IntegrityConfig",
-    "LandmarksConfig",
-    "LidarConfig",
-    "ObservationConfig",
-    "RandomizeConfig",
-    "RewardConfig",
-    "ScenarioConfig",
-    "TrajectoryConfig",
-    "VehicleConfig",
-    "WindConfig",
-    "available_scenarios",
-    "config_dir",
-    "deep_merge",
-    "field_rows",
-    "load_scenario",
-    "load_yaml",
-    "parse_yaml",
-    "scenario_descriptions",
-]
+from quadslam_env.config.integrity import IntegrityConfig
+from quadslam_env.config.randomize import RandomizeConfig
+from quadslam_env.config.world import LandmarksConfig, TrajectoryConfig, WindConfig
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 
 
 @dataclass(frozen=True)
@@ -322,7 +288,8 @@ def check_delays(scenario: ScenarioConfig) -> None:
     """``action.delay_steps`` and ``lidar.delay_steps`` must be shorter than an episode, and a
     delayed LiDAR does not go with an IMU slower than the control (docs/timing.md "Latency"; its
     estimator is checked by :func:`check_copyable`). Either association is fine: the lagging
-    filter applies each scan, labeled or not, at its own time (:mod:`quadslam_env.scan_delay`).
+    filter applies each scan, labeled or not, at its own time
+    (:mod:`quadslam_env.runtime.scan_delay`).
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.
@@ -353,7 +320,7 @@ def check_copyable(scenario: ScenarioConfig) -> None:
     """A second run (:attr:`ScenarioConfig.second_run`, ``period_log.EstimatorCopies``) needs
     an estimator that can be copied (:func:`quadslam_env.estimation.copyable`), or, for a
     delayed LiDAR, one that takes late scans (:func:`quadslam_env.estimation.takes_late_scans`:
-    each scan at its own time without a copy, :class:`~quadslam_env.scan_delay.LateScans`).
+    each scan at its own time without a copy, :class:`~quadslam_env.runtime.scan_delay.LateScans`).
 
     Raises:
         ConfigError: Naming the key, the value and what is allowed.

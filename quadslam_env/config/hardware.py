@@ -6,10 +6,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from quadslam_env.config_schema import ConfigError, Section
-from quadslam_env.config_schema import spec as _spec
 from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams, rotor_vehicle
 from quadslam_env.models.rotors import LAYOUTS, RotorParams
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 from quadslam_env.types import DEG, GRAVITY
 
 _MICRO_G = 1e-6 * GRAVITY

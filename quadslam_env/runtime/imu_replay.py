@@ -45,8 +45,8 @@ from typing import Any
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
-from quadslam_env.period_log import EstimatorCopies, PeriodLog, Sample
-from quadslam_env.scans import Scans
+from quadslam_env.runtime.period_log import EstimatorCopies, PeriodLog, Sample
+from quadslam_env.sim.scans import Scans
 from quadslam_env.types import FloatArray
 
 CHANGE_MEMORY = 0.5
@@ -120,7 +120,7 @@ class ImuReplay(EstimatorCopies):
             output: The env's estimator.
             steps: (B,) control steps since each lane's reset (after this one).
             active: (B,) bool lanes that stepped.
-            samples: One :data:`~quadslam_env.period_log.Sample`: the times (B,) in s, each
+            samples: One :data:`~quadslam_env.runtime.period_log.Sample`: the times (B,) in s, each
                 lane's latest IMU sample (held) and the thrust and torque applied over the
                 period.
             sigma: White-noise std per control period (accel m/s², gyro rad/s).

@@ -31,7 +31,7 @@ from quadslam_env.models.wind import (
     dryden_step_lanes,
     gust_axes,
 )
-from quadslam_env.sensor_lanes import lane_generators, lane_indices
+from quadslam_env.sim.sensor_lanes import lane_generators, lane_indices
 from quadslam_env.types import FloatArray
 
 WIND_KEYS = ("wind_n_mps", "wind_e_mps", "wind_d_mps")

@@ -21,14 +21,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from quadslam_env.config import ImuConfig
-from quadslam_env.measurements import ImuSample
+from quadslam_env.estimation.measurements import ImuSample
 from quadslam_env.models.imu_noise import gauss_markov_discretisation, white_noise_sigma
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.models.rigid_body import aero_specific_force, specific_force_body
-from quadslam_env.sensor_lanes import LANE0 as _LANE0
-from quadslam_env.sensor_lanes import lane_generators as _generators
-from quadslam_env.sensor_lanes import lane_indices as _lanes
+from quadslam_env.sim.sensor_lanes import LANE0 as _LANE0
+from quadslam_env.sim.sensor_lanes import lane_generators as _generators
+from quadslam_env.sim.sensor_lanes import lane_indices as _lanes
 from quadslam_env.types import DEG, GRAVITY, IMU_DIM, FloatArray
 
 

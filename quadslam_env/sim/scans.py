@@ -3,11 +3,12 @@
 With known association (``lidar.association: known``) a scan is labeled: slot j of a lane's
 row is landmark j, and :class:`LabeledScans` marks which slots returned. With unknown
 association it is a list of unlabeled returns in random order, false returns among them:
-:class:`UnlabeledScans` wraps the LiDAR's :class:`~quadslam_env.measurements.ScanReturns`,
-whose true ids stay with the simulator for the association metrics and never reach the
-estimator. Both offer the same operations (:class:`Scans`): the core, the slow-IMU filter
-(:mod:`quadslam_env.imu_replay`) and the delayed-LiDAR filter (:mod:`quadslam_env.scan_delay`)
-apply, log and replay either kind without asking which it is.
+:class:`UnlabeledScans` wraps the LiDAR's
+:class:`~quadslam_env.estimation.measurements.ScanReturns`, whose true ids stay with the simulator
+for the association metrics and never reach the estimator. Both offer the same operations
+(:class:`Scans`): the core, the slow-IMU filter (:mod:`quadslam_env.runtime.imu_replay`) and the
+delayed-LiDAR filter (:mod:`quadslam_env.runtime.scan_delay`) apply, log and replay either kind
+without asking which it is.
 """
 
 from __future__ import annotations
@@ -19,9 +20,9 @@ from typing import Protocol, cast
 import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation.measurements import ScanReturns
 from quadslam_env.estimation.protocol import AssociatesUnlabeled
-from quadslam_env.measurements import ScanReturns
-from quadslam_env.sensor_lanes import LANE0
+from quadslam_env.sim.sensor_lanes import LANE0
 from quadslam_env.types import MEAS_DIM, FloatArray
 
 
@@ -48,7 +49,7 @@ class Scans(Protocol):
     def true_ids(self) -> np.ndarray:
         """(B, W) int the true landmark id of each row of :attr:`meas` (-1: a false return;
         rows outside :attr:`returned` unused), for the simulator only (the faults of
-        :mod:`quadslam_env.faults`); never passed to an estimator."""
+        :mod:`quadslam_env.sim.faults`); never passed to an estimator."""
 
     def apply(self, estimator: BatchEstimator, t: FloatArray, sigma: FloatArray) -> None:
         """Correct ``estimator``'s :attr:`lanes` with their scans.

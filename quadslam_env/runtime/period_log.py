@@ -2,13 +2,13 @@
 (docs/design.md §3; docs/timing.md "IMU rate" and "Latency").
 
 Two parts of the core run an estimator over periods it has already seen once, from a copy:
-the slow-IMU filter (:mod:`quadslam_env.imu_replay`) when a sample covering the last periods
-arrives, and the delayed-LiDAR filter (:mod:`quadslam_env.scan_delay`) when a scan measured
+the slow-IMU filter (:mod:`quadslam_env.runtime.imu_replay`) when a sample covering the last periods
+arrives, and the delayed-LiDAR filter (:mod:`quadslam_env.runtime.scan_delay`) when a scan measured
 some steps ago arrives. Both keep what they need in a :class:`PeriodLog`: a ring of each
 lane's last n control periods, slot ``(own step − 1) % n``, so lanes keep their own phase
 after an autoreset (lane i of a vector env equals the scalar env). An estimator that takes late
 scans itself is not copied; its scans wait in a :class:`PeriodLog` too
-(:class:`~quadslam_env.scan_delay.LateScans`).
+(:class:`~quadslam_env.runtime.scan_delay.LateScans`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 
 from quadslam_env.estimation import BatchEstimator
 from quadslam_env.estimation.protocol import ReservesLandmarks
-from quadslam_env.scans import Scans
+from quadslam_env.sim.scans import Scans
 from quadslam_env.types import FloatArray
 
 Sample = tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]
@@ -128,7 +128,7 @@ class PeriodLog:
 
     def scan(self, slots: np.ndarray, lanes: np.ndarray) -> Scans | None:
         """The logged scans of ``lanes`` (B,) bool, each from its slot ``slots`` (B,) int, as
-        one :class:`~quadslam_env.scans.Scans` (``None``: none of them scanned there)."""
+        one :class:`~quadslam_env.sim.scans.Scans` (``None``: none of them scanned there)."""
         rows = {}
         for lane in np.flatnonzero(lanes).tolist():
             row = self._scans[int(slots[lane])].get(lane)
@@ -158,7 +158,7 @@ class EstimatorCopies:
         applied: The scans whose update the output's belief took last in the last ``step``
             (the slow IMU: that period's; the delayed LiDAR: those measured d steps earlier
             that arrived then), or ``None``. The association scores the estimator's labels of
-            their returns (:class:`~quadslam_env.association.UnknownAssociation`).
+            their returns (:class:`~quadslam_env.runtime.association.UnknownAssociation`).
     """
 
     def __init__(self, estimator: BatchEstimator, log: PeriodLog) -> None:

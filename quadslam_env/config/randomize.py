@@ -2,7 +2,7 @@
 
 docs/physics.md "Domain randomisation". Each setting is a range ``[lo, hi]`` of a multiplicative
 scale on a nominal parameter, drawn uniformly per lane and episode
-(:mod:`quadslam_env.randomize`); ``[1, 1]`` (every default) leaves the parameter nominal, and a
+(:mod:`quadslam_env.sim.randomize`); ``[1, 1]`` (every default) leaves the parameter nominal, and a
 section whose ranges are all ``[1, 1]`` is off (no draw at all).
 """
 
@@ -14,9 +14,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from quadslam_env.config_schema import ConfigError, Section
-from quadslam_env.config_schema import spec as _spec
 from quadslam_env.models.params import VehicleParams
+from quadslam_env.schema import ConfigError, Section
+from quadslam_env.schema import spec as _spec
 from quadslam_env.types import GRAVITY
 
 SCALE_KEYS = (

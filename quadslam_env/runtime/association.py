@@ -4,9 +4,9 @@ its pairing of returns are scored (docs/design.md §4, §5).
 ``lidar.association`` picks one of two components (:func:`association_for`), which
 :class:`~quadslam_env.core.SimCore` calls the same way at every step:
 
-- :class:`KnownAssociation`: labeled scans (:class:`~quadslam_env.scans.LabeledScans`); an
+- :class:`KnownAssociation`: labeled scans (:class:`~quadslam_env.sim.scans.LabeledScans`); an
   estimator's map entry j is landmark j, so the map is scored by id and nothing is kept.
-- :class:`UnknownAssociation`: unlabeled returns (:class:`~quadslam_env.scans.UnlabeledScans`);
+- :class:`UnknownAssociation`: unlabeled returns (:class:`~quadslam_env.sim.scans.UnlabeledScans`);
   the estimator names landmarks itself, so after each update the simulator names the map's
   entries by their true landmarks (:func:`~quadslam_env.metrics.match_landmarks`), counts how
   the estimator labeled the returns (:func:`~quadslam_env.metrics.association_counts`),
@@ -29,8 +29,8 @@ from quadslam_env.metrics import (
     match_landmarks,
     metric_columns,
 )
-from quadslam_env.scans import LabeledScans, Scans, UnlabeledScans
-from quadslam_env.sensors import LidarBatch
+from quadslam_env.sim.lidar import LidarBatch
+from quadslam_env.sim.scans import LabeledScans, Scans, UnlabeledScans
 from quadslam_env.types import EUL, POS, FloatArray
 
 _N_MAPPED = METRIC_KEYS.index("est_n_mapped")
@@ -78,7 +78,7 @@ class Association(Protocol):
                 ``EstimatorCopies.applied``; ``None``: none, or a reset).
             changed: (B,) bool lanes whose map changed other than by ``scans``: reset, or
                 rebuilt from a filter copy (``EstimatorCopies.refreshed``,
-                :mod:`quadslam_env.period_log`).
+                :mod:`quadslam_env.runtime.period_log`).
             state: (B, 12) true states.
             landmarks: (B, Lmax, 3) true landmark positions in N, m.
             n_landmarks: (B,) int landmarks present per lane.

@@ -28,7 +28,7 @@ from typing import Any
 
 import yaml
 
-from quadslam_env.config_schema import ConfigError
+from quadslam_env.schema import ConfigError
 
 #: Longest accepted scenario ``description`` (one line of a terminal table).
 MAX_DESCRIPTION_CHARS = 160
