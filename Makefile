@@ -7,7 +7,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-# Single-threaded BLAS: faster for the filters' small matrices (see agents/cli/main.py).
+# Single-threaded BLAS: faster for the filters' small matrices (see agents/lab/cli/main.py).
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1

@@ -85,7 +85,7 @@ def main() -> None:
     assert abs(evaluated["episodes"][0]["duration_s"] - 0.5) < 1e-6, evaluated["episodes"]
     # The example sweep specs are package data; without the `ray` extra, `quadslam sweep`
     # checks the spec and then says in one line how to get Ray.
-    from agents.sweep.spec import load_spec
+    from agents.lab.sweep.spec import load_spec
 
     assert len(load_spec("rauniyar2023_table")) == 20
     done = subprocess.run(

@@ -16,9 +16,9 @@ inversion lemma this is
 
 (:func:`information_step`). The expectations over the true state are taken along the one
 true trajectory of each seed (``F_k``, ``H_k`` evaluated at the truth): the bound of that
-trajectory, averaged over seeds by the study (:mod:`agents.studies.bound`). With ``B = J⁻¹``,
-(1) is the Kalman covariance recursion ``B⁻ = F B Fᵀ + Q``, ``B = B⁻ − B⁻Hᵀ(H B⁻ Hᵀ + R)⁻¹H B⁻``
-(:func:`covariance_predict`, :func:`covariance_update`), which the SLAM bound below runs in,
+trajectory, averaged over seeds by the study (:mod:`agents.lab.estimator_studies.bound`). With ``B =
+J⁻¹``, (1) is the Kalman covariance recursion ``B⁻ = F B Fᵀ + Q``, ``B = B⁻ − B⁻Hᵀ(H B⁻ Hᵀ + R)⁻¹H
+B⁻`` (:func:`covariance_predict`, :func:`covariance_update`), which the SLAM bound below runs in,
 because the scenarios' priors and process noise are singular (seed 001 Table 7 gives the
 attitude a zero initial variance; with zero extra Q the process noise has rank 4: only the
 IMU noise drives the state), where the information form would need infinite entries.

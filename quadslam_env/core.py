@@ -17,24 +17,17 @@ the world (:mod:`quadslam_env.sim.faults`: held over each step, applied before t
 it) its generator from the world child after the wind's, so no other stream changes when any of
 them is on.
 
-IMU rate (``imu.rate_hz``, docs/timing.md "IMU rate"): each IMU sample is the average of its
-inputs over its own period, and each prediction gets the input's white-noise std per step h,
-``σ = ND/√h`` (:attr:`SimCore.imu_input_sigma`). At the control rate (the default): one sample
-and one prediction over dt per step. An IMU m times faster: the vehicle is integrated over m
-sub-periods (command held), the IMU samples after each, and the estimator predicts m times over
-dt/m. An IMU m times slower: it samples every m-th step and the estimator runs as a filter at
-the IMU instants plus an output predicted at the control rate
-(:mod:`quadslam_env.runtime.imu_replay`).
-
-Latency (docs/timing.md "Latency"): an action is applied ``action.delay_steps`` steps after the
-agent gives it (:class:`~quadslam_env.episode.actions.ActionDelay`; the estimator is told the thrust
-and torque applied), and a scan reaches the estimator ``lidar.delay_steps`` steps after it is
-measured, which then updates the belief of the scan's time (:mod:`quadslam_env.runtime.scan_delay`).
-
-Association (docs/design.md §4): scans are typed by what the estimator is told
-(:mod:`quadslam_env.sim.scans`), and the component of ``lidar.association``
-(:mod:`quadslam_env.runtime.association`) takes them and keeps the unknown association's
-bookkeeping; the step calls it the same way in either mode.
+Sensor rates, latency and association (docs/timing.md, docs/design.md §4) are the run-time's:
+a control period's IMU samples (:mod:`quadslam_env.runtime.imu_period`; each an average over
+its own period, each prediction given the white-noise std per step h, ``σ = ND/√h``,
+:attr:`SimCore.imu_input_sigma`), the filter replayed at a slower IMU's instants
+(:mod:`quadslam_env.runtime.imu_replay`), a scan applied at its own time after
+``lidar.delay_steps`` (:mod:`quadslam_env.runtime.scan_delay`), an action applied
+``action.delay_steps`` after the agent gave it
+(:class:`~quadslam_env.episode.actions.ActionDelay`; the estimator told the thrust and torque
+applied), and the scans, typed by what the estimator is told (:mod:`quadslam_env.sim.scans`),
+handed over by the component of ``lidar.association``
+(:mod:`quadslam_env.runtime.association`); the step calls each the same way in every mode.
 """
 
 from __future__ import annotations

@@ -197,7 +197,7 @@ RUN = ["run", "--duration", "0.3"]
 
 def cli(capsys: pytest.CaptureFixture[str], argv: list[str]) -> tuple[int, str, str]:
     """Run the CLI; return (status, stdout, last stderr line)."""
-    from agents.cli.main import main
+    from agents.lab.cli.main import main
 
     code = main(argv)
     out, err = capsys.readouterr()
@@ -212,16 +212,16 @@ def no_work(monkeypatch: pytest.MonkeyPatch) -> None:
     def forbidden(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("the work started before the output paths were checked")
 
-    import agents.bench.runner
     import agents.evaluation.episodes
+    import agents.lab.bench.runner
+    import agents.lab.control_studies.cost
     import agents.rl.policies
     import agents.rl.training
-    import agents.studies.cost
 
     monkeypatch.setattr(agents.evaluation.episodes, "run_episodes", forbidden)
     monkeypatch.setattr(agents.rl.policies, "load_policy", forbidden)
-    monkeypatch.setattr(agents.bench.runner, "run_bench", forbidden)
-    monkeypatch.setattr(agents.studies.cost, "run_study", forbidden)
+    monkeypatch.setattr(agents.lab.bench.runner, "run_bench", forbidden)
+    monkeypatch.setattr(agents.lab.control_studies.cost, "run_study", forbidden)
     monkeypatch.setattr(agents.rl.training, "train", forbidden)
 
 

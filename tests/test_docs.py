@@ -12,9 +12,9 @@ import gymnasium as gym
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from agents.cli import reference
-from agents.cli.main import build_parser
 from agents.control.dflqr import DFLQRPolicy
+from agents.lab.cli import reference
+from agents.lab.cli.main import build_parser
 from quadslam_env.config import SECTIONS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -98,7 +98,7 @@ def test_performance_page_shows_the_bench_json_as_measured() -> None:
     and the page asks for them (its figures cannot drift from the measured ones)."""
     import json
 
-    from agents.bench.report import bench_markdown, figure
+    from agents.lab.bench.report import bench_markdown, figure
 
     page = (DOCS / "performance.md").read_text()
     assert "<!-- generated: bench-latest -->" in page
@@ -122,7 +122,7 @@ def test_performance_page_shows_the_bench_json_as_measured() -> None:
 
 
 def test_figures_round_to_four_significant_digits() -> None:
-    from agents.bench.report import figure
+    from agents.lab.bench.report import figure
 
     assert figure(80780.4) == "80,780"
     assert figure(236346.0) == "236,300"

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 import quadslam_env
-from agents.cli import main as cli
+from agents.lab.cli import main as cli
 from quadslam_env.config import (
     SECTIONS,
     ConfigError,

@@ -1,9 +1,9 @@
 """MkDocs hooks: fill the generated sections of the documentation pages at build time.
 
 A page asks for a generated section with an HTML comment marker (see ``MARKERS``); the content
-comes from :mod:`agents.cli.reference`, i.e. from the validated config specs, the estimators'
+comes from :mod:`agents.lab.cli.reference`, i.e. from the validated config specs, the estimators'
 validators and the CLI's argument parser, and from the bench JSON files of ``docs/results``
-(:func:`agents.bench.report.bench_markdown`), so the pages cannot go stale.
+(:func:`agents.lab.bench.report.bench_markdown`), so the pages cannot go stale.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ ROOT = str(Path(__file__).resolve().parent.parent)
 if ROOT not in sys.path:
     sys.path.insert(0, ROOT)
 
-from agents.bench.report import bench_markdown  # noqa: E402  (after the path above)
-from agents.cli import reference  # noqa: E402
+from agents.lab.bench.report import bench_markdown  # noqa: E402  (after the path above)
+from agents.lab.cli import reference  # noqa: E402
 
 RESULTS = Path(ROOT) / "docs" / "results"
 """The measured results the pages show (this checkout's; an installed package reads none)."""

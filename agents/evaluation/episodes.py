@@ -270,7 +270,7 @@ def run_episodes(
             ``info`` (values (B,) on lanes, scalars one by one) (lane i flies
             ``seeds[first + i]`` of its chunk of ``max_lanes``; one lane per episode on the
             one-by-one path). It may read anything of the core, truth included (analyses
-            such as :mod:`agents.studies.bound`), and must not change it.
+            such as :mod:`agents.lab.estimator_studies.bound`), and must not change it.
 
     Returns:
         One record per seed, in the order of ``seeds``.

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import pytest
 
-from agents.bench import process as bench_process
-from agents.bench import runner as bench
-from agents.bench.envs import VECTOR_SCENARIOS
-from agents.bench.plan import TINY
-from agents.bench.runner import SECTION_NAMES, sections
-from agents.cli.main import main
+from agents.lab.bench import process as bench_process
+from agents.lab.bench import runner as bench
+from agents.lab.bench.envs import VECTOR_SCENARIOS
+from agents.lab.bench.plan import TINY
+from agents.lab.bench.runner import SECTION_NAMES, sections
+from agents.lab.cli.main import main
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +81,7 @@ def test_document_is_wellformed(tiny_run) -> None:
 def test_physics_ratio_pairs_the_alternating_samples(tiny_run) -> None:
     """The full-physics ratio is, round by round, the quotient of the two envs' samples taken
     side by side (each median alone would compare different minutes of the machine)."""
-    from agents.bench.paired import FULL_PHYSICS, NOMINAL, ROUNDS_PER_REPEAT
+    from agents.lab.bench.paired import FULL_PHYSICS, NOMINAL, ROUNDS_PER_REPEAT
 
     doc, _, _, _ = tiny_run
     got = {e["name"]: e for e in doc["results"] if e["group"] == "physics"}
@@ -97,7 +97,7 @@ def test_physics_ratio_pairs_the_alternating_samples(tiny_run) -> None:
 def test_team_ratios_pair_the_alternating_samples(tiny_run) -> None:
     """Each team's ratio is, round by round, its vehicle-steps/s over the vector env's taken in
     the same round, and carries the lower-bound target the end of the output judges."""
-    from agents.bench.team import N_VEHICLES, TARGET, TEAMS
+    from agents.lab.bench.team import N_VEHICLES, TARGET, TEAMS
 
     doc, _, stdout, _ = tiny_run
     got = {e["name"]: e for e in doc["results"] if e["group"] == "team"}

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from agents.bench import runner as bench
-from agents.bench.plan import TINY, Plan, Results
-from agents.cli.main import main
+from agents.lab.bench import runner as bench
+from agents.lab.bench.plan import TINY, Plan, Results
+from agents.lab.cli.main import main
 
 
 def hide(monkeypatch: pytest.MonkeyPatch, module: str) -> None:

@@ -11,9 +11,9 @@ from collections.abc import Callable
 
 import pytest
 
-from agents.bench import render
-from agents.bench import runner as bench
-from agents.bench.plan import FULL, PLANS, QUICK, Plan, Results
+from agents.lab.bench import render
+from agents.lab.bench import runner as bench
+from agents.lab.bench.plan import FULL, PLANS, QUICK, Plan, Results
 
 
 @pytest.fixture

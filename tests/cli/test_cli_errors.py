@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from agents.cli.main import main
+from agents.lab.cli.main import main
 
 RUN = ["run", "--duration", "0.5", "--no-plots"]
 EVALUATE = ["evaluate", "--duration", "0.5", "--episodes", "1"]
@@ -345,9 +345,9 @@ CAUGHT = [
 def test_main_reports_user_errors_and_signals_in_one_line(
     capsys, monkeypatch, make, status, fragment
 ):
-    import agents.cli.main
+    import agents.lab.cli.main
 
-    monkeypatch.setattr(agents.cli.main, "cmd_scenarios", _raising(make()))
+    monkeypatch.setattr(agents.lab.cli.main, "cmd_scenarios", _raising(make()))
     assert main(["scenarios"]) == status
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and fragment in lines[0], lines
@@ -356,9 +356,9 @@ def test_main_reports_user_errors_and_signals_in_one_line(
 
 @pytest.mark.parametrize("exc", [TypeError("a bug"), KeyError("a bug"), AttributeError("bug")])
 def test_main_lets_bugs_show_their_traceback(monkeypatch, exc):
-    import agents.cli.main
+    import agents.lab.cli.main
 
-    monkeypatch.setattr(agents.cli.main, "cmd_scenarios", _raising(exc))
+    monkeypatch.setattr(agents.lab.cli.main, "cmd_scenarios", _raising(exc))
     with pytest.raises(type(exc)):
         main(["scenarios"])
 

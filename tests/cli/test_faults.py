@@ -77,7 +77,7 @@ def test_analysis_json_on_a_full_disk_is_kept_elsewhere(
     tmp_path: Path,
     temp_root: Path,
 ) -> None:
-    from agents.studies.degradation import save_json
+    from agents.lab.estimator_studies.degradation import save_json
 
     out = tmp_path / "results"
     out.mkdir()
@@ -141,15 +141,15 @@ def test_imu_instants_json_torn_by_a_full_disk_keeps_the_old_file(
     """A write that fails halfway (ENOSPC after half the data) leaves the previous result
     whole: the new one is written under another name and renamed into place only when
     complete; the result itself goes to the temporary folder."""
-    import agents.studies.imu_instants
+    import agents.lab.estimator_studies.imu_instants
 
     monkeypatch.setattr(
-        agents.studies.imu_instants, "split_at_instants", lambda *a, **k: {"steps": 7}
+        agents.lab.estimator_studies.imu_instants, "split_at_instants", lambda *a, **k: {"steps": 7}
     )
     target = tmp_path / "r.json"
     target.write_text('{"old": true}\n')
     torn_writes(monkeypatch, tmp_path)
-    code = agents.studies.imu_instants.main(["--seeds", "1", "--json", str(target)])
+    code = agents.lab.estimator_studies.imu_instants.main(["--seeds", "1", "--json", str(target)])
     assert code == 2
     assert json.loads(target.read_text()) == {"old": True}  # never truncated
     err = capsys.readouterr().err.strip().splitlines()[-1]
@@ -159,7 +159,10 @@ def test_imu_instants_json_torn_by_a_full_disk_keeps_the_old_file(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json", "tmp"]  # no leftovers
 
 
-@pytest.mark.parametrize("module", ["active", "cost", "association"])
+@pytest.mark.parametrize(
+    "module",
+    ["control_studies.active", "control_studies.cost", "estimator_studies.association"],
+)
 def test_a_study_json_torn_by_a_full_disk_keeps_the_old_file(
     module: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
@@ -167,7 +170,7 @@ def test_a_study_json_torn_by_a_full_disk_keeps_the_old_file(
     writes atomically: a write that fails halfway leaves the previous file whole."""
     import importlib
 
-    write_json = importlib.import_module(f"agents.studies.{module}").write_json
+    write_json = importlib.import_module(f"agents.lab.{module}").write_json
     target = tmp_path / "study.json"
     target.write_text('{"old": true}\n')
     torn_writes(monkeypatch, tmp_path)

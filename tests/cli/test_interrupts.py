@@ -19,7 +19,7 @@ import pytest
 from conftest import cli
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
+from agents.lab.cli.main import main
 
 # --------------------------------------------------------------- training: kill, disk, SIGTERM
 
@@ -50,9 +50,10 @@ def _default_signals() -> None:
 
 
 def start_cli(argv: list[str]) -> subprocess.Popen[str]:
-    """``python -m agents.cli.main ARGV`` in a child process with the default signal handling."""
+    """``python -m agents.lab.cli.main ARGV`` in a child process with the default signal
+    handling."""
     return subprocess.Popen(
-        [sys.executable, "-m", "agents.cli.main", *argv],
+        [sys.executable, "-m", "agents.lab.cli.main", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -248,7 +249,7 @@ def test_sigterm_stops_a_study_after_its_training_saved(
     (exit 143, one line) instead of going on to its next training."""
     from stable_baselines3 import PPO
 
-    import agents.studies.cost
+    import agents.lab.control_studies.cost
     from agents.rl.training import train
 
     def terminated_learn(self: Any, *args: Any, **kwargs: Any) -> None:
@@ -265,7 +266,7 @@ def test_sigterm_stops_a_study_after_its_training_saved(
         raise AssertionError("the study went on after SIGTERM")
 
     monkeypatch.setattr(PPO, "learn", terminated_learn)
-    monkeypatch.setattr(agents.studies.cost, "run_study", study)
+    monkeypatch.setattr(agents.lab.control_studies.cost, "run_study", study)
     argv = ["study", "cost-of-estimation", "--quick", "--out", str(tmp_path / "s")]
     code, _, line = cli(capsys, argv)
     assert code == 143 and not trained
@@ -296,7 +297,7 @@ def test_sigterm_stops_a_study_training_in_worker_processes(tmp_path: Path) -> N
     """``--jobs 2``: a SIGTERM to the study's process reaches the trainings in its workers.
     Each saves its run folder marked ``INTERRUPTED`` (a rerun trains it again), and the
     command ends in one line with 143."""
-    from agents.studies.training_pool import finished_run
+    from agents.lab.control_studies.training_pool import finished_run
 
     out = tmp_path / "s"
     argv = ["study", "cost-of-estimation", "--quick", "--training-seeds", "1", "--jobs", "2"]

@@ -23,9 +23,9 @@ from conftest import RUN, cli, failing_rename, full_disk, no_temp_files
 
 import agents.io.outputs as outputs
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
 from agents.io.outputs import OutputWriteError, Saver
 from agents.io.paths import check_output_dir, check_output_file
+from agents.lab.cli.main import main
 
 # ------------------------------------------------------------- output paths, before the work
 
@@ -178,14 +178,14 @@ def test_plots_and_video_on_a_full_disk_go_to_one_temp_folder(
 def test_bench_json_that_cannot_be_written_is_kept(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
-    import agents.bench.runner
+    import agents.lab.bench.runner
 
     doc = {
         "machine": {"cpu": "test", "cores": 1},
         "wall_time_s": 0.0,
         "results": [],
     }
-    monkeypatch.setattr(agents.bench.runner, "run_bench", lambda *a, **k: doc)
+    monkeypatch.setattr(agents.lab.bench.runner, "run_bench", lambda *a, **k: doc)
     failing_rename(monkeypatch, tmp_path)
     code, _, line = cli(capsys, ["bench", "--quick", "--json", str(tmp_path / "b.json")])
     assert code == 2 and line.startswith("quadslam bench: error: --json: could not write")
@@ -199,11 +199,11 @@ def test_study_json_that_cannot_be_written_is_kept(
     tmp_path: Path,
     temp_root: Path,
 ) -> None:
-    import agents.studies.cost
+    import agents.lab.control_studies.cost
 
     result: dict[str, Any] = {"rows": [], "settings": {"x": float("nan"), "wall_s": 1, "jobs": 1}}
-    monkeypatch.setattr(agents.studies.cost, "run_study", lambda *a, **k: result)
-    monkeypatch.setattr(agents.studies.cost, "format_study", lambda r: "table")
+    monkeypatch.setattr(agents.lab.control_studies.cost, "run_study", lambda *a, **k: result)
+    monkeypatch.setattr(agents.lab.control_studies.cost, "format_study", lambda r: "table")
     full_disk(monkeypatch, tmp_path / "res")
     target = tmp_path / "res" / "study.json"
     argv = ["study", "cost-of-estimation", "--quick", "--out", str(tmp_path / "runs")]

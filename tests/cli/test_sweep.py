@@ -21,10 +21,10 @@ import yaml
 ray = pytest.importorskip("ray")
 pd = pytest.importorskip("pandas")
 
-from agents.cli.main import main  # noqa: E402
 from agents.evaluation.episodes import EPISODE_KEYS  # noqa: E402
-from agents.sweep.driver import SweepError, run_sweep  # noqa: E402
-from agents.sweep.spec import load_spec  # noqa: E402
+from agents.lab.cli.main import main  # noqa: E402
+from agents.lab.sweep.driver import SweepError, run_sweep  # noqa: E402
+from agents.lab.sweep.spec import load_spec  # noqa: E402
 
 SCENARIOS = ["paper_ekf_figure8", "paper_ekf_figure8_known"]
 # Everything of an episode record but its wall-clock speed.
@@ -177,7 +177,7 @@ def _default_signals() -> None:
 def _start_sweep(spec: Path, out: Path) -> subprocess.Popen:
     argv = ["sweep", str(spec), "--out", str(out), "--workers", "1"]
     return subprocess.Popen(
-        [sys.executable, "-m", "agents.cli.main", *argv],
+        [sys.executable, "-m", "agents.lab.cli.main", *argv],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from agents.cli.main import main
-from agents.sweep.spec import SweepSpecError, load_spec, parse_spec, shipped_specs
+from agents.lab.cli.main import main
+from agents.lab.sweep.spec import SweepSpecError, load_spec, parse_spec, shipped_specs
 
 SHORT = {"episode.duration_s": 2}
 
@@ -273,7 +273,7 @@ def test_malformed_address(capsys, tmp_path):
 
 def test_joining_a_cluster_uses_the_token_at_hand(tmp_path, monkeypatch):
     """Ray 2.60 refuses a driver without RAY_AUTH_MODE=token on a `ray start` cluster."""
-    from agents.sweep.cluster import use_cluster_token
+    from agents.lab.sweep.cluster import use_cluster_token
 
     monkeypatch.setenv("RAY_AUTH_MODE", "placeholder")  # restored after the test
     monkeypatch.delenv("RAY_AUTH_MODE")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from agents.cli.main import main
+from agents.lab.cli.main import main
 
 
 def hide(monkeypatch: pytest.MonkeyPatch, *modules: str) -> None:

@@ -15,7 +15,8 @@ import yaml
 from torch import nn
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
+from agents.lab.cli.main import main
+from agents.lab.sweep.spec import SweepSpecError, parse_spec
 from agents.rl.building import build_model, make_vec_env
 from agents.rl.hyperparams import load_hyperparams, parse_normalize, resolve_settings
 from agents.rl.policy_kwargs import (
@@ -25,7 +26,6 @@ from agents.rl.policy_kwargs import (
     validate_policy_kwargs,
 )
 from agents.rl.training import resume, train
-from agents.sweep.spec import SweepSpecError, parse_spec
 from quadslam_env.config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import quadslam_env
-from agents.cli.main import main
+from agents.lab.cli.main import main
 from quadslam_env.config import ConfigError, available_scenarios, load_scenario
 from quadslam_env.estimation import MemoryLimitError
 from quadslam_env.estimation.memory import ENV_MEMORY_SHARE, LIMIT_VARIABLE
@@ -200,7 +200,7 @@ def test_run_with_a_hundred_million_seeds_is_one_line(
 
 
 def test_the_sweep_refuses_a_job_that_cannot_fit(limit: Any) -> None:
-    from agents.sweep.spec import SweepSpecError, parse_spec
+    from agents.lab.sweep.spec import SweepSpecError, parse_spec
 
     limit(16 * GIB)
     job = {"kind": "run", "seeds": 10**8, "seeds_per_job": 10**8}

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.reference import estimator_settings
+from agents.lab.cli.reference import estimator_settings
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.vector_env import QuadSLAMVectorEnv

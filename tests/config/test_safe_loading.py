@@ -20,7 +20,7 @@ import pytest
 from stable_baselines3 import PPO, SAC
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
+from agents.lab.cli.main import main
 from agents.rl.loading import load_model
 from agents.rl.manifest import MANIFEST, ManifestWarning, write_manifest
 from agents.rl.safe_files import SafeFileError, read_normalization, read_policy
@@ -185,8 +185,8 @@ def _craft_zip(path: Path, marker: Path) -> None:
 
 def _fly_every_way(run: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Evaluate ``run`` as ``quadslam evaluate``, a sweep job and a study do, untrusted."""
-    from agents.studies.learned_rows import fly
-    from agents.sweep.jobs import execute_job
+    from agents.lab.control_studies.learned_rows import fly
+    from agents.lab.sweep.jobs import execute_job
 
     assert main([*EVALUATE, "--policy", str(run)]) == 0, capsys.readouterr().err
     params = {"env": ENV, "scenario": SCENARIO, "estimator": None, "plots": False, "seeds": [0],
@@ -238,7 +238,7 @@ def test_an_older_folder_is_read_from_its_pickles_only_with_the_trust_flag(
     assert line.startswith(f"quadslam evaluate: error: {run}: no policy.npz")
     assert f"quadslam convert-run {run} --trust-pickle" in line
     assert not marker.exists()
-    from agents.sweep.jobs import execute_job
+    from agents.lab.sweep.jobs import execute_job
 
     params = {"env": ENV, "scenario": None, "estimator": None, "plots": False,
               "overrides": {}, "policy": str(run), "seeds": [0]}  # fmt: skip
@@ -337,7 +337,7 @@ def test_convert_run_checks_the_manifest_before_unpickling(
 
 
 def test_a_sweep_asks_for_a_boolean_trust_pickle(ppo_run: Path) -> None:
-    from agents.sweep.spec import SweepSpecError, parse_spec
+    from agents.lab.sweep.spec import SweepSpecError, parse_spec
 
     block = {"kind": "evaluate", "policy": str(ppo_run)}
     (job,) = parse_spec({"jobs": [block]})

@@ -13,11 +13,11 @@ import gymnasium as gym
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.fly import controller_options
-from agents.cli.main import build_parser, main
+from agents.lab.cli.fly import controller_options
+from agents.lab.cli.main import build_parser, main
+from agents.lab.sweep.jobs import execute_job
+from agents.lab.sweep.spec import SweepSpecError, parse_spec
 from agents.rl.policies import load_policy
-from agents.sweep.jobs import execute_job
-from agents.sweep.spec import SweepSpecError, parse_spec
 
 WIND = ["--scenario", "ekf_figure8_wind_states", "--set", "observation.air_velocity=true"]
 EVALUATE = ["evaluate", "--duration", "1.0", "--episodes", "1", *WIND]

@@ -16,11 +16,11 @@ import pytest
 from conftest import assert_lanes_equal_scalar_env, assert_zero_residual_flies_base
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
 from agents.control.adaptation import RATIO_BOUNDS, thrust_ratio
 from agents.control.lqi import LQIPolicy
 from agents.control.named import build_controller
 from agents.control.se3 import SE3Policy
+from agents.lab.cli.main import main
 from agents.rl.wrappers import ResidualDFLQRVectorWrapper, parse_wrapper_spec
 from quadslam_env.schema import ConfigError
 from quadslam_env.types import GRAVITY

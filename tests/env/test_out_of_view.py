@@ -11,7 +11,7 @@ import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
-from agents.studies.degradation import record, summarise
+from agents.lab.estimator_studies.degradation import record, summarise
 from estimators.ekf.filter import EkfSlamBatch
 from quadslam_env.config import load_scenario
 from quadslam_env.models.lidar import lidar_measure

@@ -20,8 +20,8 @@ import pytest
 from PIL import Image
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
 from agents.control.dflqr import DFLQRPolicy
+from agents.lab.cli.main import main
 from quadslam_env.config import ConfigError
 from quadslam_env.render.history import LaneHistory
 from quadslam_env.render.scene import ellipse_lines, plane_cov

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agents.studies.consistency import run_consistency
+from agents.lab.estimator_studies.consistency import run_consistency
 from quadslam_env.metrics import anees_bounds
 
 

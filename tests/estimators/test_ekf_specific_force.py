@@ -109,7 +109,7 @@ def _steady_attitude_rmse(mode: str, process_noise: list[float]) -> list[float]:
     """Steady-state (t > 10 s) attitude RMSE (deg) of EKF-SLAM on ``ekf_figure8_wind`` (2.2 m/s
     steady wind, Dryden gusts, rotor and body drag; SLAM), 25 s of DF-LQR on the estimate (the
     soft loop that keeps the thrust-axis filter flying), seeds 0 and 1."""
-    from agents.studies.learned_rows import fly
+    from agents.lab.control_studies.learned_rows import fly
 
     params = {"specific_force": mode, "process_noise": process_noise}
     kwargs = {"scenario": "ekf_figure8_wind", "episode": {"duration_s": 25.0},

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from agents.cli.reference import estimator_settings
+from agents.lab.cli.reference import estimator_settings
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.fastslam.settings import DynamicFastSlamSettings, KinematicFastSlamSettings
 from estimators.isam2 import GTSAM_INSTALL

@@ -1,4 +1,5 @@
-"""Tests of the particle-filter consistency analysis (agents/studies/particle_nees.py)."""
+"""Tests of the particle-filter consistency analysis
+(agents/lab/estimator_studies/particle_nees.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import math
 
 import numpy as np
 
-from agents.studies.particle_nees import block_nees, summarise, summarise_episode
+from agents.lab.estimator_studies.particle_nees import block_nees, summarise, summarise_episode
 
 
 def test_block_nees_uses_each_blocks_marginal_covariance() -> None:

@@ -15,7 +15,7 @@ import gymnasium as gym
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
+from agents.lab.cli.main import main
 from agents.rl.manifest import MANIFEST, ManifestError, ManifestWarning, verify_run
 
 ENV = "QuadSLAM-Oracle-v0"  # no filter to compile: the fastest training
@@ -131,7 +131,7 @@ def test_a_model_the_manifest_does_not_list_is_refused(run: Path) -> None:
 
 
 def test_a_run_without_manifest_loads_with_one_warning_line(run: Path) -> None:
-    from agents.cli.warning_lines import one_line_warnings
+    from agents.lab.cli.warning_lines import one_line_warnings
     from agents.rl.loading import load_model
 
     (run / MANIFEST).unlink()  # a run saved before manifests existed

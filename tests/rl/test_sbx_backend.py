@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli import main as cli
+from agents.lab.cli import main as cli
 from agents.rl import sbx_backend
 from agents.rl.hyperparams import load_hyperparams, resolve_settings
 from agents.rl.policy_kwargs import ACTIVATIONS

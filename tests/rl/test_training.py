@@ -20,7 +20,6 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import VecNormalize
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli import main as cli
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import (
     EPISODE_KEYS,
@@ -29,6 +28,7 @@ from agents.evaluation.episodes import (
     TRANSIENT_KEYS,
     run_episode,
 )
+from agents.lab.cli import main as cli
 from agents.rl.building import make_vec_env
 from agents.rl.callbacks import EstimationMetricsCallback
 from agents.rl.hyperparams import (

@@ -1,4 +1,4 @@
-"""A study's reuse of finished trainings (``agents.studies.training_pool``): a run's
+"""A study's reuse of finished trainings (``agents.lab.control_studies.training_pool``): a run's
 ``timing.json`` that is not the one ``train()`` writes is refused in one line naming the file,
 before anything is trained."""
 
@@ -9,7 +9,12 @@ from pathlib import Path
 
 import pytest
 
-from agents.studies.training_pool import TrainJob, finished_run, recorded_wall_s, train_all
+from agents.lab.control_studies.training_pool import (
+    TrainJob,
+    finished_run,
+    recorded_wall_s,
+    train_all,
+)
 
 
 def _run(folder: Path, timing: str | bytes) -> Path:

@@ -13,7 +13,7 @@ from scipy.stats import chi2
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import ATTITUDE_NATURAL_FREQ, DFLQRPolicy, attitude_natural_freq
-from agents.studies.consistency import run_consistency
+from agents.lab.estimator_studies.consistency import run_consistency
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.metrics import anees_bounds
 from quadslam_env.models import GRAVITY

@@ -12,8 +12,8 @@ import pytest
 from conftest import fly_dflqr
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.bench.envs import VECTOR_SCENARIOS
 from agents.control.dflqr import DFLQRPolicy
+from agents.lab.bench.envs import VECTOR_SCENARIOS
 from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.models.params import vehicle_preset
 from quadslam_env.models.rotors import (

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli.main import main
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import Trace, run_episodes
 from agents.evaluation.plots import FIGURES, MIN_MARGIN_M, figures, inertial_velocity_error
+from agents.lab.cli.main import main
 
 pytest.importorskip("matplotlib")  # the figures need it (the module imports it when drawing)
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.studies.soak import cov_health, main, run_soak
+from agents.lab.estimator_studies.soak import cov_health, main, run_soak
 
 RSS_GROWTH_LIMIT_MB = 25.0
 """Allowed RSS growth over a shortened soak: a few MiB of map, caches and allocator slack."""

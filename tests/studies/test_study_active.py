@@ -11,9 +11,7 @@ import pytest
 import quadslam_env  # noqa: F401
 from agents.control.lookat import LookAtPolicy
 from agents.evaluation.episodes import Trace
-from agents.rl.run_folder import run_config
-from agents.rl.wrappers import ResidualDFLQRWrapper
-from agents.studies.active import (
+from agents.lab.control_studies.active import (
     CLAIMS,
     ENV_ID,
     fly,
@@ -22,6 +20,8 @@ from agents.studies.active import (
     row_result,
     run_study,
 )
+from agents.rl.run_folder import run_config
+from agents.rl.wrappers import ResidualDFLQRWrapper
 
 SHORT = {"episode": {"duration_s": 6.0}}  # the study's 5 s transient, then 1 s steady
 

@@ -8,7 +8,7 @@ import importlib.util
 import gymnasium as gym
 import pytest
 
-import agents.studies.association as study
+import agents.lab.estimator_studies.association as study
 import quadslam_env  # noqa: F401
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import run_episodes

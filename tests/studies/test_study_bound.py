@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.cli import main as cli
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import run_episodes
-from agents.studies.bound import TruthRecorder, run_bound_study
-from agents.studies.bound_report import figure_name
+from agents.lab.cli import main as cli
+from agents.lab.estimator_studies.bound import TruthRecorder, run_bound_study
+from agents.lab.estimator_studies.bound_report import figure_name
 
 SCENARIO = "paper_ekf_figure8_known"
 

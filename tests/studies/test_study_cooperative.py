@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import agents.studies.cooperative as study
+import agents.lab.estimator_studies.cooperative as study
 from agents.control.dflqr import DFLQRPolicy
 from quadslam_env.metrics import anees_bounds
 

@@ -9,14 +9,14 @@ from typing import Any
 import numpy as np
 import pytest
 
-from agents.cli import main as cli
-from agents.cli import study as cli_study
+from agents.lab.cli import main as cli
+from agents.lab.cli import study as cli_study
+from agents.lab.control_studies import cost
+from agents.lab.control_studies.cost import TRAINED, TrainedConfig, run_study, write_json
+from agents.lab.control_studies.learned_rows import HEADLINE, TRACK_KEYS
+from agents.lab.control_studies.training_pool import Trained, TrainJob, finished_run, train_all
 from agents.rl import hyperparams
 from agents.rl.hyperparams import load_hyperparams
-from agents.studies import cost
-from agents.studies.cost import TRAINED, TrainedConfig, run_study, write_json
-from agents.studies.learned_rows import HEADLINE, TRACK_KEYS
-from agents.studies.training_pool import Trained, TrainJob, finished_run, train_all
 
 
 def _tiny_ppo(*args: Any, **kwargs: Any) -> dict:

@@ -1,7 +1,7 @@
-"""``quadslam study estimators`` (agents/studies/estimators.py) on tiny inputs: the ratio column
-is the pooled RMSE over the pooled bound recomputed from the per-seed values, the ANEES share is
-a recount against the χ² interval computed here, the block NEES equals the env's own, and a cell
-that cannot run says why."""
+"""``quadslam study estimators`` (agents/lab/estimator_studies/estimators.py) on tiny inputs: the
+ratio column is the pooled RMSE over the pooled bound recomputed from the per-seed values, the ANEES
+share is a recount against the χ² interval computed here, the block NEES equals the env's own, and a
+cell that cannot run says why."""
 
 from __future__ import annotations
 
@@ -17,12 +17,17 @@ import pytest
 from scipy.stats import chi2
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from agents.cli import main as cli
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import run_episodes
-from agents.studies.bound import bound_model
-from agents.studies.estimator_cells import ROWS, cell_overrides, cell_scenario
-from agents.studies.estimators import NeesRecorder, anees_share, format_markdown, run_cell
+from agents.lab.cli import main as cli
+from agents.lab.estimator_studies.bound import bound_model
+from agents.lab.estimator_studies.estimator_cells import ROWS, cell_overrides, cell_scenario
+from agents.lab.estimator_studies.estimators import (
+    NeesRecorder,
+    anees_share,
+    format_markdown,
+    run_cell,
+)
 from estimators.isam2.settings import PRIOR_VARIANCE_FLOOR
 from quadslam_env.types import POS, POSE_DIM
 

@@ -1,6 +1,6 @@
-"""``quadslam study bound --phases`` (agents/studies/phases.py): the pooled ratio per phase is
-a recount by hand on two made-up seeds, a phase no seed reaches is left out, and bad edges are
-refused with what is allowed."""
+"""``quadslam study bound --phases`` (agents/lab/estimator_studies/phases.py): the pooled ratio per
+phase is a recount by hand on two made-up seeds, a phase no seed reaches is left out, and bad edges
+are refused with what is allowed."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from agents.cli import main as cli
-from agents.studies.bound import BLOCKS
-from agents.studies.phases import format_phases, phase_ratios
+from agents.lab.cli import main as cli
+from agents.lab.estimator_studies.bound import BLOCKS
+from agents.lab.estimator_studies.phases import format_phases, phase_ratios
 
 
 @dataclass

@@ -12,14 +12,14 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from agents.cli import main as cli
-from agents.cli import study as cli_study
+from agents.lab.cli import main as cli
+from agents.lab.cli import study as cli_study
+from agents.lab.control_studies import robustness
+from agents.lab.control_studies.cost import SCENARIO, scenario_kwargs
+from agents.lab.control_studies.robustness import CONDITIONS, cell_kwargs, condition_kwargs
 from agents.rl import hyperparams
 from agents.rl.hyperparams import load_hyperparams
 from agents.rl.run_folder import run_config
-from agents.studies import robustness
-from agents.studies.cost import SCENARIO, scenario_kwargs
-from agents.studies.robustness import CONDITIONS, cell_kwargs, condition_kwargs
 from estimators.ekf.settings import PAPER_Q_UNKNOWN
 from quadslam_env.config import load_scenario
 from quadslam_env.config.randomize import SCALE_KEYS
@@ -245,7 +245,7 @@ def test_the_claim_counts_the_training_seeds_at_most_0_9_of_the_lqi(tmp_path: Pa
     """Trainings and flights replaced by known numbers: every controller flies at 0.1 m in
     steady state; training seed k of ``ppo_lqi`` at ``per_seed[k]``, so the claim holds on
     seeds 0 and 3 of the five (the default), on every condition."""
-    from agents.studies.training_pool import Trained
+    from agents.lab.control_studies.training_pool import Trained
 
     per_seed = [0.05, 0.095, 0.2, 0.08, 0.1]
 

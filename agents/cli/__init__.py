@@ -1,2 +1,0 @@
-"""The ``quadslam`` command (:mod:`agents.cli.main`), its ``study`` subcommands and the reference
-tables the documentation generates from the parsers and config specs."""

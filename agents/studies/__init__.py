@@ -1,1 +1,0 @@
-"""The studies and analyses of ``quadslam study …``."""
