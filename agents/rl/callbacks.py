@@ -14,7 +14,7 @@
   evaluation callbacks with every file written atomically (SB3 writes in place, so a kill or a
   full disk during a save left a truncated checkpoint, ``best_model.zip`` or
   ``evaluations.npz``, which ``--resume`` and the learning curve then failed on), and each
-  saved model's weights and statistics also as arrays (:mod:`agents.rl.safe_files`).
+  saved model's weights and statistics also as arrays (:mod:`agents.rl.saved.safe_files`).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback,
 from tqdm import tqdm
 
 from agents.io.outputs import atomic_produce, atomic_produce_all, commit
-from agents.rl.safe_files import Normalization, save_files, write_normalization, write_policy
+from agents.rl.saved.safe_files import Normalization, save_files, write_normalization, write_policy
 
 STEP_PREFIXES = ("est_", "track_", "reward_")
 EPISODE_PREFIX = "episode_"

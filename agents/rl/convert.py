@@ -17,9 +17,9 @@ from pathlib import Path
 from agents.io.outputs import atomic_produce_all
 from agents.rl.hyperparams import parse_normalize
 from agents.rl.loading import load_pickled_model, load_pickled_stats, rebuild_model
-from agents.rl.manifest import verify_run, write_manifest
-from agents.rl.run_folder import read_run_config, safe_paths, vecnormalize_path
-from agents.rl.safe_files import read_policy, write_normalization, write_policy
+from agents.rl.saved.manifest import verify_run, write_manifest
+from agents.rl.saved.run_folder import read_run_config, safe_paths, vecnormalize_path
+from agents.rl.saved.safe_files import read_policy, write_normalization, write_policy
 
 
 @dataclass
@@ -49,7 +49,7 @@ def convert_run(run_dir: str | Path) -> Conversion:
 
     This unpickles the folder's SB3 zips and ``VecNormalize`` files, which runs whatever code
     they name: call it only for a folder you trust. The folder is first checked against its
-    manifest (:func:`agents.rl.manifest.verify_run`: a changed file, or a file to be read that
+    manifest (:func:`agents.rl.saved.manifest.verify_run`: a changed file, or a file to be read that
     it does not list, is refused before anything is read; a folder without one is read after a
     warning). Each model's arrays are written atomically and then rebuilt from the run's
     ``config.yaml`` as loading will (:func:`agents.rl.loading.rebuild_model`), so a config
@@ -65,7 +65,7 @@ def convert_run(run_dir: str | Path) -> Conversion:
 
     Raises:
         ValueError: Not a run folder, no saved model, or a model that does not load.
-        agents.rl.manifest.ManifestError: A file differs from the manifest or is not listed.
+        agents.rl.saved.manifest.ManifestError: A file differs from the manifest or is not listed.
     """
     run_dir = Path(run_dir)
     config = read_run_config(run_dir)

@@ -5,7 +5,7 @@ whose ``predict`` takes the *raw* env observation, applying the same ``VecNormal
 statistics and residual wrapper as in training. It never unpickles unless told to: the SB3
 model is rebuilt from the run's plain ``config.yaml`` (algorithm, policy, its keyword
 arguments) and the spaces and weights of ``policy.npz``, the statistics from
-``vecnormalize.npz`` (:mod:`agents.rl.safe_files`). SB3's ``model.zip`` and
+``vecnormalize.npz`` (:mod:`agents.rl.saved.safe_files`). SB3's ``model.zip`` and
 ``vecnormalize.pkl`` hold pickles, which run whatever code they name when read: they are read
 only with ``trust_pickle=True`` (``quadslam evaluate --trust-pickle``), for a run folder saved
 before the arrays existed or a bare SB3 zip; ``quadslam convert-run``
@@ -30,9 +30,9 @@ from agents.control.lookat import LookAtPolicy
 from agents.rl.building import policy_arguments
 from agents.rl.hyperparams import algorithms, parse_normalize, resolve_settings
 from agents.rl.lane_share import ACTOR_KEY
-from agents.rl.manifest import verify_run
-from agents.rl.run_folder import find_run_dir, read_run_config, safe_paths, vecnormalize_path
-from agents.rl.safe_files import (
+from agents.rl.saved.manifest import verify_run
+from agents.rl.saved.run_folder import find_run_dir, read_run_config, safe_paths, vecnormalize_path
+from agents.rl.saved.safe_files import (
     Normalization,
     PolicyFile,
     SafeFileError,
@@ -59,7 +59,7 @@ class TrainedPolicy:
         algo: Algorithm name.
         config: The run's ``config.yaml`` (``None`` for a bare ``.zip``).
         normalization: The ``VecNormalize`` statistics
-            (:class:`agents.rl.safe_files.Normalization`) or ``None``.
+            (:class:`agents.rl.saved.safe_files.Normalization`) or ``None``.
         controller: DF-LQR controller for residual runs, else ``None``.
         scale: (4,) residual scale for residual runs, else ``None``.
     """
@@ -145,7 +145,7 @@ def rebuild_model(config: dict[str, Any], weights: PolicyFile, source: Path) -> 
     not needed.
 
     Raises:
-        agents.rl.safe_files.SafeFileError: The weights are another algorithm's or policy
+        agents.rl.saved.safe_files.SafeFileError: The weights are another algorithm's or policy
             class's, or do not fit the policy the config describes.
     """
     algo = config["algo"]
@@ -326,14 +326,15 @@ def load_model(path: str | Path, env: gym.Env, *, trust_pickle: bool = False) ->
     A run folder gives its final model; a zip inside a run folder (``model.zip``,
     ``eval/best_model.zip``, ``checkpoints/model_<N>_steps.zip``) names that saved model.
     Either is rebuilt from the run's ``config.yaml`` and the weights and statistics saved as
-    arrays beside the zip (:func:`agents.rl.run_folder.safe_paths`); the zip itself is not
+    arrays beside the zip (:func:`agents.rl.saved.run_folder.safe_paths`); the zip itself is not
     read. Only with ``trust_pickle`` are SB3's zip and ``VecNormalize`` pickle read, when the
     arrays are missing (a run saved before they existed), and a bare zip outside a run folder
     is tried as the algorithm named in it, then PPO, SAC, TD3, without normalisation or
     wrapper: unpickling runs whatever code the files name. A run folder is first checked
-    against its ``manifest.json`` (:func:`agents.rl.manifest.verify_run`): a file that
+    against its ``manifest.json`` (:func:`agents.rl.saved.manifest.verify_run`): a file that
     differs, or a file to be read that it does not list, is refused before anything is read;
-    a folder without a manifest is loaded after a :class:`~agents.rl.manifest.ManifestWarning`.
+    a folder without a manifest is loaded after a
+    :class:`~agents.rl.saved.manifest.ManifestWarning`.
 
     Args:
         path: Run folder or ``.zip``.
@@ -345,7 +346,7 @@ def load_model(path: str | Path, env: gym.Env, *, trust_pickle: bool = False) ->
         ValueError: Unreadable file, a run without arrays or a bare zip without
             ``trust_pickle`` (the message says how to convert it), or the model's
             observation/action shape differs from ``env``'s (the message names both).
-        agents.rl.manifest.ManifestError: A run folder's file differs from its manifest or is
+        agents.rl.saved.manifest.ManifestError: A run folder's file differs from its manifest or is
             not listed (a ``ValueError``).
     """
     path = Path(path)

@@ -6,7 +6,7 @@ not import sbx, so a run folder of this backend is read and evaluated without it
 loading the model (:func:`build_model`, :func:`load_model`, behind a one-line error naming the
 ``sbx`` extra), the activation names mapped to ``flax.linen`` (:data:`FLAX_ACTIVATIONS`), and
 the conversion of sbx's flax parameters into the ``state_dict`` layout of SB3's torch
-``ActorCriticPolicy`` (:func:`torch_layout`), which :func:`agents.rl.safe_files.write_policy`
+``ActorCriticPolicy`` (:func:`torch_layout`), which :func:`agents.rl.saved.safe_files.write_policy`
 writes as ``policy.npz``: evaluation rebuilds the torch policy from it as for an SB3 run.
 
 sbx's PPO takes SB3's constructor arguments. What differs, and is therefore refused or set

@@ -3,7 +3,7 @@
 
 :func:`train` reads the zoo-style entry (:mod:`agents.rl.hyperparams`), builds ``n_envs`` lanes of
 the native vector env in this process (:class:`agents.rl.vec_adapter.QuadSLAMVecEnv`), trains,
-and writes a run folder (:mod:`agents.rl.run_folder`); :mod:`agents.rl.loading` loads it back.
+and writes a run folder (:mod:`agents.rl.saved.run_folder`); :mod:`agents.rl.loading` loads it back.
 """
 
 from __future__ import annotations
@@ -38,7 +38,6 @@ from agents.rl.building import (
     torch_settings,
     training_callbacks,
 )
-from agents.rl.checkpoints import Checkpoint, checkpoint_problem, ended_short, saved_points
 from agents.rl.curves import plot_learning_curve
 from agents.rl.hyperparams import (
     DEFAULTS,
@@ -46,9 +45,10 @@ from agents.rl.hyperparams import (
     load_hyperparams,
     resolve_settings,
 )
-from agents.rl.manifest import MANIFEST, verify_run, write_manifest
-from agents.rl.run_folder import new_run_dir, read_run_config, versions
-from agents.rl.safe_files import save_files
+from agents.rl.saved.checkpoints import Checkpoint, checkpoint_problem, ended_short, saved_points
+from agents.rl.saved.manifest import MANIFEST, verify_run, write_manifest
+from agents.rl.saved.run_folder import new_run_dir, read_run_config, versions
+from agents.rl.saved.safe_files import save_files
 from quadslam_env.config import deep_merge
 
 
@@ -173,15 +173,15 @@ def resume(
     newest one that does; ``INTERRUPTED`` stays until the new session's final save is in
     place. A run stopped after its last step was saved is only finished (model, curve,
     ``timing.json``). A run stopped short of its budget whose ``INTERRUPTED`` is gone continues
-    from its ``model.zip`` (:func:`agents.rl.checkpoints.ended_short`). Before anything
+    from its ``model.zip`` (:func:`agents.rl.saved.checkpoints.ended_short`). Before anything
     is loaded the folder is checked against its ``manifest.json``
-    (:func:`agents.rl.manifest.verify_run`; a folder without one is accepted with a warning);
+    (:func:`agents.rl.saved.manifest.verify_run`; a folder without one is accepted with a warning);
     the manifest is removed when the new session starts and written again when it has saved.
 
     Raises:
         ValueError: Not a run folder, nothing saved to resume from, finished, or a timing.json
             without the step count.
-        agents.rl.manifest.ManifestError: A file differs from the manifest or is not listed.
+        agents.rl.saved.manifest.ManifestError: A file differs from the manifest or is not listed.
     """
     tic = time.perf_counter()
     run_dir = Path(run_dir)
@@ -411,7 +411,7 @@ def _finish(
     finished: bool,
 ) -> None:
     """The learning curve, then ``timing.json``; for a ``finished`` session the
-    ``INTERRUPTED`` marker goes; last, ``manifest.json`` (:mod:`agents.rl.manifest`)."""
+    ``INTERRUPTED`` marker goes; last, ``manifest.json`` (:mod:`agents.rl.saved.manifest`)."""
     try:
         _plot_curve(run_dir)
         timing = {
@@ -446,7 +446,7 @@ SAVING_NOTE = "quadslam train: saving the run folder, please wait"
 def _save_model(model: Any, run_dir: Path, normalized: bool) -> None:
     """``policy.npz`` and ``model.zip`` (and ``vecnormalize.npz``, ``vecnormalize.pkl``),
     written atomically together: a failed save (a full disk, a kill) leaves the previous set
-    whole, never a new model with old statistics (:func:`agents.rl.safe_files.save_files`)."""
+    whole, never a new model with old statistics (:func:`agents.rl.saved.safe_files.save_files`)."""
     atomic_produce_all(save_files(model, run_dir / "model.zip", run_dir, normalized))
 
 

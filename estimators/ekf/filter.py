@@ -35,6 +35,7 @@ import numpy as np
 from estimators.association import UNASSOCIATED, joint_thresholds
 from estimators.ekf import warmup
 from estimators.ekf.associate import UnlabeledScans
+from estimators.ekf.fde import IntegrityMonitor
 from estimators.ekf.fusion import LandmarkFusion
 from estimators.ekf.inspection import FilterInspection
 from estimators.ekf.kernels import (
@@ -43,7 +44,6 @@ from estimators.ekf.kernels import (
     fill_outputs,
     predict_lanes,
 )
-from estimators.ekf.monitor import IntegrityMonitor
 from estimators.ekf.ranging import RangeFusion
 from estimators.ekf.settings import (
     ACCEL_BIAS_XY,
@@ -51,8 +51,9 @@ from estimators.ekf.settings import (
     BIAS_DIM,
     GYRO_BIAS,
     EkfSlamSettings,
+    MemorySizing,
+    WindStates,
 )
-from estimators.ekf.sizing import MemorySizing, WindStates
 from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.ekf.wind import predict_wind

@@ -1,4 +1,5 @@
-"""Validated settings of the EKF-SLAM estimator (``estimator.params`` in a scenario)."""
+"""Validated settings of the EKF-SLAM estimator (``estimator.params`` in a scenario), and what
+its class says from them before any lane is built (its buffers, whether it estimates the wind)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 
 from estimators.association_settings import AssociationFields
 from estimators.imu_bias_settings import ImuBiasFields
+from estimators.memory import MemoryTerm, Workload, ekf_terms
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.schema import ConfigError, spec
 from quadslam_env.types import POSE_DIM, FloatArray
@@ -223,3 +225,37 @@ class EkfSlamSettings(ImuBiasFields, AssociationFields):
             )
         q0, q1, q2 = (float(c) for c in vehicle.drag_quadratic)
         return float(vehicle.drag), (q0, q1, q2)
+
+
+# ------------------------------------ what the class says from its settings before any lane
+
+
+class MemorySizing:
+    """Mixin of :class:`~estimators.ekf.filter.EkfSlamBatch`: the class method the env asks
+    (:func:`quadslam_env.estimation.registry.memory_terms`)."""
+
+    @classmethod
+    def memory_terms(cls, load: Workload, params: dict[str, Any]) -> list[MemoryTerm]:
+        """The covariance, the mean and the map's bookkeeping of ``load``'s lanes
+        (:func:`estimators.memory.ekf_terms`), with the vehicle states of ``params``.
+
+        Raises:
+            ConfigError: Invalid ``estimator.params`` (as the constructor says it).
+            MemoryLimitError: The covariance alone would not fit in its share.
+        """
+        return ekf_terms(load, EkfSlamSettings.from_dict(params).nv)
+
+
+class WindStates:
+    """Mixin of :class:`~estimators.ekf.filter.EkfSlamBatch`: whether its settings estimate the
+    wind, asked before any filter is built
+    (:func:`quadslam_env.estimation.registry.estimates_wind`)."""
+
+    @classmethod
+    def estimates_wind(cls, params: dict[str, Any]) -> bool:
+        """True with ``estimator.params.wind: estimate`` (the snapshot then has ``wind``).
+
+        Raises:
+            ConfigError: Invalid ``estimator.params`` (as the constructor says it).
+        """
+        return EkfSlamSettings.from_dict(params).estimates_wind

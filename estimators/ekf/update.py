@@ -357,7 +357,8 @@ def update_lanes(
         t: (B,) scan times, s.
         monitor: (3,) the integrity monitor: mode (0 off, 1 detect, 2 exclude), the most
             exclusions of one scan, the readmission delay in s (:mod:`estimators.ekf.fde`).
-        thresholds: Its thresholds (landmark, scan, sequential: :mod:`estimators.ekf.monitor`).
+        thresholds: Its thresholds (landmark, scan, sequential:
+            :class:`estimators.ekf.fde.IntegrityMonitor`).
         readmit_at: (B, Lmax) time from which each id may be used again, s (−inf: always).
         seq_stats, seq_count: (B, Lmax, W), (B, Lmax) int: its sequential windows by id.
         tol: Linearisation error in noise stds above which an update is iterated (inf:

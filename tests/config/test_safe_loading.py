@@ -22,8 +22,8 @@ from stable_baselines3 import PPO, SAC
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.lab.cli.main import main
 from agents.rl.loading import load_model
-from agents.rl.manifest import MANIFEST, ManifestWarning, write_manifest
-from agents.rl.safe_files import SafeFileError, read_normalization, read_policy
+from agents.rl.saved.manifest import MANIFEST, ManifestWarning, write_manifest
+from agents.rl.saved.safe_files import SafeFileError, read_normalization, read_policy
 from agents.rl.training import train
 from agents.rl.wrappers import residual_action
 

@@ -16,7 +16,7 @@ import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.lab.cli.main import main
-from agents.rl.manifest import MANIFEST, ManifestError, ManifestWarning, verify_run
+from agents.rl.saved.manifest import MANIFEST, ManifestError, ManifestWarning, verify_run
 
 ENV = "QuadSLAM-Oracle-v0"  # no filter to compile: the fastest training
 HP = [

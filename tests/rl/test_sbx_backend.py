@@ -216,8 +216,8 @@ def test_the_run_folder_records_the_backend_and_evaluates(sbx_run: Path, tmp_pat
 
 
 def test_resume_continues_an_sbx_run(sbx_run: Path, tmp_path: Path) -> None:
-    from agents.rl.checkpoints import latest_checkpoint
     from agents.rl.loading import load_model
+    from agents.rl.saved.checkpoints import latest_checkpoint
     from agents.rl.training import resume
 
     run = tmp_path / sbx_run.name
@@ -241,7 +241,7 @@ def test_resume_continues_an_sbx_run(sbx_run: Path, tmp_path: Path) -> None:
 def test_same_seed_gives_the_same_sbx_run(sbx_run: Path, tmp_path: Path) -> None:
     """sbx on the CPU is bit-reproducible for the same seed on one machine: the same run as
     the fixture's, by ``train`` in this process, has the same weights and episodes."""
-    from agents.rl.safe_files import read_policy
+    from agents.rl.saved.safe_files import read_policy
 
     hp = {**TINY, "eval_freq": 128, "n_eval_episodes": 1, "checkpoint_freq": 128}
     again = train("ppo", ENV, timesteps=256, n_envs=2, seed=3, out_dir=tmp_path, progress=False,

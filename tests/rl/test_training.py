@@ -39,7 +39,7 @@ from agents.rl.hyperparams import (
 )
 from agents.rl.loading import TrainedPolicy, load_model
 from agents.rl.policies import load_policy
-from agents.rl.run_folder import run_config
+from agents.rl.saved.run_folder import run_config
 from agents.rl.training import train
 from agents.rl.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
 
@@ -588,7 +588,7 @@ def test_sac_collects_from_several_lanes(tmp_path: Path) -> None:
 
 
 def test_resume_continues_from_the_latest_checkpoint(tmp_path: Path) -> None:
-    from agents.rl.checkpoints import latest_checkpoint
+    from agents.rl.saved.checkpoints import latest_checkpoint
     from agents.rl.training import resume
 
     hp = tiny("ppo", checkpoint_freq=64, eval_freq=0)
@@ -645,7 +645,7 @@ def test_resume_continues_a_run_stopped_early_whose_marker_is_gone(
 
 
 def test_resume_refuses_a_timing_file_that_says_no_step_count(tmp_path: Path) -> None:
-    from agents.rl.checkpoints import ended_short
+    from agents.rl.saved.checkpoints import ended_short
 
     (tmp_path / "timing.json").write_text('{"wall_s": 1.0}')
     with pytest.raises(ValueError, match=r"timing\.json has 'timesteps' None, not a step count"):

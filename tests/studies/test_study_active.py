@@ -20,7 +20,7 @@ from agents.lab.control_studies.active import (
     row_result,
     run_study,
 )
-from agents.rl.run_folder import run_config
+from agents.rl.saved.run_folder import run_config
 from agents.rl.wrappers import ResidualDFLQRWrapper
 
 SHORT = {"episode": {"duration_s": 6.0}}  # the study's 5 s transient, then 1 s steady

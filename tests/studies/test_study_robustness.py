@@ -19,7 +19,7 @@ from agents.lab.control_studies.cost import SCENARIO, scenario_kwargs
 from agents.lab.control_studies.robustness import CONDITIONS, cell_kwargs, condition_kwargs
 from agents.rl import hyperparams
 from agents.rl.hyperparams import load_hyperparams
-from agents.rl.run_folder import run_config
+from agents.rl.saved.run_folder import run_config
 from estimators.ekf.settings import PAPER_Q_UNKNOWN
 from quadslam_env.config import load_scenario
 from quadslam_env.config.randomize import SCALE_KEYS

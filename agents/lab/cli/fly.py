@@ -184,7 +184,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """Any policy (a controller by name or a trained model) through the same code path as
     ``run``."""
     from agents.rl.policies import load_policy
-    from agents.rl.run_folder import run_config
+    from agents.rl.saved.run_folder import run_config
 
     options = controller_options(args, "evaluate")  # before anything is read or built
     # A trained model is evaluated on its training env id and scenario unless told otherwise.

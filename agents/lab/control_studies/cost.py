@@ -191,7 +191,7 @@ def run_study(
         ValueError: ``first_training_seed`` below 0.
     """
     from agents.io.cpus import available_cpus
-    from agents.rl.run_folder import run_config
+    from agents.rl.saved.run_folder import run_config
 
     tic = time.perf_counter()
     jobs = jobs or available_cpus()

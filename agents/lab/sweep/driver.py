@@ -413,7 +413,7 @@ def _write_sweep_record(
     out: Path, spec: Path, report: SweepReport, address: str | None, workers: int | None
 ) -> None:
     """``OUT/sweep.json``: the last session's settings, counts and wall time."""
-    from agents.rl.run_folder import versions
+    from agents.rl.saved.run_folder import versions
 
     record = {
         "spec": str(spec),

@@ -126,7 +126,7 @@ def _evaluate(params: dict[str, Any], folder: Path) -> dict[str, Any]:
 def _train(params: dict[str, Any], folder: Path) -> dict[str, Any]:
     """``quadslam train``, then ``quadslam evaluate --policy RUN`` on held-out seeds."""
     from agents.rl.policies import load_policy
-    from agents.rl.run_folder import run_config
+    from agents.rl.saved.run_folder import run_config
     from agents.rl.training import train
 
     run = train(

@@ -148,7 +148,7 @@ class Resolver:
         policy = point.get("policy", "dflqr")
         env_id = point.get("env")
         if kind == "evaluate" and policy not in CONTROLLERS:
-            from agents.rl.run_folder import run_config
+            from agents.rl.saved.run_folder import run_config
 
             path = Path(policy)
             if not path.exists():

@@ -32,7 +32,7 @@ import gymnasium as gym
 import numpy as np
 
 from agents.rl import sbx_backend
-from agents.rl.run_folder import safe_paths, vecnormalize_path
+from agents.rl.saved.run_folder import safe_paths, vecnormalize_path
 
 POLICY_FORMAT = "quadslam-policy"
 STATS_FORMAT = "quadslam-vecnormalize"
@@ -43,7 +43,7 @@ MAX_ARRAY_BYTES = 256 * 2**20
 
 
 class SafeFileError(ValueError):
-    """A policy or statistics file that is not one :mod:`agents.rl.safe_files` writes."""
+    """A policy or statistics file that is not one :mod:`agents.rl.saved.safe_files` writes."""
 
 
 # ---------------------------------------------------------------------------- reading and writing
@@ -215,7 +215,7 @@ def save_files(
     """What a saved model of a run is made of, as ``(path, produce)`` pairs for
     :func:`agents.io.outputs.atomic_produce_all`: the statistics (``VecNormalize``'s pickle
     and the arrays) when ``normalized``, the policy's arrays, and SB3's zip last (a model whose
-    zip exists is complete); the names are :func:`agents.rl.run_folder.safe_paths`'."""
+    zip exists is complete); the names are :func:`agents.rl.saved.run_folder.safe_paths`'."""
     weights, stats = safe_paths(zip_path, run_dir)
     items: list[tuple[Path, Callable[[Path], Any]]] = []
     vec = model.get_vec_normalize_env() if normalized else None

@@ -3,7 +3,7 @@
 A run folder (``<out_dir>/<algo>_<env_id>_s<seed>_<time>``) holds ``config.yaml`` (the resolved
 entry, the algorithm, env id, seed and the env's full resolved scenario), ``seed.txt``,
 ``versions.json``, ``policy.npz`` (+ ``vecnormalize.npz``: the weights and statistics as arrays,
-which load without running code, :mod:`agents.rl.safe_files`), SB3's own ``model.zip`` (+
+which load without running code, :mod:`agents.rl.saved.safe_files`), SB3's own ``model.zip`` (+
 ``vecnormalize.pkl``: pickles, read only when trusted), ``learning_curve.png`` (returns vs env
 steps and vs wall-clock time), ``timing.json`` (wall clock, steps/s; after the model and curve),
 ``monitor/`` (``lanes.monitor.csv``: every lane's episodes), ``logs/`` (TensorBoard events +
@@ -11,8 +11,8 @@ steps and vs wall-clock time), ``timing.json`` (wall clock, steps/s; after the m
 metrics), ``eval/`` (``evaluations.npz``, ``best_model.zip`` and its files as arrays),
 ``checkpoints/`` (each zip with its files as arrays, :func:`safe_paths`) and, written
 after everything else, ``manifest.json`` (every other file with its size and SHA-256, checked
-before the run is loaded: :mod:`agents.rl.manifest`). A run's ``config.yaml`` can be passed back
-as ``config_path`` to repeat it.
+before the run is loaded: :mod:`agents.rl.saved.manifest`). A run's ``config.yaml`` can be passed
+back as ``config_path`` to repeat it.
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ def vecnormalize_path(zip_path: Path, run_dir: Path) -> Path:
 
 def safe_paths(zip_path: Path, run_dir: Path) -> tuple[Path, Path]:
     """The policy weights and ``VecNormalize`` statistics saved as arrays with a given model
-    zip of a run (:mod:`agents.rl.safe_files`): ``policy.npz`` and ``vecnormalize.npz`` beside
+    zip of a run (:mod:`agents.rl.saved.safe_files`): ``policy.npz`` and ``vecnormalize.npz`` beside
     ``model.zip``, ``eval/best_policy.npz`` and ``eval/best_vecnormalize.npz`` beside the best
     model, ``model_policy_<N>_steps.npz`` and ``model_vecnormalize_<N>_steps.npz`` beside a
     checkpoint."""
