@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import functools
 import json
 import math
 import zipfile
@@ -18,6 +17,15 @@ import yaml
 from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import VecNormalize
+from training_cases import (
+    SHORT,
+    _one_torch_thread,  # noqa: F401  (an autouse fixture: one torch thread)
+    config_entries,
+    main_env,
+    read_monitor,
+    skip_unless_available,
+    tiny,
+)
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
@@ -32,10 +40,7 @@ from agents.lab.cli import main as cli
 from agents.rl.building import make_vec_env
 from agents.rl.callbacks import EstimationMetricsCallback
 from agents.rl.hyperparams import (
-    RESERVED_KEYS,
-    default_config_path,
     load_hyperparams,
-    resolve_settings,
 )
 from agents.rl.loading import TrainedPolicy, load_model
 from agents.rl.policies import load_policy
@@ -43,128 +48,10 @@ from agents.rl.saved.run_folder import run_config
 from agents.rl.training import train
 from agents.rl.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
 
-ALGOS = ("ppo", "sac")
-SHORT = {"episode": {"duration_s": 1.0}}
 # Tiny networks, short episodes, frequent eval/checkpoints: exercises every part in ~1 s.
-TINY: dict[str, dict[str, Any]] = {
-    "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 2},
-    "sac": {"learning_starts": 32, "batch_size": 32, "buffer_size": 2000},
-}
-TINY_COMMON = {
-    "policy_kwargs": {"net_arch": [8]},
-    "env_kwargs": SHORT,
-    "eval_freq": 128,
-    "n_eval_episodes": 1,
-    "checkpoint_freq": 128,
-}
-REQUIRED_KEYS = ("n_envs", "n_timesteps", "policy", "policy_kwargs", "env_kwargs", "wrapper")
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread() -> Any:
-    """Tiny networks gain nothing from threads, and on a busy machine torch's spinning OpenMP
-    threads can make SAC updates 5x slower; one thread keeps the test time predictable."""
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-@functools.cache
-def env_problem(env_id: str, scenario: str | None = None) -> str | None:
-    """``None`` if the env builds and steps, else why not (e.g. an estimator still missing)."""
-    kwargs: dict[str, Any] = {"episode": {"duration_s": 0.2}}
-    if scenario is not None:
-        kwargs["scenario"] = scenario
-    try:
-        env = gym.make(env_id, **kwargs)
-        env.reset(seed=0)
-        env.step(env.unwrapped.hover_action)
-        env.close()
-    except Exception as exc:  # any failure means "not available yet"
-        return f"{env_id} unavailable: {type(exc).__name__}: {exc}"
-    return None
-
-
-def main_env() -> str:
-    """The EKF env if EKF-SLAM works, else the oracle env."""
-    return "QuadSLAM-EKF-v0" if env_problem("QuadSLAM-EKF-v0") is None else "QuadSLAM-Oracle-v0"
-
-
-def tiny(algo: str, **extra: Any) -> dict[str, Any]:
-    return {**TINY_COMMON, **TINY[algo], **extra}
-
-
-def config_entries() -> list[Any]:
-    params = []
-    for algo in ALGOS:
-        data = yaml.safe_load(default_config_path(algo).read_text())
-        for env_id in data:
-            params.append(pytest.param(algo, env_id, id=f"{algo}-{env_id}"))
-    return params
-
-
-def skip_unless_available(env_id: str, env_kwargs: dict[str, Any]) -> None:
-    problem = env_problem(env_id, env_kwargs.get("scenario"))
-    if problem is not None:
-        pytest.skip(problem)
-
-
-def read_monitor(run_dir: Path) -> list[list[str]]:
-    lines = (run_dir / "monitor" / "lanes.monitor.csv").read_text().splitlines()[2:]
-    return [line.split(",")[:2] for line in lines]  # return, length (not wall time)
 
 
 # ---------------------------------------------------------------------------- configs
-@pytest.mark.parametrize(("algo", "env_id"), config_entries())
-def test_shipped_config_entries_are_complete_and_valid(algo: str, env_id: str) -> None:
-    entry = load_hyperparams(algo, env_id)
-    for key in (*REQUIRED_KEYS, "normalize"):
-        assert key in entry, f"{algo}.yaml[{env_id}] lacks {key}"
-    assert env_id in gym.registry
-    settings = resolve_settings(algo, entry)
-    assert settings["n_timesteps"] >= 100_000
-    assert settings["policy_kwargs"]  # parsed from a string or a mapping
-    if env_id == "QuadSLAM-EKF-v0":
-        assert entry["env_kwargs"]["scenario"] == "ekf_figure8_biased_imu"
-        assert settings["wrapper"] is not None and settings["wrapper"][0] == "residual_dflqr"
-    assert set(settings["algo_kwargs"]).isdisjoint(RESERVED_KEYS)
-
-
-def test_bad_configs_raise_value_errors_naming_the_problem(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="no entry for env 'QuadSLAM-Nope-v0'"):
-        load_hyperparams("ppo", "QuadSLAM-Nope-v0")
-    entry = load_hyperparams("ppo", "QuadSLAM-EKF-v0")
-    with pytest.raises(ValueError, match="learning_rat: unknown hyperparameter for PPO"):
-        resolve_settings("ppo", {**entry, "learning_rat": 1e-3})
-    with pytest.raises(ValueError, match="wrapper: got 'residual'"):
-        resolve_settings("ppo", {**entry, "wrapper": "residual"})
-    with pytest.raises(ValueError, match="scale"):
-        resolve_settings("ppo", {**entry, "wrapper": {"name": "residual_dflqr", "scale": -1}})
-    with pytest.raises(ValueError, match=r"normalize\.norm_obz"):
-        resolve_settings("ppo", {**entry, "normalize": {"norm_obz": True}})
-    bad_yaml = tmp_path / "bad.yaml"
-    bad_yaml.write_text("QuadSLAM-EKF-v0: [unclosed\n")
-    with pytest.raises(ValueError, match="malformed YAML"):
-        load_hyperparams("ppo", "QuadSLAM-EKF-v0", bad_yaml)
-    with pytest.raises(ValueError, match="env: got 'NoSuchEnv-v0'"):
-        train("ppo", "NoSuchEnv-v0", out_dir=tmp_path)
-    assert not list(tmp_path.glob("ppo_*")), "no run folder for a rejected config"
-
-
-def test_numeric_strings_and_linear_schedules_are_converted() -> None:
-    entry = {"n_timesteps": "1e4", "learning_rate": "lin_1e-3", "n_steps": "2e2", "gamma": "0.98"}
-    settings = resolve_settings("ppo", entry)
-    kw = settings["algo_kwargs"]
-    assert settings["n_timesteps"] == 10_000
-    assert kw["n_steps"] == 200 and isinstance(kw["n_steps"], int)
-    assert kw["gamma"] == pytest.approx(0.98)
-    assert kw["learning_rate"](1.0) == pytest.approx(1e-3)
-    assert kw["learning_rate"](0.5) == pytest.approx(5e-4)
-    sac = resolve_settings("sac", {"n_timesteps": 10, "ent_coef": "auto", "buffer_size": 1e4})
-    assert sac["algo_kwargs"] == {"ent_coef": "auto", "buffer_size": 10_000}
 
 
 # ---------------------------------------------------------------------------- wrapper
@@ -585,80 +472,3 @@ def test_sac_collects_from_several_lanes(tmp_path: Path) -> None:
     # 40 vector steps, of which the first 8 (32 transitions) only fill the buffer.
     assert model._n_updates == 2 * (40 - 8)
     assert yaml.safe_load((run_dir / "config.yaml").read_text())["hyperparams"]["n_envs"] == 4
-
-
-def test_resume_continues_from_the_latest_checkpoint(tmp_path: Path) -> None:
-    from agents.rl.saved.checkpoints import latest_checkpoint
-    from agents.rl.training import resume
-
-    hp = tiny("ppo", checkpoint_freq=64, eval_freq=0)
-    run = train("ppo", main_env(), timesteps=128, n_envs=2, out_dir=tmp_path, progress=False,
-                hyperparams=hp)  # fmt: skip
-    with pytest.raises(ValueError, match="finished: its model trained 128 steps of its budget"):
-        resume(run, progress=False)
-    # A crash after the 64-step checkpoint: the later files never got written.
-    for name in ("model_128_steps.zip", "model_vecnormalize_128_steps.pkl"):
-        (run / "checkpoints" / name).unlink(missing_ok=True)
-    (run / "timing.json").unlink()
-    start = latest_checkpoint(run)
-    assert start is not None and start.steps == 64
-    assert resume(run, progress=False) == run
-    timing = json.loads((run / "timing.json").read_text())
-    # PPO collects whole rollouts (64 steps × 2 lanes): from 64, one rollout passes 128.
-    assert timing["timesteps"] == 64 + 128
-    assert PPO.load(run / "model.zip", device="cpu").num_timesteps == 64 + 128
-    assert (run / "monitor" / "lanes_from_64.monitor.csv").is_file()
-    assert (run / "logs" / "from_64" / "progress.csv").is_file()
-
-
-def test_resume_continues_a_run_stopped_early_whose_marker_is_gone(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """A run stopped at 128 of its 256 steps, its INTERRUPTED marker removed: timing.json
-    alone is no proof that it finished, so resume continues from its model.zip."""
-    from stable_baselines3 import PPO
-
-    from agents.rl.training import resume
-
-    real_learn = PPO.learn
-
-    def learn_then_stop(self: Any, total_timesteps: int, **kwargs: Any) -> Any:
-        real_learn(self, total_timesteps=1, **kwargs)  # one rollout: 64 steps × 2 lanes
-        raise KeyboardInterrupt
-
-    hp = tiny("ppo", checkpoint_freq=0, eval_freq=0)
-    with monkeypatch.context() as patch:
-        patch.setattr(PPO, "learn", learn_then_stop)
-        run = train("ppo", main_env(), timesteps=256, n_envs=2, out_dir=tmp_path,
-                    progress=False, hyperparams=hp)  # fmt: skip
-    assert (run / "INTERRUPTED").read_text().strip() == "128"
-    assert json.loads((run / "timing.json").read_text())["timesteps"] == 128
-    (run / "INTERRUPTED").unlink()
-    capsys.readouterr()
-    assert resume(run, progress=False) == run
-    assert "continuing from model.zip (128 of 256 steps)" in capsys.readouterr().err
-    assert json.loads((run / "timing.json").read_text())["timesteps"] == 256
-    assert PPO.load(run / "model.zip", device="cpu").num_timesteps == 256
-    assert (run / "monitor" / "lanes_from_128.monitor.csv").is_file()
-    with pytest.raises(ValueError, match="finished: its model trained 256 steps of its budget"):
-        resume(run, progress=False)
-
-
-def test_resume_refuses_a_timing_file_that_says_no_step_count(tmp_path: Path) -> None:
-    from agents.rl.saved.checkpoints import ended_short
-
-    (tmp_path / "timing.json").write_text('{"wall_s": 1.0}')
-    with pytest.raises(ValueError, match=r"timing\.json has 'timesteps' None, not a step count"):
-        ended_short(tmp_path, 100)
-    (tmp_path / "timing.json").write_text("not json")
-    with pytest.raises(ValueError, match=r"timing\.json cannot be read as JSON"):
-        ended_short(tmp_path, 100)
-    (tmp_path / "INTERRUPTED").write_text("50\n")  # a marked stop: the saved points decide
-    assert ended_short(tmp_path, 100) is None
-
-
-def test_resume_needs_a_run_folder_with_something_saved(tmp_path: Path) -> None:
-    from agents.rl.training import resume
-
-    with pytest.raises(ValueError, match="not a run folder"):
-        resume(tmp_path, progress=False)
