@@ -16,7 +16,7 @@ from gymnasium import spaces
 
 from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
-from quadslam_env.episode.actions import ActionError, validate_actions
+from quadslam_env.episode.actions import validate_actions
 from quadslam_env.episode.reset_options import parse_reset_options, parse_seed
 from quadslam_env.estimation import BatchEstimate, BatchEstimator
 from quadslam_env.memory import check_env_memory
@@ -26,7 +26,7 @@ from quadslam_env.types import TEXT_INFO_KEYS, FloatArray
 if TYPE_CHECKING:
     from quadslam_env.render import LaneRenderer
 
-__all__ = ["ActionError", "QuadSLAMEnv", "lane_info", "step_rate"]
+__all__ = ["QuadSLAMEnv", "lane_info", "step_rate"]
 
 
 def step_rate(scenario: ScenarioConfig) -> int | float:
@@ -77,7 +77,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
     ``[0, max_thrust]`` and ``a1..a3`` to ``±max_torque``; ``thrust_rates`` maps ``a1..a3`` to
     body-rate commands ``±max_rate`` tracked by an inner P loop on the gyro minus the estimated
     bias. Out-of-range actions are clipped; wrong shapes or non-finite values raise
-    :class:`ActionError`.
+    :class:`~quadslam_env.episode.actions.ActionError`.
 
     **Episode end**: ``terminated`` on tilt beyond ``max_tilt_deg``, position error beyond
     ``max_pos_err_m``, ground contact (``ground_z_m``), or estimator divergence (non-finite or

@@ -34,7 +34,7 @@ from quadslam_env.sim.wind import WindBatch
 from quadslam_env.sim.world import landmark_capacity
 from quadslam_env.types import IMU_DIM
 
-__all__ = ["check_env_memory", "env_memory_terms", "format_bytes", "workload"]
+__all__ = ["check_env_memory", "env_memory_terms", "workload"]
 
 SIM_LANE_BYTES = 8 * 1024
 """Bytes per lane of the simulator besides its noise blocks and its map, rounded up: the

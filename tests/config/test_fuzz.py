@@ -16,7 +16,7 @@ import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.env import ActionError
+from quadslam_env.episode.actions import ActionError
 
 ACTION_ERRORS = (ActionError, ValueError, TypeError)
 SCENARIO = "paper_ekf_figure8"

@@ -15,7 +15,7 @@ import pytest
 import estimators
 import quadslam_env
 from quadslam_env.config import LandmarksConfig
-from quadslam_env.env import ActionError
+from quadslam_env.episode.actions import ActionError
 from quadslam_env.models import VEHICLE_PRESETS
 from quadslam_env.sim.world import make_landmarks
 
