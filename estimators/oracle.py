@@ -14,7 +14,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from estimators.memory import MemoryTerm, Workload, oracle_terms
-from quadslam_env.estimation import BatchEstimate, KnownMaps, register
+from quadslam_env.estimation.protocol import KnownMaps
+from quadslam_env.estimation.registry import register
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.schema import Section
 from quadslam_env.types import EUL, POS, RATE, VEL, FloatArray

@@ -41,15 +41,18 @@ from typing import Any, cast
 
 import numpy as np
 
-from quadslam_env.config import ScenarioConfig
+from quadslam_env.config.scenario import ScenarioConfig
 from quadslam_env.episode.actions import ActionDelay, ActionMap
 from quadslam_env.episode.observation import ObservationBuilder
 from quadslam_env.episode.reward import REWARD_KEYS, Reward, tracking_errors
 from quadslam_env.episode.start import initial_state, settle_time
 from quadslam_env.episode.termination import OutputGuard, Termination
-from quadslam_env.estimation import BatchEstimate, BatchEstimator, health_codes, make, position_std
-from quadslam_env.estimation.protocol import ReservesLandmarks, UsesTruth
-from quadslam_env.metrics import METRIC_KEYS, EpisodeMetrics, input_columns
+from quadslam_env.estimation.health import health_codes, position_std
+from quadslam_env.estimation.protocol import BatchEstimator, ReservesLandmarks, UsesTruth
+from quadslam_env.estimation.registry import make
+from quadslam_env.estimation.snapshot import BatchEstimate
+from quadslam_env.metrics.episode import EpisodeMetrics, input_columns
+from quadslam_env.metrics.step import METRIC_KEYS
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.runtime.association import association_for

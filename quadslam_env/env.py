@@ -14,17 +14,19 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
+from quadslam_env.config.scenario import ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.episode.actions import validate_actions
 from quadslam_env.episode.reset_options import parse_reset_options, parse_seed
-from quadslam_env.estimation import BatchEstimate, BatchEstimator
+from quadslam_env.estimation.protocol import BatchEstimator
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.memory import check_env_memory
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.trajectories import FlatOutputs
 from quadslam_env.types import TEXT_INFO_KEYS, FloatArray
 
 if TYPE_CHECKING:
-    from quadslam_env.render import LaneRenderer
+    from quadslam_env.render.renderer import LaneRenderer
 
 __all__ = ["QuadSLAMEnv", "lane_info", "step_rate"]
 
@@ -121,7 +123,7 @@ class QuadSLAMEnv(gym.Env[np.ndarray, np.ndarray]):
         self.metadata = {**self.metadata, "render_fps": step_rate(self.scenario)}
         self._renderer: LaneRenderer | None = None
         if render_mode is not None:  # nothing is recorded, or imported, without it
-            from quadslam_env.render import LaneRenderer
+            from quadslam_env.render.renderer import LaneRenderer
 
             self._renderer = LaneRenderer(core, 0)
         # Until the first reset, and again once an episode ends: the core would otherwise go on

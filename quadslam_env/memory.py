@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from quadslam_env.config import ScenarioConfig
+from quadslam_env.config.scenario import ScenarioConfig
 from quadslam_env.episode.observation import observation_size
 from quadslam_env.estimation import registry
 from quadslam_env.estimation.memory import (

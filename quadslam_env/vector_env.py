@@ -34,7 +34,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
+from quadslam_env.config.scenario import ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import step_rate
 from quadslam_env.episode.actions import validate_actions
@@ -45,10 +45,11 @@ from quadslam_env.episode.reset_options import (
     split_reset_mask,
 )
 from quadslam_env.memory import check_env_memory
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import TEXT_INFO_KEYS
 
 if TYPE_CHECKING:
-    from quadslam_env.render import LaneRenderer
+    from quadslam_env.render.renderer import LaneRenderer
 
 
 class QuadSLAMVectorEnv(VectorEnv):
@@ -124,7 +125,7 @@ class QuadSLAMVectorEnv(VectorEnv):
         }
         self._renderer: LaneRenderer | None = None
         if render_mode is not None:  # lane 0's history; nothing without render_mode
-            from quadslam_env.render import LaneRenderer
+            from quadslam_env.render.renderer import LaneRenderer
 
             self._renderer = LaneRenderer(core, 0)
 

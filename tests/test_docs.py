@@ -15,7 +15,7 @@ import quadslam_env  # noqa: F401  (registers the env ids)
 from agents.control.dflqr import DFLQRPolicy
 from agents.lab.cli import reference
 from agents.lab.cli.main import build_parser
-from quadslam_env.config import SECTIONS
+from quadslam_env.config.scenario import SECTIONS
 
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"

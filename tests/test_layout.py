@@ -104,3 +104,60 @@ def test_no_function_over_80_lines_unless_the_design_doc_lists_it() -> None:
     )
     stale = allowed - set(long)
     assert not stale, f"docs/design.md §2 lists functions no longer over 80 lines: {stale}"
+
+
+def test_test_modules_have_unique_names() -> None:
+    """pytest imports each test folder's modules by their bare names (no ``__init__.py``), so
+    two modules of one name in different folders would stop the collection."""
+    names: dict[str, list[str]] = {}
+    for p in (ROOT / "tests").rglob("*.py"):
+        if p.name != "conftest.py" and "__pycache__" not in p.parts:
+            names.setdefault(p.stem, []).append(str(p.relative_to(ROOT)))
+    assert not {k: v for k, v in names.items() if len(v) > 1}
+
+
+def _package_names(module: str) -> tuple[set[str], dict[str, str]]:
+    """The names a module defines, and those it imports from the project (name → module)."""
+    path = ROOT / Path(*module.split("."))
+    path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    defined: set[str] = set()
+    imported: dict[str, str] = {}
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, (ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef)):
+            defined.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            defined |= {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+        elif (
+            isinstance(node, ast.ImportFrom)
+            and node.module
+            and node.level == 0
+            and node.module.split(".")[0] in PACKAGES
+        ):
+            imported |= {a.asname or a.name: node.module for a in node.names}
+    return defined, imported
+
+
+def test_the_project_imports_each_name_from_the_module_that_defines_it() -> None:
+    """One import path per name inside the project (docs/design.md §1): a package's
+    ``__init__`` may list names defined in its modules for the users, but no module of the
+    packages, the tests or the tools imports a name through such a re-export."""
+    reexports: dict[str, dict[str, str]] = {}
+    for top in PACKAGES:
+        for init in (ROOT / top).rglob("__init__.py"):
+            package = ".".join(init.parent.relative_to(ROOT).parts)
+            defined, imported = _package_names(package)
+            reexports[package] = {k: v for k, v in imported.items() if k not in defined}
+    through: list[str] = []
+    for top in (*PACKAGES, "tests", "tools"):
+        for p in (ROOT / top).rglob("*.py"):
+            if p.name == "__init__.py" or "__pycache__" in p.parts:
+                continue
+            for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ImportFrom) and node.module in reexports:
+                    through += [
+                        f"{p.relative_to(ROOT)}: {node.module}.{a.name}"
+                        for a in node.names
+                        if a.name in reexports[node.module]
+                    ]
+    assert not through, through

@@ -11,14 +11,9 @@ import yaml
 
 import quadslam_env
 from agents.lab.cli import main as cli
-from quadslam_env.config import (
-    SECTIONS,
-    ConfigError,
-    available_scenarios,
-    config_dir,
-    load_scenario,
-    scenario_descriptions,
-)
+from quadslam_env.config.files import available_scenarios, config_dir, scenario_descriptions
+from quadslam_env.config.scenario import SECTIONS, load_scenario
+from quadslam_env.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parent.parent
 

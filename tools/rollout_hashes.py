@@ -24,7 +24,7 @@ import numpy as np
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.config import available_scenarios
+from quadslam_env.config.files import available_scenarios
 
 
 def _feed(digest: Any, value: Any) -> None:

@@ -18,12 +18,12 @@ import numpy as np
 from gymnasium.wrappers import OrderEnforcing, PassiveEnvChecker
 
 from agents.evaluation.step_clock import StepClock
-from quadslam_env.config import ScenarioConfig
+from quadslam_env.config.scenario import ScenarioConfig
 from quadslam_env.env import lane_info
 from quadslam_env.episode.actions import validate_actions
-from quadslam_env.estimation import MemoryTerm
+from quadslam_env.estimation.memory import MemoryTerm
 from quadslam_env.memory import check_env_memory
-from quadslam_env.metrics import phase_key
+from quadslam_env.metrics.episode import phase_key
 from quadslam_env.metrics.integrity import SUMMARY_KEYS as INTEGRITY_SUMMARY_KEYS
 
 # Record keys reported over the whole episode and, with the phase in the name

@@ -185,7 +185,7 @@ class LaneVideo:
 
     def attach(self, core: Any, lane: int = 0, info: dict[str, Any] | None = None) -> None:
         """Follow lane ``lane`` of ``core`` (just reset; ``info`` is the reset's info)."""
-        from quadslam_env.render import LaneRenderer
+        from quadslam_env.render.renderer import LaneRenderer
 
         self.renderer = LaneRenderer(core, lane)
         fps = core.scenario.render.fps

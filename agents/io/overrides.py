@@ -15,7 +15,7 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     """
     import yaml
 
-    from quadslam_env.config import parse_yaml
+    from quadslam_env.config.files import parse_yaml
 
     out: dict[str, Any] = {}
     for item in items:

@@ -126,7 +126,7 @@ def registered_scenario(env_id: str, env_kwargs: dict[str, Any]) -> Any:
     import gymnasium as gym
 
     import quadslam_env  # noqa: F401  (registers the ids)
-    from quadslam_env.config import load_scenario
+    from quadslam_env.config.scenario import load_scenario
 
     spec = gym.spec(env_id)
     if spec.entry_point != "quadslam_env.env:QuadSLAMEnv":
@@ -153,7 +153,7 @@ def learner_terms(algo: str, settings: dict[str, Any], obs_dim: int, act_dim: in
     ``buffer_size`` transitions (two observations, the action and three scalars)."""
     import inspect
 
-    from quadslam_env.estimation import MemoryTerm
+    from quadslam_env.estimation.memory import MemoryTerm
 
     cls = algorithms()[algo]
     key = "n_steps" if algo in ("ppo", "a2c") else "buffer_size"
@@ -182,7 +182,7 @@ def check_training_memory(algo: str, settings: dict[str, Any], env_id: str) -> N
             dominates, its size and what fits.
     """
     from quadslam_env.episode.observation import observation_size
-    from quadslam_env.estimation import MemoryTerm
+    from quadslam_env.estimation.memory import MemoryTerm
     from quadslam_env.memory import check_env_memory, env_memory_terms
 
     scenario = registered_scenario(env_id, settings["env_kwargs"])

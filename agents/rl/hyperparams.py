@@ -43,7 +43,7 @@ import yaml
 from agents.rl import sbx_backend
 from agents.rl.policy_kwargs import ASYMMETRIC, validate_policy_kwargs
 from agents.rl.wrappers import parse_wrapper_spec
-from quadslam_env.config import parse_yaml
+from quadslam_env.config.files import parse_yaml
 from quadslam_env.extras import require
 
 RESERVED_KEYS = (
@@ -97,7 +97,7 @@ def algorithms() -> dict[str, type]:
 # ---------------------------------------------------------------------------- configuration
 def default_config_path(algo: str) -> Path:
     """``configs/agents/<algo>.yaml`` (honours ``QUADSLAM_CONFIG_DIR``)."""
-    from quadslam_env.config import config_dir
+    from quadslam_env.config.files import config_dir
 
     return config_dir() / "agents" / f"{algo.lower()}.yaml"
 

@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from quadslam_env.config import ConfigError
+from quadslam_env.schema import ConfigError
 
 # The policy name of agents.rl.asymmetric.AsymmetricActorCriticPolicy (actor on the estimate,
 # critic also on the truth); it makes train() build privileged dict observations.

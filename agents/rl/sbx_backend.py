@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 
 from agents.rl.policy_kwargs import validate_policy_kwargs
-from quadslam_env.config import ConfigError
 from quadslam_env.extras import require
+from quadslam_env.schema import ConfigError
 
 BACKENDS = ("sb3", "sbx")
 """The learner backends: SB3 on torch (the default), sbx on JAX."""

@@ -49,7 +49,7 @@ from agents.rl.saved.checkpoints import Checkpoint, checkpoint_problem, ended_sh
 from agents.rl.saved.manifest import MANIFEST, verify_run, write_manifest
 from agents.rl.saved.run_folder import new_run_dir, read_run_config, versions
 from agents.rl.saved.safe_files import save_files
-from quadslam_env.config import deep_merge
+from quadslam_env.config.files import deep_merge
 
 
 def train(

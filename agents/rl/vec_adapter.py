@@ -54,8 +54,8 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 
 from agents.rl.lane_share import ACTOR_KEY, PRIVILEGED_KEY, InProcess, unwrap, worker
 from agents.rl.wrappers import ResidualDFLQRWrapper, parse_wrapper_spec
-from quadslam_env.config import ConfigError
 from quadslam_env.episode.actions import validate_actions
+from quadslam_env.schema import ConfigError
 
 
 class QuadSLAMVecEnv(VecEnv):

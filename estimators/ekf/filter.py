@@ -58,7 +58,9 @@ from estimators.ekf.state import EkfState
 from estimators.ekf.update import first_nonfinite_lane, update_lanes
 from estimators.ekf.wind import predict_wind
 from estimators.memory import check_ekf_map
-from quadslam_env.estimation import BatchEstimate, IntArray, KnownMaps, register
+from quadslam_env.estimation.protocol import IntArray, KnownMaps
+from quadslam_env.estimation.registry import register
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.models.frames import dcm_from_euler, wrap_pi
 from quadslam_env.types import EUL, POS, POSE_DIM, RATE, VEL, FloatArray
 

@@ -20,8 +20,8 @@ from estimators.fastslam.process import DynamicsModel
 from estimators.fastslam.settings import SIGMA_FLOOR, DynamicFastSlamSettings
 from estimators.fastslam.state import BiasKFState
 from estimators.inertia import GyroTorqueRegression
-from quadslam_env.estimation import register
 from quadslam_env.estimation.measurements import Control, ImuSample
+from quadslam_env.estimation.registry import register
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.linalg import chol3, inv3_sym, mv
 from quadslam_env.models.params import VehicleParams

@@ -8,8 +8,8 @@ import numpy as np
 
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.settings import KinematicFastSlamSettings
-from quadslam_env.estimation import register
 from quadslam_env.estimation.measurements import Control, ImuSample
+from quadslam_env.estimation.registry import register
 from quadslam_env.models.integrators import kinematic_propagate
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import RATE, FloatArray

@@ -30,8 +30,8 @@ from estimators.fastslam.resampling import (
 from estimators.fastslam.settings import AssociationSettings, FastSlamSettings, scan_noise
 from estimators.fastslam.state import ParticleState
 from estimators.memory import MemoryTerm, Workload, check_fastslam_map, fastslam_terms
-from quadslam_env.estimation import BatchEstimate
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.linalg import psd_sqrt
 from quadslam_env.types import EUL, MEAS_DIM, POS, POSE_DIM, RATE, STATE_DIM, VEL, FloatArray

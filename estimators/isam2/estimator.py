@@ -60,9 +60,9 @@ from estimators.isam2.output import Isam2Output
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.transition import NAV_DIM, ImuTransition
 from estimators.memory import MemoryTerm, Workload, isam2_terms
-from quadslam_env.estimation import BatchEstimate, register
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.estimation.snapshot import LaneMap
+from quadslam_env.estimation.registry import register
+from quadslam_env.estimation.snapshot import BatchEstimate, LaneMap
 from quadslam_env.models.lidar import lidar_inverse
 from quadslam_env.types import RATE, FloatArray
 

@@ -19,8 +19,7 @@ from estimators.isam2.graph import keyframe_marginals
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.snapshot import flagged, landmark_map, neutral, snapshot
 from estimators.isam2.transition import ImuTransition
-from quadslam_env.estimation import BatchEstimate
-from quadslam_env.estimation.snapshot import LaneMap
+from quadslam_env.estimation.snapshot import BatchEstimate, LaneMap
 from quadslam_env.types import POSE_DIM, FloatArray
 
 

@@ -13,8 +13,7 @@ import copy
 import numpy as np
 
 from estimators.isam2.tangent import state_covariance
-from quadslam_env.estimation import BatchEstimate
-from quadslam_env.estimation.snapshot import LaneMap
+from quadslam_env.estimation.snapshot import BatchEstimate, LaneMap
 from quadslam_env.models.frames import euler_from_dcm
 from quadslam_env.types import POSE_DIM, FloatArray
 

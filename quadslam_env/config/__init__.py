@@ -6,17 +6,17 @@ A scenario is a YAML file in ``configs/scenarios/`` (or any path) with the secti
 Per-call overrides (``gymnasium.make(id, episode={...})``) are merged into it key by key.
 Sections with a ``preset`` key start from that preset's values; keys given explicitly win.
 
-This module is the settings' public face: code outside ``quadslam_env.config`` imports the
-names below from here, never from the module that defines them, so each has one import path.
-The modules of the package, one per concept: :mod:`~quadslam_env.config.scenario` (the whole
-scenario, the estimator and action sections, the loader), :mod:`~quadslam_env.config.hardware`
-(vehicle, IMU, LiDAR), :mod:`~quadslam_env.config.world` (landmarks, trajectory, wind),
-:mod:`~quadslam_env.config.episode` (episode, reward, observation, render),
-:mod:`~quadslam_env.config.randomize`, :mod:`~quadslam_env.config.faults`,
-:mod:`~quadslam_env.config.integrity`, and :mod:`~quadslam_env.config.files` (the YAML files and
-the shipped scenarios). The schema every section is written in (:class:`ConfigError`,
-``Section``, ``spec``) is :mod:`quadslam_env.schema`, below the estimators, which declare their
-own settings in it.
+This module is the settings' public face for users (``from quadslam_env.config import
+load_scenario``); the project's own code imports each name from the module that defines it
+(docs/design.md §1). The modules of the package, one per concept:
+:mod:`~quadslam_env.config.scenario` (the whole scenario, the estimator and action sections, the
+loader), :mod:`~quadslam_env.config.hardware` (vehicle, IMU, LiDAR),
+:mod:`~quadslam_env.config.world` (landmarks, trajectory, wind), :mod:`~quadslam_env.config.episode`
+(episode, reward, observation, render), :mod:`~quadslam_env.config.randomize`,
+:mod:`~quadslam_env.config.faults`, :mod:`~quadslam_env.config.integrity`, and
+:mod:`~quadslam_env.config.files` (the YAML files and the shipped scenarios). The schema every
+section is written in (:class:`ConfigError`, ``Section``, ``spec``) is :mod:`quadslam_env.schema`,
+below the estimators, which declare their own settings in it.
 """
 
 from __future__ import annotations

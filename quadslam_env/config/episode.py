@@ -120,7 +120,7 @@ class ObservationConfig(Section):
         wanted = [key for key in ("estimated_wind", "air_velocity") if getattr(self, key)]
         if not wanted:
             return
-        from quadslam_env.estimation import estimates_wind, estimator_flag
+        from quadslam_env.estimation.registry import estimates_wind, estimator_flag
 
         if not estimator_flag(name, lambda n: estimates_wind(n, params)):
             wind = f" and estimator.params.wind = {params.get('wind', 'none')!r}"

@@ -174,7 +174,7 @@ class IntegrityConfig(Section):
                 f"integrity.monitor: got {self.monitor!r} with {second_run} set (the estimator "
                 f"runs from copies); allowed: 'off', or {second_run} at its default"
             )
-        from quadslam_env.estimation import estimator_flag, monitors_integrity
+        from quadslam_env.estimation.registry import estimator_flag, monitors_integrity
 
         if not estimator_flag(name, monitors_integrity):
             raise ConfigError(

@@ -70,7 +70,7 @@ class EstimatorConfig(Section):
     def validate(self) -> None:
         # The names come from the estimator registry, which imports no estimator; plug-ins
         # listed by entry points are not imported until the env builds them.
-        from quadslam_env.estimation import available
+        from quadslam_env.estimation.registry import available
 
         names = available()
         if self.name not in names:
@@ -237,7 +237,7 @@ class ScenarioConfig:
             **sections,
         )
         if scenario.lidar.association == "unknown":
-            from quadslam_env.estimation import associates_unlabeled, estimator_flag
+            from quadslam_env.estimation.registry import associates_unlabeled, estimator_flag
 
             if not estimator_flag(scenario.estimator.name, associates_unlabeled):
                 raise ConfigError(
@@ -337,7 +337,7 @@ def check_copyable(scenario: ScenarioConfig) -> None:
         allowed = f"lidar.delay_steps: 0 with {name!r}"
     else:
         return
-    from quadslam_env.estimation import copyable, estimator_flag, takes_late_scans
+    from quadslam_env.estimation.registry import copyable, estimator_flag, takes_late_scans
 
     if estimator_flag(name, copyable):
         return

@@ -328,7 +328,7 @@ class WindConfig(Section):
         """
         if not self.inform_estimator:
             return
-        from quadslam_env.estimation import estimator_flag, models_drag
+        from quadslam_env.estimation.registry import estimator_flag, models_drag
 
         if not estimator_flag(estimator, models_drag):
             raise ConfigError(

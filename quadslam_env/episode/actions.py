@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.config import ActionConfig
+from quadslam_env.config.scenario import ActionConfig
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.params import VehicleParams
 from quadslam_env.types import FloatArray

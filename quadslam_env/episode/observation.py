@@ -13,7 +13,7 @@ import numpy as np
 from gymnasium import spaces
 
 from quadslam_env.config.episode import ObservationConfig
-from quadslam_env.estimation import BatchEstimate
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.models.frames import dcm_from_euler_batch, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.lidar import lidar_measure

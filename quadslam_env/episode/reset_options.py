@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.config import ConfigError
 from quadslam_env.config.randomize import parse_pins
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import EUL, POS, RATE, STATE_DIM, VEL, FloatArray
 
 RESET_OPTIONS = ("initial_state", "landmarks", "randomized")

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from quadslam_env.config import ScenarioConfig
+from quadslam_env.config.scenario import ScenarioConfig
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.sim.trajectories import Trajectory

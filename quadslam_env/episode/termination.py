@@ -26,7 +26,7 @@ import numpy as np
 
 from quadslam_env.config.episode import EpisodeConfig
 from quadslam_env.episode.reward import REWARD_KEYS
-from quadslam_env.estimation import HEALTH_PROBLEMS
+from quadslam_env.estimation.health import HEALTH_PROBLEMS
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from scipy.stats import chi2
 
-from quadslam_env.estimation import BatchEstimate
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.models.frames import dcm_from_trig, wrap_pi
 from quadslam_env.models.jit import kernel
 from quadslam_env.models.linalg import cholesky_lower

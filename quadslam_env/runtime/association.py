@@ -20,15 +20,10 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimate, BatchEstimator
-from quadslam_env.estimation.protocol import AssociatesUnlabeled
-from quadslam_env.metrics import (
-    ASSOCIATION_KEYS,
-    METRIC_KEYS,
-    association_counts,
-    match_landmarks,
-    metric_columns,
-)
+from quadslam_env.estimation.protocol import AssociatesUnlabeled, BatchEstimator
+from quadslam_env.estimation.snapshot import BatchEstimate
+from quadslam_env.metrics.association import ASSOCIATION_KEYS, association_counts, match_landmarks
+from quadslam_env.metrics.step import METRIC_KEYS, metric_columns
 from quadslam_env.sim.lidar import LidarBatch
 from quadslam_env.sim.scans import LabeledScans, Scans, UnlabeledScans
 from quadslam_env.types import EUL, POS, FloatArray

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimator
+from quadslam_env.estimation.protocol import BatchEstimator
 from quadslam_env.runtime.period_log import EstimatorCopies, PeriodLog, Sample
 from quadslam_env.sim.scans import Scans
 from quadslam_env.types import FloatArray

@@ -22,13 +22,14 @@ from typing import Any, cast
 import numpy as np
 
 from quadslam_env.config.integrity import IntegrityConfig
-from quadslam_env.estimation import BatchEstimate, MonitorsIntegrity
 from quadslam_env.estimation.integrity import (
     COUNT_KEYS,
     SEPARATION_KEYS,
     LevelFactors,
     levels_lanes,
 )
+from quadslam_env.estimation.protocol import MonitorsIntegrity
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.metrics.integrity import STEP_KEYS as MISLEADING_KEYS
 from quadslam_env.metrics.integrity import IntegrityEpisode, misleading_lanes
 from quadslam_env.models.jit import kernel

@@ -19,8 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimator
-from quadslam_env.estimation.protocol import ReservesLandmarks
+from quadslam_env.estimation.protocol import BatchEstimator, ReservesLandmarks
 from quadslam_env.sim.scans import Scans
 from quadslam_env.types import FloatArray
 

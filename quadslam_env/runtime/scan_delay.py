@@ -45,9 +45,8 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.config import ScenarioConfig
-from quadslam_env.estimation import BatchEstimator
-from quadslam_env.estimation.protocol import TakesLateScans
+from quadslam_env.config.scenario import ScenarioConfig
+from quadslam_env.estimation.protocol import BatchEstimator, TakesLateScans
 from quadslam_env.runtime.imu_replay import ImuReplay
 from quadslam_env.runtime.period_log import EstimatorCopies, PeriodLog, Sample, predict_samples
 from quadslam_env.sim.scans import Scans

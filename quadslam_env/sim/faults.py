@@ -39,11 +39,12 @@ from typing import Any
 
 import numpy as np
 
-from quadslam_env.config import ConfigError, ScenarioConfig
-from quadslam_env.estimation import BatchEstimate
+from quadslam_env.config.scenario import ScenarioConfig
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.imu import ImuBatch
 from quadslam_env.sim.scans import Scans
 from quadslam_env.sim.sensor_lanes import lane_indices

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from quadslam_env.config import ImuConfig
+from quadslam_env.config.hardware import ImuConfig
 from quadslam_env.estimation.measurements import ImuSample
 from quadslam_env.models.imu_noise import gauss_markov_discretisation, white_noise_sigma
 from quadslam_env.models.jit import kernel

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from quadslam_env.config import LidarConfig
+from quadslam_env.config.hardware import LidarConfig
 from quadslam_env.estimation.measurements import LidarScan, ScanReturns
 from quadslam_env.models.frames import wrap_pi
 from quadslam_env.models.jit import kernel

@@ -19,9 +19,8 @@ from typing import Protocol, cast
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimator
 from quadslam_env.estimation.measurements import ScanReturns
-from quadslam_env.estimation.protocol import AssociatesUnlabeled
+from quadslam_env.estimation.protocol import AssociatesUnlabeled, BatchEstimator
 from quadslam_env.sim.sensor_lanes import LANE0
 from quadslam_env.types import MEAS_DIM, FloatArray
 

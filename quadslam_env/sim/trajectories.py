@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quadslam_env.config import TrajectoryConfig
+from quadslam_env.config.world import TrajectoryConfig
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from quadslam_env.config import WindConfig
+from quadslam_env.config.world import WindConfig
 from quadslam_env.estimation.protocol import TakesWind
 from quadslam_env.models.wind import (
     GUST_STATES,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from quadslam_env.config import LandmarksConfig
+from quadslam_env.config.world import LandmarksConfig
 from quadslam_env.types import DEG, FloatArray
 
 

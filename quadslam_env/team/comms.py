@@ -25,7 +25,8 @@ from typing import cast
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimate, BatchEstimator, FusesLandmarks
+from quadslam_env.estimation.protocol import BatchEstimator, FusesLandmarks
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.team.config import FLOAT_BYTES, TeamConfig, message_floats
 from quadslam_env.types import FloatArray
 

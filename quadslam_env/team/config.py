@@ -16,8 +16,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from quadslam_env.config import ScenarioConfig
-from quadslam_env.estimation import estimator_flag, fuses_landmarks, fuses_ranges
+from quadslam_env.config.scenario import ScenarioConfig
+from quadslam_env.estimation.registry import estimator_flag, fuses_landmarks, fuses_ranges
 from quadslam_env.schema import ConfigError, Section
 from quadslam_env.schema import spec as _spec
 from quadslam_env.types import FloatArray

@@ -30,13 +30,14 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from quadslam_env.config import ConfigError, ScenarioConfig, load_scenario
+from quadslam_env.config.scenario import ScenarioConfig, load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import lane_info, step_rate
 from quadslam_env.episode.actions import ActionError, validate_actions
 from quadslam_env.episode.reset_options import parse_reset_options, parse_seed
 from quadslam_env.extras import require
 from quadslam_env.memory import check_env_memory
+from quadslam_env.schema import ConfigError
 from quadslam_env.team.collision import Collisions
 from quadslam_env.team.comms import Comms
 from quadslam_env.team.config import SHARING, TeamConfig, parse_vehicles

@@ -29,8 +29,8 @@ from typing import cast
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimator, ReportsLandmarkCovariances
-from quadslam_env.metrics import cholesky_nees
+from quadslam_env.estimation.protocol import BatchEstimator, ReportsLandmarkCovariances
+from quadslam_env.metrics.step import cholesky_nees
 from quadslam_env.models.jit import kernel
 from quadslam_env.types import FloatArray
 

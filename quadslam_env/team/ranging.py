@@ -28,7 +28,8 @@ from typing import cast
 
 import numpy as np
 
-from quadslam_env.estimation import BatchEstimate, BatchEstimator, FusesRanges
+from quadslam_env.estimation.protocol import BatchEstimator, FusesRanges
+from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.team.comms import rate_ticks
 from quadslam_env.team.config import BEACON_FLOATS, FLOAT_BYTES, TeamConfig
 from quadslam_env.types import FloatArray

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from gymnasium.utils import seeding
 
-from quadslam_env.config import ScenarioConfig
+from quadslam_env.config.scenario import ScenarioConfig
 from quadslam_env.episode.start import initial_state
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.sim.trajectories import LaneTrajectory

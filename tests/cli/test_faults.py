@@ -26,8 +26,8 @@ def test_fastslam_lanes_that_cannot_fit_fail_before_the_lanes_are_built(
     """``num_envs=100000`` FastSLAM lanes fail in one line before any lane is built (the env
     asks the class for its particles' size first), instead of allocating the particles of
     lane after lane; a filter built directly still checks its own particles."""
-    from estimators.fastslam import DynamicFastSLAM
-    from quadslam_env.config import load_scenario
+    from estimators.fastslam.dynamic import DynamicFastSLAM
+    from quadslam_env.config.scenario import load_scenario
     from quadslam_env.estimation import registry
 
     built: list[int] = []

@@ -16,15 +16,10 @@ import pytest
 import yaml
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from quadslam_env.config import (
-    ConfigError,
-    ImuConfig,
-    LidarConfig,
-    VehicleConfig,
-    available_scenarios,
-    load_scenario,
-    load_yaml,
-)
+from quadslam_env.config.files import available_scenarios, load_yaml
+from quadslam_env.config.hardware import ImuConfig, LidarConfig, VehicleConfig
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.schema import ConfigError
 
 SCENARIO_DIR = Path(__file__).resolve().parents[2] / "configs" / "scenarios"
 SCENARIO_FILES = sorted(SCENARIO_DIR.glob("*.yaml"))

@@ -8,8 +8,8 @@ from typing import Any
 
 import pytest
 
-from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.schema import shown_value
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.schema import ConfigError, shown_value
 
 
 @pytest.mark.parametrize(

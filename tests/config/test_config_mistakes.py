@@ -11,8 +11,9 @@ import pytest
 from conftest import RUN, cli
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from quadslam_env.config import ConfigError, load_scenario
 from quadslam_env.config.files import available_scenarios
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.schema import ConfigError
 
 # ---------------------------------------------------------------------- configuration files
 

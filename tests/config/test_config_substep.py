@@ -7,7 +7,8 @@ import re
 
 import pytest
 
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.schema import ConfigError
 
 
 @pytest.mark.parametrize(

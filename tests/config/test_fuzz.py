@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.episode.actions import ActionError
+from quadslam_env.schema import ConfigError
 
 ACTION_ERRORS = (ActionError, ValueError, TypeError)
 SCENARIO = "paper_ekf_figure8"

@@ -26,7 +26,7 @@ from agents.rl.policy_kwargs import (
     validate_policy_kwargs,
 )
 from agents.rl.training import resume, train
-from quadslam_env.config import ConfigError
+from quadslam_env.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
 ENV = "QuadSLAM-Oracle-v0"  # no estimator: the cheapest env to build

@@ -19,10 +19,11 @@ import pytest
 
 import quadslam_env
 from agents.lab.cli.main import main
-from quadslam_env.config import ConfigError, available_scenarios, load_scenario
-from quadslam_env.estimation import MemoryLimitError
-from quadslam_env.estimation.memory import ENV_MEMORY_SHARE, LIMIT_VARIABLE
+from quadslam_env.config.files import available_scenarios
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.estimation.memory import ENV_MEMORY_SHARE, LIMIT_VARIABLE, MemoryLimitError
 from quadslam_env.memory import check_env_memory, env_memory_terms
+from quadslam_env.schema import ConfigError
 
 GIB = 1 << 30
 VECTOR: dict[str, Any] = {"vectorization_mode": "vector_entry_point"}

@@ -15,8 +15,9 @@ import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.lab.cli.reference import estimator_settings
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.core import SimCore
+from quadslam_env.schema import ConfigError
 from quadslam_env.vector_env import QuadSLAMVectorEnv
 
 ORACLE = "QuadSLAM-Oracle-v0"

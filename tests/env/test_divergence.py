@@ -17,11 +17,14 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from quadslam_env.config import ConfigError, ImuConfig, load_scenario
-from quadslam_env.estimation import HEALTH_PROBLEMS, BatchEstimate, health_codes
-from quadslam_env.models import GRAVITY, VEHICLE_PRESETS
+from quadslam_env.config.hardware import ImuConfig
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.estimation.health import HEALTH_PROBLEMS, health_codes
+from quadslam_env.estimation.snapshot import BatchEstimate
+from quadslam_env.models.params import VEHICLE_PRESETS
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.imu import Imu
-from quadslam_env.types import DEG
+from quadslam_env.types import DEG, GRAVITY
 
 RELAXED = {"max_pos_err_m": 1e6, "nees_threshold": None}
 

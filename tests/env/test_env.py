@@ -14,9 +14,9 @@ import pytest
 
 import estimators
 import quadslam_env
-from quadslam_env.config import LandmarksConfig
+from quadslam_env.config.world import LandmarksConfig
 from quadslam_env.episode.actions import ActionError
-from quadslam_env.models import VEHICLE_PRESETS
+from quadslam_env.models.params import VEHICLE_PRESETS
 from quadslam_env.sim.world import make_landmarks
 
 SHORT = {"episode": {"duration_s": 2.0}}

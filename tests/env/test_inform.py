@@ -23,8 +23,9 @@ from gymnasium.vector import AutoresetMode
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
 from estimators.fastslam.process import DynamicsModel
-from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.models import VEHICLE_PRESETS
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.models.params import VEHICLE_PRESETS
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.randomize import scaled_vehicle
 from quadslam_env.types import GRAVITY, VEL
 

@@ -13,9 +13,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from quadslam_env.config import ImuConfig, LidarConfig
-from quadslam_env.models import VEHICLE_PRESETS, VehicleParams, dcm_from_euler_batch, wrap_angle
+from quadslam_env.config.hardware import ImuConfig, LidarConfig
+from quadslam_env.models.frames import dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.integrators import RigidBodyLanes, vehicle_step_lanes
+from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams
 from quadslam_env.models.rigid_body import pack_bodies
 from quadslam_env.sim.imu import Imu, ImuBatch
 from quadslam_env.sim.lidar import Lidar, LidarBatch

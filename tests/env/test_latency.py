@@ -12,12 +12,13 @@ import numpy as np
 import pytest
 
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import QuadSLAMEnv
-from quadslam_env.metrics import METRIC_KEYS, metric_columns
+from quadslam_env.metrics.step import METRIC_KEYS, metric_columns
 from quadslam_env.runtime.period_log import predict_samples
 from quadslam_env.runtime.scan_delay import ScanDelay
+from quadslam_env.schema import ConfigError
 
 LIDAR_EVERY = 10  # paper_ekf_figure8: 10 Hz LiDAR at 100 Hz control
 STEPS = 130

@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from quadslam_env.config import load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.env import QuadSLAMEnv
-from quadslam_env.metrics import ASSOCIATION_KEYS
+from quadslam_env.metrics.association import ASSOCIATION_KEYS
 from quadslam_env.runtime.scan_delay import ScanDelay
 
 LIDAR_EVERY = 10  # paper_ekf_figure8: 10 Hz LiDAR at 100 Hz control

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from quadslam_env.metrics import EpisodeMetrics, anees_bounds
+from quadslam_env.metrics.episode import EpisodeMetrics
+from quadslam_env.metrics.step import anees_bounds
 
 
 def test_episode_summary_matches_direct_statistics() -> None:

@@ -13,7 +13,7 @@ import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
 from agents.lab.estimator_studies.degradation import record, summarise
 from estimators.ekf.filter import EkfSlamBatch
-from quadslam_env.config import load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.models.lidar import lidar_measure
 
 SIGMA = np.array([math.radians(0.33), math.radians(0.3), 0.1])

@@ -14,8 +14,9 @@ from scipy.stats import chi2
 import quadslam_env  # noqa: F401
 from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import STEADY_KEYS, TRANSIENT_KEYS, run_episode, summarize
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.schema import ConfigError
 from quadslam_env.types import GRAVITY
 
 

@@ -22,10 +22,10 @@ from PIL import Image
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
 from agents.lab.cli.main import main
-from quadslam_env.config import ConfigError
 from quadslam_env.render.history import LaneHistory
 from quadslam_env.render.scene import ellipse_lines, plane_cov
 from quadslam_env.render.spatial import nice_ceil
+from quadslam_env.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = {"episode": {"duration_s": 3.0}}

@@ -8,8 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from quadslam_env.estimation import BatchEstimate
-from quadslam_env.estimation.snapshot import LaneMap, empty_batch, id_width, stack_lanes
+from quadslam_env.estimation.snapshot import (
+    BatchEstimate,
+    LaneMap,
+    empty_batch,
+    id_width,
+    stack_lanes,
+)
 
 
 def _lane(seed: int, ids: list[int], diagnostics: dict[str, float], cov: bool = True):

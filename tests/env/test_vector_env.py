@@ -19,8 +19,8 @@ from lane_cases import (
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.config import ConfigError
 from quadslam_env.episode.actions import ActionError
+from quadslam_env.schema import ConfigError
 
 # Every case in the default mode; the other modes, whose bookkeeping is the vector env's and
 # not the estimator's, on one case per kind of core path (no estimator covariance, EKF with

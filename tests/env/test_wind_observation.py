@@ -14,8 +14,9 @@ from scipy.spatial.transform import Rotation
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.named import build_controller
-from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.estimation import estimates_wind
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.estimation.registry import estimates_wind
+from quadslam_env.schema import ConfigError
 
 WIND_OBS = {"estimated_wind": True, "air_velocity": True}
 

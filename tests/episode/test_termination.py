@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from quadslam_env.config import ConfigError
+from quadslam_env.schema import ConfigError
 
 
 def oracle(**kwargs: Any) -> gym.Env:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from agents.lab.estimator_studies.consistency import run_consistency
-from quadslam_env.metrics import anees_bounds
+from quadslam_env.metrics.step import anees_bounds
 
 
 @pytest.mark.slow

@@ -16,11 +16,13 @@ import numpy as np
 import pytest
 from conftest import lane_predict, lane_reset, lane_update
 
-from estimators.ekf import EkfSlamBatch
-from quadslam_env.estimation import make
+from estimators.ekf.filter import EkfSlamBatch
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
+from quadslam_env.estimation.registry import make
+from quadslam_env.models.frames import dcm_from_euler, wrap_angle
+from quadslam_env.models.lidar import lidar_measure
 from quadslam_env.models.strapdown import process_derivative
+from quadslam_env.types import GRAVITY
 
 SIG_LIDAR = np.array([np.deg2rad(0.33), np.deg2rad(0.30), 0.1])
 SIG_ACC, SIG_GYR = 0.03, 0.002

@@ -14,19 +14,15 @@ from conftest import fd_jacobian, lane_predict, lane_reset, lane_update, random_
 from scipy.stats import chi2
 
 import estimators
-from estimators.ekf import EkfSlamBatch
+from estimators.ekf.filter import EkfSlamBatch
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models import (
-    GRAVITY,
-    dcm_from_euler,
-    dcm_from_euler_batch,
-    lidar_measure,
-    rk4_integrate,
-    specific_force,
-    vehicle_preset,
-    wrap_angle,
-)
+from quadslam_env.models.frames import dcm_from_euler, dcm_from_euler_batch, wrap_angle
+from quadslam_env.models.integrators import rk4_integrate
+from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.params import vehicle_preset
+from quadslam_env.models.rigid_body import specific_force
 from quadslam_env.models.strapdown import process_derivative, process_jacobians
+from quadslam_env.types import GRAVITY
 
 SIG_LIDAR = np.array([np.deg2rad(0.33), np.deg2rad(0.30), 0.1])  # seed 001 Table 4
 SIG_ACC = 300e-6 * GRAVITY * 10.0  # seed 001 Table 5 density × √(100 Hz)

@@ -10,12 +10,12 @@ import pytest
 from conftest import fd_jacobian, lane_predict, lane_reset, random_spd
 
 import quadslam_env  # noqa: F401
-from estimators.ekf import EkfSlamBatch
+from estimators.ekf.filter import EkfSlamBatch
 from estimators.ekf.settings import PAPER_Q_UNKNOWN
 from quadslam_env.estimation.measurements import Control, ImuSample
-from quadslam_env.models import GRAVITY
 from quadslam_env.models.strapdown import process_derivative, process_jacobians
 from quadslam_env.schema import ConfigError
+from quadslam_env.types import GRAVITY
 
 NO_CONTROL = Control(0.0, np.zeros(3))
 

@@ -15,9 +15,11 @@ from conftest import fd_jacobian, lane_predict, lane_reset, lane_update, random_
 
 import quadslam_env  # noqa: F401
 from agents.control.named import build_controller
-from estimators.ekf import EkfSlamBatch
+from estimators.ekf.filter import EkfSlamBatch
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, vehicle_preset
+from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.params import vehicle_preset
 from quadslam_env.models.strapdown import (
     drag_measurement,
     drag_process_derivative,
@@ -25,6 +27,7 @@ from quadslam_env.models.strapdown import (
     process_jacobians,
 )
 from quadslam_env.schema import ConfigError
+from quadslam_env.types import GRAVITY
 
 NO_CONTROL = Control(0.0, np.zeros(3))
 MU, CQ = 0.3, np.array([0.02, 0.02, 0.04])

@@ -11,8 +11,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.estimation import (
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.estimation import registry
+from quadslam_env.estimation.lane_loop import LaneLoop, ParticleLaneLoop
+from quadslam_env.estimation.protocol import (
     AssociatesUnlabeled,
     ChecksMemory,
     FusesLandmarks,
@@ -20,10 +22,8 @@ from quadslam_env.estimation import (
     HasFullState,
     HasParticles,
     LabelsReturns,
-    LaneLoop,
     ModelsDrag,
     MonitorsIntegrity,
-    ParticleLaneLoop,
     ReportsLandmarkCovariances,
     ReservesLandmarks,
     ShowsParticles,
@@ -32,9 +32,9 @@ from quadslam_env.estimation import (
     TakesWind,
     UsesTruth,
     UsesVehicle,
-    registry,
 )
 from quadslam_env.models.params import vehicle_preset
+from quadslam_env.schema import ConfigError
 
 BUILT_IN = {"ekf_slam", "fastslam", "fastslam_kinematic", "isam2", "oracle"}
 

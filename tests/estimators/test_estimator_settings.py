@@ -14,7 +14,7 @@ import quadslam_env  # noqa: F401  (registers the env ids)
 from agents.lab.cli.reference import estimator_settings
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.fastslam.settings import DynamicFastSlamSettings, KinematicFastSlamSettings
-from estimators.isam2 import GTSAM_INSTALL
+from estimators.isam2.graph import GTSAM_INSTALL
 from estimators.isam2.settings import Isam2Settings
 from quadslam_env.schema import ConfigError
 from quadslam_env.types import STATE_DIM

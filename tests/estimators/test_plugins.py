@@ -16,8 +16,9 @@ from conftest import fly_dflqr
 import estimators
 import quadslam_env  # noqa: F401  (registers the env ids)
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.estimation import registry as base
+from quadslam_env.schema import ConfigError
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

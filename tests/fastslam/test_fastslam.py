@@ -8,36 +8,27 @@ import numpy as np
 import pytest
 
 import estimators
-from estimators.fastslam import (
-    H_BIAS,
-    DynamicFastSLAM,
+from estimators.fastslam.bias_kf import H_BIAS, bias_kf_predict, bias_kf_update, bias_transition
+from estimators.fastslam.dynamic import DynamicFastSLAM
+from estimators.fastslam.kinematic import KinematicFastSLAM
+from estimators.fastslam.landmarks import landmark_ekf_update, landmark_init
+from estimators.fastslam.process import (
     DynamicsModel,
-    KinematicFastSLAM,
-    bias_kf_predict,
-    bias_kf_update,
-    bias_transition,
     dynamics_derivative_batch,
-    effective_sample_size,
     kinematic_derivative_batch,
-    landmark_ekf_update,
-    landmark_init,
+)
+from estimators.fastslam.resampling import (
+    effective_sample_size,
     normalise_log_weights,
     systematic_resample,
 )
-from quadslam_env.estimation import LaneLoop
+from quadslam_env.estimation.lane_loop import LaneLoop
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models import (
-    VehicleParams,
-    dcm_from_euler,
-    lidar_inverse,
-    lidar_jacobians,
-    lidar_measure,
-    rk4_integrate,
-    specific_force,
-    state_derivative,
-    vehicle_preset,
-    wrap_angle,
-)
+from quadslam_env.models.frames import dcm_from_euler, wrap_angle
+from quadslam_env.models.integrators import rk4_integrate, state_derivative
+from quadslam_env.models.lidar import lidar_inverse, lidar_jacobians, lidar_measure
+from quadslam_env.models.params import VehicleParams, vehicle_preset
+from quadslam_env.models.rigid_body import specific_force
 
 LIDAR_SIGMA = np.array([math.radians(0.33), math.radians(0.30), 0.1])
 POLES = np.array([[2.0, 2.0, -1.0], [-2.0, 2.0, -1.0], [-2.0, -2.0, -1.0], [2.0, -2.0, -1.0]])

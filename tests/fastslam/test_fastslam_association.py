@@ -12,13 +12,18 @@ import numpy as np
 import pytest
 
 import estimators
-from estimators.fastslam import DynamicFastSLAM, KinematicFastSLAM, landmark_ekf_update
 from estimators.fastslam.associate import ParticleMaps
+from estimators.fastslam.dynamic import DynamicFastSLAM
+from estimators.fastslam.kinematic import KinematicFastSLAM
+from estimators.fastslam.landmarks import landmark_ekf_update
 from estimators.fastslam.particles import FastSLAMBase
 from estimators.fastslam.settings import AssociationSettings
-from quadslam_env.estimation import associates_unlabeled
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models import dcm_from_euler, lidar_measure, specific_force, vehicle_preset
+from quadslam_env.estimation.registry import associates_unlabeled
+from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.params import vehicle_preset
+from quadslam_env.models.rigid_body import specific_force
 
 LIDAR_SIGMA = np.array([math.radians(0.33), math.radians(0.30), 0.1])
 # Well separated landmarks around a vehicle hovering at the origin (NED, m).

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from estimators.fastslam import DynamicFastSLAM
+from estimators.fastslam.dynamic import DynamicFastSLAM
 from estimators.fastslam.gauge import (
     GAUGE_INDEX,
     gauge_split,
@@ -14,12 +14,10 @@ from estimators.fastslam.gauge import (
     pose_gauge_cov,
 )
 from quadslam_env.estimation.measurements import LidarScan
-from quadslam_env.models import (
-    dcm_from_euler,
-    lidar_measure,
-    state_derivative,
-    vehicle_preset,
-)
+from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.models.integrators import state_derivative
+from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.params import vehicle_preset
 
 LIDAR_SIGMA = np.array([math.radians(0.1), math.radians(0.1), 0.03])
 POLES = np.array([[2.0, 2.0, -1.0], [-2.0, 2.0, -1.0], [-2.0, -2.0, -1.0], [2.0, -2.0, -1.0]])

@@ -6,12 +6,14 @@ import math
 
 import numpy as np
 
-from estimators.fastslam import DynamicFastSLAM, landmark_ekf_update
+from estimators.fastslam.dynamic import DynamicFastSLAM
+from estimators.fastslam.landmarks import landmark_ekf_update
 from estimators.fastslam.progressive import Tempering, ess_after, scan_update, stage_exponent
 from estimators.fastslam.state import ParticleState
 from quadslam_env.estimation.measurements import LidarScan
-from quadslam_env.models import lidar_measure, vehicle_preset
 from quadslam_env.models.frames import dcm_from_euler_batch
+from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.models.params import vehicle_preset
 from quadslam_env.types import EUL
 
 SIGMA = np.array([math.radians(0.1), math.radians(0.1), 0.03])

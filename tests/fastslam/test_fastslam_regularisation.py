@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 
-from estimators.fastslam import DynamicFastSLAM
+from estimators.fastslam.dynamic import DynamicFastSLAM
 from estimators.fastslam.resampling import regularisation_bandwidth, regularisation_jitter
-from quadslam_env.models import vehicle_preset
+from quadslam_env.models.params import vehicle_preset
 
 
 def test_bandwidth_in_one_dimension_is_silvermans_rule() -> None:

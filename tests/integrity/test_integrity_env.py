@@ -14,7 +14,8 @@ from conftest import fly_dflqr
 
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.schema import ConfigError
 
 SCENARIO = "paper_ekf_figure8"
 SHORT = {"episode": {"duration_s": 6.0}}

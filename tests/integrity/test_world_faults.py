@@ -17,9 +17,10 @@ import pytest
 from conftest import assert_lanes_equal_scalar_env
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.models.flatness import state_on_reference
 from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.scans import LabeledScans, UnlabeledScans
 from quadslam_env.types import DEG
 

@@ -24,9 +24,10 @@ from estimators.isam2.factors import (
 )
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.tangent import state_jacobian, tangent_covariance
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.models.frames import dcm_from_euler, euler_from_dcm
 from quadslam_env.models.lidar import lidar_measure, measure_from_body, measure_jacobian_body
+from quadslam_env.schema import ConfigError
 
 gtsam = pytest.importorskip("gtsam")
 

@@ -15,11 +15,13 @@ from conftest import AHEAD
 import quadslam_env  # noqa: F401  (registers the env ids)
 from agents.control.dflqr import DFLQRPolicy
 from estimators.association import chi2_threshold
-from estimators.isam2 import Isam2Slam
 from estimators.isam2.associate import PosePrediction, ScanAssociation
+from estimators.isam2.estimator import Isam2Slam
 from estimators.isam2.settings import Isam2Settings
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
+from quadslam_env.models.frames import dcm_from_euler, wrap_angle
+from quadslam_env.models.lidar import lidar_measure
+from quadslam_env.types import GRAVITY
 
 gtsam = pytest.importorskip("gtsam")
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimators.isam2 import Isam2Slam
+from estimators.isam2.estimator import Isam2Slam
 from estimators.isam2.settings import FIXED_BIAS_SIGMA
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.types import EUL, GRAVITY

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.core import SimCore
 from quadslam_env.runtime.scan_delay import LateScans
+from quadslam_env.schema import ConfigError
 
 pytest.importorskip("gtsam")
 

@@ -72,7 +72,7 @@ import pytest
 
 import estimators.isam2.estimator as isam2_estimator
 import estimators.isam2.graph as isam2_graph
-from estimators.isam2 import Isam2Slam
+from estimators.isam2.estimator import Isam2Slam
 from estimators.isam2.factors import ErrorFunction
 from estimators.isam2.settings import FIXED_BIAS_SIGMA, NOISE_FLOOR, PRIOR_VARIANCE_FLOOR
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from estimators.isam2 import Isam2Slam
+from estimators.isam2.estimator import Isam2Slam
 from estimators.isam2.history import KeptSample
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import skew

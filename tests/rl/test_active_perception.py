@@ -12,9 +12,10 @@ import pytest
 import quadslam_env  # noqa: F401
 from agents.control.dflqr import DFLQRPolicy
 from agents.control.lookat import LookAtPolicy, aim_azimuth
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.episode.observation import nearest_landmarks
-from quadslam_env.estimation import BatchEstimate
+from quadslam_env.estimation.snapshot import BatchEstimate
+from quadslam_env.schema import ConfigError
 
 AP = "QuadSLAM-ActivePerception-v0"
 SHORT = {"episode": {"duration_s": 3.0, "settle_s": 1.0}}

@@ -238,7 +238,7 @@ def test_team_vec_env_steps_the_team_env_and_ends_the_team_with_its_first_vehicl
     pytest.importorskip("pettingzoo")
     import numpy as np
 
-    from quadslam_env.team import parallel_env
+    from quadslam_env.team.env import parallel_env
 
     example = _load("team_sb3")
     settings = {"n_vehicles": 3, "episode": {"duration_s": 2.0}}

@@ -21,8 +21,8 @@ from agents.rl import sbx_backend
 from agents.rl.hyperparams import load_hyperparams, resolve_settings
 from agents.rl.policy_kwargs import ACTIVATIONS
 from agents.rl.training import train
-from quadslam_env.config import ConfigError
 from quadslam_env.extras import MissingExtraError
+from quadslam_env.schema import ConfigError
 
 ENV = "QuadSLAM-EKF-v0"
 SCENARIO = "ekf_figure8_biased_imu"  # the scenario of its PPO entry (no mismatch warning)

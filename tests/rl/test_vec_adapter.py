@@ -19,8 +19,8 @@ from agents.control.dflqr import DFLQRPolicy
 from agents.evaluation.episodes import EPISODE_KEYS, Trace, run_episode, run_episodes
 from agents.rl.vec_adapter import QuadSLAMVecEnv, _merge_arrays
 from agents.rl.wrappers import ResidualDFLQRVectorWrapper, ResidualDFLQRWrapper
-from quadslam_env.config import ConfigError
 from quadslam_env.episode.actions import ActionError
+from quadslam_env.schema import ConfigError
 
 SHORT = {"episode": {"duration_s": 0.3}}
 ORACLE = "QuadSLAM-Oracle-v0"

@@ -1,4 +1,4 @@
-"""What the training tests share (tests/rl/test_training.py, test_hyperparams.py, test_resume.py):
+"""What the training tests share (tests/rl/test_training.py, test_agent_configs.py, test_resume.py):
 tiny settings that exercise every part in about a second, the env they train on, the shipped
 config entries, and one torch thread per test module."""
 

@@ -14,9 +14,10 @@ from scipy.stats import chi2
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import ATTITUDE_NATURAL_FREQ, DFLQRPolicy, attitude_natural_freq
 from agents.lab.estimator_studies.consistency import run_consistency
-from quadslam_env.config import ConfigError, load_scenario
-from quadslam_env.metrics import anees_bounds
-from quadslam_env.models import GRAVITY
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.metrics.step import anees_bounds
+from quadslam_env.schema import ConfigError
+from quadslam_env.types import GRAVITY
 
 P_FAIL = 1e-6  # two-sided false-alarm probability of each statistical bound
 

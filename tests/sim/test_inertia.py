@@ -10,10 +10,10 @@ import pytest
 from scipy.stats import chi2
 
 import estimators
-from estimators.fastslam import DynamicFastSLAM
+from estimators.fastslam.dynamic import DynamicFastSLAM
 from estimators.inertia import GyroTorqueRegression
 from quadslam_env.estimation.measurements import Control, ImuSample
-from quadslam_env.models import vehicle_preset
+from quadslam_env.models.params import vehicle_preset
 from quadslam_env.sim.vehicle import Vehicle
 
 
@@ -129,7 +129,7 @@ def test_data_the_rigid_body_cannot_explain_never_reach_the_model() -> None:
 
 
 def test_inertia_identification_rejects_products_of_inertia() -> None:
-    from quadslam_env.models import VehicleParams
+    from quadslam_env.models.params import VehicleParams
 
     skew = VehicleParams(
         name="custom",

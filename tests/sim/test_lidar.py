@@ -11,8 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quadslam_env.models import dcm_from_euler_batch, wrap_angle
-from quadslam_env.models.frames import dcm_and_partials
+from quadslam_env.models.frames import dcm_and_partials, dcm_from_euler_batch, wrap_angle
 from quadslam_env.models.lidar import (
     body_from_measure,
     body_vector,

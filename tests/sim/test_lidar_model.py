@@ -9,9 +9,8 @@ from functools import partial
 import numpy as np
 from reference_math import central_fd, random_euler, ref_dcm
 
-from quadslam_env.models import (
-    dcm_from_euler,
-    dcm_from_euler_batch,
+from quadslam_env.models.frames import dcm_from_euler, dcm_from_euler_batch
+from quadslam_env.models.lidar import (
     inverse_jacobians,
     lidar_inverse,
     lidar_jacobians,

@@ -14,25 +14,24 @@ import numpy as np
 import pytest
 from reference_math import c1, c2, c3, random_euler, ref_dcm, ref_skew, ref_wrap
 
-from quadslam_env.models import (
-    GRAVITY,
-    VEHICLE_PRESETS,
-    VehicleParams,
+from quadslam_env.models.frames import (
     dcm_euler_partials,
     dcm_from_euler,
     dcm_from_euler_batch,
     euler_from_dcm,
     euler_rate_matrix,
-    rk4_integrate,
+    rot1,
+    rot2,
+    rot3,
     rotation_angle_between,
-    saturate_inputs,
     skew,
-    specific_force,
-    state_derivative,
     wrap_angle,
 )
-from quadslam_env.models.frames import rot1, rot2, rot3
+from quadslam_env.models.integrators import rk4_integrate, state_derivative
+from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams
+from quadslam_env.models.rigid_body import saturate_inputs, specific_force
 from quadslam_env.sim.vehicle import Vehicle
+from quadslam_env.types import GRAVITY
 
 N3 = np.array([0.0, 0.0, 1.0])
 B3 = np.array([0.0, 0.0, 1.0])

@@ -13,22 +13,20 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import quadslam_env
-from estimators.ekf import EkfSlamBatch
-from estimators.fastslam import DynamicFastSLAM
-from quadslam_env.estimation import LaneLoop
+from estimators.ekf.filter import EkfSlamBatch
+from estimators.fastslam.dynamic import DynamicFastSLAM
+from quadslam_env.estimation.lane_loop import LaneLoop
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-from quadslam_env.models import (
-    GRAVITY,
-    VEHICLE_PRESETS,
+from quadslam_env.models.frames import (
     dcm_from_euler,
     dcm_from_euler_batch,
     euler_from_dcm,
-    lidar_inverse,
-    lidar_measure,
-    rk4_integrate,
-    state_derivative,
     wrap_angle,
 )
+from quadslam_env.models.integrators import rk4_integrate, state_derivative
+from quadslam_env.models.lidar import lidar_inverse, lidar_measure
+from quadslam_env.models.params import VEHICLE_PRESETS
+from quadslam_env.types import GRAVITY
 
 DEG = math.pi / 180.0
 PROFILE = settings(

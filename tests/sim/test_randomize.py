@@ -20,9 +20,10 @@ from gymnasium.vector import AutoresetMode
 from scipy.stats import kstest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from quadslam_env.config import ConfigError, RandomizeConfig, load_scenario
-from quadslam_env.config.randomize import SCALE_KEYS
-from quadslam_env.models import VEHICLE_PRESETS
+from quadslam_env.config.randomize import SCALE_KEYS, RandomizeConfig
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.models.params import VEHICLE_PRESETS
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.randomize import RANDOMIZED_KEYS, Randomizer
 from quadslam_env.sim.vehicle import VehicleBatch
 from quadslam_env.types import GRAVITY

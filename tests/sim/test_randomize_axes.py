@@ -21,9 +21,9 @@ from gymnasium.vector import AutoresetMode
 from scipy.stats import kstest
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from quadslam_env.config import ConfigError, RandomizeConfig
-from quadslam_env.config.randomize import AXIS_KEYS
-from quadslam_env.models import VEHICLE_PRESETS
+from quadslam_env.config.randomize import AXIS_KEYS, RandomizeConfig
+from quadslam_env.models.params import VEHICLE_PRESETS
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.randomize import AXIS_INFO_KEYS, RANDOMIZED_KEYS, Randomizer, scaled_vehicle
 from quadslam_env.sim.vehicle import VehicleBatch
 

@@ -14,7 +14,7 @@ from conftest import fly_dflqr
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
 from agents.lab.bench.envs import VECTOR_SCENARIOS
-from quadslam_env.config import ConfigError, load_scenario
+from quadslam_env.config.scenario import load_scenario
 from quadslam_env.models.params import vehicle_preset
 from quadslam_env.models.rotors import (
     CRAZYFLIE2_ROTORS,
@@ -24,6 +24,7 @@ from quadslam_env.models.rotors import (
     mixer_inverse,
     mixer_matrix,
 )
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.vehicle import VehicleBatch
 from quadslam_env.types import GRAVITY
 

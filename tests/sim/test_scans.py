@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from quadslam_env.config import LidarConfig
+from quadslam_env.config.hardware import LidarConfig
 from quadslam_env.models.frames import dcm_from_euler_batch
 from quadslam_env.runtime.association import association_for
 from quadslam_env.sim.lidar import LidarBatch

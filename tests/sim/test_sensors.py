@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from quadslam_env.config import ImuConfig, LidarConfig
-from quadslam_env.models import GRAVITY, VEHICLE_PRESETS
+from quadslam_env.config.hardware import ImuConfig, LidarConfig
+from quadslam_env.models.params import VEHICLE_PRESETS
 from quadslam_env.sim.imu import Imu
 from quadslam_env.sim.lidar import Lidar
+from quadslam_env.types import GRAVITY
 
 VEHICLE = VEHICLE_PRESETS["rauniyar2023"]
 HOVER = VEHICLE.mass * GRAVITY

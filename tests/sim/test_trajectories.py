@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from quadslam_env.config import TrajectoryConfig
+from quadslam_env.config.world import TrajectoryConfig
 from quadslam_env.sim.trajectories import Trajectory
 
 CASES = {

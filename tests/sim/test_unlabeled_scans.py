@@ -11,8 +11,10 @@ from scipy.stats import binomtest, kstest, poisson
 from test_sensors import NOISE_FREE_LIDAR, POSE_EULER, POSE_POS, _scan, c3c2c1, lidar_point
 
 import estimators
-from quadslam_env.config import ConfigError, LidarConfig, load_scenario
-from quadslam_env.metrics import association_counts, match_landmarks
+from quadslam_env.config.hardware import LidarConfig
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.metrics.association import association_counts, match_landmarks
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.lidar import Lidar
 
 NOISY = {**NOISE_FREE_LIDAR, "sigma_azimuth_deg": 0.3, "sigma_elevation_deg": 0.3,
@@ -198,9 +200,11 @@ def test_ekf_with_unlabeled_returns_equals_the_labeled_filter_when_association_i
     landmark order, and name every return by the landmark the labeled filter gave it."""
     from conftest import lane_predict, lane_reset, lane_update
 
-    from estimators.ekf import EkfSlamBatch
+    from estimators.ekf.filter import EkfSlamBatch
     from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
-    from quadslam_env.models import GRAVITY, dcm_from_euler, lidar_measure, wrap_angle
+    from quadslam_env.models.frames import dcm_from_euler, wrap_angle
+    from quadslam_env.models.lidar import lidar_measure
+    from quadslam_env.types import GRAVITY
 
     rng = np.random.default_rng(4)
     wide = {"gate_probability": 1.0 - 1e-12}  # the new-landmark gate takes the same

@@ -22,8 +22,10 @@ from scipy.linalg import expm
 from scipy.signal import welch
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from quadslam_env.config import ConfigError, ImuConfig, load_scenario
-from quadslam_env.models import VEHICLE_PRESETS, VehicleParams, dcm_from_euler
+from quadslam_env.config.hardware import ImuConfig
+from quadslam_env.config.scenario import load_scenario
+from quadslam_env.models.frames import dcm_from_euler
+from quadslam_env.models.params import VEHICLE_PRESETS, VehicleParams
 from quadslam_env.models.rigid_body import rigid_body_derivative
 from quadslam_env.models.wind import (
     FOOT,
@@ -34,6 +36,7 @@ from quadslam_env.models.wind import (
     dryden_psd,
     dryden_series,
 )
+from quadslam_env.schema import ConfigError
 from quadslam_env.sim.imu import ImuBatch
 from quadslam_env.sim.vehicle import VehicleBatch
 from quadslam_env.sim.wind import WIND_KEYS

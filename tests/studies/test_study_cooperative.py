@@ -11,7 +11,7 @@ import pytest
 
 import agents.lab.estimator_studies.cooperative as study
 from agents.control.dflqr import DFLQRPolicy
-from quadslam_env.metrics import anees_bounds
+from quadslam_env.metrics.step import anees_bounds
 
 pytest.importorskip("pettingzoo")
 

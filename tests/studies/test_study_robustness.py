@@ -21,8 +21,8 @@ from agents.rl import hyperparams
 from agents.rl.hyperparams import load_hyperparams
 from agents.rl.saved.run_folder import run_config
 from estimators.ekf.settings import PAPER_Q_UNKNOWN
-from quadslam_env.config import load_scenario
 from quadslam_env.config.randomize import SCALE_KEYS
+from quadslam_env.config.scenario import load_scenario
 
 QUICK_ESTIMATORS = ("oracle", "ekf_full")
 

@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 
 import quadslam_env  # noqa: F401  (registers the env ids)
-from quadslam_env.config import ConfigError
 from quadslam_env.episode.actions import ActionError
 from quadslam_env.estimation.memory import MemoryLimitError
+from quadslam_env.schema import ConfigError
 
 pytest.importorskip("pettingzoo")
 from pettingzoo.test import parallel_api_test
 
-from quadslam_env.team import parallel_env
 from quadslam_env.team.config import TeamConfig
+from quadslam_env.team.env import parallel_env
 
 SHORT = {"duration_s": 2.0}
 """Short episodes: 200 steps at 100 Hz."""

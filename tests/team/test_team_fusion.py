@@ -13,10 +13,10 @@ import pytest
 from scipy.stats import chi2
 
 from estimators.ekf.fusion import ci_trace, ci_weight, fuse_lane, fused_trace, message_noise
-from quadslam_env.config import ConfigError
+from quadslam_env.schema import ConfigError
 
 pytest.importorskip("pettingzoo")
-from quadslam_env.team import parallel_env
+from quadslam_env.team.env import parallel_env
 
 SHORT = {"duration_s": 3.0}
 """300 steps: 30 scans, enough for maps to overlap."""

@@ -14,11 +14,11 @@ from scipy.stats import chi2
 
 from estimators.ekf.fusion import ci_trace, ci_weight, fused_trace
 from estimators.ekf.ranging import fuse_range, range_model, range_noise
-from quadslam_env.config import ConfigError
+from quadslam_env.schema import ConfigError
 
 pytest.importorskip("pettingzoo")
-from quadslam_env.team import parallel_env
 from quadslam_env.team.config import TeamConfig
+from quadslam_env.team.env import parallel_env
 from quadslam_env.team.ranging import Ranges
 
 SHORT = {"duration_s": 2.0}

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from agents.lab.bench.plan import Plan, Results
-from estimators.ekf import EkfSlamBatch
-from estimators.fastslam import DynamicFastSLAM
+from estimators.ekf.filter import EkfSlamBatch
+from estimators.fastslam.dynamic import DynamicFastSLAM
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.models.frames import dcm_from_euler
 from quadslam_env.models.lidar import lidar_measure

@@ -61,7 +61,7 @@ def bench_team(results: Results, plan: Plan) -> None:
     import gymnasium as gym
 
     from agents.control.dflqr import DFLQRPolicy
-    from quadslam_env.team import parallel_env
+    from quadslam_env.team.env import parallel_env
 
     steps = min(MAX_STEPS, steps_per_sample(plan, N_VEHICLES))
     vec = make_vector("QuadSLAM-EKF-v0", N_VEHICLES, scenario=SCENARIO)

@@ -36,7 +36,7 @@ def make_env(
     import gymnasium as gym
 
     import quadslam_env  # registers the ids
-    from quadslam_env.config import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     kwargs: dict[str, Any] = parse_overrides(overrides)
     if scenario is not None:

@@ -18,9 +18,10 @@ import os
 import re
 from typing import Any
 
-from quadslam_env.config import SECTIONS, field_rows, scenario_descriptions
+from quadslam_env.config.files import scenario_descriptions
+from quadslam_env.config.scenario import SECTIONS
 from quadslam_env.models.params import VEHICLE_PRESETS
-from quadslam_env.schema import Section
+from quadslam_env.schema import Section, field_rows
 
 
 def _cell(value: Any) -> str:

@@ -89,7 +89,7 @@ def fly(
     """
     import gymnasium as gym
 
-    from quadslam_env.config import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     env = gym.make(ENV_ID, **deep_merge(EPISODE, overrides))
     try:
@@ -174,7 +174,7 @@ def run_study(
     """
     from agents.io.cpus import available_cpus
     from agents.rl.policies import load_policy
-    from quadslam_env.config import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     tic = time.perf_counter()
     jobs = jobs or available_cpus()
@@ -227,7 +227,7 @@ def _fly_baselines(
     overrides, and each row's first-seed trace."""
     from agents.control.dflqr import DFLQRPolicy
     from agents.control.lookat import LookAtPolicy
-    from quadslam_env.config import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     rows, traces = [], {}
     baselines: tuple[tuple[str, str, Any, dict[str, Any]], ...] = (
@@ -268,7 +268,7 @@ def plot_study(result: dict[str, Any], out_dir: Path) -> Path:
     landmarks and the LiDAR's azimuth field of view, one panel per controller."""
     from matplotlib.figure import Figure
 
-    from quadslam_env.config import load_scenario
+    from quadslam_env.config.scenario import load_scenario
 
     scenario = load_scenario("active_perception")
     fov = np.radians(scenario.lidar.azimuth_fov_deg)

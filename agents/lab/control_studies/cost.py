@@ -129,7 +129,7 @@ TRAINED = (
 
 def _evaluate(policy_spec: Any, target: str, env_kwargs: dict[str, Any], seeds: list[int]) -> list:
     """Fly ``policy_spec`` (``"dflqr"`` or a run folder) on ``target`` for ``seeds``."""
-    from quadslam_env.config import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     env_id, extra = EVAL_ON[target]
     return fly(policy_spec, env_id, deep_merge(env_kwargs, extra), seeds)

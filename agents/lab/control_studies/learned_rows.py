@@ -188,7 +188,7 @@ def ppo_job(
     :data:`EKF` entry with ``overrides``, then ``hyperparams``, its ``env_kwargs`` merged with
     ``env_kwargs``; in ``out/train/<name>/s<seed>``."""
     from agents.rl.hyperparams import load_hyperparams
-    from quadslam_env.config import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     entry = deep_merge(deep_merge(load_hyperparams("ppo", EKF), overrides), hyperparams or {})
     entry["env_kwargs"] = deep_merge(entry.get("env_kwargs", {}), env_kwargs)

@@ -32,7 +32,7 @@ import numpy as np
 
 from agents.evaluation.episodes import json_float, run_episodes
 from agents.io.outputs import atomic_produce, write_text_atomic
-from quadslam_env.config import available_scenarios
+from quadslam_env.config.files import available_scenarios
 
 KNOWN = {"lidar": {"association": "known", "clutter_rate": 0.0}}
 NN = {"estimator": {"params": {"association": "nn"}}}
@@ -104,7 +104,8 @@ def _usable(row: Row) -> str | None:
     """Why ``row`` cannot run here (its scenario or estimator is missing), or None."""
     import importlib.util
 
-    from quadslam_env.config import ConfigError, load_scenario
+    from quadslam_env.config.scenario import load_scenario
+    from quadslam_env.schema import ConfigError
 
     if row.scenario not in available_scenarios():
         return f"scenario {row.scenario!r} is not shipped"

@@ -38,7 +38,7 @@ import numpy as np
 from agents.lab.estimator_studies.bound_map import MapSeries, landmark_sq_errors, map_series
 from estimators.ekf.settings import EkfSlamSettings
 from estimators.pcrb import BoundModel, TruthRecord, error_bounds, slam_bound
-from quadslam_env.metrics import step_metrics
+from quadslam_env.metrics.step import step_metrics
 from quadslam_env.models.frames import dcm_from_euler, wrap_angle
 from quadslam_env.models.imu_noise import white_noise_sigma
 from quadslam_env.types import EUL, POS, POSE_DIM, VEL, FloatArray
@@ -306,7 +306,7 @@ def fly_and_bound(
     import quadslam_env  # noqa: F401  (registers the ids)
     from agents.control.dflqr import DFLQRPolicy
     from agents.evaluation.episodes import MAX_LANES, run_episodes
-    from quadslam_env.config import deep_merge
+    from quadslam_env.config.files import deep_merge
 
     kwargs: dict[str, Any] = dict(overrides or {})
     kwargs["scenario"] = scenario

@@ -18,7 +18,7 @@ import numpy as np
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.control.dflqr import DFLQRPolicy
 from estimators.oracle import OracleBatch
-from quadslam_env.metrics import anees_bounds
+from quadslam_env.metrics.step import anees_bounds
 
 
 @dataclass

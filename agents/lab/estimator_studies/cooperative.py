@@ -70,7 +70,7 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
     import gymnasium as gym
 
     from agents.control.dflqr import DFLQRPolicy
-    from quadslam_env.team import parallel_env
+    from quadslam_env.team.env import parallel_env
 
     episode = {} if duration_s is None else {"duration_s": duration_s}
     policy = DFLQRPolicy.from_env(gym.make("QuadSLAM-v0", scenario=SCENARIO, episode=episode))
@@ -166,7 +166,7 @@ def run_study(
 
 def row_summary(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     """A row's figures over its episodes (module docstring)."""
-    from quadslam_env.metrics import anees_bounds
+    from quadslam_env.metrics.step import anees_bounds
 
     count = sum(e["landmarks"] for e in episodes)
     nees = [e["nees_sum"] for e in episodes]

@@ -41,7 +41,7 @@ from agents.lab.estimator_studies.estimator_cells import (
     cell_scenario,
 )
 from agents.lab.estimator_studies.particle_nees import block_nees
-from quadslam_env.metrics import anees_bounds
+from quadslam_env.metrics.step import anees_bounds
 from quadslam_env.models.frames import wrap_angle
 from quadslam_env.types import EUL, POS, VEL
 

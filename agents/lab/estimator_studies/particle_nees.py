@@ -30,7 +30,8 @@ import numpy as np
 import quadslam_env  # noqa: F401  (registers the ids)
 from agents.io.overrides import parse_overrides
 from agents.lab.estimator_studies.degradation import save_json, seeded_lanes
-from quadslam_env.estimation import HasParticles, LaneLoop
+from quadslam_env.estimation.lane_loop import LaneLoop
+from quadslam_env.estimation.protocol import HasParticles
 from quadslam_env.models.frames import wrap_angle
 from quadslam_env.types import EUL, POS, VEL
 

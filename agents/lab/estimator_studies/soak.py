@@ -226,7 +226,7 @@ def _fly(
     policy sees ``obs``, or the true state's observation when an ``oracle`` is given.
     """
     from agents.lab.estimator_studies.consistency import truth_observation
-    from quadslam_env.estimation import HasFullState
+    from quadslam_env.estimation.protocol import HasFullState
 
     base = env.unwrapped
     full_state = base.estimator.full_state if isinstance(base.estimator, HasFullState) else None

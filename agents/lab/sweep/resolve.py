@@ -124,7 +124,7 @@ class Resolver:
 
     def _scenario_arg(self, scenario: str | None) -> str | dict[str, Any] | None:
         """A shipped name stays a name; a YAML path is read here (the workers get its content)."""
-        from quadslam_env.config import available_scenarios, load_yaml
+        from quadslam_env.config.files import available_scenarios, load_yaml
 
         if scenario is None or scenario in available_scenarios():
             return scenario
@@ -192,7 +192,7 @@ class Resolver:
             load_hyperparams,
             resolve_settings,
         )
-        from quadslam_env.config import deep_merge
+        from quadslam_env.config.files import deep_merge
 
         algo = str(point["algo"]).lower()
         if algo not in algorithms():
@@ -276,7 +276,7 @@ def _resolve_env(env_id: str, scenario: Any, estimator: str | None, overrides: d
     """The ``ScenarioConfig`` that ``gymnasium.make(env_id, ...)`` would build (no env)."""
     import gymnasium as gym
 
-    from quadslam_env.config import load_scenario
+    from quadslam_env.config.scenario import load_scenario
 
     _check_env_id(env_id)
     kwargs = {**gym.spec(env_id).kwargs, **overrides}
