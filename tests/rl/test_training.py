@@ -48,11 +48,6 @@ from agents.rl.saved.run_folder import run_config
 from agents.rl.training import train
 from agents.rl.wrappers import ResidualDFLQRWrapper, make_wrapped_env, residual_action
 
-# Tiny networks, short episodes, frequent eval/checkpoints: exercises every part in ~1 s.
-
-
-# ---------------------------------------------------------------------------- configs
-
 
 # ---------------------------------------------------------------------------- wrapper
 def test_residual_wrapper_with_zero_residual_flies_dflqr_exactly() -> None:

@@ -13,22 +13,15 @@ import pytest
 import yaml
 
 import quadslam_env  # noqa: F401  (registers the ids)
-from agents.rl.hyperparams import (
-    default_config_path,
-)
+from agents.rl.hyperparams import default_config_path
 
 ALGOS = ("ppo", "sac")
-
-
 SHORT = {"episode": {"duration_s": 1.0}}
-
-
+# Tiny networks, short episodes, frequent eval/checkpoints: exercises every part in ~1 s.
 TINY: dict[str, dict[str, Any]] = {
     "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 2},
     "sac": {"learning_starts": 32, "batch_size": 32, "buffer_size": 2000},
 }
-
-
 TINY_COMMON = {
     "policy_kwargs": {"net_arch": [8]},
     "env_kwargs": SHORT,
@@ -36,8 +29,6 @@ TINY_COMMON = {
     "n_eval_episodes": 1,
     "checkpoint_freq": 128,
 }
-
-
 REQUIRED_KEYS = ("n_envs", "n_timesteps", "policy", "policy_kwargs", "env_kwargs", "wrapper")
 
 
