@@ -277,3 +277,16 @@ def test_the_claim_counts_the_training_seeds_at_most_0_9_of_the_lqi(tmp_path: Pa
     assert robustness.format_study(result).count("2/5 seeds") == len(CONDITIONS)
     for row in (r for r in no_lqi["rows"] if r["config"] == "ppo_lqi"):
         assert row["claims"][0]["holds"] is None and row["claims"][0]["baseline"] is None
+
+
+def test_the_adaptive_row_is_the_lqi_with_thrust_adaptation() -> None:
+    """``lqi_adapt`` builds the LQI with ``thrust_adaptation=True``; the other rows build their
+    controller with its defaults (no adaptation)."""
+    from agents.control.lqi import LQIPolicy
+    from agents.lab.control_studies.robustness import _builder
+
+    env = gym.make("QuadSLAM-Oracle-v0", episode={"duration_s": 0.1})
+    adaptive, plain = _builder("lqi_adapt")(env), _builder("lqi")(env)
+    assert isinstance(adaptive, LQIPolicy) and isinstance(plain, LQIPolicy)
+    assert adaptive.adaptation and not plain.adaptation
+    env.close()

@@ -318,8 +318,8 @@ def add_study_parser(
     robust.add_argument(
         "--rows",
         type=_robustness_rows,
-        help="comma-separated rows to fly (default all: dflqr,lqi,se3,ppo_lqi); ppo_lqi is "
-        "trained only when listed",
+        help="comma-separated rows to fly (default all: dflqr,lqi,lqi_adapt,se3,ppo_lqi); "
+        "ppo_lqi is trained only when listed",
     )
     robust.add_argument(
         "--estimators",

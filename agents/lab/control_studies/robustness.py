@@ -28,8 +28,9 @@ vehicle's drag model, the settings of ``ekf_figure8_wind_states``; in the windy 
 only, since without drag the wind is unobservable and the model refused) and ``isam2`` (the
 smoother with the scenario's bias states and no extra Q, extra ``gtsam``; left out without it;
 it flies the LQI only, :data:`ISAM2_ROWS`).
-Controllers (:data:`CONTROLLER_ROWS`): DF-LQR with the paper's gains, the LQI and the SE(3)
-controller with integral action (:mod:`agents.control`). The learned row ``ppo_lqi`` is
+Controllers (:data:`CONTROLLER_ROWS`): DF-LQR with the paper's gains, the LQI, the LQI with its
+thrust adaptation (:data:`OPTION_ROWS`) and the SE(3) controller with integral action
+(:mod:`agents.control`). The learned row ``ppo_lqi`` is
 residual PPO on the LQI (the ``QuadSLAM-EKF-v0`` entry of ``ppo.yaml`` with ``wrapper.base:
 lqi``), trained on the nominal condition on ``ekf_full`` with seeds ``0 … n-1`` and flown on
 ``ekf_full`` in every condition. Evaluation seeds start at 1000 and are never used in training;
@@ -44,6 +45,7 @@ number of training seeds it holds on. ``--quick`` trains one seed on a small bud
 from __future__ import annotations
 
 import copy
+import functools
 import importlib.util
 import sys
 import time
@@ -93,7 +95,16 @@ WINDY = ("wind", "wind_moderate")
 ESTIMATORS = ("oracle", "ekf_thrust_axis", "ekf_full", "ekf_wind", "isam2")
 WIND_STATES = "ekf_figure8_wind_states"
 """The scenario whose ``estimator.params`` the ``ekf_wind`` cell takes (wind states)."""
-CONTROLLER_ROWS = {"dflqr": "DF-LQR (paper gains)", "lqi": "LQI", "se3": "SE(3) + integral"}
+CONTROLLER_ROWS = {
+    "dflqr": "DF-LQR (paper gains)",
+    "lqi": "LQI",
+    "lqi_adapt": "LQI + thrust adaptation",
+    "se3": "SE(3) + integral",
+}
+OPTION_ROWS = {"lqi_adapt": ("lqi", {"thrust_adaptation": True})}
+"""The rows that fly a controller with options (:data:`agents.control.named.OPTIONS`): the
+LQI with its thrust-scale adaptation (:mod:`agents.control.adaptation`), the feed-forward
+scaled by the thrust ratio its vertical integral measures, for the randomised mass and thrust."""
 ISAM2_ROWS = ("lqi",)
 """The rows flown on ``isam2``: the best baseline only (a smoother's step costs ~10 EKF-SLAM
 steps, and the Oracle and EKF rows already separate the controllers)."""
@@ -201,7 +212,8 @@ def _builder(name: str) -> Any:
     """A callable that builds controller ``name`` from an env (for :func:`fly`)."""
     from agents.control.named import CONTROLLERS
 
-    return CONTROLLERS[name]
+    base, options = OPTION_ROWS.get(name, (name, {}))
+    return functools.partial(CONTROLLERS[base], **options)
 
 
 def _fly_condition(
