@@ -101,7 +101,9 @@ CONTROLLER_ROWS = {
     "lqi_adapt": "LQI + thrust adaptation",
     "se3": "SE(3) + integral",
 }
-OPTION_ROWS = {"lqi_adapt": ("lqi", {"thrust_adaptation": True})}
+OPTION_ROWS: dict[str, tuple[str, dict[str, Any]]] = {
+    "lqi_adapt": ("lqi", {"thrust_adaptation": True})
+}
 """The rows that fly a controller with options (:data:`agents.control.named.OPTIONS`): the
 LQI with its thrust-scale adaptation (:mod:`agents.control.adaptation`), the feed-forward
 scaled by the thrust ratio its vertical integral measures, for the randomised mass and thrust."""
@@ -209,11 +211,12 @@ def _train(training: list[int], timesteps: int | None, out: Path, duration_s: fl
 
 
 def _builder(name: str) -> Any:
-    """A callable that builds controller ``name`` from an env (for :func:`fly`)."""
-    from agents.control.named import CONTROLLERS
+    """A callable that builds row ``name``'s controller from an env (for :func:`fly`), with
+    the row's options (:data:`OPTION_ROWS`) checked as ``--policy`` checks them."""
+    from agents.control.named import build_controller
 
     base, options = OPTION_ROWS.get(name, (name, {}))
-    return functools.partial(CONTROLLERS[base], **options)
+    return functools.partial(build_controller, base, **options)
 
 
 def _fly_condition(
