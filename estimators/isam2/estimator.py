@@ -58,6 +58,7 @@ from estimators.isam2.graph import (
 from estimators.isam2.history import ImuHistory, KeptSample
 from estimators.isam2.output import Isam2Output
 from estimators.isam2.settings import Isam2Settings
+from estimators.isam2.team import TeamMember
 from estimators.isam2.transition import NAV_DIM, ImuTransition
 from estimators.memory import MemoryTerm, Workload, isam2_terms
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
@@ -68,12 +69,14 @@ from quadslam_env.types import RATE, FloatArray
 
 
 @register("isam2")
-class Isam2Slam(Isam2Output, ImuHistory):
+class Isam2Slam(Isam2Output, ImuHistory, TeamMember):
     """Fixed-lag (or full) iSAM2 smoothing of IMU preintegration and LiDAR factors.
 
     Implements :class:`~quadslam_env.estimation.protocol.Estimator` in known-map
     (localisation) and unknown-map (SLAM) mode, with labeled scans or unlabeled ones
-    (``associates_unlabeled``: :attr:`last_association` names each return's landmark).
+    (``associates_unlabeled``: :attr:`last_association` names each return's landmark). The
+    team env's vehicles share one smoother through :meth:`~estimators.isam2.team.TeamMember.join`
+    (``team.fusion: centralised``, :mod:`estimators.isam2.team`).
 
     Args:
         vehicle: Nominal vehicle parameters (unused: the IMU drives the motion model).
@@ -110,6 +113,8 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self.last_error = ""
         """Message of the exception that set ``diverged`` ("" while healthy)."""
         self._front = ScanAssociation(self.settings)
+        self._team = [self]  # alone until it joins a team (estimators.isam2.team)
+        self._vehicle = 0
         self._reset_state()
 
     def __deepcopy__(self, memo: dict[int, Any]) -> Isam2Slam:
@@ -195,7 +200,8 @@ class Isam2Slam(Isam2Output, ImuHistory):
                 known map; ``None`` for SLAM.
 
         Raises:
-            ValueError: Wrong shapes, non-finite values, or a malformed known map.
+            ValueError: Wrong shapes, non-finite values, or a malformed known map; in a team,
+                vehicle 0 not reset before the others.
         """
         del rng
         g = self._g
@@ -211,10 +217,12 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self._front.reset(known=known is not None)
         self._rates = mean0[RATE].copy()
         s = self.settings
-        params = g.ISAM2Params()
-        params.setRelinearizeThreshold(s.relinearize_threshold)
-        params.setFactorization(s.factorization.upper())  # "QR" or "CHOLESKY"
-        self._smoother = FixedLagIsam2(g, s.window_s, params, s.relinearize_skip)
+        self._smoother = self._team_smoother()  # a team's vehicle after the first: its graph
+        if self._smoother is None:
+            params = g.ISAM2Params()
+            params.setRelinearizeThreshold(s.relinearize_threshold)
+            params.setFactorization(s.factorization.upper())  # "QR" or "CHOLESKY"
+            self._smoother = FixedLagIsam2(g, s.window_s, params, s.relinearize_skip)
         self._isam = self._smoother.isam
         keys = [self._key(c, 0) for c in "xvb"]
         first = first_keyframe(g, s, mean0, cov0, keys)
@@ -382,6 +390,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
         pose = self._kf_pose
         if pim is not None and pim.deltaTij() > 0.0:
             k += 1
+            self._check_keyframe(k)
             xi, vi, bi = self._key("x", k - 1), self._key("v", k - 1), self._key("b", k - 1)
             xj, vj, bj = self._key("x", k), self._key("v", k), self._key("b", k)
             graph.add(g.CombinedImuFactor(xi, vi, xj, vj, bi, bj, pim))
@@ -466,7 +475,7 @@ class Isam2Slam(Isam2Output, ImuHistory):
         self._set_keyframe(pose, vel, bias)
         self._transition_current = False  # moved to the new keyframe on first use
         self._kf_cov = 0.5 * (cov + cov.T)
-        self._lm_means = dict(zip(mapped, points, strict=True))  # rows: read, never written
+        self._share_map(dict(zip(mapped, points, strict=True)))  # rows: read, never written
         self._lm_covs = covs if eager or not self.settings.landmark_covariances else None
         self._lm_map = None
         self._pim = None  # the next sample starts a new preintegration at the new bias

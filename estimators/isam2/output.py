@@ -18,6 +18,7 @@ import numpy as np
 from estimators.isam2.graph import keyframe_marginals
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.snapshot import flagged, landmark_map, neutral, snapshot
+from estimators.isam2.team import VEHICLE_STRIDE
 from estimators.isam2.transition import ImuTransition
 from quadslam_env.estimation.snapshot import BatchEstimate, LaneMap
 from quadslam_env.types import POSE_DIM, FloatArray
@@ -49,11 +50,17 @@ class Isam2Output:
     _lm_covs: dict[int, FloatArray] | None
     _lm_map: LaneMap | None
     _diverged: bool
+    _vehicle: int
     _cache: BatchEstimate | None
     _state_cache: BatchEstimate | None
     _last: BatchEstimate | None
 
     def _key(self, char: str, index: int) -> int:
+        """GTSAM's key of variable ``char`` (``x``, ``v``, ``b``: keyframe ``index``'s pose,
+        velocity, biases; ``l``: landmark id ``index``), a vehicle's states shifted by its
+        index in a team (:data:`~estimators.isam2.team.VEHICLE_STRIDE`; landmarks are shared)."""
+        if char != "l":
+            index += self._vehicle * VEHICLE_STRIDE
         return int(self._g.symbol(char, index))
 
     def estimate(self) -> BatchEstimate:

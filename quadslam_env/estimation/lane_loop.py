@@ -14,6 +14,7 @@ from quadslam_env.estimation.protocol import (
     Estimator,
     HasParticles,
     IntArray,
+    JoinsTeam,
     KnownMaps,
     LabelsReturns,
     ModelsDrag,
@@ -159,6 +160,18 @@ class LaneLoop:
             scan = LidarScan(t=float(t[lane]), ids=ids, meas=meas[lane, ids], sigma=sigma)
             self.lanes[lane].update(scan)
             self._estimates[lane] = None
+
+    def join_team(self) -> None:
+        """Make the lanes' estimators one estimator of the team, lane i its vehicle i
+        (:class:`~quadslam_env.estimation.protocol.JoinsTeam`; ``team.fusion: centralised``).
+
+        Raises:
+            TypeError: A lane's estimator cannot join (its class lacks ``join``).
+        """
+        for index, est in enumerate(self.lanes):
+            if not isinstance(est, JoinsTeam):
+                raise TypeError(f"lane {index}: {type(est).__name__} cannot join a team")
+            est.join(self.lanes, index)  # type: ignore[arg-type]
 
     @property
     def associates_unlabeled(self) -> bool:

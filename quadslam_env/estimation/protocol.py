@@ -15,7 +15,7 @@ Abilities that only some estimators have are protocols of their own, checked wit
 :class:`FusesRanges`;
 of one vehicle's estimator (what :class:`~quadslam_env.estimation.lane_loop.LaneLoop` asks its
 lanes), :class:`ChecksMemory`, :class:`LabelsReturns`, :class:`HasParticles`,
-:class:`UsesVehicle` and :class:`ModelsDrag`. A runtime-checkable protocol's
+:class:`UsesVehicle`, :class:`ModelsDrag` and :class:`JoinsTeam`. A runtime-checkable protocol's
 ``isinstance`` only checks that the names exist, not their signatures or types, and no
 estimator names these protocols as bases, so nothing checks an implementation's signature
 against them; the call sites are typed by the protocol, and
@@ -25,8 +25,8 @@ reads instead: ``associates_unlabeled``, ``uses_truth``, ``copyable = False`` (a
 the env cannot deep-copy for a slow IMU or a delayed LiDAR), ``takes_late_scans`` (one that
 takes a delayed LiDAR's scans at their own time without a copy), ``models_drag`` (a process
 model with drag, which ``wind.inform_estimator`` needs), ``monitors_integrity``,
-``fuses_landmarks`` (the team env's map fusion) and ``fuses_ranges`` (its ranges between
-vehicles).
+``fuses_landmarks`` (the team env's map fusion), ``fuses_ranges`` (its ranges between
+vehicles) and ``joins_team`` (one estimator of the whole team).
 """
 
 from __future__ import annotations
@@ -388,3 +388,14 @@ class ModelsDrag(Protocol):
 
     def set_wind(self, wind: FloatArray) -> None:
         """The wind (3,) in N, m/s held over the next predictions (copied)."""
+
+
+@runtime_checkable
+class JoinsTeam(Protocol):
+    """A one-vehicle estimator whose instances, one per vehicle of the team env, can be one
+    estimator of the whole team (``team.fusion: centralised``, docs/team-fusion.md; its class
+    says ``joins_team = True``, which the team settings' check reads)."""
+
+    def join(self, team: Sequence[JoinsTeam], index: int) -> None:
+        """Be vehicle ``index`` of ``team`` (every vehicle's estimator, this one at ``index``)
+        from the next reset on; the team env resets vehicle 0 first, then the others."""

@@ -184,6 +184,17 @@ def fuses_ranges(name: str) -> bool:
     return bool(getattr(_load(name), "fuses_ranges", False))
 
 
+def joins_team(name: str) -> bool:
+    """Whether the estimator ``name``'s vehicles can be one estimator of the team: its class
+    says ``joins_team = True`` (:class:`~quadslam_env.estimation.protocol.JoinsTeam`; the team
+    env's ``team.fusion: centralised`` is refused otherwise).
+
+    Raises:
+        ValueError: Unknown name or a plug-in that cannot be loaded.
+    """
+    return bool(getattr(_load(name), "joins_team", False))
+
+
 def takes_late_scans(name: str) -> bool:
     """Whether the estimator ``name`` takes a delayed LiDAR's scans at their own time without
     being copied: its class says ``takes_late_scans = True``
@@ -251,7 +262,7 @@ def estimator_flag(name: str, flag: Callable[[str], bool]) -> bool:
     """``flag(name)`` for a scenario check, with ``flag`` one of the class flags above
     (:func:`associates_unlabeled`, :func:`copyable`, :func:`models_drag`,
     :func:`monitors_integrity`, :func:`takes_late_scans`, :func:`fuses_landmarks`,
-    :func:`fuses_ranges`).
+    :func:`fuses_ranges`, :func:`joins_team`).
 
     Raises:
         ConfigError: Unknown name or a plug-in that cannot be loaded (the registry's message).

@@ -17,22 +17,22 @@ from typing import Any, ClassVar
 import numpy as np
 
 from quadslam_env.config.scenario import ScenarioConfig
-from quadslam_env.estimation.registry import estimator_flag, fuses_landmarks, fuses_ranges
+from quadslam_env.estimation.registry import (
+    estimator_flag,
+    fuses_landmarks,
+    fuses_ranges,
+    joins_team,
+)
 from quadslam_env.schema import ConfigError, Section
 from quadslam_env.schema import spec as _spec
 from quadslam_env.types import FloatArray
 
-FUSION_MODES = ("independent", "ci", "naive")
+FUSION_MODES = ("independent", "ci", "naive", "centralised")
 """The fusion modes there are: ``independent``, each vehicle its own estimator and nothing
 shared (the baseline); ``ci``, the vehicles' landmark estimates fused by covariance
-intersection; ``naive``, the same messages fused as if independent (docs/team.md "Fusion").
-``centralised`` is not there yet (:data:`NOT_YET`)."""
-
-NOT_YET = {
-    "centralised": "one estimator of every vehicle and the map (a centralised smoother over "
-    "the team's measurements) is not implemented yet",
-}
-"""Fusion modes planned but refused, and the missing feature each one needs."""
+intersection; ``naive``, the same messages fused as if independent; ``centralised``, one
+estimator of every vehicle and the map, every vehicle's measurements in one factor graph
+(docs/team-fusion.md)."""
 
 SHARING = ("ci", "naive")
 """The fusion modes that send messages (the communication settings apply to them only)."""
@@ -106,7 +106,8 @@ class TeamConfig(Section):
         choices=FUSION_MODES,
         doc="independent: each vehicle runs its own estimator and nothing is shared; ci: the "
         "vehicles send their landmark estimates and each fuses them by covariance "
-        "intersection; naive: the same fused as if independent (double counting)",
+        "intersection; naive: the same fused as if independent (double counting); "
+        "centralised: one smoother of every vehicle and the map (estimator isam2)",
     )
     message_every_scans: int | None = _spec(
         None,
@@ -230,21 +231,6 @@ class TeamConfig(Section):
         "intersection",
     )
 
-    @classmethod
-    def from_dict(cls, data: Any) -> Any:
-        """:meth:`Section.from_dict`, after refusing a planned fusion mode with what it needs.
-
-        Raises:
-            ConfigError: Naming the key, the value and what is allowed.
-        """
-        fusion = data.get("fusion") if isinstance(data, dict) else None
-        if isinstance(fusion, str) and fusion in NOT_YET:
-            raise ConfigError(
-                f"team.fusion: got {fusion!r}: {NOT_YET[fusion]}; allowed: one of "
-                f"{list(FUSION_MODES)}"
-            )
-        return super().from_dict(data)
-
     def validate(self) -> None:
         """One way of timing the messages at most.
 
@@ -285,6 +271,8 @@ class TeamConfig(Section):
                 )
         if self.fusion in SHARING:
             self._check_sharing(scenario)
+        if self.fusion == "centralised":
+            self._check_centralised(scenario)
         if self.ranges:
             self._check_ranges(scenario)
         if scenario.faults.kind == "landmark_moves":
@@ -317,6 +305,29 @@ class TeamConfig(Section):
         _needs_one_run(got, "'independent'", scenario, "message")
         if self.message_rate_hz is not None:
             _at_most_one_per_step("message_rate_hz", self.message_rate_hz, scenario, "message")
+
+    def _check_centralised(self, scenario: ScenarioConfig) -> None:
+        """What one estimator of the team needs of the scenario: an estimator whose vehicles
+        can share one (``joins_team``) and landmark ids common to the vehicles (known
+        association).
+
+        Raises:
+            ConfigError: Naming the key, the value and what is allowed.
+        """
+        got = f"team.fusion: got {self.fusion!r}"
+        name = scenario.estimator.name
+        if not estimator_flag(name, joins_team):
+            raise ConfigError(
+                f"{got} with estimator.name = {name!r}, which cannot be one estimator of the "
+                "team; allowed: another fusion mode, or estimator.name 'isam2' (one factor graph "
+                "of every vehicle, needs the gtsam extra), or a plug-in with joins_team = True"
+            )
+        if scenario.lidar.association != "known":
+            raise ConfigError(
+                f"{got} with lidar.association = {scenario.lidar.association!r}; allowed: "
+                "another fusion mode, or lidar.association 'known' (the vehicles' returns of a "
+                "landmark name one variable by its id)"
+            )
 
     def _check_ranges(self, scenario: ScenarioConfig) -> None:
         """What the ranges need of the scenario: epochs the steps can hold and, to fuse them,

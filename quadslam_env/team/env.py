@@ -11,7 +11,9 @@ With ``ci`` or ``naive`` the vehicles send their landmark estimates
 (:class:`~quadslam_env.team.comms.Comms`: sent at the end of a step, fused by the estimator at
 the start of a later one). With ``team.ranges`` the vehicles measure their distances
 (:class:`~quadslam_env.team.ranging.Ranges`: at the end of a range epoch's step, fused with
-``range_fusion: ci`` at the start of the next). The team's map terms are read from the lane
+``range_fusion: ci`` at the start of the next). With ``centralised`` the vehicles' estimators are
+one (:meth:`~quadslam_env.estimation.lane_loop.LaneLoop.join_team`: iSAM2's vehicles share one
+factor graph and one map), so nothing is sent. The team's map terms are read from the lane
 snapshots (:class:`~quadslam_env.team.map_metrics.MapMetrics`).
 The core's check across lanes ends two vehicles that collide
 (:class:`~quadslam_env.team.collision.Collisions`). A vehicle that ends leaves ``agents``
@@ -35,6 +37,7 @@ from quadslam_env.core import SimCore
 from quadslam_env.env import lane_info, step_rate
 from quadslam_env.episode.actions import ActionError, validate_actions
 from quadslam_env.episode.reset_options import parse_reset_options, parse_seed
+from quadslam_env.estimation.lane_loop import LaneLoop
 from quadslam_env.extras import require
 from quadslam_env.memory import check_env_memory
 from quadslam_env.schema import ConfigError
@@ -107,6 +110,8 @@ class TeamParallelEnv(ParallelEnv):
         check = None if radius is None else Collisions(radius)
         self._core = SimCore(self.scenario, n, self.references, check)
         core = self._core
+        if self.team.fusion == "centralised":  # the check has refused estimators that cannot
+            _join(core.estimator)
         self._starts = start_states(self.scenario, self.references, core.vehicle_params.mass)
         self.n_vehicles = n
         self.render_mode = None
@@ -345,6 +350,26 @@ def _reset_options(options: Any) -> dict[str, Any]:
             stacklevel=3,
         )
     return parse_reset_options({k: v for k, v in options.items() if k in TEAM_RESET_OPTIONS})
+
+
+def _join(estimator: Any) -> None:
+    """Make the lanes' estimators one estimator of the team (``team.fusion: centralised``).
+
+    Raises:
+        ConfigError: A batched estimator (its lanes are one object already, not vehicles that
+            can join), or more vehicles than one estimator of the team holds.
+    """
+    if not isinstance(estimator, LaneLoop):
+        raise ConfigError(
+            f"team.fusion: got 'centralised' with the batched {type(estimator).__name__}; "
+            "allowed: a one-vehicle estimator with joins_team = True (isam2)"
+        )
+    try:
+        estimator.join_team()
+    except ValueError as err:  # the estimator's own limit, e.g. iSAM2's vehicles per graph
+        raise ConfigError(
+            f"n_vehicles: got {estimator.num_lanes} with team.fusion 'centralised'; {err}"
+        ) from None
 
 
 def _applying(terms: dict[str, float]) -> dict[str, float]:

@@ -21,6 +21,7 @@ from quadslam_env.estimation.protocol import (
     FusesRanges,
     HasFullState,
     HasParticles,
+    JoinsTeam,
     LabelsReturns,
     ModelsDrag,
     MonitorsIntegrity,
@@ -70,6 +71,8 @@ ONE_VEHICLE: dict[type, set[str]] = {
     # others are driven by the IMU (docs/physics.md "Domain randomisation", "Wind").
     UsesVehicle: {"fastslam"},
     ModelsDrag: {"fastslam"},
+    # Only the smoother's vehicles can share one graph (the team's centralised fusion).
+    JoinsTeam: {"isam2"},
 }
 LOOPED = {"fastslam", "fastslam_kinematic", "isam2"}
 # The class flag read before any estimator is built: every built-in may be deep-copied (for a
@@ -81,6 +84,7 @@ TAKES_LATE_SCANS = {"isam2"}
 MONITORS_INTEGRITY = {"ekf_slam"}
 FUSES_LANDMARKS = {"ekf_slam"}
 FUSES_RANGES = {"ekf_slam"}
+JOINS_TEAM = {"isam2"}
 
 
 def _built() -> dict[str, Any]:
@@ -145,6 +149,11 @@ def test_fuses_landmarks_flag_is_the_documented_one(name: str) -> None:
 @pytest.mark.parametrize("name", sorted(BUILT_IN))
 def test_fuses_ranges_flag_is_the_documented_one(name: str) -> None:
     assert registry.fuses_ranges(name) == (name in FUSES_RANGES)
+
+
+@pytest.mark.parametrize("name", sorted(BUILT_IN))
+def test_joins_team_flag_is_the_documented_one(name: str) -> None:
+    assert registry.joins_team(name) == (name in JOINS_TEAM)
 
 
 def test_the_loop_says_its_lanes_flag(built: dict[str, Any]) -> None:

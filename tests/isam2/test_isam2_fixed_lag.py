@@ -16,6 +16,7 @@ from conftest import fly_dflqr
 import quadslam_env  # noqa: F401  (registers the env ids)
 from estimators.isam2 import fixed_lag
 from estimators.isam2.fixed_lag import FixedLagIsam2
+from estimators.isam2.team import VEHICLE_STRIDE
 
 gtsam = pytest.importorskip("gtsam")
 
@@ -188,6 +189,62 @@ def test_a_state_that_is_not_a_leaf_is_seen_and_the_order_restored(
     est = window.calculateEstimate()
     for key in (gtsam.symbol("x", 7), gtsam.symbol("l", 0)):
         np.testing.assert_allclose(est.atPoint3(key), batch.atPoint3(key), atol=1e-9)
+
+
+def test_two_vehicles_chains_interleaved_by_time_leave_the_window_exactly() -> None:
+    """A team's graph (``team.fusion: centralised``): two chains of states, the second's keys
+    offset as a team's vehicle 1's, both seeing one landmark, added one vehicle at a time at
+    the same stamps. Ordered by time, the two chains' old states are leaves of the Bayes tree
+    together: after every update each vehicle's newest state and the landmark equal the full
+    graph's batch solution, no marginalisation needs a repair, and the window holds the lag."""
+    steps, lag = 40, 0.45
+    shift = VEHICLE_STRIDE
+    chains = [_chain(np.random.default_rng(seed), steps) for seed in (11, 12)]
+    window = FixedLagIsam2(gtsam, lag, gtsam.ISAM2Params(), 3)
+    full_graph, full_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    lm = gtsam.symbol("l", 0)
+    for k in range(steps):
+        for vehicle, chain in enumerate(chains):
+            graph, values, stamps = chain[k]
+            if vehicle:  # vehicle 1's states: its keys shifted, the landmark shared
+                graph, values, stamps = _shifted(graph, values, stamps, shift, lm, k)
+            full_graph.push_back(graph)
+            full_values.insert(values)
+            window.update(graph, values, stamps)
+            batch = gtsam.GaussNewtonOptimizer(full_graph, full_values).optimize()
+            est = window.calculateEstimate()
+            for key in (gtsam.symbol("x", k), gtsam.symbol("x", k + shift), lm):
+                if est.exists(key):
+                    np.testing.assert_allclose(est.atPoint3(key), batch.atPoint3(key), atol=1e-8)
+    est = window.calculateEstimate()
+    kept = [j for j in range(steps) if est.exists(gtsam.symbol("x", j))]
+    assert window.repairs == 0
+    assert kept == list(range(35, steps))  # the 80th update marginalised those before 3.45 s
+
+
+def _shifted(
+    graph: Any, values: Any, stamps: dict[int, float], shift: int, lm: int, k: int
+) -> tuple[Any, Any, dict[int, float]]:
+    """Vehicle 1's copy of one step of :func:`_chain`: every state key shifted by ``shift``;
+    the landmark shared (its initial value inserted once, by vehicle 0)."""
+
+    def move(key: int) -> int:
+        return key if key == lm else key + shift
+
+    out_graph, out_values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for i in range(graph.size()):
+        factor = graph.at(i)
+        keys = [move(key) for key in factor.keys()]  # noqa: SIM118 (a KeyVector)
+        if isinstance(factor, gtsam.PriorFactorPoint3):
+            out_graph.add(gtsam.PriorFactorPoint3(keys[0], factor.prior(), factor.noiseModel()))
+        else:
+            out_graph.add(
+                gtsam.BetweenFactorPoint3(keys[0], keys[1], factor.measured(), factor.noiseModel())
+            )
+    for key in values.keys():  # noqa: SIM118 (gtsam.Values)
+        if key != lm:
+            out_values.insertPoint3(move(key), values.atPoint3(key))
+    return out_graph, out_values, {move(key): t for key, t in stamps.items()}
 
 
 def test_a_state_keeps_its_stamp() -> None:

@@ -3,6 +3,7 @@ landmark ANEES and the ratios are their definitions, the table, the JSON and the
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import gymnasium as gym
@@ -22,13 +23,16 @@ def test_tiny_study_against_the_single_env_and_its_definitions(
     monkeypatch.setattr(study, "ROWS", {k: study.ROWS[k] for k in ("independent", "ci_every_scan")})
     monkeypatch.setattr(study, "RANGE_ROWS", {"ranges": study.RANGE_ROWS["independent_ranges"]})
     result = study.run_study(seeds=2, first_seed=5, quick=True, sizes=(1, 2), duration_s=4.0)
+    isam2 = [(2, row) for row in study.ISAM2_ROWS] if importlib.util.find_spec("gtsam") else []
     assert [(r["n_vehicles"], r["row"]) for r in result["rows"]] == [
         (1, "independent"),
         (2, "independent"),
         (2, "ci_every_scan"),
+        *isam2,  # with GTSAM: iSAM2 per vehicle and one smoother of the team
         (2, "ranges"),  # the largest team's rows with ranges
     ]
-    omega = result["rows"][3]["summary"]["range_omega_median"]
+    rows = {(r["n_vehicles"], r["row"]): r["summary"] for r in result["rows"]}
+    omega = rows[2, "ranges"]["range_omega_median"]
     assert omega is not None and 0.0 < omega < 1.0
     assert result["rows"][2]["summary"]["range_omega_median"] is None
     # A team of one is the single env: its position RMSE and final map RMSE, seed for seed.
@@ -58,6 +62,13 @@ def test_tiny_study_against_the_single_env_and_its_definitions(
     assert independent["vs_independent"] == 1.0
     assert ci["vs_independent"] == pytest.approx(ci["map_rmse_m"] / independent["map_rmse_m"])
     assert ci["kb_sent"] > 0 == independent["kb_sent"]
+    if isam2:  # the smoother's rows against their own estimator's independent row
+        alone, central = rows[2, "isam2_independent"], rows[2, "centralised"]
+        assert alone["vs_independent"] == 1.0
+        assert central["vs_independent"] == pytest.approx(
+            central["map_rmse_m"] / alone["map_rmse_m"]
+        )
+        assert central["kb_sent"] is None  # not counted: every measurement at one estimator
     text = study.format_study(result)
     assert "| 2 | ci_every_scan |" in text
     study.write_json(result, tmp_path / "coop.json")

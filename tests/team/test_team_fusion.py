@@ -277,7 +277,10 @@ def test_batched_map_terms_equal_those_of_the_lane_snapshots() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "fragment"),
     [
-        ({"team": {"fusion": "centralised"}}, "team.fusion: got 'centralised': one estimator"),
+        (
+            {"team": {"fusion": "centralised"}},
+            "team.fusion: got 'centralised' with estimator.name = 'ekf_slam', which cannot be one",
+        ),
         ({"team": {"fusion": "mean"}}, "team.fusion: got 'mean'; allowed: one of"),
         ({"team": {"drop_probability": 0.5}}, "team.drop_probability: got 0.5, which team.fusion"),
         ({"team": {"fusion": "ci", "drop_probability": 1.5}}, "team.drop_probability: got 1.5"),

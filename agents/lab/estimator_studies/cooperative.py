@@ -9,8 +9,12 @@ covariance intersection with the messages' defaults (0.2 messages per second, th
 joint landmark covariance), CI after every scan, CI with the block covariances only (the ``k ·
 blockdiag`` bound), and the naive fusion of the default messages; the largest team also
 flies ``independent`` and CI with the ranges between vehicles fused by CI
-(:data:`RANGE_ROWS`). A team of one has only ``independent`` (no one to talk to).
-``centralised`` fusion is not implemented, so it has no row.
+(:data:`RANGE_ROWS`). A team of one has only ``independent`` (no one to talk to). With the
+``gtsam`` extra, teams of N ≥ 2 also fly the iSAM2 smoother (:data:`ISAM2_ROWS`): each
+vehicle its own (``isam2_independent``) and one smoother of the whole team
+(``centralised``: every vehicle's IMU and LiDAR factors in one graph, the reference of the
+decentralised modes); their ratio is to ``isam2_independent``'s, and the centralised row's
+kB is not counted (every measurement is assumed at the one estimator).
 
 Per row: the team map RMSE (the mean over the vehicles of each one's map RMSE at its last step;
 mean over seeds) and its ratio to ``independent``'s of the same N, the union map RMSE, the team
@@ -27,9 +31,11 @@ of 20 s (a smoke run, not a result).
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import multiprocessing as mp
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -52,6 +58,12 @@ ROWS: dict[str, dict[str, Any]] = {
 """The rows of a team of N ≥ 2: the ``team`` settings of each. The default message rate, 0.2
 Hz, was chosen on seeds 0–2 (30 s; every scan, 1, 0.5, 0.2 and 0.1 Hz measured), not on the
 study's seeds."""
+ISAM2_ROWS: dict[str, dict[str, Any]] = {
+    "isam2_independent": {"fusion": "independent"},
+    "centralised": {"fusion": "centralised"},
+}
+"""The rows of a team of N ≥ 2 flown with ``estimator.name: isam2`` (the study's scenario and
+settings otherwise), when GTSAM is installed."""
 RANGE_ROWS: dict[str, dict[str, Any]] = {
     "independent_ranges": {"fusion": "independent", "ranges": True, "range_fusion": "ci"},
     "ci_ranges": {"fusion": "ci", "ranges": True, "range_fusion": "ci"},
@@ -74,7 +86,9 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
 
     episode = {} if duration_s is None else {"duration_s": duration_s}
     policy = DFLQRPolicy.from_env(gym.make("QuadSLAM-v0", scenario=SCENARIO, episode=episode))
-    env = parallel_env(n_vehicles=n_vehicles, scenario=SCENARIO, team=_team(row), episode=episode)
+    estimator = "isam2" if row in ISAM2_ROWS else None
+    env = parallel_env(n_vehicles=n_vehicles, scenario=SCENARIO, team=_team(row),
+                       estimator_name=estimator, episode=episode)  # fmt: skip
     obs, _ = env.reset(seed=seed)
     last: dict[str, dict[str, Any]] = {}
     omegas: list[float] = []  # the CI weights of the fused ranges
@@ -93,7 +107,7 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
         "nees_sum": json_float(sum(i["est_landmark_anees"] * i["est_n_mapped"] for i in ends)),
         "landmarks": int(sum(i["est_n_mapped"] for i in ends)),
         "ended_early": int(sum(bool(i.get("termination_reason")) for i in ends)),
-        "bytes": float(final.get("team_episode_bytes_sent", 0.0)),
+        "bytes": None if row == "centralised" else float(final.get("team_episode_bytes_sent", 0.0)),
         "range_omega_median": float(np.median(omegas)) if omegas else None,
         "range_omega_below_0.99": float(np.mean(np.less(omegas, 0.99))) if omegas else None,
         "map0": {"ids": ids.tolist(), "means": means.tolist(), "covs": covs.tolist(),
@@ -101,17 +115,24 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
     }  # fmt: skip
 
 
-def _rows(n_vehicles: int, largest: int) -> tuple[str, ...]:
+def _rows(n_vehicles: int, largest: int, isam2: bool) -> tuple[str, ...]:
     """The rows of a team of ``n_vehicles``: ``independent`` alone for one vehicle, else
-    :data:`ROWS`, and :data:`RANGE_ROWS` too for the ``largest`` team."""
+    :data:`ROWS`, :data:`ISAM2_ROWS` with ``isam2``, and :data:`RANGE_ROWS` too for the
+    ``largest`` team."""
     if n_vehicles == 1:
         return ("independent",)
-    return (*ROWS, *RANGE_ROWS) if n_vehicles == largest else tuple(ROWS)
+    rows = (*ROWS, *(ISAM2_ROWS if isam2 else ()))
+    return (*rows, *RANGE_ROWS) if n_vehicles == largest else rows
 
 
 def _team(row: str) -> dict[str, Any]:
-    """The ``team`` settings of ``row`` (:data:`ROWS`, :data:`RANGE_ROWS`)."""
-    return ROWS[row] if row in ROWS else RANGE_ROWS[row]
+    """The ``team`` settings of ``row`` (:data:`ROWS`, :data:`ISAM2_ROWS`, :data:`RANGE_ROWS`)."""
+    return {**ROWS, **ISAM2_ROWS, **RANGE_ROWS}[row]
+
+
+def _baseline(row: str) -> str:
+    """The row a row's map RMSE is divided by: the independent row of its estimator."""
+    return "isam2_independent" if row in ISAM2_ROWS else "independent"
 
 
 def _fly_task(task: tuple[int, str, int, float | None]) -> dict[str, Any]:
@@ -138,7 +159,11 @@ def run_study(
         duration_s: The episodes' length, s (default: 20 s quick, else the scenario's 50 s).
     """
     duration = duration_s if duration_s is not None else 20.0 if quick else None
-    cells = [(n, row) for n in sizes for row in _rows(n, max(sizes))]
+    isam2 = importlib.util.find_spec("gtsam") is not None
+    if not isam2:
+        print("cooperative: GTSAM is not installed; no iSAM2 rows (pip install "
+              "'quadslam[gtsam]')", file=sys.stderr)  # fmt: skip
+    cells = [(n, row) for n in sizes for row in _rows(n, max(sizes), isam2)]
     tasks = [
         (n, row, s, duration) for n, row in cells for s in range(first_seed, first_seed + seeds)
     ]
@@ -155,9 +180,10 @@ def run_study(
         rows.append({"n_vehicles": n, "row": row, "team": _team(row),
                      "summary": row_summary(flown[i * seeds : (i + 1) * seeds]),
                      "episodes": flown[i * seeds : (i + 1) * seeds]})  # fmt: skip
-    base = {r["n_vehicles"]: r["summary"]["map_rmse_m"] for r in rows if r["row"] == "independent"}
+    base = {(r["n_vehicles"], r["row"]): r["summary"]["map_rmse_m"] for r in rows}
     for r in rows:
-        r["summary"]["vs_independent"] = _ratio(r["summary"]["map_rmse_m"], base[r["n_vehicles"]])
+        den = base[r["n_vehicles"], _baseline(r["row"])]
+        r["summary"]["vs_independent"] = _ratio(r["summary"]["map_rmse_m"], den)
     settings = {"scenario": SCENARIO, "seeds": seeds, "first_seed": first_seed, "quick": quick,
                 "duration_s": duration, "team_sizes": list(sizes),
                 "machine": cpu_model()}  # fmt: skip
@@ -179,7 +205,7 @@ def row_summary(episodes: list[dict[str, Any]]) -> dict[str, Any]:
         "landmark_anees": json_float(anees),
         "anees_95": [lo, hi],
         "ended_early": int(sum(e["ended_early"] for e in episodes)),
-        "kb_sent": float(np.mean([e["bytes"] for e in episodes])) / 1e3,
+        "kb_sent": _kb(e["bytes"] for e in episodes),
         "range_omega_median": _median(e["range_omega_median"] for e in episodes),
     }
 
@@ -188,6 +214,12 @@ def _mean(values: Any) -> float | None:
     """The mean, or None when a value is missing (a non-finite one)."""
     got = list(values)
     return None if any(v is None for v in got) else float(np.mean(got))
+
+
+def _kb(values: Any) -> float | None:
+    """The mean of the episodes' bytes in kB (None: not counted)."""
+    got = list(values)
+    return None if any(v is None for v in got) else float(np.mean(got)) / 1e3
 
 
 def _median(values: Any) -> float | None:
@@ -222,7 +254,7 @@ def format_study(result: dict[str, Any]) -> str:
             cell(m["vs_independent"], "{:.2f}"), cell(m["union_map_rmse_m"], "{:.4f}"),
             cell(m["pos_rmse_m"], "{:.4f}"), cell(m["landmark_anees"], "{:.3g}"),
             f"[{lo:.2f}, {hi:.2f}]", f"{m['ended_early']} of {vehicles}",
-            f"{m['kb_sent']:.0f}", cell(m["range_omega_median"], "{:.6f}"),
+            cell(m["kb_sent"], "{:.0f}"), cell(m["range_omega_median"], "{:.6f}"),
         )) + " |")  # fmt: skip
     return "\n".join(out)
 
@@ -241,7 +273,8 @@ def plot_study(result: dict[str, Any], folder: Path) -> Path:
     from matplotlib.patches import Ellipse
 
     n = max(result["settings"]["team_sizes"])
-    rows = [r for r in result["rows"] if r["n_vehicles"] == n and r["row"] in ROWS]
+    shown = (*ROWS, *ISAM2_ROWS)
+    rows = [r for r in result["rows"] if r["n_vehicles"] == n and r["row"] in shown]
     fig = Figure(figsize=(4.0 * len(rows), 4.2), constrained_layout=True)
     axes = fig.subplots(1, len(rows), squeeze=False)[0]
     for ax, r in zip(axes, rows, strict=True):
