@@ -21,6 +21,9 @@ smoother update (in lane order). After an update every other vehicle's map is th
 its landmark covariances are recovered afresh when a snapshot asks; its own state is its last
 keyframe's, read when it was added (a filter's estimate: later scans of the others refine the
 smoother, not the snapshot, until its next keyframe).
+
+With ``team.range_fusion: factor`` a range between two vehicles measured at the instant of
+their keyframes is a factor between those keyframes (:meth:`TeamMember.range_to`).
 """
 
 from __future__ import annotations
@@ -105,6 +108,45 @@ class TeamMember:
                 f"isam2: keyframe {k} of vehicle {self._vehicle}; a team's vehicle holds at most "
                 f"{VEHICLE_STRIDE} keyframes (its keys would reach the next vehicle's)"
             )
+
+    def range_to(self, other: int, measured_m: float, sigma_m: float) -> bool:
+        """Add the range ``measured_m`` (m, std ``sigma_m``) between this vehicle's position and
+        vehicle ``other``'s as a factor between their latest keyframes, when both are at the
+        range's instant (no IMU sample since them: the team env delivers a range at the start
+        of the step after its epoch, and a scan on the epoch's step put the keyframes there),
+        and read both keyframes again.
+
+        The factor is GTSAM's ``RangeFactorPose3``, ``r = ‖t_i − t_j‖ + n``, n ~ N(0, σ²), on
+        the poses' translations (the vehicles' centres, N frame).
+
+        Returns:
+            Whether the range was added (False: a keyframe not at the range's instant, a
+            vehicle diverged, or a GTSAM failure, which sets this vehicle diverged).
+        """
+        peer = self._team[other]
+        if peer is self or not isinstance(peer, TeamMember):
+            raise ValueError(f"range_to: vehicle {other} is not another vehicle of the team")
+        me: Any = self
+        them: Any = peer
+        if me._diverged or them._diverged or me._kept or them._kept:
+            return False
+        if abs(me._kf_t - them._kf_t) > 1e-9:
+            return False
+        g = me._g
+        graph = g.NonlinearFactorGraph()
+        noise = g.noiseModel.Isotropic.Sigma(1, sigma_m)
+        xi, xj = me._key("x", me._k), them._key("x", them._k)
+        graph.add(g.RangeFactorPose3(xi, xj, float(measured_m), noise))
+        try:
+            me._solve(graph, g.Values(), {})
+            me._read_keyframe(me._k)
+            them._read_keyframe(them._k)
+        except Exception as exc:  # a GTSAM failure (C++ exceptions arrive as RuntimeError)
+            me._diverge(exc)
+            return False
+        finally:
+            me._cache = me._state_cache = them._cache = them._state_cache = None
+        return True
 
     def _share_map(self, means: dict[int, FloatArray]) -> None:
         """The map ``means`` (id → (3,) m, N) read after this vehicle's keyframe, given to every

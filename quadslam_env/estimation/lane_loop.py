@@ -173,6 +173,14 @@ class LaneLoop:
                 raise TypeError(f"lane {index}: {type(est).__name__} cannot join a team")
             est.join(self.lanes, index)  # type: ignore[arg-type]
 
+    def range_between(self, lane: int, other: int, measured_m: float, sigma_m: float) -> bool:
+        """Fuse a range between lanes ``lane`` and ``other`` of a team's one estimator (after
+        :meth:`join_team`; ``team.range_fusion: factor``); returns whether it was fused."""
+        est = self.lanes[lane]
+        if not isinstance(est, JoinsTeam):
+            raise TypeError(f"lane {lane}: {type(est).__name__} is not a team's estimator")
+        return est.range_to(other, measured_m, sigma_m)
+
     @property
     def associates_unlabeled(self) -> bool:
         """Whether the scalar estimators accept unlabeled scans (unknown association)."""

@@ -399,3 +399,7 @@ class JoinsTeam(Protocol):
     def join(self, team: Sequence[JoinsTeam], index: int) -> None:
         """Be vehicle ``index`` of ``team`` (every vehicle's estimator, this one at ``index``)
         from the next reset on; the team env resets vehicle 0 first, then the others."""
+
+    def range_to(self, other: int, measured_m: float, sigma_m: float) -> bool:
+        """Fuse a range (m, std ``sigma_m``) between this vehicle and vehicle ``other``
+        measured at the end of the last step; returns whether it was fused."""

@@ -50,10 +50,12 @@ COMMS_KEYS = (
 RANGE_KEYS = ("range_sigma_m", "range_rate_hz", "range_dropout", "range_max_m", "range_fusion")
 """The settings of the ranges between vehicles, read only with ``team.ranges``."""
 
-RANGE_FUSIONS = ("none", "ci")
+RANGE_FUSIONS = ("none", "ci", "factor")
 """What a vehicle does with the ranges it measures: ``none``, nothing (they are only in its
 ``info``); ``ci``, each fused into its estimate by covariance intersection with the other's
-broadcast position estimate (docs/team-fusion.md "Ranges between vehicles")."""
+broadcast position estimate (docs/team-fusion.md "Ranges between vehicles"); ``factor``, with
+``fusion: centralised``, each a factor between the two vehicles' keyframes in the team's one
+graph."""
 
 BEACON_FLOATS = 3 + 6
 """The floats of a position broadcast for the ranges: the mean (3) and the upper triangle of
@@ -228,7 +230,8 @@ class TeamConfig(Section):
         choices=RANGE_FUSIONS,
         doc="none: the ranges are only in info; ci: each vehicle fuses the ranges it measures "
         "with the other's broadcast position estimate (3 + 6 floats) by covariance "
-        "intersection",
+        "intersection; factor (fusion centralised): each range a factor between the two "
+        "vehicles' keyframes in the team's graph",
     )
 
     def validate(self) -> None:
@@ -340,6 +343,13 @@ class TeamConfig(Section):
         if self.range_fusion == "none":
             return
         got = f"team.range_fusion: got {self.range_fusion!r}"
+        if self.range_fusion == "factor":
+            if self.fusion != "centralised":
+                raise ConfigError(
+                    f"{got} with team.fusion = {self.fusion!r}; allowed: 'none' or 'ci', or "
+                    "team.fusion 'centralised' (a factor needs the team's one graph)"
+                )
+            return
         _needs_fuser(got, "'none'", scenario, fuses_ranges, "ranges")
         _needs_one_run(got, "'none'", scenario, "range")
 

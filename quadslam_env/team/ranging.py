@@ -28,6 +28,7 @@ from typing import cast
 
 import numpy as np
 
+from quadslam_env.estimation.lane_loop import LaneLoop
 from quadslam_env.estimation.protocol import BatchEstimator, FusesRanges
 from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.team.comms import rate_ticks
@@ -151,7 +152,7 @@ class Ranges:
                     self.measured[k] += 1
                     sq[k].append(residual * residual)
                 broadcast[pair] = True
-                if self.fusion == "ci":
+                if self.fusion != "none":
                     self._pending.append(Range(i, j, measured, beacons, covs))
         for k in np.flatnonzero(self.measured).tolist():
             self.residual_rms_m[k] = math.sqrt(sum(sq[k]) / len(sq[k]))
@@ -160,11 +161,14 @@ class Ranges:
 
     def deliver(self, estimator: BatchEstimator, live: np.ndarray) -> None:
         """At the start of a step: each ``live`` (N,) vehicle fuses the ranges of the last
-        epoch with the other end's broadcast estimate (``range_fusion: ci``); sets
-        :attr:`fused` (N,)."""
+        epoch with the other end's broadcast estimate (``range_fusion: ci``), or each range of
+        two live vehicles enters the team's one graph (``factor``); sets :attr:`fused` (N,)."""
         self.fused[:] = 0
         self.omega[:] = math.nan
         if not self._pending:
+            return
+        if self.fusion == "factor":
+            self._deliver_factors(cast(LaneLoop, estimator), live)
             return
         fuser = cast(FusesRanges, estimator)  # the team settings' check saw its flag
         weights = np.zeros(self.n_vehicles)
@@ -183,14 +187,22 @@ class Ranges:
         some = self.fused > 0
         self.omega[some] = weights[some] / self.fused[some]
 
+    def _deliver_factors(self, estimator: LaneLoop, live: np.ndarray) -> None:
+        """The ranges of the last epoch as factors of the team's graph (``factor``; the team
+        settings' check saw ``fusion: centralised``), each counted as fused by both ends."""
+        for rng in self._pending:
+            both = bool(live[rng.i] and live[rng.j])
+            if both and estimator.range_between(rng.i, rng.j, rng.measured_m, self.sigma_m):
+                self.fused[[rng.i, rng.j]] += 1
+        self._pending = []
+
     def vehicle_terms(self) -> dict[str, FloatArray]:
         """Each vehicle's terms (:data:`VEHICLE_KEYS`) as (N,) floats (NaN: does not apply),
         then its range to each vehicle j of the last step, ``team_range_to_vehicle_<j>_m``."""
-        ci = self.fusion == "ci"
         none = np.full(self.n_vehicles, math.nan)
         out = {
             "team_ranges_measured": self.measured.astype(float),
-            "team_ranges_fused": self.fused.astype(float) if ci else none,
+            "team_ranges_fused": none if self.fusion == "none" else self.fused.astype(float),
             "team_range_ci_weight": self.omega.copy(),
             "team_range_residual_rms_m": self.residual_rms_m.copy(),
         }

@@ -23,13 +23,15 @@ def test_tiny_study_against_the_single_env_and_its_definitions(
     monkeypatch.setattr(study, "ROWS", {k: study.ROWS[k] for k in ("independent", "ci_every_scan")})
     monkeypatch.setattr(study, "RANGE_ROWS", {"ranges": study.RANGE_ROWS["independent_ranges"]})
     result = study.run_study(seeds=2, first_seed=5, quick=True, sizes=(1, 2), duration_s=4.0)
-    isam2 = [(2, row) for row in study.ISAM2_ROWS] if importlib.util.find_spec("gtsam") else []
+    gtsam = importlib.util.find_spec("gtsam") is not None
+    isam2 = [(2, row) for row in study.ISAM2_ROWS] if gtsam else []
     assert [(r["n_vehicles"], r["row"]) for r in result["rows"]] == [
         (1, "independent"),
         (2, "independent"),
         (2, "ci_every_scan"),
         *isam2,  # with GTSAM: iSAM2 per vehicle and one smoother of the team
         (2, "ranges"),  # the largest team's rows with ranges
+        *([(2, "centralised_ranges")] if gtsam else []),
     ]
     rows = {(r["n_vehicles"], r["row"]): r["summary"] for r in result["rows"]}
     omega = rows[2, "ranges"]["range_omega_median"]
@@ -69,6 +71,8 @@ def test_tiny_study_against_the_single_env_and_its_definitions(
             central["map_rmse_m"] / alone["map_rmse_m"]
         )
         assert central["kb_sent"] is None  # not counted: every measurement at one estimator
+        ranged = rows[2, "centralised_ranges"]
+        assert ranged["vs_independent"] == pytest.approx(ranged["map_rmse_m"] / alone["map_rmse_m"])
     text = study.format_study(result)
     assert "| 2 | ci_every_scan |" in text
     study.write_json(result, tmp_path / "coop.json")

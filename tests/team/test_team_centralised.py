@@ -1,7 +1,8 @@
 """One smoother of the whole team (``team.fusion: centralised``, estimators.isam2.team): a team
 of one is the single iSAM2 env bit for bit; flown on the same true trajectories, every
 landmark vehicle 0 maps is known better by the team's graph than by vehicle 0's own smoother
-(the other vehicle's factors add information); and bad settings."""
+(the other vehicle's factors add information); a range between the vehicles adds exactly its
+information 1/σ² to their relative position along the line of sight; and bad settings."""
 
 from __future__ import annotations
 
@@ -25,11 +26,11 @@ EPISODE = {"duration_s": 4.0}
 """Short episodes of the paper's unknown map: 40 scans per vehicle."""
 
 
-def _team(fusion: str, n: int = 2) -> Any:
+def _team(fusion: str, n: int = 2, **team: Any) -> Any:
     return parallel_env(
         n_vehicles=n,
         scenario=SCENARIO,
-        team={"fusion": fusion},
+        team={"fusion": fusion, **team},
         estimator_name="isam2",
         episode=EPISODE,
     )
@@ -86,6 +87,58 @@ def test_the_teams_graph_knows_every_landmark_better_than_one_vehicle() -> None:
     np.testing.assert_array_equal(means1, means0)
 
 
+def _range_variance(env: Any, u: np.ndarray) -> float:
+    """Var(uᵀ(t_0 − t_1)) m² of the two vehicles' latest keyframes in the team's graph: their
+    joint marginal over GTSAM's Pose3 tangents (δθ, δt in the body frame: t + R δt)."""
+    lanes = env.core.estimator.lanes
+    keys = [lane._key("x", lane._k) for lane in lanes]
+    isam = lanes[0]._isam
+    joint = np.asarray(isam.jointMarginalCovariance(keys).fullMatrix())
+    H = np.zeros(12)
+    H[3:6] = u @ lanes[0]._kf_dcm
+    H[9:12] = -u @ lanes[1]._kf_dcm
+    return float(H @ joint @ H)
+
+
+def test_a_range_factor_adds_its_information_to_the_vehicles_relative_position() -> None:
+    """A scalar measurement of a linear function: the information of uᵀ(t_0 − t_1) (u the line
+    of sight) grows by exactly 1/σ², as a Kalman update of that function (linearised; the
+    graph relinearises, hence the 1% tolerance), for a precise range and a coarse one. The
+    vehicles a quarter period apart (the default offsets start two vehicles together, where a
+    range is far from linear)."""
+    env = _team("centralised", time_offsets_s=[0.0, 6.25])
+    env.reset(seed=4)
+    hold = {agent: np.zeros(4, dtype=np.float32) for agent in env.agents}
+    for sigma in (0.01, 0.1):
+        for _ in range(10):  # to the next scan: both keyframes at the present
+            env.step(hold)
+        lanes = env.core.estimator.lanes
+        assert not lanes[0]._kept and not lanes[1]._kept
+        t0, t1 = (lane._kf_pose.translation() for lane in lanes)
+        u = (t0 - t1) / np.linalg.norm(t0 - t1)
+        before = _range_variance(env, u)
+        assert env.core.estimator.range_between(0, 1, float(np.linalg.norm(t0 - t1)), sigma)
+        after = _range_variance(env, u)
+        assert 1.0 / after == pytest.approx(1.0 / before + 1.0 / sigma**2, rel=0.01)
+    env.step(hold)  # an IMU sample since the keyframes: a range now is not at their instant
+    assert not env.core.estimator.range_between(0, 1, 1.0, 0.1)
+
+
+def test_ranges_as_factors_are_fused_at_each_epoch() -> None:
+    team = {"fusion": "centralised", "ranges": True, "range_fusion": "factor"}
+    env = parallel_env(
+        n_vehicles=2, scenario=SCENARIO, team=team, estimator_name="isam2", episode=EPISODE
+    )
+    env.reset(seed=2)
+    hold = {agent: np.zeros(4, dtype=np.float32) for agent in env.agents}
+    fused = []
+    for _ in range(41):
+        _, _, _, _, infos = env.step(hold)
+        fused.append(infos["vehicle_0"]["team_ranges_fused"])
+    assert fused[10::10] == [1.0] * 4  # the step after each 10 Hz epoch, at the scans
+    assert sum(fused) == 4
+
+
 @pytest.mark.parametrize(
     ("kwargs", "fragment"),
     [
@@ -99,6 +152,10 @@ def test_the_teams_graph_knows_every_landmark_better_than_one_vehicle() -> None:
             "team.fusion: got 'centralised' with lidar.association = 'unknown'; allowed:",
         ),
         (
+            {"estimator_name": "isam2", "team": {"ranges": True, "range_fusion": "factor"}},
+            "team.range_fusion: got 'factor' with team.fusion = 'independent'; allowed:",
+        ),
+        (
             {"estimator_name": "isam2", "n_vehicles": 100},
             "n_vehicles: got 100 with team.fusion 'centralised'; join: 100 vehicles; allowed: at "
             "most 99",
@@ -108,7 +165,7 @@ def test_the_teams_graph_knows_every_landmark_better_than_one_vehicle() -> None:
 def test_bad_centralised_settings_name_the_key_the_value_and_what_is_allowed(
     kwargs: dict[str, Any], fragment: str
 ) -> None:
-    kwargs = {"n_vehicles": 2, **kwargs}
+    kwargs = {"n_vehicles": 2, "team": {"fusion": "centralised"}, **kwargs}
     with pytest.raises(ConfigError) as err:
-        parallel_env(scenario=SCENARIO, team={"fusion": "centralised"}, **kwargs)
+        parallel_env(scenario=SCENARIO, **kwargs)
     assert fragment in str(err.value)

@@ -223,7 +223,7 @@ def test_fused_ranges_move_the_estimates_repeat_with_the_seed_and_count_bytes() 
         (
             {"ranges": True, "range_fusion": "ekf"},
             {},
-            "team.range_fusion: got 'ekf'; allowed: one of ['none', 'ci']",
+            "team.range_fusion: got 'ekf'; allowed: one of ['none', 'ci', 'factor']",
         ),
         ({"ranges": "yes"}, {}, "team.ranges: got 'yes'"),
         ({"ranges": True, "range_max_m": -1.0}, {}, "team.range_max_m: got -1.0"),

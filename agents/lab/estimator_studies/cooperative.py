@@ -13,8 +13,10 @@ flies ``independent`` and CI with the ranges between vehicles fused by CI
 ``gtsam`` extra, teams of N ≥ 2 also fly the iSAM2 smoother (:data:`ISAM2_ROWS`): each
 vehicle its own (``isam2_independent``) and one smoother of the whole team
 (``centralised``: every vehicle's IMU and LiDAR factors in one graph, the reference of the
-decentralised modes); their ratio is to ``isam2_independent``'s, and the centralised row's
-kB is not counted (every measurement is assumed at the one estimator).
+decentralised modes), and for the largest team the ranges between vehicles as factors of that
+graph (``centralised_ranges``, :data:`ISAM2_RANGE_ROWS`); their ratio is to
+``isam2_independent``'s, and the centralised rows' kB are not counted (every measurement is
+assumed at the one estimator).
 
 Per row: the team map RMSE (the mean over the vehicles of each one's map RMSE at its last step;
 mean over seeds) and its ratio to ``independent``'s of the same N, the union map RMSE, the team
@@ -64,6 +66,10 @@ ISAM2_ROWS: dict[str, dict[str, Any]] = {
 }
 """The rows of a team of N ≥ 2 flown with ``estimator.name: isam2`` (the study's scenario and
 settings otherwise), when GTSAM is installed."""
+ISAM2_RANGE_ROWS: dict[str, dict[str, Any]] = {
+    "centralised_ranges": {"fusion": "centralised", "ranges": True, "range_fusion": "factor"},
+}
+"""The largest team's iSAM2 row with the ranges between vehicles as factors of the graph."""
 RANGE_ROWS: dict[str, dict[str, Any]] = {
     "independent_ranges": {"fusion": "independent", "ranges": True, "range_fusion": "ci"},
     "ci_ranges": {"fusion": "ci", "ranges": True, "range_fusion": "ci"},
@@ -86,7 +92,7 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
 
     episode = {} if duration_s is None else {"duration_s": duration_s}
     policy = DFLQRPolicy.from_env(gym.make("QuadSLAM-v0", scenario=SCENARIO, episode=episode))
-    estimator = "isam2" if row in ISAM2_ROWS else None
+    estimator = "isam2" if _isam2(row) else None
     env = parallel_env(n_vehicles=n_vehicles, scenario=SCENARIO, team=_team(row),
                        estimator_name=estimator, episode=episode)  # fmt: skip
     obs, _ = env.reset(seed=seed)
@@ -107,7 +113,7 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
         "nees_sum": json_float(sum(i["est_landmark_anees"] * i["est_n_mapped"] for i in ends)),
         "landmarks": int(sum(i["est_n_mapped"] for i in ends)),
         "ended_early": int(sum(bool(i.get("termination_reason")) for i in ends)),
-        "bytes": None if row == "centralised" else float(final.get("team_episode_bytes_sent", 0.0)),
+        "bytes": None if "centralised" in row else float(final.get("team_episode_bytes_sent", 0.0)),
         "range_omega_median": float(np.median(omegas)) if omegas else None,
         "range_omega_below_0.99": float(np.mean(np.less(omegas, 0.99))) if omegas else None,
         "map0": {"ids": ids.tolist(), "means": means.tolist(), "covs": covs.tolist(),
@@ -122,17 +128,25 @@ def _rows(n_vehicles: int, largest: int, isam2: bool) -> tuple[str, ...]:
     if n_vehicles == 1:
         return ("independent",)
     rows = (*ROWS, *(ISAM2_ROWS if isam2 else ()))
-    return (*rows, *RANGE_ROWS) if n_vehicles == largest else rows
+    if n_vehicles < largest:
+        return rows
+    return (*rows, *RANGE_ROWS, *(ISAM2_RANGE_ROWS if isam2 else ()))
 
 
 def _team(row: str) -> dict[str, Any]:
-    """The ``team`` settings of ``row`` (:data:`ROWS`, :data:`ISAM2_ROWS`, :data:`RANGE_ROWS`)."""
-    return {**ROWS, **ISAM2_ROWS, **RANGE_ROWS}[row]
+    """The ``team`` settings of ``row`` (:data:`ROWS`, :data:`ISAM2_ROWS`, :data:`RANGE_ROWS`,
+    :data:`ISAM2_RANGE_ROWS`)."""
+    return {**ROWS, **ISAM2_ROWS, **RANGE_ROWS, **ISAM2_RANGE_ROWS}[row]
+
+
+def _isam2(row: str) -> bool:
+    """Whether ``row`` is flown with the iSAM2 smoother."""
+    return row in ISAM2_ROWS or row in ISAM2_RANGE_ROWS
 
 
 def _baseline(row: str) -> str:
     """The row a row's map RMSE is divided by: the independent row of its estimator."""
-    return "isam2_independent" if row in ISAM2_ROWS else "independent"
+    return "isam2_independent" if _isam2(row) else "independent"
 
 
 def _fly_task(task: tuple[int, str, int, float | None]) -> dict[str, Any]:
