@@ -10,7 +10,9 @@ its id and mean (3), and their covariance, read from its estimator's lane: the s
 landmark's 3×3 block (``blocks``). Each
 other live vehicle misses the message with ``team.drop_probability``, one draw per receiver
 from the sender's own generator (spawned from the vehicle's stream at reset, so the drops
-repeat with the seed); a message that reaches it is fused at the start of the step
+repeat with the seed), and with ``team.comm_range_m`` a receiver farther from the sender than
+that when it sends (true positions) does not hear it (after its drop draw, so a range changes
+no draw); a message that reaches it is fused at the start of the step
 ``team.latency_steps`` steps after the next one, by the estimator's
 :class:`~quadslam_env.estimation.protocol.FusesLandmarks` (the math is the estimator's:
 :mod:`estimators.ekf.fusion`). A message for a vehicle that has ended is discarded.
@@ -34,10 +36,11 @@ COUNT_KEYS = (
     "team_messages_sent",
     "team_messages_delivered",
     "team_messages_dropped",
+    "team_messages_out_of_range",
     "team_bytes_sent",
 )
 """The episode's message counts so far (a broadcast counts once in ``sent`` and its bytes; each
-receiver's copy once in ``delivered`` or ``dropped``)."""
+receiver's copy once in ``delivered``, ``dropped`` or ``out_of_range``)."""
 
 
 def rate_ticks(steps: np.ndarray, per_step: float) -> np.ndarray:
@@ -89,6 +92,7 @@ class Comms:
         self._control_hz = control_hz
         self._latency = team.latency_steps
         self._drop = team.drop_probability
+        self._range_m = team.comm_range_m
         self._k = team.landmarks_per_message
         self._covariance = team.message_covariance
         self._rngs: list[np.random.Generator] = []
@@ -112,13 +116,21 @@ class Comms:
             return (steps % self._lidar_every == 0) & (scans % self._every == 0) & (steps > 0)
         return rate_ticks(steps, self._rate / self._control_hz)
 
-    def send(self, estimator: BatchEstimator, steps: np.ndarray, live: np.ndarray) -> None:
+    def send(
+        self,
+        estimator: BatchEstimator,
+        steps: np.ndarray,
+        live: np.ndarray,
+        positions: FloatArray,
+    ) -> None:
         """At the end of a step: the ``live`` (N,) vehicles due after ``steps`` (N,) send.
 
         Args:
             estimator: The core's estimator (each sender's lane snapshot is read).
             steps: (N,) int each vehicle's steps so far.
             live: (N,) bool the vehicles still in the episode after the step.
+            positions: (N, 3) the true positions after the step, m, N frame (the radio's
+                reach, ``team.comm_range_m``).
         """
         for i in np.flatnonzero(self.due(steps) & live).tolist():
             ids, means, covs = self._best(estimator.lane_estimate(i))
@@ -134,6 +146,10 @@ class Comms:
                     continue
                 if self._rngs[i].random() < self._drop:
                     self.counts["team_messages_dropped"] += 1
+                    continue
+                reach = self._range_m
+                if reach is not None and np.linalg.norm(positions[j] - positions[i]) > reach:
+                    self.counts["team_messages_out_of_range"] += 1
                     continue
                 self._queue.append(Message(i, j, due, ids, means, covs))
 

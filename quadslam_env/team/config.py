@@ -42,6 +42,7 @@ COMMS_KEYS = (
     "message_rate_hz",
     "latency_steps",
     "drop_probability",
+    "comm_range_m",
     "landmarks_per_message",
     "message_covariance",
 )
@@ -144,6 +145,16 @@ class TeamConfig(Section):
         hi=1.0,
         doc="probability that a message does not reach one receiver (drawn per receiver from "
         "the sender's own generator)",
+    )
+    comm_range_m: float | None = _spec(
+        None,
+        optional=True,
+        lo=0.0,
+        lo_open=True,
+        hi=1e6,
+        doc="a receiver farther than this from the sender when it sends (true positions), m, "
+        "does not hear the message (counted in team_messages_out_of_range, after its drop "
+        "draw); null = every vehicle hears every other",
     )
     landmarks_per_message: int | None = _spec(
         None,

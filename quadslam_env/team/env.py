@@ -266,7 +266,7 @@ class TeamParallelEnv(ParallelEnv):
         team = self._metrics.terms(err, core.vehicle.state, live)
         self._live &= ~(terminated | truncated)
         if comms is not None:  # the live vehicles due to send, from their new estimates
-            comms.send(core.estimator, core.steps, self._live)
+            comms.send(core.estimator, core.steps, self._live, core.vehicle.state[:, POS])
         if ranges is not None:  # the ranges of the live vehicles, if the step ends an epoch
             ranges.measure(core.vehicle.state[:, POS], core.est, self._live, self._steps_done)
         info["est_landmark_anees"], team = self._map_terms(team, live)

@@ -223,6 +223,30 @@ def test_drop_probability_one_delivers_nothing_and_changes_nothing(independent: 
     assert info["team_episode_map_rmse_m"] == infos0["vehicle_0"]["team_episode_map_rmse_m"]
 
 
+def test_a_receiver_out_of_radio_range_hears_nothing(independent: Any) -> None:
+    """The vehicles a quarter period apart (metres) and a 0.5 m radio: every message is out of
+    range, so nothing is fused and the maps are independent's, bit for bit."""
+    env0, _ = independent
+    env, infos = _flown({"fusion": "ci", "comm_range_m": 0.5, "message_rate_hz": None})
+    for a, b in zip(_maps(env), _maps(env0), strict=True):
+        np.testing.assert_array_equal(a, b)
+    info = infos["vehicle_0"]
+    assert info["team_min_separation_m"] > 0.5
+    assert info["team_messages_delivered"] == info["team_messages_dropped"] == 0
+    assert info["team_messages_out_of_range"] == info["team_messages_sent"] == 58
+
+
+def test_a_radio_range_beyond_the_team_changes_nothing() -> None:
+    """A range no two vehicles reach is the unlimited radio, bit for bit (it draws nothing)."""
+    team = {"fusion": "ci", "landmarks_per_message": 4, "message_rate_hz": None}
+    env, _ = _flown(team)
+    far, far_infos = _flown({**team, "comm_range_m": 1e5})
+    for a, b in zip(_maps(env), _maps(far), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert far_infos["vehicle_1"]["team_messages_out_of_range"] == 0
+    assert far_infos["vehicle_1"]["team_messages_delivered"] == 58
+
+
 def test_latency_and_rate_time_the_messages() -> None:
     _, infos = _flown({"fusion": "naive", "message_rate_hz": 2.0, "latency_steps": 60})
     info = infos["vehicle_0"]
