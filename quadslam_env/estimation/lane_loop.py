@@ -70,6 +70,7 @@ class LaneLoop:
         # Lanes whose per-step snapshot may leave the landmark covariances out (iSAM2).
         self._states_only = [isinstance(e, EstimatesState) for e in self.lanes]
         self._out = empty_batch(b, max(landmark_capacity, 0))
+        self._joined = False  # one estimator of a team: an update changes every lane's map
         self.last_association = np.zeros((b, 0), dtype=np.int64)
         """(B, R) int the scalar estimators' labels of their last unlabeled scans' returns."""
 
@@ -159,6 +160,13 @@ class LaneLoop:
             ids = np.flatnonzero(visible[lane])
             scan = LidarScan(t=float(t[lane]), ids=ids, meas=meas[lane, ids], sigma=sigma)
             self.lanes[lane].update(scan)
+            self._changed(lane)
+
+    def _changed(self, lane: int) -> None:
+        """Forget lane ``lane``'s cached snapshot (every lane's, joined in a team)."""
+        if self._joined:
+            self._estimates = [None] * self.num_lanes
+        else:
             self._estimates[lane] = None
 
     def join_team(self) -> None:
@@ -172,6 +180,7 @@ class LaneLoop:
             if not isinstance(est, JoinsTeam):
                 raise TypeError(f"lane {index}: {type(est).__name__} cannot join a team")
             est.join(self.lanes, index)  # type: ignore[arg-type]
+        self._joined = True
 
     def range_between(self, lane: int, other: int, measured_m: float, sigma_m: float) -> bool:
         """Fuse a range between lanes ``lane`` and ``other`` of a team's one estimator (after
@@ -179,7 +188,9 @@ class LaneLoop:
         est = self.lanes[lane]
         if not isinstance(est, JoinsTeam):
             raise TypeError(f"lane {lane}: {type(est).__name__} is not a team's estimator")
-        return est.range_to(other, measured_m, sigma_m)
+        fused = est.range_to(other, measured_m, sigma_m)
+        self._changed(lane)
+        return fused
 
     @property
     def associates_unlabeled(self) -> bool:
@@ -216,7 +227,7 @@ class LaneLoop:
             self.last_association[lane] = -1
             if isinstance(est, LabelsReturns):  # else no return is labeled
                 self.last_association[lane, :k] = est.last_association
-            self._estimates[lane] = None
+            self._changed(lane)
 
     def lane_estimate(self, lane: int) -> BatchEstimate:
         """The scalar estimator's own one-lane snapshot (cached until the lane changes)."""
