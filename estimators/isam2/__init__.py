@@ -13,7 +13,9 @@
   preintegration settings;
 * :mod:`estimators.isam2.snapshot` — the estimate in the env's (ρ, v_B, Λ);
 * :mod:`estimators.isam2.tangent` — the env's (ρ, v_B, Λ) against GTSAM's tangent space;
-* :mod:`estimators.isam2.settings` — :class:`Isam2Settings`, the validated parameters.
+* :mod:`estimators.isam2.settings` — :class:`Isam2Settings`, the validated parameters;
+* :mod:`estimators.isam2.team` — the team env's vehicles sharing one smoother and one map
+  (``team.fusion: centralised``).
 
 Importing this package does not import GTSAM: building the estimator does, and fails with a
 :class:`~quadslam_env.schema.ConfigError` naming the extra when it is missing.
