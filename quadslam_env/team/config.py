@@ -304,13 +304,14 @@ class TeamConfig(Section):
             ConfigError: Naming the key, the value and what is allowed.
         """
         got = f"team.fusion: got {self.fusion!r}"
-        _needs_fuser(got, "'independent'", scenario, fuses_landmarks, "landmark estimates")
-        if scenario.lidar.association != "known":
-            raise ConfigError(
-                f"{got} with lidar.association = {scenario.lidar.association!r}; allowed: "
-                "'independent', or lidar.association 'known' (the fusion pairs the vehicles' "
-                "landmarks by id; unknown association would need map matching first)"
-            )
+        _needs_ability(got, "'independent'", scenario, fuses_landmarks, "fuse landmark estimates")
+        _needs_known_association(
+            got,
+            "'independent'",
+            scenario,
+            "the fusion pairs the vehicles' landmarks by id; unknown association would need map "
+            "matching first",
+        )
         if scenario.estimator.known_map:
             raise ConfigError(
                 f"{got} with estimator.known_map = true (no map to fuse); allowed: "
@@ -329,19 +330,20 @@ class TeamConfig(Section):
             ConfigError: Naming the key, the value and what is allowed.
         """
         got = f"team.fusion: got {self.fusion!r}"
-        name = scenario.estimator.name
-        if not estimator_flag(name, joins_team):
-            raise ConfigError(
-                f"{got} with estimator.name = {name!r}, which cannot be one estimator of the "
-                "team; allowed: another fusion mode, or estimator.name 'isam2' (one factor graph "
-                "of every vehicle, needs the gtsam extra), or a plug-in with joins_team = True"
-            )
-        if scenario.lidar.association != "known":
-            raise ConfigError(
-                f"{got} with lidar.association = {scenario.lidar.association!r}; allowed: "
-                "another fusion mode, or lidar.association 'known' (the vehicles' returns of a "
-                "landmark name one variable by its id)"
-            )
+        _needs_ability(
+            got,
+            "another fusion mode",
+            scenario,
+            joins_team,
+            "be one estimator of the team",
+            "isam2, one factor graph of every vehicle, needs the gtsam extra",
+        )
+        _needs_known_association(
+            got,
+            "another fusion mode",
+            scenario,
+            "the vehicles' returns of a landmark name one variable by its id",
+        )
 
     def _check_ranges(self, scenario: ScenarioConfig) -> None:
         """What the ranges need of the scenario: epochs the steps can hold and, to fuse them,
@@ -361,7 +363,7 @@ class TeamConfig(Section):
                     "team.fusion 'centralised' (a factor needs the team's one graph)"
                 )
             return
-        _needs_fuser(got, "'none'", scenario, fuses_ranges, "ranges")
+        _needs_ability(got, "'none'", scenario, fuses_ranges, "fuse ranges")
         _needs_one_run(got, "'none'", scenario, "range")
 
     def offsets(self, n_vehicles: int, period_s: float) -> tuple[FloatArray, FloatArray]:
@@ -378,11 +380,17 @@ class TeamConfig(Section):
         return times, positions
 
 
-def _needs_fuser(
-    got: str, off: str, scenario: ScenarioConfig, flag: Callable[[str], bool], what: str
+def _needs_ability(
+    got: str,
+    off: str,
+    scenario: ScenarioConfig,
+    flag: Callable[[str], bool],
+    what: str,
+    having: str = "ekf_slam",
 ) -> None:
-    """Refuse a fusion setting (``got``, turned off by ``off``) with an estimator whose class
-    lacks ``flag`` (``fuses_landmarks``, ``fuses_ranges``), the ability to fuse ``what``.
+    """Refuse a team setting (``got``, turned off by ``off``) with an estimator whose class
+    lacks ``flag`` (``fuses_landmarks``, ``fuses_ranges``, ``joins_team``), the ability to
+    ``what``; ``having`` names the built-in estimators that have it.
 
     Raises:
         ConfigError: Naming the setting, the estimator and what is allowed.
@@ -390,8 +398,23 @@ def _needs_fuser(
     name = scenario.estimator.name
     if not estimator_flag(name, flag):
         raise ConfigError(
-            f"{got} with estimator.name = {name!r}, which cannot fuse {what}; allowed: {off}, or "
-            f"an estimator with one (ekf_slam, or a plug-in with {flag.__name__} = True)"
+            f"{got} with estimator.name = {name!r}, which cannot {what}; allowed: {off}, or "
+            f"an estimator that can ({having}, or a plug-in with {flag.__name__} = True)"
+        )
+
+
+def _needs_known_association(got: str, off: str, scenario: ScenarioConfig, why: str) -> None:
+    """Refuse a team setting (``got``, turned off by ``off``) without the landmark ids common
+    to the vehicles (``lidar.association: known``), for the reason ``why``.
+
+    Raises:
+        ConfigError: Naming the setting, the association and what is allowed.
+    """
+    association = scenario.lidar.association
+    if association != "known":
+        raise ConfigError(
+            f"{got} with lidar.association = {association!r}; allowed: {off}, or "
+            f"lidar.association 'known' ({why})"
         )
 
 
