@@ -83,12 +83,16 @@ class PosePrediction:
         position: (3,) ρ in N, m.
         cov: (6, 6) its marginal covariance over GTSAM's Pose3 tangent (δθ rad, δt m; B).
         keyframe: Index of the keyframe the scan's factors go on.
+        F_pose: (6, 15) the pose rows of the IMU transition from the latest keyframe's error
+            (pose, velocity, biases) to this pose's (identity rows at the keyframe itself):
+            the cross-covariances with the landmarks are ``F_pose Σ_kl``.
     """
 
     dcm: FloatArray
     position: FloatArray
     cov: FloatArray
     keyframe: int
+    F_pose: FloatArray = field(default_factory=lambda: np.eye(6, 15))
 
 
 @dataclass
@@ -162,13 +166,23 @@ def innovation_covariance(
         joint: (6 + 3M, 6 + 3M) joint covariance of the pose tangent and the M landmarks.
         r_diag: (3,) measurement variances.
     """
+    J = stacked_jacobian(H_pose, H_lm)
+    S = J @ joint @ J.T + np.diag(np.tile(r_diag, H_pose.shape[0]))
+    return np.ascontiguousarray(0.5 * (S + S.T))
+
+
+def stacked_jacobian(H_pose: FloatArray, H_lm: FloatArray) -> FloatArray:
+    """(3M, 6 + 3M) ``J``: row block m is ``[H_x,m, 0 … H_l,m … 0]`` over (pose, l_1 … l_M).
+
+    Args:
+        H_pose: (M, 3, 6), H_lm: (M, 3, 3) the Jacobians of M returns, each of its own landmark.
+    """
     m = H_pose.shape[0]
     J = np.zeros((3 * m, 6 + 3 * m))
     for a in range(m):
         J[3 * a : 3 * a + 3, 0:6] = H_pose[a]
         J[3 * a : 3 * a + 3, 6 + 3 * a : 9 + 3 * a] = H_lm[a]
-    S = J @ joint @ J.T + np.diag(np.tile(r_diag, m))
-    return np.ascontiguousarray(0.5 * (S + S.T))
+    return J
 
 
 def new_landmark(

@@ -40,12 +40,14 @@ dead-reckons from it (a non-finite sample is dropped).
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
 
 from estimators.isam2.associate import Labeled, PosePrediction, ScanAssociation
 from estimators.isam2.factors import known_map_error, landmark_error, scan_error
+from estimators.isam2.fde import Isam2Monitor
 from estimators.isam2.fixed_lag import FixedLagIsam2
 from estimators.isam2.graph import (
     first_keyframe,
@@ -69,7 +71,7 @@ from quadslam_env.types import RATE, FloatArray
 
 
 @register("isam2")
-class Isam2Slam(Isam2Output, ImuHistory, TeamMember):
+class Isam2Slam(Isam2Output, ImuHistory, TeamMember, Isam2Monitor):
     """Fixed-lag (or full) iSAM2 smoothing of IMU preintegration and LiDAR factors.
 
     Implements :class:`~quadslam_env.estimation.protocol.Estimator` in known-map
@@ -158,6 +160,7 @@ class Isam2Slam(Isam2Output, ImuHistory, TeamMember):
         self._cache: BatchEstimate | None = None
         self._state_cache: BatchEstimate | None = None  # the same without landmark covs
         self._last: BatchEstimate | None = None
+        self._reset_monitor()
 
     @property
     def known_map(self) -> bool:
@@ -319,7 +322,13 @@ class Isam2Slam(Isam2Output, ImuHistory, TeamMember):
             return
         try:
             pim, stamp, n = self._until(float(scan.t))  # a late scan: its own interval
-            labeled = self._associate(meas, sigma, pim) if unlabeled else Labeled(ids, meas)
+            labeled = Labeled(ids, meas)
+            if unlabeled or self.monitoring:  # both need the belief at the scan
+                pred = self._scan_belief(pim)
+                if unlabeled:
+                    labeled = self._associate(meas, sigma, pred)
+                if self.monitoring:
+                    labeled = self._monitor_scan(labeled, sigma, pred, float(scan.t))
             self._keyframe(labeled, sigma, pim, stamp)
             self._resume(n, stamp)
         except Exception as exc:  # any GTSAM failure (C++ exceptions arrive as RuntimeError)
@@ -336,37 +345,39 @@ class Isam2Slam(Isam2Output, ImuHistory, TeamMember):
         for _ in range(self.settings.iterations - 1):
             self._smoother.update()
 
-    def _associate(self, meas: FloatArray, sigma: FloatArray, pim: Any) -> Labeled:
-        """Label an unlabeled scan on the smoother's belief at the scan, the latest keyframe
-        predicted with ``pim`` (:mod:`estimators.isam2.associate`)."""
+    def _associate(self, meas: FloatArray, sigma: FloatArray, pred: PosePrediction) -> Labeled:
+        """Label an unlabeled scan on the smoother's belief ``pred`` at the scan
+        (:mod:`estimators.isam2.associate`)."""
+        if self._known is not None:
+            lms, covs = self._known, dict.fromkeys(self._known, np.zeros((3, 3)))
+        else:
+            lms, covs = self._lm_means, self._landmark_covs()
+        return self._front.associate(meas, sigma, pred, lms, covs, partial(self._scan_joint, pred))
+
+    def _scan_belief(self, pim: Any) -> PosePrediction:
+        """The smoother's belief at a scan: the latest keyframe predicted with ``pim``."""
         k, pose = self._k, self._kf_pose
         F, Q = np.eye(NAV_DIM), np.zeros((NAV_DIM, NAV_DIM))
         if pim is not None and pim.deltaTij() > 0.0:
             k += 1
             pose, _, F, Q = self._link()(pim)
-        Fp, Qp = F[:6], Q[:6, :6]  # the pose rows: (δθ, δt) of the scan's keyframe
-        pose_cov = Fp @ self._kf_cov @ Fp.T + Qp
-        pred = PosePrediction(pose.rotation().matrix(), pose.translation(), pose_cov, k)
-        nav = [self._key(c, self._k) for c in "xvb"]
+        Fp = F[:6]  # the pose rows: (δθ, δt) of the scan's keyframe
+        pose_cov = Fp @ self._kf_cov @ Fp.T + Q[:6, :6]
+        return PosePrediction(pose.rotation().matrix(), pose.translation(), pose_cov, k, Fp)
 
-        def joint(ids: list[int]) -> FloatArray:
-            """(6 + 3M)² covariance of (X_k, l_ids): the keyframe's joint marginal with the
-            landmarks, mapped through the IMU transition (cross terms ``F Σ_il``)."""
-            n = 3 * len(ids)
-            out = np.zeros((6 + n, 6 + n))
-            out[:6, :6] = pose_cov
-            if self._known is None:
-                full = self._joint_marginal(nav, ids)
-                out[:6, 6:] = Fp @ full[:NAV_DIM, NAV_DIM:]
-                out[6:, :6] = out[:6, 6:].T
-                out[6:, 6:] = full[NAV_DIM:, NAV_DIM:]
-            return out
-
-        if self._known is not None:
-            lms, covs = self._known, dict.fromkeys(self._known, np.zeros((3, 3)))
-        else:
-            lms, covs = self._lm_means, self._landmark_covs()
-        return self._front.associate(meas, sigma, pred, lms, covs, joint)
+    def _scan_joint(self, pred: PosePrediction, ids: list[int]) -> FloatArray:
+        """(6 + 3M)² covariance of the scan's pose ``pred`` and the landmarks ``ids`` (M): the
+        keyframe's joint marginal with the landmarks mapped through the IMU transition (cross
+        terms ``F Σ_kl``); a known map's landmarks have zero blocks."""
+        n = 3 * len(ids)
+        out = np.zeros((6 + n, 6 + n))
+        out[:6, :6] = pred.cov
+        if self._known is None:
+            full = self._joint_marginal([self._key(c, self._k) for c in "xvb"], ids)
+            out[:6, 6:] = pred.F_pose @ full[:NAV_DIM, NAV_DIM:]
+            out[6:, :6] = out[:6, 6:].T
+            out[6:, 6:] = full[NAV_DIM:, NAV_DIM:]
+        return out
 
     def _joint_marginal(self, nav: list[int], ids: list[int]) -> FloatArray:
         """(15 + 3M)² joint marginal of keyframe k (``nav``) and the landmarks ``ids``: read off

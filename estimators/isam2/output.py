@@ -11,10 +11,12 @@ snapshot first asks for them, while the smoother is still at that keyframe.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from estimators.isam2.fde import LandmarkKeys
 from estimators.isam2.graph import keyframe_marginals
 from estimators.isam2.settings import Isam2Settings
 from estimators.isam2.snapshot import flagged, landmark_map, neutral, snapshot
@@ -51,6 +53,8 @@ class Isam2Output:
     _lm_map: LaneMap | None
     _diverged: bool
     _vehicle: int
+    _landmark_keys: LandmarkKeys
+    _monitor_diagnostics: Callable[[], dict[str, float]]  # estimators.isam2.fde
     _cache: BatchEstimate | None
     _state_cache: BatchEstimate | None
     _last: BatchEstimate | None
@@ -61,6 +65,8 @@ class Isam2Output:
         index in a team (:data:`~estimators.isam2.team.VEHICLE_STRIDE`; landmarks are shared)."""
         if char != "l":
             index += self._vehicle * VEHICLE_STRIDE
+        else:  # a landmark the integrity monitor retired has a successor (estimators.isam2.fde)
+            index = self._landmark_keys.index(index)
         return int(self._g.symbol(char, index))
 
     def estimate(self) -> BatchEstimate:
@@ -162,4 +168,5 @@ class Isam2Output:
             "diverged": float(self._diverged),
             "n_keyframes": float(self._k),
             "n_mapped": float(n_mapped),
+            **self._monitor_diagnostics(),
         }

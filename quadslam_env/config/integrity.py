@@ -3,8 +3,8 @@ limits (docs/integrity.md), re-exported by :mod:`quadslam_env.config`.
 
 ``monitor: off`` (the default) runs nothing and adds no ``info`` terms. ``detect`` runs the
 estimator's scan tests and reports protection levels and alerts; ``exclude`` also leaves out the
-landmarks found faulty (:mod:`estimators.ekf.fde`). Only an estimator whose class says
-``monitors_integrity = True`` has a monitor (EKF-SLAM).
+landmarks found faulty (:mod:`estimators.ekf.fde`, :mod:`estimators.isam2.fde`). Only an
+estimator whose class says ``monitors_integrity = True`` has a monitor (EKF-SLAM, iSAM2).
 """
 
 from __future__ import annotations
@@ -180,7 +180,7 @@ class IntegrityConfig(Section):
             raise ConfigError(
                 f"integrity.monitor: got {self.monitor!r} with estimator.name = {name!r}, which "
                 "has no integrity monitor; allowed: 'off', or an estimator with one (ekf_slam, "
-                "or a plug-in with monitors_integrity = True)"
+                "isam2, or a plug-in with monitors_integrity = True)"
             )
         if association != "known":
             raise ConfigError(

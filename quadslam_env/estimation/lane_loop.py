@@ -7,6 +7,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from quadslam_env.estimation.integrity import MonitorSettings
 from quadslam_env.estimation.measurements import Control, ImuSample, LidarScan
 from quadslam_env.estimation.protocol import (
     ChecksMemory,
@@ -18,6 +19,7 @@ from quadslam_env.estimation.protocol import (
     KnownMaps,
     LabelsReturns,
     ModelsDrag,
+    MonitorsIntegrity,
     UsesVehicle,
 )
 from quadslam_env.estimation.snapshot import BatchEstimate, empty_batch, id_width, stack_lanes
@@ -181,6 +183,20 @@ class LaneLoop:
                 raise TypeError(f"lane {index}: {type(est).__name__} cannot join a team")
             est.join(self.lanes, index)  # type: ignore[arg-type]
         self._joined = True
+
+    def set_monitor(self, settings: MonitorSettings | None) -> None:
+        """Give every lane's estimator the integrity monitor's ``settings``
+        (:class:`~quadslam_env.estimation.protocol.MonitorsIntegrity`; the scenario check has
+        read its class flag).
+
+        Raises:
+            TypeError: A lane's estimator has no monitor.
+        """
+        for index, est in enumerate(self.lanes):
+            if not isinstance(est, MonitorsIntegrity):
+                raise TypeError(f"lane {index}: {type(est).__name__} has no integrity monitor")
+            est.set_monitor(settings)
+            self._estimates[index] = None
 
     def range_between(self, lane: int, other: int, measured_m: float, sigma_m: float) -> bool:
         """Fuse a range between lanes ``lane`` and ``other`` of a team's one estimator (after

@@ -38,6 +38,7 @@ from quadslam_env.models.params import vehicle_preset
 from quadslam_env.schema import ConfigError
 
 BUILT_IN = {"ekf_slam", "fastslam", "fastslam_kinematic", "isam2", "oracle"}
+LOOPED = {"fastslam", "fastslam_kinematic", "isam2"}
 
 # Abilities of the batch the env talks to. Every built-in takes unlabeled scans
 # (docs/estimators.md); only EKF-SLAM sizes its map ahead and has one Gaussian over the whole
@@ -48,8 +49,9 @@ BATCH: dict[type, set[str]] = {
     UsesTruth: {"oracle"},
     ShowsParticles: {"fastslam", "fastslam_kinematic"},
     HasFullState: {"ekf_slam"},
-    # Only EKF-SLAM has the integrity monitor (docs/integrity.md).
-    MonitorsIntegrity: {"ekf_slam"},
+    # EKF-SLAM has the integrity monitor, and the LaneLoop passes one on to its lanes (iSAM2's
+    # take it, FastSLAM's refuse it: the scenario reads the class flag, MONITORS_INTEGRITY).
+    MonitorsIntegrity: {"ekf_slam"} | LOOPED,
     # Only EKF-SLAM fuses another vehicle's landmarks into its joint Gaussian (docs/team.md).
     FusesLandmarks: {"ekf_slam"},
     # and a range to another vehicle, beaconed by its broadcast position (docs/team.md).
@@ -74,14 +76,13 @@ ONE_VEHICLE: dict[type, set[str]] = {
     # Only the smoother's vehicles can share one graph (the team's centralised fusion).
     JoinsTeam: {"isam2"},
 }
-LOOPED = {"fastslam", "fastslam_kinematic", "isam2"}
 # The class flag read before any estimator is built: every built-in may be deep-copied (for a
 # slow IMU or a delayed LiDAR) except iSAM2, whose GTSAM smoother has no copy (docs/isam2.md).
 COPYABLE = BUILT_IN - {"isam2"}
 MODELS_DRAG = {"fastslam"}
 # Only the smoother puts a delayed scan on a keyframe of its own time (docs/isam2.md).
 TAKES_LATE_SCANS = {"isam2"}
-MONITORS_INTEGRITY = {"ekf_slam"}
+MONITORS_INTEGRITY = {"ekf_slam", "isam2"}
 FUSES_LANDMARKS = {"ekf_slam"}
 FUSES_RANGES = {"ekf_slam"}
 JOINS_TEAM = {"isam2"}

@@ -136,10 +136,12 @@ def cmd_study_association(args: argparse.Namespace) -> int:
 
 def cmd_study_integrity(args: argparse.Namespace) -> int:
     """The integrity monitor against each fault kind: detection, protection levels, errors."""
+    from agents.io.cpus import available_cpus
     from agents.lab.estimator_studies import integrity
 
     def run(seeds: int) -> dict[str, Any]:
-        return integrity.run_study(seeds, args.seed, args.quick, args.free_seeds)
+        jobs = args.jobs or available_cpus()
+        return integrity.run_study(seeds, args.seed, args.quick, args.free_seeds, jobs)
 
     return _flown_study(args, integrity, "integrity_stanford.png", run)
 
@@ -379,8 +381,9 @@ def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> N
     """The parsers of ``quadslam study integrity`` and ``integrity-task``."""
     integ = studies.add_parser(
         "integrity",
-        help="EKF-SLAM's integrity monitor, detecting and excluding, fault-free and with each "
-        "fault kind: false alarms, protection levels, detection, errors, Stanford diagrams",
+        help="EKF-SLAM's and iSAM2's integrity monitors, detecting and excluding, fault-free and "
+        "with each fault kind: false alarms, protection levels, detection, errors, Stanford "
+        "diagrams",
     )
     _flown_study_args(integ, positive_int, "3 seeds of 20 s", "write the Stanford diagrams "
                       "(PNG) here", seeds_help="episodes per fault row (default 20)")  # fmt: skip
@@ -388,6 +391,12 @@ def _add_integrity_parser(studies: Any, positive_int: Callable[[str], int]) -> N
         "--free-seeds", type=positive_int, help="fault-free episodes (default 50; quick 3)"
     )
     integ.add_argument("--seed", type=int, default=1000, help="first held-out seed (1000)")
+    integ.add_argument(
+        "--jobs",
+        type=positive_int,
+        help="rows at a time, each in its own process (default: the CPU cores available; "
+        "1: in this process); the results do not depend on it",
+    )
     integ.set_defaults(func=cmd_study_integrity)
     task = studies.add_parser(
         "integrity-task",

@@ -1,12 +1,14 @@
-"""``quadslam study integrity``: does EKF-SLAM's integrity monitor see the faults of the world,
-and do its protection levels bound the error?
+"""``quadslam study integrity``: do EKF-SLAM's and iSAM2's integrity monitors see the faults of
+the world, and do their protection levels bound the error?
 
 DF-LQR flies on EKF-SLAM's estimate (``paper_ekf_figure8``, the unknown map) on held-out seeds,
 fault-free and with each fault kind of the ``faults`` section (onset drawn in 10–15 s), with
 the monitor detecting only (``integrity.monitor: detect``: the filter is the unmonitored one;
 its protection levels and alarms are reported), on the filter without its χ² gate and with it,
 excluding (``exclude``: the landmarks found faulty are left out and dropped from the map), and
-excluding with the sequential test as well (``integrity.sequential_window``). Per row: the
+excluding with the sequential test as well (``integrity.sequential_window``); and on the iSAM2
+smoother's estimate (same scenario, ``estimator.name: isam2``), excluding with and without the
+sequential test (:mod:`estimators.isam2.fde`; without GTSAM these rows are left out). Per row: the
 false-alarm rate on fault-free scans against the budget, misleading and hazardously misleading
 information, availability, the share of fault-free steps the protection levels bound and how
 far above the error they sit, detection within 3 s and the time to alert (for a moving or a
@@ -18,9 +20,13 @@ error against protection level, 2-D histogram, with the alert limit) of each row
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
+import multiprocessing as mp
+import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,10 +55,12 @@ FAULTS: dict[str, dict[str, Any]] = {
     },
 }  # fmt: skip
 """The cases: the ``faults`` section of each (none for the fault-free row)."""
-MODES = ("detect_no_gate", "detect", "exclude", "exclude_sequential")
-"""The monitor's rows: detecting on EKF-SLAM without its per-landmark χ² gate
+EKF_MODES = ("detect_no_gate", "detect", "exclude", "exclude_sequential")
+"""The monitor's rows on EKF-SLAM: detecting without its per-landmark χ² gate
 (``gate_probability: 1``: every return used, as the paper's filter), detecting on the gated
 filter, excluding, and excluding with the sequential test as well."""
+ISAM2_MODES = ("isam2_exclude", "isam2_exclude_sequential")
+"""The monitor's rows on the iSAM2 smoother (which has no gate on labeled returns)."""
 SEQUENTIAL_WINDOW = 10
 """``integrity.sequential_window`` of the ``exclude_sequential`` row: 1 s of scans."""
 _SERIES = ("t", "est_pos_err_h_m", "est_pos_err_v_m", "hpl_m", "vpl_m", "integrity_alert",
@@ -84,8 +92,17 @@ class StepLog:
         return [{k: np.array(v) for k, v in self.lanes[i].items()} for i in sorted(self.lanes)]
 
 
+def modes() -> tuple[str, ...]:
+    """The rows' modes: EKF-SLAM's, and iSAM2's where GTSAM is installed."""
+    if importlib.util.find_spec("gtsam") is None:
+        print("integrity: GTSAM is not installed; no iSAM2 rows (pip install "
+              "'quadslam[gtsam]')", file=sys.stderr)  # fmt: skip
+        return EKF_MODES
+    return EKF_MODES + ISAM2_MODES
+
+
 def _overrides(case: str, mode: str, duration: float | None) -> dict[str, Any]:
-    monitor = mode.removesuffix("_no_gate").removesuffix("_sequential")
+    monitor = mode.removeprefix("isam2_").removesuffix("_no_gate").removesuffix("_sequential")
     out: dict[str, Any] = {
         "integrity": {"monitor": monitor, "alert_limit_m": ALERT_LIMIT_M, "p_fa": P_FA,
                       "p_hmi": P_HMI},
@@ -94,6 +111,8 @@ def _overrides(case: str, mode: str, duration: float | None) -> dict[str, Any]:
         out["integrity"]["sequential_window"] = SEQUENTIAL_WINDOW
     if mode.endswith("_no_gate"):
         out["estimator"] = {"params": {"gate_probability": 1.0}}
+    if mode.startswith("isam2_"):
+        out["estimator"] = {"name": "isam2"}
     if FAULTS[case]:
         out["faults"] = FAULTS[case]
     if duration is not None:
@@ -171,10 +190,17 @@ def row_summary(series: list[dict[str, np.ndarray]], sighted: bool = False) -> d
     }
 
 
+def _row(task: tuple[str, str, list[int], float | None]) -> tuple[list, list, float]:
+    """One row's episodes, step logs (one dict of arrays per episode) and wall time, s."""
+    tic = time.perf_counter()
+    episodes, log = _fly(*task)
+    return episodes, log.arrays(), round(time.perf_counter() - tic, 1)
+
+
 def run_study(
-    seeds: int, first_seed: int, quick: bool, free_seeds: int | None = None
+    seeds: int, first_seed: int, quick: bool, free_seeds: int | None = None, jobs: int = 1
 ) -> dict[str, Any]:
-    """Fly every case in both modes; the result as plain data (and the step logs apart).
+    """Fly every case in every mode; the result as plain data (and the step logs apart).
 
     Args:
         seeds: Episodes per fault row (seeds ``first_seed`` …).
@@ -182,32 +208,39 @@ def run_study(
         quick: 20 s episodes (onsets still 10–15 s).
         free_seeds: Episodes of the fault-free rows (default 50, quick ``seeds``): enough
             scans to measure a false-alarm rate of the budget's order.
+        jobs: Rows flown at a time, each in its own spawned process (1: in this one); the
+            results do not depend on it.
     """
     free_count = free_seeds or (seeds if quick else FREE_SEEDS)
     duration = 20.0 if quick else None
-    rows: list[dict[str, Any]] = []
-    logs: dict[tuple[str, str], list[dict[str, np.ndarray]]] = {}
+    row_modes = modes()
+    tasks = []
     for case in FAULTS:
         count = free_count if case == "fault_free" else seeds
         seed_list = list(range(first_seed, first_seed + count))
-        for mode in MODES:
-            tic = time.perf_counter()
-            episodes, log = _fly(case, mode, seed_list, duration)
-            series = log.arrays()
-            logs[(case, mode)] = series
-            summary = row_summary(series, case in _SIGHTED)
-            rows.append(
-                {"case": case, "mode": mode, "faults": FAULTS[case], "seeds": seed_list,
-                 "summary": summary, "wall_s": round(time.perf_counter() - tic, 1),
-                 "episodes": episodes}
-            )  # fmt: skip
+        tasks += [(case, mode, seed_list, duration) for mode in row_modes]
+    if jobs > 1:
+        with ProcessPoolExecutor(jobs, mp.get_context("spawn")) as pool:
+            flown = list(pool.map(_row, tasks))
+    else:
+        flown = [_row(task) for task in tasks]
+    rows: list[dict[str, Any]] = []
+    logs: dict[tuple[str, str], list[dict[str, np.ndarray]]] = {}
+    for (case, mode, seed_list, _), (episodes, series, wall) in zip(tasks, flown, strict=True):
+        logs[(case, mode)] = series
+        rows.append(
+            {"case": case, "mode": mode, "faults": FAULTS[case], "seeds": seed_list,
+             "summary": row_summary(series, case in _SIGHTED), "wall_s": wall,
+             "episodes": episodes}
+        )  # fmt: skip
     free = {r["mode"]: r["summary"]["late_err_h_rms_m"] for r in rows if r["case"] == "fault_free"}
     for r in rows:
         base = free.get(r["mode"])
         late = r["summary"]["late_err_h_rms_m"]
         r["summary"]["late_err_vs_fault_free"] = _ratio(late, base) if base else None
     settings = {"scenario": SCENARIO, "first_seed": first_seed, "quick": quick,
-                "alert_limit_m": ALERT_LIMIT_M, "p_fa": P_FA, "p_hmi": P_HMI}  # fmt: skip
+                "alert_limit_m": ALERT_LIMIT_M, "p_fa": P_FA, "p_hmi": P_HMI,
+                "modes": list(row_modes)}  # fmt: skip
     return {"settings": settings, "rows": rows, "_logs": logs}
 
 
@@ -249,10 +282,11 @@ def plot_study(result: dict[str, Any], folder: Path) -> Path:
 
     logs = result["_logs"]
     cases = list(FAULTS)
-    fig = Figure(figsize=(3.0 * len(cases), 3.0 * len(MODES)), constrained_layout=True)
-    axes = fig.subplots(len(MODES), len(cases), squeeze=False)
+    rows = list(dict.fromkeys(mode for _, mode in logs))
+    fig = Figure(figsize=(3.0 * len(cases), 3.0 * len(rows)), constrained_layout=True)
+    axes = fig.subplots(len(rows), len(cases), squeeze=False)
     bins = np.logspace(-3, 1.5, 60)
-    for i, mode in enumerate(MODES):
+    for i, mode in enumerate(rows):
         for j, case in enumerate(cases):
             ax = axes[i, j]
             series = logs[(case, mode)]
@@ -266,12 +300,12 @@ def plot_study(result: dict[str, Any], folder: Path) -> Path:
             ax.set_xscale("log")
             ax.set_yscale("log")
             ax.set_title(f"{case}, {mode}", fontsize=8)
-            if i == len(MODES) - 1:
+            if i == len(rows) - 1:
                 ax.set_xlabel("horizontal error [m]")
             if j == 0:
                 ax.set_ylabel("HPL [m]")
-    fig.suptitle(f"Stanford diagrams: DF-LQR on EKF-SLAM, {SCENARIO}, alert limit "
-                 f"{ALERT_LIMIT_M} m (red)")  # fmt: skip
+    fig.suptitle(f"Stanford diagrams: DF-LQR on EKF-SLAM and (isam2_ rows) iSAM2, {SCENARIO}, "
+                 f"alert limit {ALERT_LIMIT_M} m (red)")  # fmt: skip
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / "integrity_stanford.png"
     atomic_produce(path, lambda tmp: fig.savefig(tmp, dpi=110))
