@@ -15,7 +15,9 @@
 * :mod:`estimators.isam2.tangent` — the env's (ρ, v_B, Λ) against GTSAM's tangent space;
 * :mod:`estimators.isam2.settings` — :class:`Isam2Settings`, the validated parameters;
 * :mod:`estimators.isam2.team` — the team env's vehicles sharing one smoother and one map
-  (``team.fusion: centralised``).
+  (``team.fusion: centralised``);
+* :mod:`estimators.isam2.fde` — the integrity monitor: EKF-SLAM's tests and exclusion on the
+  smoother's belief at each scan, and the retired landmarks' keys.
 
 Importing this package does not import GTSAM: building the estimator does, and fails with a
 :class:`~quadslam_env.schema.ConfigError` naming the extra when it is missing.

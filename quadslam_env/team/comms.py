@@ -17,6 +17,9 @@ no draw); a message that reaches it is fused at the start of the step
 :class:`~quadslam_env.estimation.protocol.FusesLandmarks` (the math is the estimator's:
 :mod:`estimators.ekf.fusion`). A message for a vehicle that has ended is discarded.
 
+With ``centralised`` the vehicles' estimators are one, and what they send is their
+measurements (:class:`Uplink`).
+
 Coordination only: no estimation math here.
 """
 
@@ -29,7 +32,14 @@ import numpy as np
 
 from quadslam_env.estimation.protocol import BatchEstimator, FusesLandmarks
 from quadslam_env.estimation.snapshot import BatchEstimate
-from quadslam_env.team.config import FLOAT_BYTES, TeamConfig, message_floats
+from quadslam_env.sim.scans import Scans
+from quadslam_env.team.config import (
+    FLOAT_BYTES,
+    IMU_SAMPLE_FLOATS,
+    RETURN_FLOATS,
+    TeamConfig,
+    message_floats,
+)
 from quadslam_env.types import FloatArray
 
 COUNT_KEYS = (
@@ -183,3 +193,32 @@ class Comms:
     def terms(self) -> dict[str, float]:
         """The episode's counts so far (:data:`COUNT_KEYS`) as floats."""
         return {key: float(value) for key, value in self.counts.items()}
+
+
+class Uplink:
+    """What the vehicles of a centralised team (``team.fusion: centralised``) send to the one
+    estimator: each step every IMU sample (:data:`~quadslam_env.team.config.IMU_SAMPLE_FLOATS`
+    floats) and every scan (its time and each return's id and measurement,
+    :data:`~quadslam_env.team.config.RETURN_FLOATS`), :data:`FLOAT_BYTES` per float: the
+    measurements the one graph needs from each vehicle, had it run elsewhere.
+
+    Args:
+        imu_per_step: IMU samples per control step.
+    """
+
+    def __init__(self, imu_per_step: int) -> None:
+        self.imu_per_step = imu_per_step
+        self.bytes_sent = 0
+
+    def reset(self) -> None:
+        """A new episode: nothing sent."""
+        self.bytes_sent = 0
+
+    def send(self, stepped: np.ndarray, scans: Scans | None) -> None:
+        """Count the step's samples of the ``stepped`` (N,) bool vehicles and their ``scans``
+        (the core's last scan: ``None`` when no vehicle scanned)."""
+        floats = int(stepped.sum()) * self.imu_per_step * IMU_SAMPLE_FLOATS
+        if scans is not None:
+            lanes = scans.lanes[stepped[scans.lanes]]
+            floats += int((1 + RETURN_FLOATS * scans.n_returns[lanes]).sum())
+        self.bytes_sent += FLOAT_BYTES * floats

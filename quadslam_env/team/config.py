@@ -68,6 +68,15 @@ covariance of its k landmarks; ``blocks``, only their 3×3 blocks (docs/team.md 
 
 FLOAT_BYTES = 8
 """Bytes per float of a message (:func:`message_floats`)."""
+IMU_SAMPLE_FLOATS = 7
+"""An IMU sample as a vehicle sends it to a centralised estimator: its time, specific force (3)
+and rate (3)."""
+RETURN_FLOATS = 4
+"""A LiDAR return as a vehicle sends it to a centralised estimator: its landmark id and
+(α, β, δ); a scan adds its time (1)."""
+RANGE_FLOATS = 3
+"""A range between two vehicles sent to a centralised estimator: the two vehicles and the
+range."""
 
 
 def message_floats(k: int, covariance: str) -> int:

@@ -13,7 +13,8 @@ the start of a later one). With ``team.ranges`` the vehicles measure their dista
 (:class:`~quadslam_env.team.ranging.Ranges`: at the end of a range epoch's step, fused with
 ``range_fusion: ci`` at the start of the next). With ``centralised`` the vehicles' estimators are
 one (:meth:`~quadslam_env.estimation.lane_loop.LaneLoop.join_team`: iSAM2's vehicles share one
-factor graph and one map), so nothing is sent. The team's map terms are read from the lane
+factor graph and one map), and what the vehicles send is their measurements
+(:class:`~quadslam_env.team.comms.Uplink`). The team's map terms are read from the lane
 snapshots (:class:`~quadslam_env.team.map_metrics.MapMetrics`).
 The core's check across lanes ends two vehicles that collide
 (:class:`~quadslam_env.team.collision.Collisions`). A vehicle that ends leaves ``agents``
@@ -42,7 +43,7 @@ from quadslam_env.extras import require
 from quadslam_env.memory import check_env_memory
 from quadslam_env.schema import ConfigError
 from quadslam_env.team.collision import Collisions
-from quadslam_env.team.comms import Comms
+from quadslam_env.team.comms import Comms, Uplink
 from quadslam_env.team.config import SHARING, TeamConfig, parse_vehicles
 from quadslam_env.team.map_metrics import MapMetrics
 from quadslam_env.team.metrics import TeamMetrics
@@ -131,6 +132,9 @@ class TeamParallelEnv(ParallelEnv):
         if self.team.fusion in SHARING:
             control_hz = self.scenario.episode.control_hz
             self._comms = Comms(self.team, n, self.scenario.lidar_every, control_hz)
+        self._uplink: Uplink | None = None
+        if self.team.fusion == "centralised":
+            self._uplink = Uplink(self.scenario.imu_per_step)
         self._ranges: Ranges | None = None
         if self.team.ranges:
             self._ranges = Ranges(self.team, n, self.scenario.episode.control_hz)
@@ -191,6 +195,8 @@ class TeamParallelEnv(ParallelEnv):
         self._maps.reset()
         if self._comms is not None:
             self._comms.reset(self._rngs)
+        if self._uplink is not None:
+            self._uplink.reset()
         if self._ranges is not None:  # spawned after the messages' generators
             self._ranges.reset(self._rngs)
         err = np.array([row.get("est_pos_err_m", math.nan) for row in infos])
@@ -221,8 +227,10 @@ class TeamParallelEnv(ParallelEnv):
         """The episode's message counts so far and the bytes of the ranges' broadcasts (in
         ``team_bytes_sent``); empty with neither."""
         out = {} if self._comms is None else self._comms.terms()
+        if self._uplink is not None:
+            out["team_bytes_sent"] = float(self._uplink.bytes_sent)
         ranges = self._ranges
-        if ranges is not None and ranges.fusion == "ci":
+        if ranges is not None and ranges.fusion in ("ci", "factor"):
             out["team_bytes_sent"] = out.get("team_bytes_sent", 0.0) + float(ranges.bytes_sent)
         return out
 
@@ -260,6 +268,8 @@ class TeamParallelEnv(ParallelEnv):
         if ranges is not None:  # the last epoch's ranges, fused before the step (ci)
             ranges.deliver(core.estimator, live)
         obs, reward, terminated, truncated, info = core.step(act, live)
+        if self._uplink is not None:  # the step's measurements, to the one estimator
+            self._uplink.send(live, core.last_scan)
         self._steps_done += 1
         err = info["est_pos_err_m"]
         self._metrics.add(err, live)

@@ -11,7 +11,8 @@ messages' drops are those without ranges. Both ends of the pair measure the rang
 ranging).
 
 With ``team.range_fusion: ci`` each end broadcasts its position estimate with its 3×3
-covariance at the epoch (3 + 6 floats, counted once per vehicle in ``team_bytes_sent``), and at
+covariance at the epoch (3 + 6 floats, counted once per vehicle in ``team_bytes_sent``; with
+``factor``, one end sends the range to the team's one graph, 3 floats), and at
 the start of the next step, before the step's prediction, each live vehicle fuses every range
 it measured with the other's broadcast estimate, by the estimator's
 :class:`~quadslam_env.estimation.protocol.FusesRanges` (the math is the estimator's:
@@ -32,7 +33,7 @@ from quadslam_env.estimation.lane_loop import LaneLoop
 from quadslam_env.estimation.protocol import BatchEstimator, FusesRanges
 from quadslam_env.estimation.snapshot import BatchEstimate
 from quadslam_env.team.comms import rate_ticks
-from quadslam_env.team.config import BEACON_FLOATS, FLOAT_BYTES, TeamConfig
+from quadslam_env.team.config import BEACON_FLOATS, FLOAT_BYTES, RANGE_FLOATS, TeamConfig
 from quadslam_env.types import FloatArray
 
 VEHICLE_KEYS = (
@@ -158,6 +159,8 @@ class Ranges:
             self.residual_rms_m[k] = math.sqrt(sum(sq[k]) / len(sq[k]))
         if self.fusion == "ci":
             self.bytes_sent += FLOAT_BYTES * BEACON_FLOATS * int(broadcast.sum())
+        elif self.fusion == "factor":  # one end sends each range to the team's one graph
+            self.bytes_sent += FLOAT_BYTES * RANGE_FLOATS * len(self._pending)
 
     def deliver(self, estimator: BatchEstimator, live: np.ndarray) -> None:
         """At the start of a step: each ``live`` (N,) vehicle fuses the ranges of the last

@@ -139,6 +139,29 @@ def test_ranges_as_factors_are_fused_at_each_epoch() -> None:
     assert sum(fused) == 4
 
 
+def test_the_uplink_counts_every_sample_return_and_range_the_graph_takes() -> None:
+    """``team_bytes_sent`` of a centralised team: 8 bytes per float of every IMU sample (7),
+    every scan (1, its time) and return (4), and every range (3), recounted from the steps."""
+    team = {"fusion": "centralised", "ranges": True, "range_fusion": "factor"}
+    env = parallel_env(
+        n_vehicles=2, scenario=SCENARIO, team=team, estimator_name="isam2", episode=EPISODE
+    )
+    obs, _ = env.reset(seed=2)
+    policy = DFLQRPolicy.from_env(gym.make("QuadSLAM-v0", scenario=SCENARIO, episode=EPISODE))
+    scenario, floats, steps = env.scenario, 0, 0
+    while env.agents:
+        live = list(env.agents)
+        act = {agent: policy.predict(obs[agent], deterministic=True)[0] for agent in live}
+        obs, _, _, _, infos = env.step(act)
+        steps += 1
+        floats += 7 * scenario.imu_per_step * len(live)
+        if steps % scenario.lidar_every == 0:
+            floats += sum(1 + 4 * int(infos[a]["est_n_visible"]) for a in live)
+        floats += 3 * int(infos[live[0]]["team_ranges_measured"])  # both vehicles' one range
+        last = infos[live[0]]
+    assert steps == 400 and last["team_episode_bytes_sent"] == 8 * floats
+
+
 @pytest.mark.parametrize(
     ("kwargs", "fragment"),
     [

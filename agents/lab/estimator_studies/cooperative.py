@@ -93,7 +93,6 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
     episode = {} if duration_s is None else {"duration_s": duration_s}
     policy = DFLQRPolicy.from_env(gym.make("QuadSLAM-v0", scenario=SCENARIO, episode=episode))
     estimator = "isam2" if _isam2(row) else None
-    central = _team(row)["fusion"] == "centralised"  # its bytes are not counted
     env = parallel_env(n_vehicles=n_vehicles, scenario=SCENARIO, team=_team(row),
                        estimator_name=estimator, episode=episode)  # fmt: skip
     obs, _ = env.reset(seed=seed)
@@ -114,7 +113,7 @@ def fly(n_vehicles: int, row: str, seed: int, duration_s: float | None) -> dict[
         "nees_sum": json_float(sum(i["est_landmark_anees"] * i["est_n_mapped"] for i in ends)),
         "landmarks": int(sum(i["est_n_mapped"] for i in ends)),
         "ended_early": int(sum(bool(i.get("termination_reason")) for i in ends)),
-        "bytes": None if central else float(final.get("team_episode_bytes_sent", 0.0)),
+        "bytes": float(final.get("team_episode_bytes_sent", 0.0)),
         "range_omega_median": float(np.median(omegas)) if omegas else None,
         "range_omega_below_0.99": float(np.mean(np.less(omegas, 0.99))) if omegas else None,
         "map0": {"ids": ids.tolist(), "means": means.tolist(), "covs": covs.tolist(),
