@@ -7,8 +7,9 @@ the monitor detecting only (``integrity.monitor: detect``: the filter is the unm
 its protection levels and alarms are reported), on the filter without its χ² gate and with it,
 excluding (``exclude``: the landmarks found faulty are left out and dropped from the map), and
 excluding with the sequential test as well (``integrity.sequential_window``); and on the iSAM2
-smoother's estimate (same scenario, ``estimator.name: isam2``), excluding with and without the
-sequential test (:mod:`estimators.isam2.fde`; without GTSAM these rows are left out). Per row: the
+smoother's estimate (same scenario, ``estimator.name: isam2``), detecting, and excluding with
+and without the sequential test (:mod:`estimators.isam2.fde`; without GTSAM these rows are
+left out). Per row: the
 false-alarm rate on fault-free scans against the budget, misleading and hazardously misleading
 information, availability, the share of fault-free steps the protection levels bound and how
 far above the error they sit, detection within 3 s and the time to alert (for a moving or a
@@ -59,8 +60,9 @@ EKF_MODES = ("detect_no_gate", "detect", "exclude", "exclude_sequential")
 """The monitor's rows on EKF-SLAM: detecting without its per-landmark χ² gate
 (``gate_probability: 1``: every return used, as the paper's filter), detecting on the gated
 filter, excluding, and excluding with the sequential test as well."""
-ISAM2_MODES = ("isam2_exclude", "isam2_exclude_sequential")
-"""The monitor's rows on the iSAM2 smoother (which has no gate on labeled returns)."""
+ISAM2_MODES = ("isam2_detect", "isam2_exclude", "isam2_exclude_sequential")
+"""The monitor's rows on the iSAM2 smoother (which has no gate on labeled returns): detecting
+(the smoother is the unmonitored one), excluding, and excluding with the sequential test."""
 SEQUENTIAL_WINDOW = 10
 """``integrity.sequential_window`` of the ``exclude_sequential`` row: 1 s of scans."""
 _SERIES = ("t", "est_pos_err_h_m", "est_pos_err_v_m", "hpl_m", "vpl_m", "integrity_alert",
