@@ -4,6 +4,7 @@ per-step terms, and the vector env's lanes against the scalar env."""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 from typing import Any
 
@@ -123,10 +124,18 @@ def test_a_moving_landmark_is_detected_and_dropped() -> None:
     assert infos[-1]["episode_fde_missed_detection"] == 0.0
 
 
-@pytest.mark.parametrize("window", [None, 3])
-def test_lanes_equal_the_scalar_env_with_faults_and_monitor(window: int | None) -> None:
+NEEDS_GTSAM = pytest.mark.skipif(importlib.util.find_spec("gtsam") is None, reason="no gtsam")
+
+
+@pytest.mark.parametrize(
+    ("estimator", "window"),
+    [("ekf_slam", None), ("ekf_slam", 3), pytest.param("isam2", None, marks=NEEDS_GTSAM)],
+)
+def test_lanes_equal_the_scalar_env_with_faults_and_monitor(
+    estimator: str, window: int | None
+) -> None:
     monitor = {"integrity": {**MONITOR["integrity"], "sequential_window": window}}
-    kwargs = {"scenario": SCENARIO, **SHORT, **monitor, **MOVING}
+    kwargs = {"scenario": SCENARIO, **SHORT, **monitor, **MOVING, "estimator": {"name": estimator}}
     seeds, steps = [4, 5], 300
     vec = gym.make_vec("QuadSLAM-v0", num_envs=2, vectorization_mode="vector_entry_point",
                        **kwargs)  # fmt: skip
