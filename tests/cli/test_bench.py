@@ -72,7 +72,7 @@ def test_document_is_wellformed(tiny_run) -> None:
     assert {"predict", "update", "registration"} <= names
     labels = ["oracle", "ekf_slam", f"fastslam_N{TINY.fast_env_particles[0]}"]
     if importlib.util.find_spec("gtsam") is not None:
-        labels += ["isam2_known_map", "isam2"]
+        labels += ["isam2_known_map", "isam2", "isam2_integrity"]
     for label in labels:
         assert f"steps_per_s/{label}/dflqr" in names
         assert f"real_time_factor/{label}/dflqr" in names

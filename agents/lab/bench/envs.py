@@ -107,6 +107,9 @@ def bench_env(results: Results, plan: Plan) -> None:
         cases.append(("QuadSLAM-v0", "isam2_known_map",
                       {"scenario": "paper_ekf_figure8_known", **isam2}))  # fmt: skip
         cases.append(("QuadSLAM-v0", "isam2", {"scenario": "paper_ekf_figure8", **isam2}))
+        monitor = {"integrity": {"monitor": "exclude", "sequential_window": 10}}
+        cases.append(("QuadSLAM-v0", "isam2_integrity",  # its monitor's cost (docs/integrity.md)
+                      {"scenario": "paper_ekf_figure8", **isam2, **monitor}))  # fmt: skip
     for env_id, label, kwargs in cases:
         env = gym.make(env_id, **kwargs)
         base: Any = env.unwrapped  # a QuadSLAMEnv (gymnasium types it as Env)
