@@ -356,16 +356,26 @@ def _text_arrays(info: dict[str, Any]) -> None:
 
 
 def _vector_info(info: dict[str, Any]) -> dict[str, Any]:
-    """Gymnasium vector info: each (B,) array with a ``_key`` mask of the lanes it applies to."""
+    """Gymnasium vector info: each (B,) array with a ``_key`` mask of the lanes it applies to.
+
+    The numeric terms are stacked into one (K, B) float array and masked at once (False exactly
+    at NaN): a term costs a row view instead of three NumPy calls, which at a few lanes were
+    half of a step. Each term is a row of that fresh array, so no core buffer is handed out.
+    """
+    text = [key for key in info if key in TEXT_INFO_KEYS]
+    keys = [key for key in info if key not in TEXT_INFO_KEYS]
     out: dict[str, Any] = {}
-    for key, value in info.items():
-        if key in TEXT_INFO_KEYS:
-            arr = np.asarray(value, dtype=object)
-            mask = arr != ""
-        else:
-            arr = np.asarray(value, dtype=float)
-            mask = arr == arr  # False exactly at NaN; one ufunc instead of isnan and invert
-        if np.count_nonzero(mask):  # cheaper than mask.any() (no ufunc reduction)
+    if keys:
+        values = np.array([info[key] for key in keys], dtype=float)
+        masks = values == values
+        for row in np.flatnonzero(masks.any(axis=1)).tolist():
+            key = keys[row]
+            out[key] = values[row]
+            out[f"_{key}"] = masks[row]
+    for key in text:
+        arr = np.asarray(info[key], dtype=object)
+        mask = arr != ""
+        if mask.any():
             out[key] = arr
             out[f"_{key}"] = mask
     return out
