@@ -346,8 +346,7 @@ class Isam2Slam(Isam2Output, ImuHistory, TeamMember, Isam2Monitor):
             self._smoother.update()
 
     def _associate(self, meas: FloatArray, sigma: FloatArray, pred: PosePrediction) -> Labeled:
-        """Label an unlabeled scan on the smoother's belief ``pred`` at the scan
-        (:mod:`estimators.isam2.associate`)."""
+        """Label an unlabeled scan on the belief ``pred`` (:mod:`estimators.isam2.associate`)."""
         if self._known is not None:
             lms, covs = self._known, dict.fromkeys(self._known, np.zeros((3, 3)))
         else:
@@ -366,9 +365,8 @@ class Isam2Slam(Isam2Output, ImuHistory, TeamMember, Isam2Monitor):
         return PosePrediction(pose.rotation().matrix(), pose.translation(), pose_cov, k, Fp)
 
     def _scan_joint(self, pred: PosePrediction, ids: list[int]) -> FloatArray:
-        """(6 + 3M)² covariance of the scan's pose ``pred`` and the landmarks ``ids`` (M): the
-        keyframe's joint marginal with the landmarks mapped through the IMU transition (cross
-        terms ``F Σ_kl``); a known map's landmarks have zero blocks."""
+        """(6 + 3M)² covariance of the pose ``pred`` and landmarks ``ids``: the keyframe's joint
+        marginal through the IMU transition (cross terms ``F Σ_kl``); a known map's are zero."""
         n = 3 * len(ids)
         out = np.zeros((6 + n, 6 + n))
         out[:6, :6] = pred.cov

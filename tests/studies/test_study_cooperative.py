@@ -70,7 +70,7 @@ def test_tiny_study_against_the_single_env_and_its_definitions(
         assert central["vs_independent"] == pytest.approx(
             central["map_rmse_m"] / alone["map_rmse_m"]
         )
-        assert central["kb_sent"] is None  # not counted: every measurement at one estimator
+        assert central["kb_sent"] > alone["kb_sent"] == 0  # the measurements sent to the graph
         ranged = rows[2, "centralised_ranges"]
         assert ranged["vs_independent"] == pytest.approx(ranged["map_rmse_m"] / alone["map_rmse_m"])
     text = study.format_study(result)
