@@ -56,7 +56,8 @@ MODE = "exclude_sequential"
 def episode(seed: int) -> dict[str, Any]:
     """Fly one episode; its evidence bound and the study's step series for the same row."""
     env = gym.make("QuadSLAM-v0", scenario=SCENARIO, **_overrides("landmark_moves", MODE, None))
-    core = env.unwrapped.core
+    base: Any = env.unwrapped  # a QuadSLAMEnv (gymnasium types it as Env)
+    core = base.core
     sigma = np.asarray(core.lidar.sigma, dtype=float)  # (σ_α rad, σ_β rad, σ_δ m)
     policy = DFLQRPolicy.from_env(env)
     obs, _ = env.reset(seed=seed)
