@@ -158,19 +158,23 @@ class Isam2Monitor:
         keep = np.ones(len(rows), dtype=bool)
         if rows:
             ids = [scan.ids[j] for j in rows]
-            S, U, nu = self._innovations(pred, ids, scan.meas[rows], sigma)
+            lms = np.array([mapped[i] for i in ids], dtype=float)
+            S, U, nu = self._innovations(pred, ids, lms, scan.meas[rows], sigma)
             keep = self._test(S, U, nu, np.array(ids, dtype=np.int64), cfg, t)
         tested = {j: bool(keep[a]) for a, j in enumerate(rows)}
         used = [j for j in usable if tested.get(j, True)]
         return Labeled([scan.ids[j] for j in used], scan.meas[used].reshape(-1, 3), scan.earlier)
 
     def _innovations(
-        self, pred: PosePrediction, ids: list[int], meas: FloatArray, sigma: FloatArray
+        self,
+        pred: PosePrediction,
+        ids: list[int],
+        lms: FloatArray,
+        meas: FloatArray,
+        sigma: FloatArray,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(S (3k, 3k), U (3k, 3), ν (3k,))`` of the k returns ``meas`` of the landmarks
-        ``ids`` (module docstring)."""
-        mapped = self._lm_means if self._known is None else self._known
-        lms = np.array([mapped[i] for i in ids], dtype=float)
+        ``ids`` at ``lms`` (k, 3) m, N (module docstring)."""
         e, H_pose, H_lm = lidar_error(pred.dcm, pred.position, lms, meas)
         joint = self._scan_joint(pred, ids)
         r_diag = np.maximum(np.asarray(sigma, dtype=float).reshape(3), SIGMA_FLOOR) ** 2

@@ -33,12 +33,8 @@ of 20 s (a smoke run, not a result).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import multiprocessing as mp
-import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +43,7 @@ import numpy as np
 from agents.evaluation.episodes import json_float
 from agents.io.cpus import cpu_model
 from agents.io.outputs import atomic_produce, write_text_atomic
+from agents.lab.estimator_studies.flown_tasks import has_isam2, map_tasks
 
 SCENARIO = "paper_ekf_figure8"
 TEAM_SIZES = (1, 2, 4)
@@ -173,19 +170,12 @@ def run_study(
         duration_s: The episodes' length, s (default: 20 s quick, else the scenario's 50 s).
     """
     duration = duration_s if duration_s is not None else 20.0 if quick else None
-    isam2 = importlib.util.find_spec("gtsam") is not None
-    if not isam2:
-        print("cooperative: GTSAM is not installed; no iSAM2 rows (pip install "
-              "'quadslam[gtsam]')", file=sys.stderr)  # fmt: skip
+    isam2 = has_isam2("cooperative")
     cells = [(n, row) for n in sizes for row in _rows(n, max(sizes), isam2)]
     tasks = [
         (n, row, s, duration) for n, row in cells for s in range(first_seed, first_seed + seeds)
     ]
-    if jobs > 1:
-        with ProcessPoolExecutor(jobs, mp.get_context("spawn")) as pool:
-            flown = list(pool.map(_fly_task, tasks))
-    else:
-        flown = [_fly_task(t) for t in tasks]
+    flown = map_tasks(_fly_task, tasks, jobs)
     for i in range(len(cells)):  # the figure's map: each row's first seed only
         for episode in flown[i * seeds + 1 : (i + 1) * seeds]:
             del episode["map0"]

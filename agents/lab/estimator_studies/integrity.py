@@ -21,13 +21,9 @@ error against protection level, 2-D histogram, with the alert limit) of each row
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
-import multiprocessing as mp
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +32,7 @@ import numpy as np
 
 from agents.evaluation.episodes import json_float, run_episodes
 from agents.io.outputs import atomic_produce, write_text_atomic
+from agents.lab.estimator_studies.flown_tasks import has_isam2, map_tasks
 
 SCENARIO = "paper_ekf_figure8"
 ALERT_LIMIT_M = 0.5
@@ -96,11 +93,7 @@ class StepLog:
 
 def modes() -> tuple[str, ...]:
     """The rows' modes: EKF-SLAM's, and iSAM2's where GTSAM is installed."""
-    if importlib.util.find_spec("gtsam") is None:
-        print("integrity: GTSAM is not installed; no iSAM2 rows (pip install "
-              "'quadslam[gtsam]')", file=sys.stderr)  # fmt: skip
-        return EKF_MODES
-    return EKF_MODES + ISAM2_MODES
+    return EKF_MODES + ISAM2_MODES if has_isam2("integrity") else EKF_MODES
 
 
 def _overrides(case: str, mode: str, duration: float | None) -> dict[str, Any]:
@@ -221,11 +214,7 @@ def run_study(
         count = free_count if case == "fault_free" else seeds
         seed_list = list(range(first_seed, first_seed + count))
         tasks += [(case, mode, seed_list, duration) for mode in row_modes]
-    if jobs > 1:
-        with ProcessPoolExecutor(jobs, mp.get_context("spawn")) as pool:
-            flown = list(pool.map(_row, tasks))
-    else:
-        flown = [_row(task) for task in tasks]
+    flown = map_tasks(_row, tasks, jobs)
     rows: list[dict[str, Any]] = []
     logs: dict[tuple[str, str], list[dict[str, np.ndarray]]] = {}
     for (case, mode, seed_list, _), (episodes, series, wall) in zip(tasks, flown, strict=True):
